@@ -1,0 +1,37 @@
+/* impasto: the operator's command-line client and the offline tools.
+ * Exit codes: 0 success, 1 failure, 2 usage error, 3 bad input (file named in the message). */
+#include <stdio.h>
+#include <string.h>
+#include "commands.h"
+#include "log.h"
+
+/* Subcommands are declared weak so that the client links while a subcommand's module is
+ * not built in this configuration (say, without OpenCV); such a command is not offered. */
+#define IMP_COMMANDS(X) X(sim) X(process) X(compare) X(render) X(calibrate) X(plan) X(bench) \
+        X(status) X(devices) X(scan) X(jobs)
+#define DECLARE(n) extern const struct imp_command imp_cmd_##n __attribute__((weak));
+IMP_COMMANDS(DECLARE)
+#define ENTRY(n) &imp_cmd_##n,
+static const struct imp_command *const commands[] = { IMP_COMMANDS(ENTRY) };
+
+static void usage(FILE *f) {
+        fprintf(f, "usage: impasto COMMAND [ARGS…]\n\ncommands:\n");
+        for (size_t i = 0; i < sizeof commands / sizeof commands[0]; i++)
+                if (commands[i])
+                        fprintf(f, "  %-10s %s\n", commands[i]->name, commands[i]->summary);
+        fprintf(f, "\nexit codes: 0 ok, 1 failure, 2 usage, 3 bad input\n");
+}
+
+int main(int argc, char **argv) {
+        imp_log_set_ident("impasto");
+        if (argc < 2 || !strcmp(argv[1], "--help") || !strcmp(argv[1], "-h")) {
+                usage(argc < 2 ? stderr : stdout);
+                return argc < 2 ? 2 : 0;
+        }
+        for (size_t i = 0; i < sizeof commands / sizeof commands[0]; i++)
+                if (commands[i] && !strcmp(commands[i]->name, argv[1]))
+                        return commands[i]->run(argc - 1, argv + 1);
+        fprintf(stderr, "impasto: unknown command '%s'\n", argv[1]);
+        usage(stderr);
+        return 2;
+}

@@ -1,0 +1,66 @@
+/* Capture sets on disk (docs/capture-set.md): one directory per session, frames as 16-bit
+ * TIFF with their metadata, an append-only JSON-lines manifest, rig.json, the scan plan.
+ * Written crash-safely — frame to FILE.tmp, fsync, rename, fsync dir, then the manifest
+ * line, fsynced — so that a crash at any instant leaves a set that reopens and resumes.
+ * The simulator and the daemon write through this module; workers read through it. */
+#pragma once
+#include <stdbool.h>
+#include <stdint.h>
+#include "image.h"
+#include "rig.h"
+
+enum imp_pattern_kind { IMP_PAT_NONE, IMP_PAT_WHITE, IMP_PAT_BLACK, IMP_PAT_GRAY, IMP_PAT_PHASE };
+
+struct imp_pattern {
+        enum imp_pattern_kind kind;
+        int axis;                     /* 0: encodes projector columns (x), 1: rows (y) */
+        int bit;                      /* GRAY: bit index, 0 = most significant */
+        int nbits;                    /* GRAY: total bits for this axis */
+        bool inverse;                 /* GRAY: the inverted pattern */
+        double period_px;             /* PHASE: sinusoid period in projector pixels */
+        int step, steps;              /* PHASE: step i of N, phase offset 2π i / N */
+};
+
+struct imp_frame_record {
+        long long seq;                /* 0-based position in the plan */
+        char step[24];                /* "structured-light", "dome", "dark", "flat" */
+        char camera[32];
+        int tile;                     /* gantry position, 0 without gantry */
+        struct imp_pattern pattern;   /* kind NONE when the projector is dark */
+        int light;                    /* dome light id, -1 for none */
+        int exposure_index;           /* position in the exposure stack */
+        double exposure_us;
+        double gain_db;
+        long long t_light_on_ns, t_trigger_ns, t_frame_ns;
+        char file[64];                /* relative to the set, "frames/000012.tiff" */
+        uint32_t crc32;               /* of the frame file's bytes */
+};
+
+struct imp_captureset;   /* opaque */
+
+/* Creates DIR (must not exist or be empty) with set.json, rig.json and a copy of the
+ * plan file (plan_path may be NULL). Caller closes with imp_captureset_close(). */
+int imp_captureset_create(const char *dir, const struct imp_rig *rig, const char *plan_path,
+                          struct imp_captureset **ret, struct imp_error *err);
+/* Opens an existing set for reading and appending. A torn last manifest line, a frame
+ * file without a manifest line, or a leftover .tmp is repaired (dropped); a frame whose
+ * checksum does not match is an error naming it. */
+int imp_captureset_open(const char *dir, struct imp_captureset **ret, struct imp_error *err);
+void imp_captureset_close(struct imp_captureset *cs);
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_captureset *, imp_captureset_close);
+
+/* Appends a frame: rec->file and rec->crc32 are filled in here. */
+int imp_captureset_add_frame(struct imp_captureset *cs, struct imp_frame_record *rec,
+                             const struct imp_image *frame, struct imp_error *err);
+
+size_t imp_captureset_count(const struct imp_captureset *cs);
+const struct imp_frame_record *imp_captureset_record(const struct imp_captureset *cs, size_t i);
+const struct imp_rig *imp_captureset_rig(const struct imp_captureset *cs);
+const char *imp_captureset_dir(const struct imp_captureset *cs);
+/* Loads frame i (u16, raw digital numbers), verifying its checksum. */
+int imp_captureset_load_frame(const struct imp_captureset *cs, size_t i, struct imp_image **ret,
+                              struct imp_error *err);
+
+json_t *imp_frame_record_to_json(const struct imp_frame_record *rec);
+int imp_frame_record_from_json(const json_t *j, const char *what, struct imp_frame_record *ret,
+                               struct imp_error *err);

@@ -1,0 +1,73 @@
+/* The image type every impasto module passes around, and its file formats:
+ * PNG (libpng, 8/16-bit), TIFF (libtiff, 8/16-bit/float, metadata in ImageDescription),
+ * OpenEXR (OpenEXR 3 C API, half/float channels, ZIP compression).
+ * Pixels are interleaved, rows `stride` bytes apart. Library code: no logging. */
+#pragma once
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+#include "error.h"
+
+enum imp_pixel_type { IMP_PIX_U8, IMP_PIX_U16, IMP_PIX_F32 };
+
+struct imp_image {
+        int width, height;
+        int channels;                 /* 1..4 for files; any count in memory */
+        enum imp_pixel_type type;
+        size_t stride;                /* bytes per row, >= width * channels * sample size */
+        void *data;                   /* owned by the image */
+};
+
+size_t imp_pixel_type_size(enum imp_pixel_type t);
+const char *imp_pixel_type_name(enum imp_pixel_type t);
+
+/* Allocates a zeroed image. Caller frees with imp_image_free(). -EINVAL on bad size,
+ * -ENOMEM when out of memory. */
+int imp_image_new(int width, int height, int channels, enum imp_pixel_type type,
+                  struct imp_image **ret);
+void imp_image_free(struct imp_image *img);
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_image *, imp_image_free);
+#define _cleanup_image_ _cleanup_(imp_image_freep)
+int imp_image_dup(const struct imp_image *src, struct imp_image **ret);
+/* Converts to float (u8/u16 values kept as raw numbers, not normalised). */
+int imp_image_to_f32(const struct imp_image *src, struct imp_image **ret);
+
+static inline void *imp_image_row(const struct imp_image *img, int y) {
+        return (uint8_t *) img->data + (size_t) y * img->stride;
+}
+static inline float *imp_image_f32(const struct imp_image *img, int x, int y) {
+        return (float *) imp_image_row(img, y) + (size_t) x * img->channels;
+}
+static inline uint16_t *imp_image_u16(const struct imp_image *img, int x, int y) {
+        return (uint16_t *) imp_image_row(img, y) + (size_t) x * img->channels;
+}
+static inline uint8_t *imp_image_u8(const struct imp_image *img, int x, int y) {
+        return (uint8_t *) imp_image_row(img, y) + (size_t) x * img->channels;
+}
+/* Sample c of pixel (x, y) as a double whatever the type. */
+double imp_image_get(const struct imp_image *img, int x, int y, int c);
+
+/* PNG: 8- or 16-bit, 1-4 channels (grey, grey+alpha, RGB, RGBA). Exact round trip. */
+int imp_png_write(const char *path, const struct imp_image *img, struct imp_error *err);
+int imp_png_read(const char *path, struct imp_image **ret, struct imp_error *err);
+
+/* TIFF: u8, u16 or f32, 1-4 channels; `description` (may be NULL) goes into the
+ * ImageDescription tag (frames store their metadata there as JSON). Exact round trip.
+ * On read, *ret_description (if not NULL) receives a malloc'd copy or NULL. */
+int imp_tiff_write(const char *path, const struct imp_image *img, const char *description,
+                   struct imp_error *err);
+int imp_tiff_read(const char *path, struct imp_image **ret, char **ret_description,
+                  struct imp_error *err);
+
+/* OpenEXR (C API, ZIP compression): an f32 image with one named channel per image
+ * channel (names[c], e.g. "R","G","B" or "height","nx","ny"); half=true stores HALF.
+ * Read returns f32 with the file's channels in file order; *ret_names (if not NULL)
+ * gets a NULL-terminated malloc'd array of malloc'd names (free with imp_strv_free). */
+int imp_exr_write(const char *path, const struct imp_image *img, const char *const *names,
+                  bool half, struct imp_error *err);
+int imp_exr_read(const char *path, struct imp_image **ret, char ***ret_names,
+                 struct imp_error *err);
+void imp_strv_free(char **v);
+
+/* By extension (.png, .tif/.tiff, .exr). */
+int imp_image_read(const char *path, struct imp_image **ret, struct imp_error *err);
