@@ -17,7 +17,7 @@ int imp_error_set(struct imp_error *err, int code, const char *fmt, ...) {
 int imp_error_prefix(struct imp_error *err, const char *fmt, ...) {
         if (!err)
                 return 0;
-        char prefix[512], old[sizeof err->msg];
+        char prefix[sizeof err->msg], old[sizeof err->msg];
         va_list ap;
         va_start(ap, fmt);
         vsnprintf(prefix, sizeof prefix, fmt, ap);

@@ -10,6 +10,12 @@
 
 enum imp_pixel_type { IMP_PIX_U8, IMP_PIX_U16, IMP_PIX_F32 };
 
+/* Limits of imp_image_new() (and so of every reader): bigger images are refused with
+ * -EINVAL instead of attempting a huge allocation on a corrupt header. */
+#define IMP_IMAGE_MAX_SIDE      (1 << 16)               /* pixels per side */
+#define IMP_IMAGE_MAX_CHANNELS  256
+#define IMP_IMAGE_MAX_BYTES     ((size_t) 1 << 31)      /* total pixel data */
+
 struct imp_image {
         int width, height;
         int channels;                 /* 1..4 for files; any count in memory */
@@ -47,6 +53,15 @@ static inline uint8_t *imp_image_u8(const struct imp_image *img, int x, int y) {
 /* Sample c of pixel (x, y) as a double whatever the type. */
 double imp_image_get(const struct imp_image *img, int x, int y, int c);
 
+/* File readers and writers return 0 or a negative errno and fill err with a message
+ * naming the file and what was expected:
+ *   -ENOENT, -EACCES, ... the file cannot be opened (errno of open());
+ *   -EBADMSG      not a valid file of that format: empty, truncated, corrupt, wrong type;
+ *   -EMEDIUMTYPE  a valid file whose layout is not supported (e.g. 32-bit integer TIFF);
+ *   -EINVAL       bad arguments (e.g. writing an f32 image as PNG);
+ *   -ENOMEM, -EIO, -ENOSPC  out of memory, write failures.
+ * Writers replace the file; on failure no partial file is left under that name. */
+
 /* PNG: 8- or 16-bit, 1-4 channels (grey, grey+alpha, RGB, RGBA). Exact round trip. */
 int imp_png_write(const char *path, const struct imp_image *img, struct imp_error *err);
 int imp_png_read(const char *path, struct imp_image **ret, struct imp_error *err);
@@ -68,6 +83,9 @@ int imp_exr_write(const char *path, const struct imp_image *img, const char *con
 int imp_exr_read(const char *path, struct imp_image **ret, char ***ret_names,
                  struct imp_error *err);
 void imp_strv_free(char **v);
+/* Index of `name` in a NULL-terminated name array (as returned by imp_exr_read), or
+ * -ENOENT when absent. */
+int imp_image_channel_index(char **names, const char *name);
 
-/* By extension (.png, .tif/.tiff, .exr). */
+/* By extension (.png, .tif/.tiff, .exr; case-insensitive); -EINVAL for another. */
 int imp_image_read(const char *path, struct imp_image **ret, struct imp_error *err);

@@ -1,0 +1,389 @@
+/* OpenEXR reading and writing through the OpenEXR 3 Core C API: scanline files, ZIP
+ * compression, one named HALF or FLOAT channel per image channel, chunk-by-chunk encode and
+ * decode straight from/into the interleaved f32 image. The library's error callback keeps
+ * the first message in a thread-local buffer instead of printing it. */
+#include <errno.h>
+#include <fcntl.h>
+#include <inttypes.h>
+#include <openexr.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+#include "image.h"
+
+#define EXR_SAMPLE_BYTES 4      /* we always hand the library 32-bit floats */
+
+static _Thread_local char exr_msg[512];
+static _Thread_local int exr_file_errno;   /* errno seen with EXR_ERR_FILE_ACCESS */
+
+static void on_exr_error(exr_const_context_t ctxt, exr_result_t code, const char *msg) {
+        (void) ctxt;
+        /* called right after the failed open(): errno still says why */
+        if (code == EXR_ERR_FILE_ACCESS && !exr_file_errno && errno > 0)
+                exr_file_errno = errno;
+        if (!exr_msg[0])
+                snprintf(exr_msg, sizeof exr_msg, "%s", msg ? msg : exr_get_default_error_message(code));
+}
+
+static const char *exr_detail(exr_result_t rv) {
+        return exr_msg[0] ? exr_msg : exr_get_default_error_message(rv);
+}
+
+static exr_context_initializer_t exr_initializer(void) {
+        exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
+        init.error_handler_fn = on_exr_error;
+        exr_msg[0] = 0;
+        exr_file_errno = 0;
+        return init;
+}
+
+static void exr_finishp(exr_context_t *c) {
+        if (*c)
+                exr_finish(c);
+}
+
+/* ---- writing ---- */
+
+static int exr_write_errno(exr_result_t rv) {
+        if (rv == EXR_ERR_OUT_OF_MEMORY)
+                return -ENOMEM;
+        if (rv == EXR_ERR_FILE_ACCESS && exr_file_errno > 0)
+                return -exr_file_errno;
+        return -EIO;
+}
+
+static int find_name(const char *const *names, int n, const char *name) {
+        for (int i = 0; i < n; i++)
+                if (strcmp(names[i], name) == 0)
+                        return i;
+        return -1;
+}
+
+static int check_names(const char *path, const struct imp_image *img, const char *const *names,
+                       struct imp_error *err) {
+        if (!names)
+                return imp_error_set(err, -EINVAL, "%s: no channel names given", path);
+        for (int c = 0; c < img->channels; c++) {
+                if (!names[c] || !names[c][0])
+                        return imp_error_set(err, -EINVAL, "%s: channel %d has no name "
+                                             "(expected one name per channel)", path, c);
+                if (find_name(names, c, names[c]) >= 0)
+                        return imp_error_set(err, -EINVAL, "%s: channel name \"%s\" used twice "
+                                             "(expected unique names)", path, names[c]);
+        }
+        return 0;
+}
+
+static exr_result_t exr_write_header_for(exr_context_t ctxt, const struct imp_image *img,
+                                         const char *const *names, bool half) {
+        int part;
+        exr_result_t rv = exr_add_part(ctxt, "image", EXR_STORAGE_SCANLINE, &part);
+        if (rv == EXR_ERR_SUCCESS)
+                rv = exr_initialize_required_attr_simple(ctxt, part, img->width, img->height,
+                                                         EXR_COMPRESSION_ZIP);
+        for (int c = 0; c < img->channels && rv == EXR_ERR_SUCCESS; c++)
+                rv = exr_add_channel(ctxt, part, names[c], half ? EXR_PIXEL_HALF : EXR_PIXEL_FLOAT,
+                                     EXR_PERCEPTUALLY_LOGARITHMIC, 1, 1);
+        if (rv == EXR_ERR_SUCCESS)
+                rv = exr_write_header(ctxt);
+        return rv;
+}
+
+/* The library orders channels by name: each encoder channel finds its image channel. */
+static int point_encoder(exr_encode_pipeline_t *enc, const struct imp_image *img,
+                         const char *const *names, int start_y) {
+        for (int i = 0; i < enc->channel_count; i++) {
+                exr_coding_channel_info_t *ch = &enc->channels[i];
+                int c = find_name(names, img->channels, ch->channel_name);
+                if (c < 0)
+                        return -EINVAL;
+                ch->user_data_type = EXR_PIXEL_FLOAT;
+                ch->user_bytes_per_element = EXR_SAMPLE_BYTES;
+                ch->user_pixel_stride = img->channels * EXR_SAMPLE_BYTES;
+                ch->user_line_stride = (int32_t) img->stride;
+                ch->encode_from_ptr = (const uint8_t *) imp_image_f32(img, 0, start_y) +
+                                      (size_t) c * EXR_SAMPLE_BYTES;
+        }
+        return 0;
+}
+
+static exr_result_t exr_write_chunks(exr_context_t ctxt, const struct imp_image *img,
+                                     const char *const *names) {
+        exr_encode_pipeline_t enc = EXR_ENCODE_PIPELINE_INITIALIZER;
+        exr_result_t rv;
+        int32_t lines = 0;
+        bool started = false;
+
+        rv = exr_get_scanlines_per_chunk(ctxt, 0, &lines);
+        if (rv == EXR_ERR_SUCCESS && lines < 1)
+                rv = EXR_ERR_INVALID_ARGUMENT;
+        for (int y = 0; y < img->height && rv == EXR_ERR_SUCCESS; y += lines) {
+                exr_chunk_info_t cinfo;
+                rv = exr_write_scanline_chunk_info(ctxt, 0, y, &cinfo);
+                if (rv != EXR_ERR_SUCCESS)
+                        break;
+                rv = started ? exr_encoding_update(ctxt, 0, &cinfo, &enc)
+                             : exr_encoding_initialize(ctxt, 0, &cinfo, &enc);
+                if (rv != EXR_ERR_SUCCESS)
+                        break;
+                if (point_encoder(&enc, img, names, y) < 0)
+                        rv = EXR_ERR_INVALID_ARGUMENT;
+                if (rv == EXR_ERR_SUCCESS && !started)
+                        rv = exr_encoding_choose_default_routines(ctxt, 0, &enc);
+                started = true;
+                if (rv == EXR_ERR_SUCCESS)
+                        rv = exr_encoding_run(ctxt, 0, &enc);
+        }
+        if (started)
+                exr_encoding_destroy(ctxt, &enc);
+        return rv;
+}
+
+int imp_exr_write(const char *path, const struct imp_image *img, const char *const *names,
+                  bool half, struct imp_error *err) {
+        _cleanup_(exr_finishp) exr_context_t ctxt = NULL;
+        exr_result_t rv;
+        int r;
+
+        if (!path || !img)
+                return imp_error_set(err, -EINVAL, "imp_exr_write: no path or image given");
+        if (img->type != IMP_PIX_F32)
+                return imp_error_set(err, -EINVAL, "%s: cannot store a %s image as OpenEXR "
+                                     "(expected f32)", path, imp_pixel_type_name(img->type));
+        r = check_names(path, img, names, err);
+        if (r < 0)
+                return r;
+
+        exr_context_initializer_t init = exr_initializer();
+        /* Written under a temporary name and renamed by exr_finish() once complete. */
+        rv = exr_start_write(&ctxt, path, EXR_INTERMEDIATE_TEMP_FILE, &init);
+        if (rv != EXR_ERR_SUCCESS)
+                return imp_error_set(err, exr_write_errno(rv), "%s: cannot create OpenEXR file: %s",
+                                     path, exr_detail(rv));
+        rv = exr_write_header_for(ctxt, img, names, half);
+        if (rv != EXR_ERR_SUCCESS)      /* e.g. a channel name longer than EXR allows */
+                return imp_error_set(err, rv == EXR_ERR_OUT_OF_MEMORY ? -ENOMEM : -EINVAL,
+                                     "%s: cannot write OpenEXR header: %s", path, exr_detail(rv));
+        rv = exr_write_chunks(ctxt, img, names);
+        if (rv == EXR_ERR_SUCCESS)
+                rv = exr_finish(&ctxt);         /* writes the chunk table, renames */
+        if (rv != EXR_ERR_SUCCESS)
+                return imp_error_set(err, exr_write_errno(rv), "%s: cannot write OpenEXR file: %s",
+                                     path, exr_detail(rv));
+        return 0;
+}
+
+/* ---- reading ---- */
+
+static int exr_errno(exr_result_t rv) {
+        return rv == EXR_ERR_OUT_OF_MEMORY ? -ENOMEM : -EBADMSG;
+}
+
+/* Checks the part is something we can hold; returns the channel list and data window. */
+static int exr_layout(exr_context_t ctxt, const char *path, const exr_attr_chlist_t **ret_chans,
+                      exr_attr_box2i_t *ret_dw, struct imp_error *err) {
+        exr_storage_t storage;
+        exr_result_t rv;
+
+        rv = exr_get_storage(ctxt, 0, &storage);
+        if (rv == EXR_ERR_SUCCESS)
+                rv = exr_get_channels(ctxt, 0, ret_chans);
+        if (rv == EXR_ERR_SUCCESS)
+                rv = exr_get_data_window(ctxt, 0, ret_dw);
+        if (rv != EXR_ERR_SUCCESS)
+                return imp_error_set(err, exr_errno(rv), "%s: corrupt OpenEXR header: %s", path,
+                                     exr_detail(rv));
+        if (storage != EXR_STORAGE_SCANLINE)
+                return imp_error_set(err, -EMEDIUMTYPE, "%s: unsupported OpenEXR layout: %s "
+                                     "(expected scanline)", path,
+                                     storage == EXR_STORAGE_TILED ? "tiled" : "deep");
+        const exr_attr_chlist_t *chans = *ret_chans;
+        if (!chans || chans->num_channels < 1 || chans->num_channels > IMP_IMAGE_MAX_CHANNELS)
+                return imp_error_set(err, -EMEDIUMTYPE, "%s: unsupported OpenEXR layout: %d "
+                                     "channels (expected 1 to %d)", path,
+                                     chans ? chans->num_channels : 0, IMP_IMAGE_MAX_CHANNELS);
+        for (int c = 0; c < chans->num_channels; c++) {
+                const exr_attr_chlist_entry_t *e = &chans->entries[c];
+                if (e->x_sampling != 1 || e->y_sampling != 1)
+                        return imp_error_set(err, -EMEDIUMTYPE, "%s: unsupported OpenEXR layout: "
+                                             "channel %s subsampled %dx%d (expected 1x1)", path,
+                                             e->name.str, e->x_sampling, e->y_sampling);
+        }
+        int64_t w = (int64_t) ret_dw->max.x - ret_dw->min.x + 1;
+        int64_t h = (int64_t) ret_dw->max.y - ret_dw->min.y + 1;
+        if (w < 1 || h < 1 || w > IMP_IMAGE_MAX_SIDE || h > IMP_IMAGE_MAX_SIDE)
+                return imp_error_set(err, -EMEDIUMTYPE, "%s: unsupported OpenEXR data window "
+                                     "%" PRId64 "x%" PRId64 " (expected 1 to %d pixels per side)",
+                                     path, w, h, IMP_IMAGE_MAX_SIDE);
+        return 0;
+}
+
+/* Where a chunk's samples go: channel c of pixel x on line y of the chunk lands at
+ * base + y * line_stride + x * pixel_stride + c * 4. */
+struct decode_target {
+        uint8_t *base;
+        int32_t pixel_stride, line_stride;
+};
+
+/* Decoder channels come in channel-list order, which is also the image's channel order. */
+static void point_decoder(exr_decode_pipeline_t *dec, const struct decode_target *t) {
+        for (int c = 0; c < dec->channel_count; c++) {
+                exr_coding_channel_info_t *ch = &dec->channels[c];
+                ch->user_data_type = EXR_PIXEL_FLOAT;
+                ch->user_bytes_per_element = EXR_SAMPLE_BYTES;
+                ch->user_pixel_stride = t->pixel_stride;
+                ch->user_line_stride = t->line_stride;
+                ch->decode_to_ptr = t->base + (size_t) c * EXR_SAMPLE_BYTES;
+        }
+}
+
+/* OpenEXR 3.1's specialised unpacker for exactly four HALF channels decoded to
+ * interleaved FLOAT stores the channels in reverse order. Such files are decoded into a
+ * scratch buffer with one padding sample per pixel, which makes the library take its
+ * generic (correct) path, and copied from there. */
+static bool needs_padded_decode(const exr_attr_chlist_t *chans) {
+        if (chans->num_channels != 4)
+                return false;
+        for (int c = 0; c < chans->num_channels; c++)
+                if (chans->entries[c].pixel_type != EXR_PIXEL_HALF)
+                        return false;
+        return true;
+}
+
+static void copy_from_padded(struct imp_image *img, const float *scratch, int row, int lines) {
+        size_t n = (size_t) img->channels;
+        for (int y = 0; y < lines; y++)
+                for (int x = 0; x < img->width; x++)
+                        memcpy(imp_image_f32(img, x, row + y),
+                               scratch + ((size_t) y * img->width + x) * (n + 1), n * sizeof(float));
+}
+
+static int exr_read_chunks(exr_context_t ctxt, const char *path, const exr_attr_chlist_t *chans,
+                           const exr_attr_box2i_t *dw, struct imp_image *img, struct imp_error *err) {
+        exr_decode_pipeline_t dec = EXR_DECODE_PIPELINE_INITIALIZER;
+        _cleanup_free_ float *scratch = NULL;
+        exr_result_t rv = EXR_ERR_SUCCESS;
+        int32_t lines = 0;
+        bool started = false;
+        int y = dw->min.y;
+
+        rv = exr_get_scanlines_per_chunk(ctxt, 0, &lines);
+        if (rv == EXR_ERR_SUCCESS && (lines < 1 || lines > IMP_IMAGE_MAX_SIDE))
+                rv = EXR_ERR_INVALID_ATTR;
+        if (rv == EXR_ERR_SUCCESS && needs_padded_decode(chans)) {
+                scratch = calloc((size_t) lines * img->width * (img->channels + 1), sizeof(float));
+                if (!scratch)
+                        return imp_error_set(err, -ENOMEM, "%s: out of memory", path);
+        }
+        /* Chunks start at multiples of `lines` from the data window's top. */
+        for (; y <= dw->max.y && rv == EXR_ERR_SUCCESS; y += lines) {
+                exr_chunk_info_t cinfo;
+                rv = exr_read_scanline_chunk_info(ctxt, 0, y, &cinfo);
+                if (rv != EXR_ERR_SUCCESS)
+                        break;
+                if (cinfo.start_y < dw->min.y || cinfo.height < 1 || cinfo.height > lines ||
+                    cinfo.start_y + cinfo.height - 1 > dw->max.y) {
+                        rv = EXR_ERR_CORRUPT_CHUNK;
+                        break;
+                }
+                rv = started ? exr_decoding_update(ctxt, 0, &cinfo, &dec)
+                             : exr_decoding_initialize(ctxt, 0, &cinfo, &dec);
+                if (rv != EXR_ERR_SUCCESS)
+                        break;
+                int row = cinfo.start_y - dw->min.y;
+                struct decode_target t = {
+                        .base = (uint8_t *) imp_image_row(img, row),
+                        .pixel_stride = img->channels * EXR_SAMPLE_BYTES,
+                        .line_stride = (int32_t) img->stride,
+                };
+                if (scratch)
+                        t = (struct decode_target) {
+                                .base = (uint8_t *) scratch,
+                                .pixel_stride = (img->channels + 1) * EXR_SAMPLE_BYTES,
+                                .line_stride = img->width * (img->channels + 1) * EXR_SAMPLE_BYTES,
+                        };
+                point_decoder(&dec, &t);
+                if (!started)
+                        rv = exr_decoding_choose_default_routines(ctxt, 0, &dec);
+                started = true;
+                if (rv == EXR_ERR_SUCCESS)
+                        rv = exr_decoding_run(ctxt, 0, &dec);
+                if (rv == EXR_ERR_SUCCESS && scratch)
+                        copy_from_padded(img, scratch, row, cinfo.height);
+        }
+        if (started)
+                exr_decoding_destroy(ctxt, &dec);
+        if (rv != EXR_ERR_SUCCESS)
+                return imp_error_set(err, exr_errno(rv), "%s: truncated or corrupt OpenEXR data "
+                                     "at line %d: %s", path, y, exr_detail(rv));
+        return 0;
+}
+
+static int copy_names(const exr_attr_chlist_t *chans, char ***ret) {
+        char **v = calloc((size_t) chans->num_channels + 1, sizeof *v);
+        if (!v)
+                return -ENOMEM;
+        for (int c = 0; c < chans->num_channels; c++) {
+                v[c] = strdup(chans->entries[c].name.str);
+                if (!v[c]) {
+                        imp_strv_free(v);
+                        return -ENOMEM;
+                }
+        }
+        *ret = v;
+        return 0;
+}
+
+/* The library's "cannot open" carries no errno: find it ourselves, and catch empty files. */
+static int exr_precheck(const char *path, struct imp_error *err) {
+        struct stat st;
+        _cleanup_close_ int fd = open(path, O_RDONLY | O_CLOEXEC);
+        if (fd < 0 || fstat(fd, &st) < 0) {
+                int r = negative_errno();
+                return imp_error_set(err, r, "%s: cannot open OpenEXR file: %s", path, strerror(-r));
+        }
+        if (st.st_size == 0)
+                return imp_error_set(err, -EBADMSG, "%s: empty file (expected an OpenEXR image)", path);
+        return 0;
+}
+
+int imp_exr_read(const char *path, struct imp_image **ret, char ***ret_names,
+                 struct imp_error *err) {
+        _cleanup_(exr_finishp) exr_context_t ctxt = NULL;
+        _cleanup_image_ struct imp_image *img = NULL;
+        const exr_attr_chlist_t *chans = NULL;
+        exr_attr_box2i_t dw;
+        exr_result_t rv;
+        int r;
+
+        if (!path || !ret)
+                return imp_error_set(err, -EINVAL, "imp_exr_read: no path or result given");
+        r = exr_precheck(path, err);
+        if (r < 0)
+                return r;
+        exr_context_initializer_t init = exr_initializer();
+        rv = exr_start_read(&ctxt, path, &init);
+        if (rv != EXR_ERR_SUCCESS)
+                return imp_error_set(err, exr_errno(rv), "%s: not a valid OpenEXR file: %s", path,
+                                     exr_detail(rv));
+        r = exr_layout(ctxt, path, &chans, &dw, err);
+        if (r < 0)
+                return r;
+        r = imp_image_new(dw.max.x - dw.min.x + 1, dw.max.y - dw.min.y + 1, chans->num_channels,
+                          IMP_PIX_F32, &img);
+        if (r == -EINVAL)
+                return imp_error_set(err, -EMEDIUMTYPE, "%s: OpenEXR image too large (expected "
+                                     "at most %zu bytes of pixels)", path, IMP_IMAGE_MAX_BYTES);
+        if (r < 0)
+                return imp_error_set(err, r, "%s: cannot allocate the image: %s", path, strerror(-r));
+        r = exr_read_chunks(ctxt, path, chans, &dw, img, err);
+        if (r < 0)
+                return r;
+        if (ret_names) {
+                r = copy_names(chans, ret_names);
+                if (r < 0)
+                        return imp_error_set(err, r, "%s: out of memory", path);
+        }
+        *ret = TAKE_PTR(img);
+        return 0;
+}

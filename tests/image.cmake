@@ -1,0 +1,3 @@
+# Image type and its file formats (PNG, TIFF, OpenEXR): round trips and bad input.
+impasto_test(test-image)
+impasto_test(test-image-bad)
