@@ -66,6 +66,8 @@ struct imp_rig {
 };
 
 void imp_rig_free(struct imp_rig *rig);    /* frees members, not the struct */
+/* Deep copy (lights duplicated); *ret untouched on failure. Free with imp_rig_free(). */
+int imp_rig_copy(const struct imp_rig *src, struct imp_rig *ret);
 
 /* Projection with distortion: world point (mm) → pixel. Returns false if behind. */
 bool imp_pinhole_project(const struct imp_pinhole *m, const double X[3], double ret_px[2]);

@@ -17,16 +17,21 @@ int imp_error_set(struct imp_error *err, int code, const char *fmt, ...) {
 int imp_error_prefix(struct imp_error *err, const char *fmt, ...) {
         if (!err)
                 return 0;
-        char prefix[sizeof err->msg], old[sizeof err->msg];
+        char old[sizeof err->msg];
+        memcpy(old, err->msg, sizeof old);
+        old[sizeof old - 1] = 0;
         va_list ap;
         va_start(ap, fmt);
-        vsnprintf(prefix, sizeof prefix, fmt, ap);
+        int n = vsnprintf(err->msg, sizeof err->msg, fmt, ap);
         va_end(ap);
-        memcpy(old, err->msg, sizeof old);
-        size_t n = strnlen(prefix, sizeof err->msg - 1);
-        memcpy(err->msg, prefix, n);
-        size_t m = strnlen(old, sizeof err->msg - 1 - n);
-        memcpy(err->msg + n, old, m);
-        err->msg[n + m] = 0;
+        if (n < 0)
+                n = 0;
+        if ((size_t) n >= sizeof err->msg - 1)
+                return err->code;
+        size_t room = sizeof err->msg - 1 - (size_t) n, len = strlen(old);
+        if (len > room)
+                len = room;
+        memcpy(err->msg + n, old, len);
+        err->msg[n + len] = 0;
         return err->code;
 }

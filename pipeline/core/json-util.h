@@ -5,10 +5,17 @@
 #include <jansson.h>
 #include "error.h"
 
+/* jansson >= 2.11 defines json_decrefp (and json_auto_t) itself under GCC. */
+#ifndef json_auto_t
 DEFINE_TRIVIAL_CLEANUP_FUNC(json_t *, json_decref);
+#endif
 #define _cleanup_json_ _cleanup_(json_decrefp)
 
-/* `what` names the document in messages ("manifest.jsonl:17", "rig.json"). */
+/* `what` names the document in messages ("manifest.jsonl:17", "rig.json"): the message is
+ * "WHAT: KEY: expected …". A `what` ending in '.' or ' ' is a path prefix and the key is appended
+ * directly ("rig.json: cameras[0].sensor." + "bits" → "rig.json: cameras[0].sensor.bits: …").
+ * Optional getters leave *ret untouched when the key is absent or null, and return 0;
+ * required ones return -ENOENT. A wrong type is -EINVAL. Doubles accept integers. */
 int imp_json_get_double(const json_t *obj, const char *key, bool required, double *ret,
                         const char *what, struct imp_error *err);
 int imp_json_get_int(const json_t *obj, const char *key, bool required, long long *ret,
@@ -25,3 +32,7 @@ int imp_json_save_atomic(const char *path, const json_t *j, struct imp_error *er
 int imp_file_write_atomic(const char *path, const void *data, size_t size, struct imp_error *err);
 /* mkdir -p */
 int imp_mkdir_p(const char *path, int mode);
+/* fsync an existing file by path (e.g. one written by another library). */
+int imp_fsync_path(const char *path);
+/* fsync the directory that holds `path`, so that a rename or create in it is durable. */
+int imp_fsync_parent_dir(const char *path);
