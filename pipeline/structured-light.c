@@ -1,0 +1,759 @@
+/* Structured-light decoding: Gray code with inverses, robust bit classification after
+ * Xu & Aliaga (GI 2007) with the direct/global estimates of Moreno & Taubin (3DIMPVT
+ * 2012), and N-step phase shifting unwrapped against the Gray code. Rows are independent:
+ * each thread decodes whole rows with its own scratch rows, nothing is allocated per
+ * pixel, and the inner loops are branch-free so that they vectorize. */
+#include <errno.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+#ifdef _OPENMP
+#include <omp.h>
+#endif
+#include "structured-light.h"
+
+#define MAX_BITS 24           /* 16 M projector pixels per axis */
+#define MAX_STEPS 64
+#define MAX_PERIODS 8
+#define GRAY_WEAK_ALLOWED 1   /* undecided Gray bits per axis still accepted (error ≤ 1) */
+
+struct phase_group {
+        double period_px;
+        int steps;
+        int idx[MAX_STEPS];   /* frame index of each step */
+        float cosd[MAX_STEPS], sind[MAX_STEPS];
+};
+
+struct axis_plan {
+        int nbits;                          /* 0: no Gray code on this axis */
+        int p[MAX_BITS], q[MAX_BITS];       /* frame of bit k (0 = MSB) and of its inverse */
+        bool inverse;                       /* q[] valid; else p̄ = white + black − p */
+        int nphase;                         /* phase groups, coarsest period first */
+        struct phase_group ph[MAX_PERIODS];
+        int extent;                         /* projector pixels on this axis */
+};
+
+struct plan {
+        struct axis_plan ax[2];
+        int white, black;                   /* frame index or -1 */
+        int dg[4 * MAX_BITS];               /* frames giving L_max / L_min */
+        int ndg;
+        int width, height;
+        enum imp_pixel_type type;
+};
+
+int imp_sl_gray_bits(int extent) {
+        int n = 0;
+        while (n < 31 && (1LL << n) < (long long) extent)
+                n++;
+        return n;
+}
+
+void imp_sl_params_default(struct imp_sl_params *p, enum imp_pixel_type type) {
+        /* 8-bit values (OpenCV's 3DUNDERWORLD defaults 40 / 5; Moreno's m = 5) scaled. */
+        double scale = type == IMP_PIX_U8 ? 1.0 : type == IMP_PIX_U16 ? 65535.0 / 255.0 : 1.0 / 255.0;
+        *p = (struct imp_sl_params) {
+                .shadow_threshold = 40 * scale,
+                .min_bit_contrast = 5 * scale,
+                .min_direct = 5 * scale,
+                .black_level = 0.0,
+                .saturation = 0.0,
+                .min_modulation = 5 * scale,
+                .max_disagreement_px = 2.0,
+                .dg_planes = 4,
+                .robust = true,
+        };
+}
+
+double imp_sl_pattern_value(const struct imp_pattern *pat, int px, int py) {
+        int c = pat->axis == 0 ? px : py;
+        switch (pat->kind) {
+        case IMP_PAT_WHITE:
+                return 1.0;
+        case IMP_PAT_GRAY: {
+                if (pat->bit < 0 || pat->bit >= pat->nbits || pat->nbits > 31 || c < 0)
+                        return 0.0;
+                unsigned g = (unsigned) c ^ ((unsigned) c >> 1);
+                int v = (g >> (pat->nbits - 1 - pat->bit)) & 1;
+                return pat->inverse ? 1 - v : v;
+        }
+        case IMP_PAT_PHASE:
+                if (!(pat->period_px > 0) || pat->steps <= 0)
+                        return 0.0;
+                return 0.5 + 0.5 * cos(2 * M_PI * (c + 0.5) / pat->period_px +
+                                       2 * M_PI * pat->step / pat->steps);
+        default:
+                return 0.0;
+        }
+}
+
+int imp_sl_sequence(int proj_w, int proj_h, int phase_steps, const double *periods_px,
+                    int n_periods, struct imp_pattern **ret, int *ret_n) {
+        if (proj_w < 1 || proj_h < 1 || n_periods < 0 || (n_periods > 0 && !periods_px))
+                return -EINVAL;
+        int nb[2] = { imp_sl_gray_bits(proj_w), imp_sl_gray_bits(proj_h) };
+        int nph = phase_steps >= 3 ? phase_steps * n_periods * 2 : 0;
+        int n = 2 * (nb[0] + nb[1]) + 2 + nph;
+        struct imp_pattern *v = calloc(n, sizeof *v);
+        if (!v)
+                return -ENOMEM;
+        int k = 0;
+        for (int a = 0; a < 2; a++)
+                for (int b = 0; b < nb[a]; b++)
+                        for (int inv = 0; inv < 2; inv++)
+                                v[k++] = (struct imp_pattern) { .kind = IMP_PAT_GRAY, .axis = a,
+                                        .bit = b, .nbits = nb[a], .inverse = inv };
+        v[k++] = (struct imp_pattern) { .kind = IMP_PAT_WHITE };
+        v[k++] = (struct imp_pattern) { .kind = IMP_PAT_BLACK };
+        if (nph)
+                for (int a = 0; a < 2; a++)
+                        for (int j = 0; j < n_periods; j++)
+                                for (int s = 0; s < phase_steps; s++)
+                                        v[k++] = (struct imp_pattern) { .kind = IMP_PAT_PHASE,
+                                                .axis = a, .period_px = periods_px[j],
+                                                .step = s, .steps = phase_steps };
+        *ret = v;
+        *ret_n = n;
+        return 0;
+}
+
+/* ---- pattern set → plan ------------------------------------------------------------ */
+
+static int cmp_period_desc(const void *a, const void *b) {
+        double pa = ((const struct phase_group *) a)->period_px;
+        double pb = ((const struct phase_group *) b)->period_px;
+        return (pa < pb) - (pa > pb);
+}
+
+static int check_images(const struct imp_sl_frames *in, struct plan *pl, struct imp_error *err) {
+        if (!in || in->n <= 0 || !in->patterns || !in->images)
+                return imp_error_set(err, -EINVAL, "structured light: no frames");
+        for (int i = 0; i < in->n; i++) {
+                const struct imp_image *im = in->images[i];
+                if (!im || !im->data)
+                        return imp_error_set(err, -EINVAL, "structured light: frame %d: no image", i);
+                if (im->channels != 1)
+                        return imp_error_set(err, -EINVAL, "structured light: frame %d: %d channels, "
+                                             "expected 1", i, im->channels);
+                if (i == 0) {
+                        pl->width = im->width;
+                        pl->height = im->height;
+                        pl->type = im->type;
+                        if (im->width < 1 || im->height < 1)
+                                return imp_error_set(err, -EINVAL, "structured light: empty frame");
+                } else if (im->width != pl->width || im->height != pl->height || im->type != pl->type) {
+                        return imp_error_set(err, -EINVAL, "structured light: frame %d: %dx%d %s, "
+                                             "expected %dx%d %s like frame 0", i, im->width,
+                                             im->height, imp_pixel_type_name(im->type), pl->width,
+                                             pl->height, imp_pixel_type_name(pl->type));
+                }
+                if (im->stride < (size_t) im->width * imp_pixel_type_size(im->type))
+                        return imp_error_set(err, -EINVAL, "structured light: frame %d: stride too small", i);
+        }
+        return 0;
+}
+
+static int add_phase(struct axis_plan *ax, const struct imp_pattern *pt, int i, struct imp_error *err) {
+        if (!(pt->period_px > 0) || !isfinite(pt->period_px))
+                return imp_error_set(err, -EINVAL, "structured light: frame %d: phase period %g "
+                                     "is not > 0", i, pt->period_px);
+        if (pt->steps < 3 || pt->steps > MAX_STEPS || pt->step < 0 || pt->step >= pt->steps)
+                return imp_error_set(err, -EINVAL, "structured light: frame %d: phase step %d of "
+                                     "%d (need 3 ≤ steps ≤ %d)", i, pt->step, pt->steps, MAX_STEPS);
+        struct phase_group *g = NULL;
+        for (int j = 0; j < ax->nphase; j++)
+                if (ax->ph[j].period_px == pt->period_px)
+                        g = &ax->ph[j];
+        if (!g) {
+                if (ax->nphase == MAX_PERIODS)
+                        return imp_error_set(err, -EINVAL, "structured light: more than %d phase "
+                                             "periods on axis %d", MAX_PERIODS, pt->axis);
+                g = &ax->ph[ax->nphase++];
+                g->period_px = pt->period_px;
+                g->steps = pt->steps;
+                for (int s = 0; s < MAX_STEPS; s++)
+                        g->idx[s] = -1;
+        }
+        if (g->steps != pt->steps)
+                return imp_error_set(err, -EINVAL, "structured light: frame %d: period %g has "
+                                     "both %d and %d steps", i, pt->period_px, g->steps, pt->steps);
+        if (g->idx[pt->step] >= 0)
+                return imp_error_set(err, -EINVAL, "structured light: frames %d and %d: same phase "
+                                     "step %d (period %g, axis %d)", g->idx[pt->step], i, pt->step,
+                                     pt->period_px, pt->axis);
+        g->idx[pt->step] = i;
+        return 0;
+}
+
+static int build_plan(const struct imp_sl_frames *in, const struct imp_sl_params *p,
+                      struct plan *pl, struct imp_error *err) {
+        int r = check_images(in, pl, err);
+        if (r < 0)
+                return r;
+        pl->white = pl->black = -1;
+        for (int a = 0; a < 2; a++)
+                for (int k = 0; k < MAX_BITS; k++)
+                        pl->ax[a].p[k] = pl->ax[a].q[k] = -1;
+
+        for (int i = 0; i < in->n; i++) {
+                const struct imp_pattern *pt = &in->patterns[i];
+                if (pt->kind == IMP_PAT_WHITE || pt->kind == IMP_PAT_BLACK) {
+                        int *slot = pt->kind == IMP_PAT_WHITE ? &pl->white : &pl->black;
+                        if (*slot >= 0)
+                                return imp_error_set(err, -EINVAL, "structured light: frames %d and "
+                                                     "%d: two %s frames", *slot, i,
+                                                     pt->kind == IMP_PAT_WHITE ? "white" : "black");
+                        *slot = i;
+                        continue;
+                }
+                if (pt->kind != IMP_PAT_GRAY && pt->kind != IMP_PAT_PHASE)
+                        continue;       /* dark or unrelated frames are ignored */
+                if (pt->axis != 0 && pt->axis != 1)
+                        return imp_error_set(err, -EINVAL, "structured light: frame %d: axis %d, "
+                                             "expected 0 or 1", i, pt->axis);
+                struct axis_plan *ax = &pl->ax[pt->axis];
+                if (pt->kind == IMP_PAT_PHASE) {
+                        r = add_phase(ax, pt, i, err);
+                        if (r < 0)
+                                return r;
+                        continue;
+                }
+                if (pt->nbits < 1 || pt->nbits > MAX_BITS || pt->bit < 0 || pt->bit >= pt->nbits)
+                        return imp_error_set(err, -EINVAL, "structured light: frame %d: Gray bit %d "
+                                             "of %d (need 1 ≤ nbits ≤ %d)", i, pt->bit, pt->nbits,
+                                             MAX_BITS);
+                if (ax->nbits && ax->nbits != pt->nbits)
+                        return imp_error_set(err, -EINVAL, "structured light: frame %d: axis %d has "
+                                             "both %d and %d Gray bits", i, pt->axis, ax->nbits,
+                                             pt->nbits);
+                ax->nbits = pt->nbits;
+                int *slot = pt->inverse ? &ax->q[pt->bit] : &ax->p[pt->bit];
+                if (*slot >= 0)
+                        return imp_error_set(err, -EINVAL, "structured light: frames %d and %d: same "
+                                             "Gray plane (axis %d bit %d%s)", *slot, i, pt->axis,
+                                             pt->bit, pt->inverse ? ", inverse" : "");
+                *slot = i;
+        }
+
+        bool any = false;
+        for (int a = 0; a < 2; a++) {
+                struct axis_plan *ax = &pl->ax[a];
+                int nq = 0;
+                for (int k = 0; k < ax->nbits; k++) {
+                        if (ax->p[k] < 0)
+                                return imp_error_set(err, -EINVAL, "structured light: axis %d: Gray "
+                                                     "bit %d of %d missing", a, k, ax->nbits);
+                        nq += ax->q[k] >= 0;
+                }
+                if (nq && nq != ax->nbits)
+                        return imp_error_set(err, -EINVAL, "structured light: axis %d: %d of %d Gray "
+                                             "planes have inverses (all or none)", a, nq, ax->nbits);
+                ax->inverse = ax->nbits > 0 && nq == ax->nbits;
+                if (ax->nbits && !ax->inverse && (pl->white < 0 || pl->black < 0))
+                        return imp_error_set(err, -EINVAL, "structured light: axis %d: Gray planes "
+                                             "without inverses need white and black frames", a);
+                int want = a == 0 ? p->proj_width : p->proj_height;
+                ax->extent = want > 0 ? want : ax->nbits ? 1 << ax->nbits : 0;
+                if (ax->nbits && want > 0 && imp_sl_gray_bits(want) > ax->nbits)
+                        return imp_error_set(err, -EINVAL, "structured light: axis %d: %d Gray bits "
+                                             "cannot code %d projector pixels", a, ax->nbits, want);
+                qsort(ax->ph, ax->nphase, sizeof ax->ph[0], cmp_period_desc);
+                for (int j = 0; j < ax->nphase; j++) {
+                        struct phase_group *g = &ax->ph[j];
+                        for (int s = 0; s < g->steps; s++) {
+                                if (g->idx[s] < 0)
+                                        return imp_error_set(err, -EINVAL, "structured light: axis %d "
+                                                             "period %g: phase step %d of %d missing",
+                                                             a, g->period_px, s, g->steps);
+                                g->cosd[s] = (float) cos(2 * M_PI * s / g->steps);
+                                g->sind[s] = (float) sin(2 * M_PI * s / g->steps);
+                        }
+                }
+                if (ax->nphase && !ax->nbits) {
+                        if (ax->extent <= 0)
+                                return imp_error_set(err, -EINVAL, "structured light: axis %d: phase "
+                                                     "without Gray code needs the projector size", a);
+                        if (ax->ph[0].period_px < ax->extent)
+                                return imp_error_set(err, -EINVAL, "structured light: axis %d: phase "
+                                                     "without Gray code needs a period ≥ %d px",
+                                                     a, ax->extent);
+                }
+                any |= ax->nbits > 0 || ax->nphase > 0;
+        }
+        if (!any)
+                return imp_error_set(err, -EINVAL, "structured light: no Gray or phase frames");
+
+        /* L_max / L_min come from the finest planes: those split the scene into narrow
+         * stripes, so that about half of it is lit (Nayar et al. 2006; Moreno & Taubin). */
+        int planes = p->dg_planes > 0 ? p->dg_planes : 1;
+        pl->ndg = 0;
+        for (int a = 0; a < 2; a++) {
+                struct axis_plan *ax = &pl->ax[a];
+                for (int k = IMP_MAX(0, ax->nbits - planes); k < ax->nbits; k++) {
+                        pl->dg[pl->ndg++] = ax->p[k];
+                        if (ax->inverse)
+                                pl->dg[pl->ndg++] = ax->q[k];
+                }
+        }
+        return 0;
+}
+
+/* ---- per-row kernels ----------------------------------------------------------------- */
+
+/* fminf/fmaxf are library calls unless -ffinite-math-only; inputs here are finite. */
+static inline float minf(float a, float b) { return a < b ? a : b; }
+static inline float maxf(float a, float b) { return a > b ? a : b; }
+
+/* Vectorize the element-wise loops whatever the optimisation level's cost model says. */
+#ifdef _OPENMP
+#define SIMD _Pragma("omp simd")
+#else
+#define SIMD
+#endif
+
+static void load_row(const struct imp_image *im, int y, float *restrict dst, int w) {
+        const void *row = imp_image_row(im, y);
+        switch (im->type) {
+        case IMP_PIX_U8: {
+                const uint8_t *restrict s = row;
+                SIMD
+                for (int x = 0; x < w; x++)
+                        dst[x] = s[x];
+                break;
+        }
+        case IMP_PIX_U16: {
+                const uint16_t *restrict s = row;
+                SIMD
+                for (int x = 0; x < w; x++)
+                        dst[x] = s[x];
+                break;
+        }
+        case IMP_PIX_F32: {
+                const float *restrict s = row;
+                /* Non-finite input samples become 0 so that nothing non-finite propagates. */
+                SIMD
+                for (int x = 0; x < w; x++)
+                        dst[x] = isfinite(s[x]) ? s[x] : 0.0f;
+                break;
+        }
+        }
+}
+
+enum { R_WHITE, R_BLACK, R_LMAX, R_LMIN, R_LD, R_LG, R_P, R_Q, R_HI, R_S, R_C, R_A,
+       R_CMIN0, R_CMIN1, R_CODE0, R_CODE1, R_CUR0, R_CUR1, R_WEAK0, R_WEAK1,
+       R_POS0, R_POS1, R_MOD0, R_MOD1, R_PCONF0, R_PCONF1, R_NROWS };
+
+struct ctx {
+        const struct imp_sl_frames *in;
+        const struct imp_sl_params *p;
+        const struct plan *pl;
+        float sat, b;
+        struct imp_sl_result *res;
+};
+
+/* Gray planes of one axis, MSB first: the binary code is accumulated with the running
+ * XOR b_k = b_{k-1} ^ g_k (Gray → binary). A bit is undecided ("weak") when |p − p̄| is
+ * below min_bit_contrast, when both samples are saturated, or — robust mode — when the
+ * Xu & Aliaga rules do not classify it:
+ *     L_d > L_g                 → on iff p > p̄
+ *     p ≤ L_d  and  p̄ ≥ L_g     → off
+ *     p ≥ L_g  and  p̄ ≤ L_d     → on
+ *     otherwise                 → uncertain
+ * (L_d < m, their first rule, is the pixel-level shadow test.) When a rule decides, it
+ * always agrees with the sign of p − p̄, so the decision itself is the sign. */
+static void decode_gray_axis(const struct ctx *c, int a, int y, float **R, int w) {
+        const struct axis_plan *ax = &c->pl->ax[a];
+        uint32_t *restrict code = (uint32_t *) R[R_CODE0 + a];
+        uint32_t *restrict cur = (uint32_t *) R[R_CUR0 + a];
+        uint32_t *restrict weak = (uint32_t *) R[R_WEAK0 + a];
+        float *restrict cmin = R[R_CMIN0 + a], *restrict hi = R[R_HI];
+        float *restrict pr = R[R_P], *restrict qr = R[R_Q];
+        const float *restrict ld = R[R_LD], *restrict lg = R[R_LG];
+        const float minc = (float) c->p->min_bit_contrast, sat = c->sat;
+        SIMD
+        for (int x = 0; x < w; x++) {
+                code[x] = cur[x] = weak[x] = 0;
+                cmin[x] = INFINITY;
+        }
+        for (int k = 0; k < ax->nbits; k++) {
+                load_row(c->in->images[ax->p[k]], y, pr, w);
+                if (ax->inverse) {
+                        load_row(c->in->images[ax->q[k]], y, qr, w);
+                } else {
+                        const float *wr = R[R_WHITE], *br = R[R_BLACK];
+                        SIMD
+                        for (int x = 0; x < w; x++)
+                                qr[x] = wr[x] + br[x] - pr[x];
+                }
+                if (c->p->robust) {
+                        SIMD
+                        for (int x = 0; x < w; x++) {
+                                float pv = pr[x], qv = qr[x], d = pv - qv, ad = fabsf(d);
+                                uint32_t on = d > 0;
+                                uint32_t cls = (ld[x] > lg[x]) | ((pv <= ld[x]) & (qv >= lg[x])) |
+                                               ((pv >= lg[x]) & (qv <= ld[x]));
+                                uint32_t wk = (ad < minc) | (minf(pv, qv) >= sat) | (cls ^ 1u);
+                                cur[x] ^= on;
+                                code[x] = (code[x] << 1) | cur[x];
+                                weak[x] += wk;
+                                cmin[x] = minf(cmin[x], ad);
+                                hi[x] = maxf(hi[x], maxf(pv, qv));
+                        }
+                } else {
+                        SIMD
+                        for (int x = 0; x < w; x++) {
+                                float pv = pr[x], qv = qr[x], d = pv - qv, ad = fabsf(d);
+                                uint32_t on = d > 0;
+                                uint32_t wk = (ad < minc) | (minf(pv, qv) >= sat);
+                                cur[x] ^= on;
+                                code[x] = (code[x] << 1) | cur[x];
+                                weak[x] += wk;
+                                cmin[x] = minf(cmin[x], ad);
+                                hi[x] = maxf(hi[x], maxf(pv, qv));
+                        }
+                }
+        }
+}
+
+/* One N-step group: φ = atan2(−Σ I_i sin δ_i, Σ I_i cos δ_i), B = (2/N)·|Σ I_i e^{iδ_i}|,
+ * for I_i = A + B cos(φ + δ_i), δ_i = 2π i / N. Position in the period u_f = P φ / 2π. */
+static void phase_group_row(const struct ctx *c, const struct phase_group *g, int y, float **R,
+                            int w) {
+        float *restrict S = R[R_S], *restrict C = R[R_C], *restrict A = R[R_A];
+        float *restrict pr = R[R_P], *restrict hi = R[R_Q];
+        SIMD
+        for (int x = 0; x < w; x++)
+                S[x] = C[x] = A[x] = hi[x] = 0.0f;
+        for (int s = 0; s < g->steps; s++) {
+                load_row(c->in->images[g->idx[s]], y, pr, w);
+                float cs = g->cosd[s], sn = g->sind[s];
+                SIMD
+                for (int x = 0; x < w; x++) {
+                        S[x] += pr[x] * sn;
+                        C[x] += pr[x] * cs;
+                        A[x] += pr[x];
+                        hi[x] = maxf(hi[x], pr[x]);
+                }
+        }
+        float inv_n = 1.0f / g->steps;
+        SIMD
+        for (int x = 0; x < w; x++) {
+                A[x] *= inv_n;
+                float phi = atan2f(-S[x], C[x]);                /* (−π, π] */
+                float uf = (float) (g->period_px / (2 * M_PI)) * phi;
+                if (uf < 0)
+                        uf += (float) g->period_px;
+                float B = 2 * inv_n * sqrtf(S[x] * S[x] + C[x] * C[x]);
+                S[x] = uf;                                      /* reuse: wrapped position */
+                C[x] = B;                                       /* reuse: modulation */
+        }
+}
+
+static inline float clamp01(float v) {
+        return v > 1.0f ? 1.0f : v > 0.0f ? v : 0.0f;   /* also maps NaN to 0 */
+}
+
+static void decode_row(const struct ctx *c, int y, float **R, size_t counts[8]) {
+        const struct plan *pl = c->pl;
+        const struct imp_sl_params *p = c->p;
+        struct imp_sl_result *res = c->res;
+        const int w = pl->width;
+        const float b = c->b, sat = c->sat;
+        float *restrict lmax = R[R_LMAX], *restrict lmin = R[R_LMIN], *restrict pr = R[R_P];
+        float *restrict ld = R[R_LD], *restrict lg = R[R_LG], *restrict hi = R[R_HI];
+        bool have_wb = pl->white >= 0 && pl->black >= 0;
+
+        SIMD
+
+        for (int x = 0; x < w; x++)
+                hi[x] = 0.0f;
+        if (pl->white >= 0) {
+                load_row(c->in->images[pl->white], y, R[R_WHITE], w);
+                SIMD
+                for (int x = 0; x < w; x++)
+                        hi[x] = maxf(hi[x], R[R_WHITE][x]);
+        }
+        if (pl->black >= 0)
+                load_row(c->in->images[pl->black], y, R[R_BLACK], w);
+
+        /* Direct and global light (Moreno & Taubin §3, after Nayar et al.):
+         * L_d = (L_max − L_min)/(1 − b), L_g = 2 (L_min − b L_max)/(1 − b²); L_g < 0 (noise or
+         * an overestimated b) is clamped to 0. */
+        if (pl->ndg > 0) {
+                SIMD
+                for (int x = 0; x < w; x++) {
+                        lmax[x] = -INFINITY;
+                        lmin[x] = INFINITY;
+                }
+                for (int i = 0; i < pl->ndg; i++) {
+                        load_row(c->in->images[pl->dg[i]], y, pr, w);
+                        SIMD
+                        for (int x = 0; x < w; x++) {
+                                lmax[x] = maxf(lmax[x], pr[x]);
+                                lmin[x] = minf(lmin[x], pr[x]);
+                        }
+                }
+                if ((pl->ax[0].nbits && !pl->ax[0].inverse) || (pl->ax[1].nbits && !pl->ax[1].inverse)) {
+                        /* Without inverses the implied p̄ = W + B − p belongs to the set too. */
+                        const float *wr = R[R_WHITE], *br = R[R_BLACK];
+                        SIMD
+                        for (int x = 0; x < w; x++) {
+                                float a1 = wr[x] + br[x] - lmax[x], a2 = wr[x] + br[x] - lmin[x];
+                                lmax[x] = maxf(lmax[x], a2);
+                                lmin[x] = minf(lmin[x], a1);
+                        }
+                }
+                float k1 = 1.0f / (1.0f - b), k2 = 2.0f / (1.0f - b * b);
+                SIMD
+                for (int x = 0; x < w; x++) {
+                        ld[x] = maxf(k1 * (lmax[x] - lmin[x]), 0.0f);
+                        lg[x] = maxf(k2 * (lmin[x] - b * lmax[x]), 0.0f);
+                }
+        } else {
+                /* Phase only: A = (L_d + L_g)(1 + b)/2 and B = L_d (1 − b)/2. */
+                int a = pl->ax[0].nphase ? 0 : 1;
+                phase_group_row(c, &pl->ax[a].ph[0], y, R, w);
+                SIMD
+                for (int x = 0; x < w; x++) {
+                        ld[x] = 2 * R[R_C][x] / (1 - b);
+                        lg[x] = maxf(2 * R[R_A][x] / (1 + b) - ld[x], 0.0f);
+                        lmax[x] = R[R_A][x] + R[R_C][x];
+                        lmin[x] = R[R_A][x] - R[R_C][x];
+                }
+        }
+
+        for (int a = 0; a < 2; a++)
+                if (pl->ax[a].nbits)
+                        decode_gray_axis(c, a, y, R, w);
+
+        /* Phase: unwrap each group, coarsest first, against the previous estimate (the Gray
+         * centre at first): k = round((ref − u_f)/P) is the period nearest to it, which
+         * also settles the ±1-period ambiguity where a code boundary meets a phase wrap. */
+        for (int a = 0; a < 2; a++) {
+                const struct axis_plan *ax = &pl->ax[a];
+                float *restrict pos = R[R_POS0 + a], *restrict mod = R[R_MOD0 + a];
+                uint32_t *restrict pst = (uint32_t *) R[R_PCONF0 + a];  /* 0 ok, 1 low mod, 2 disagree */
+                const uint32_t *code = (const uint32_t *) R[R_CODE0 + a];
+                SIMD
+                for (int x = 0; x < w; x++) {
+                        pos[x] = ax->nbits ? (float) code[x] + 0.5f : 0.0f;
+                        mod[x] = INFINITY;
+                        pst[x] = 0;
+                }
+                for (int j = 0; j < ax->nphase; j++) {
+                        const struct phase_group *g = &ax->ph[j];
+                        phase_group_row(c, g, y, R, w);
+                        float P = (float) g->period_px;
+                        /* Later levels: the coarser phase is trusted to a quarter period
+                         * of this one (nearest-k alone guarantees half a period). */
+                        float tol = j == 0 ? (float) p->max_disagreement_px
+                                           : maxf((float) p->max_disagreement_px, P / 4);
+                        bool absolute = j == 0 && !ax->nbits;   /* period covers the projector */
+                        const float *uf = R[R_S], *B = R[R_C], *ph_hi = R[R_Q];
+                        SIMD
+                        for (int x = 0; x < w; x++) {
+                                float u = uf[x];
+                                if (!absolute) {
+                                        float k = rintf((pos[x] - u) / P);
+                                        u += k * P;
+                                        if (fabsf(u - pos[x]) > tol)
+                                                pst[x] |= 2;
+                                }
+                                if (B[x] < (float) p->min_modulation || ph_hi[x] >= sat || !(B[x] >= 0))
+                                        pst[x] |= 1;
+                                mod[x] = minf(mod[x], B[x]);
+                                hi[x] = maxf(hi[x], ph_hi[x]);
+                                pos[x] = u;
+                        }
+                }
+        }
+
+        /* Combine into flags, coordinates and confidence. */
+        size_t off = (size_t) y * w;
+        float minc_d = (float) p->min_direct;
+        SIMD
+        for (int x = 0; x < w; x++) {
+                uint32_t f = 0;
+                bool shadow = false;
+                if (have_wb && !(R[R_WHITE][x] - R[R_BLACK][x] > (float) p->shadow_threshold))
+                        shadow = true;
+                if (p->robust && !(ld[x] >= minc_d))
+                        shadow = true;
+                if (shadow)
+                        f |= IMP_SL_SHADOW;
+                if (hi[x] >= sat)
+                        f |= IMP_SL_SATURATED;
+                float span = ld[x] * (1 - b);                   /* = L_max − L_min */
+                float conf = 1.0f, out[2] = { IMP_SL_INVALID_COORD, IMP_SL_INVALID_COORD };
+                float modv = INFINITY;
+                int nvalid = 0;
+                for (int a = 0; a < 2; a++) {
+                        const struct axis_plan *ax = &pl->ax[a];
+                        if (!ax->nbits && !ax->nphase)
+                                continue;
+                        bool ok = !shadow;
+                        float ca = 1.0f, pos = R[R_POS0 + a][x];
+                        if (ax->nbits) {
+                                uint32_t nweak = ((uint32_t *) R[R_WEAK0 + a])[x];
+                                uint32_t code = ((uint32_t *) R[R_CODE0 + a])[x];
+                                if (nweak > GRAY_WEAK_ALLOWED) {
+                                        f |= IMP_SL_UNDECODABLE;
+                                        ok = false;
+                                } else if (nweak) {
+                                        f |= IMP_SL_WEAK_BIT;
+                                        ca = 0.5f;
+                                }
+                                if (code >= (uint32_t) ax->extent) {
+                                        f |= IMP_SL_OUT_OF_RANGE;
+                                        ok = false;
+                                }
+                                ca *= span > 0 ? clamp01(R[R_CMIN0 + a][x] / span) : 0.0f;
+                        }
+                        if (ax->nphase) {
+                                uint32_t st = ((uint32_t *) R[R_PCONF0 + a])[x];
+                                float m = R[R_MOD0 + a][x];
+                                modv = minf(modv, m);
+                                if (st & 1) {
+                                        f |= IMP_SL_LOW_MODULATION;
+                                        if (!ax->nbits)
+                                                ok = false;
+                                        pos = ax->nbits ? (float) ((uint32_t *) R[R_CODE0 + a])[x] + 0.5f : 0;
+                                } else if (st & 2) {
+                                        f |= IMP_SL_DISAGREE;
+                                        ok = false;
+                                } else {
+                                        if (ok)
+                                                f |= a == 0 ? IMP_SL_SUBPIXEL_X : IMP_SL_SUBPIXEL_Y;
+                                        ca = span > 0 ? clamp01(2 * m / span) : 0.0f;
+                                }
+                        }
+                        if (ok && !isfinite(pos))
+                                ok = false;
+                        if (ok) {
+                                f |= a == 0 ? IMP_SL_VALID_X : IMP_SL_VALID_Y;
+                                out[a] = pos;
+                                conf = minf(conf, ca);
+                                nvalid++;
+                        }
+                }
+                res->proj_x[off + x] = out[0];
+                res->proj_y[off + x] = out[1];
+                res->confidence[off + x] = nvalid ? conf : 0.0f;
+                res->flags[off + x] = (uint16_t) f;
+                res->direct[off + x] = isfinite(ld[x]) ? ld[x] : 0.0f;
+                res->global[off + x] = isfinite(lg[x]) ? lg[x] : 0.0f;
+                res->modulation[off + x] = isfinite(modv) ? modv : 0.0f;
+                counts[0] += !!(f & IMP_SL_VALID_X);
+                counts[1] += !!(f & IMP_SL_VALID_Y);
+                counts[2] += (f & (IMP_SL_VALID_X | IMP_SL_VALID_Y)) == (IMP_SL_VALID_X | IMP_SL_VALID_Y);
+                counts[3] += !!(f & IMP_SL_SHADOW);
+                counts[4] += !!(f & IMP_SL_SATURATED);
+                counts[5] += !!(f & IMP_SL_WEAK_BIT);
+                counts[6] += !!(f & IMP_SL_DISAGREE);
+        }
+}
+
+/* ---- entry points ---------------------------------------------------------------------- */
+
+void imp_sl_result_free(struct imp_sl_result *r) {
+        if (!r)
+                return;
+        free(r->proj_x);        /* one block holds every map */
+        free(r);
+}
+
+static int result_new(int w, int h, struct imp_sl_result **ret) {
+        size_t n = (size_t) w * h;
+        _cleanup_free_ struct imp_sl_result *r = calloc(1, sizeof *r);
+        if (!r)
+                return -ENOMEM;
+        /* 6 float maps + 1 u16 map; floats first keep alignment. */
+        char *blk = malloc(n * (6 * sizeof(float) + sizeof(uint16_t)));
+        if (!blk)
+                return -ENOMEM;
+        float *fl = (float *) blk;
+        r->proj_x = fl;
+        r->proj_y = fl + n;
+        r->confidence = fl + 2 * n;
+        r->direct = fl + 3 * n;
+        r->global = fl + 4 * n;
+        r->modulation = fl + 5 * n;
+        r->flags = (uint16_t *) (fl + 6 * n);
+        r->width = w;
+        r->height = h;
+        *ret = TAKE_PTR(r);
+        return 0;
+}
+
+static float saturation_level(const struct imp_sl_params *p, enum imp_pixel_type t) {
+        if (p->saturation > 0)
+                return (float) p->saturation;
+        return t == IMP_PIX_U8 ? 255.0f : t == IMP_PIX_U16 ? 65535.0f : INFINITY;
+}
+
+int imp_sl_decode(const struct imp_sl_frames *in, const struct imp_sl_params *p,
+                  struct imp_sl_result **ret, struct imp_error *err) {
+        if (!p || !ret)
+                return imp_error_set(err, -EINVAL, "structured light: no parameters");
+        if (!(p->black_level >= 0 && p->black_level < 1))
+                return imp_error_set(err, -EINVAL, "structured light: black level %g not in [0, 1)",
+                                     p->black_level);
+        if (!isfinite(p->shadow_threshold) || !isfinite(p->min_bit_contrast) ||
+            !isfinite(p->min_direct) || !isfinite(p->min_modulation) ||
+            !(p->max_disagreement_px > 0) || !isfinite(p->max_disagreement_px))
+                return imp_error_set(err, -EINVAL, "structured light: thresholds must be finite "
+                                     "(max_disagreement_px > 0)");
+        struct plan *pl = calloc(1, sizeof *pl);
+        if (!pl)
+                return -ENOMEM;
+        _cleanup_free_ struct plan *pl_owner = pl;
+        int r = build_plan(in, p, pl, err);
+        if (r < 0)
+                return r;
+
+        _cleanup_(imp_sl_result_freep) struct imp_sl_result *res = NULL;
+        r = result_new(pl->width, pl->height, &res);
+        if (r < 0)
+                return imp_error_set(err, r, "structured light: out of memory for %dx%d maps",
+                                     pl->width, pl->height);
+
+        int nthreads = 1;
+#ifdef _OPENMP
+        nthreads = p->threads > 0 ? p->threads : omp_get_max_threads();
+#endif
+        size_t wpad = ((size_t) pl->width + 15) & ~(size_t) 15;
+        _cleanup_free_ float *scratch = aligned_alloc(64, (size_t) nthreads * R_NROWS * wpad * sizeof(float));
+        if (!scratch)
+                return imp_error_set(err, -ENOMEM, "structured light: out of memory for scratch rows");
+
+        struct ctx c = { .in = in, .p = p, .pl = pl, .sat = saturation_level(p, pl->type),
+                         .b = (float) p->black_level, .res = res };
+        size_t c0 = 0, c1 = 0, c2 = 0, c3 = 0, c4 = 0, c5 = 0, c6 = 0;
+        int height = pl->height;
+#pragma omp parallel num_threads(nthreads) reduction(+ : c0, c1, c2, c3, c4, c5, c6)
+        {
+                int t = 0;
+#ifdef _OPENMP
+                t = omp_get_thread_num();
+#endif
+                float *R[R_NROWS];
+                for (int i = 0; i < R_NROWS; i++)
+                        R[i] = scratch + ((size_t) t * R_NROWS + i) * wpad;
+#pragma omp for schedule(dynamic, 8)
+                for (int y = 0; y < height; y++) {
+                        size_t cnt[8] = { 0 };
+                        decode_row(&c, y, R, cnt);
+                        c0 += cnt[0]; c1 += cnt[1]; c2 += cnt[2]; c3 += cnt[3];
+                        c4 += cnt[4]; c5 += cnt[5]; c6 += cnt[6];
+                }
+        }
+        res->n_valid_x = c0;
+        res->n_valid_y = c1;
+        res->n_valid_xy = c2;
+        res->n_shadow = c3;
+        res->n_saturated = c4;
+        res->n_weak = c5;
+        res->n_disagree = c6;
+        *ret = TAKE_PTR(res);
+        return 0;
+}

@@ -1,0 +1,105 @@
+/* Structured-light decoding (issue #4 stage 2): Gray-code frames (with inverses) and
+ * optional N-step phase-shift frames, described by struct imp_pattern, become a
+ * camera→projector correspondence map. Conventions, decision rules and measured figures:
+ * docs/structured-light.md.
+ *
+ * Projector coordinates are continuous, in projector pixels, with the centre of pixel
+ * column c at c + 0.5 (so pixel c covers [c, c+1)). Gray-only decoding returns the code's
+ * centre c + 0.5; with phase frames the position is sub-pixel. */
+#pragma once
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+#include "captureset.h"
+#include "image.h"
+
+/* Per-pixel flags (result->flags). A pixel has a usable correspondence on an axis iff
+ * its VALID_X / VALID_Y bit is set; every other bit says why not, or how weak it is. */
+enum {
+        IMP_SL_VALID_X        = 1 << 0,  /* proj_x decoded */
+        IMP_SL_VALID_Y        = 1 << 1,  /* proj_y decoded */
+        IMP_SL_SHADOW         = 1 << 2,  /* no projector modulation: white−black ≤ shadow
+                                            threshold, or L_d < m (Xu & Aliaga rule 1) */
+        IMP_SL_SATURATED      = 1 << 3,  /* some frame reached the saturation level */
+        IMP_SL_WEAK_BIT       = 1 << 4,  /* exactly one Gray bit of an axis undecided:
+                                            decided by sign, error ≤ 1 code, confidence halved */
+        IMP_SL_UNDECODABLE    = 1 << 5,  /* ≥ 2 Gray bits of an axis undecided */
+        IMP_SL_OUT_OF_RANGE   = 1 << 6,  /* code ≥ projector width/height */
+        IMP_SL_LOW_MODULATION = 1 << 7,  /* phase amplitude below min_modulation (or a
+                                            phase frame saturated): phase not used */
+        IMP_SL_DISAGREE       = 1 << 8,  /* unwrapped phase and Gray code differ by more
+                                            than max_disagreement_px: axis invalid */
+        IMP_SL_SUBPIXEL_X     = 1 << 9,  /* proj_x refined by phase */
+        IMP_SL_SUBPIXEL_Y     = 1 << 10, /* proj_y refined by phase */
+};
+
+/* Value written to proj_x / proj_y where the axis is not valid (finite, out of range). */
+#define IMP_SL_INVALID_COORD (-1.0f)
+
+struct imp_sl_params {
+        int proj_width, proj_height;  /* projector size in pixels; 0: 2^nbits of the axis */
+        /* Intensity thresholds are in the input's units: digital numbers for u8/u16
+         * frames, linear values for f32 frames. imp_sl_params_default() picks values. */
+        double shadow_threshold;      /* white − black must exceed this (OpenCV's
+                                         "black threshold", 40 for 8-bit) */
+        double min_bit_contrast;      /* |p − p̄| below this: bit undecided (OpenCV's
+                                         "white threshold", 5 for 8-bit) */
+        double min_direct;            /* m of Xu & Aliaga: L_d below it → shadow */
+        double black_level;           /* b, projector black/white ratio in [0, 1) */
+        double saturation;            /* sample ≥ this counts as saturated; ≤ 0: full
+                                         scale of the type (255, 65535; f32: never) */
+        double min_modulation;        /* phase amplitude B below it: phase not used */
+        double max_disagreement_px;   /* |phase − Gray centre| allowed (projector px) */
+        int dg_planes;                /* finest Gray planes per axis used for L_d/L_g */
+        bool robust;                  /* Xu & Aliaga classification; false: sign only */
+        int threads;                  /* OpenMP threads; 0: OpenMP default */
+};
+
+/* Defaults for frames of the given pixel type (8-bit values scaled to the type's range;
+ * f32 frames are taken as linear with white ≈ 1). */
+void imp_sl_params_default(struct imp_sl_params *p, enum imp_pixel_type type);
+
+/* The frames of one camera view: patterns[i] was projected while images[i] was taken.
+ * Images: 1 channel, all the same size and pixel type (u8, u16 or f32). Order is free.
+ * Gray planes need their inverses, or else WHITE and BLACK frames (then p̄ = W + B − p). */
+struct imp_sl_frames {
+        const struct imp_pattern *patterns;
+        const struct imp_image *const *images;
+        int n;
+};
+
+struct imp_sl_result {
+        int width, height;            /* camera pixels; maps are row-major, width apart */
+        float *proj_x, *proj_y;       /* projector coordinates (see top); INVALID_COORD
+                                         where the axis is not valid */
+        float *confidence;            /* 0..1; 0 where neither axis is valid */
+        uint16_t *flags;              /* IMP_SL_* */
+        float *direct, *global;       /* L_d, L_g estimates (input units, ≥ 0) */
+        float *modulation;            /* phase amplitude B (min over axes), 0 without phase */
+        size_t n_valid_x, n_valid_y, n_valid_xy;
+        size_t n_shadow, n_saturated, n_weak, n_disagree;
+};
+
+/* Decodes one view. *ret is allocated here; caller frees with imp_sl_result_free().
+ * -EINVAL with a message in err for an inconsistent pattern set (missing or duplicate
+ * bit planes or phase steps, N < 3, mismatched images), -ENOMEM. */
+int imp_sl_decode(const struct imp_sl_frames *in, const struct imp_sl_params *p,
+                  struct imp_sl_result **ret, struct imp_error *err);
+void imp_sl_result_free(struct imp_sl_result *r);
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_sl_result *, imp_sl_result_free);
+
+/* Number of Gray bits needed for `extent` projector pixels: ceil(log2(extent)). */
+int imp_sl_gray_bits(int extent);
+
+/* Projector intensity (0 = black, 1 = white, before gamma and black level) that pattern
+ * `pat` gives to projector pixel (px, py). Gray: bit `bit` (0 = MSB) of the reflected
+ * binary code px ^ (px >> 1), lit when 1 — exactly OpenCV's GrayCodePattern (4.x).
+ * Phase: ½ + ½ cos(2π (c + 0.5) / period_px + 2π step / steps), c the axis coordinate. */
+double imp_sl_pattern_value(const struct imp_pattern *pat, int px, int py);
+
+/* The standard sequence for a proj_w × proj_h projector, in OpenCV's order: column planes
+ * MSB→LSB each followed by its inverse, then row planes, then WHITE, BLACK; then, when
+ * phase_steps ≥ 3, phase_steps frames per axis for each period in periods_px (n_periods).
+ * *ret is malloc'd (caller frees with free()), *ret_n its length. */
+int imp_sl_sequence(int proj_w, int proj_h, int phase_steps, const double *periods_px,
+                    int n_periods, struct imp_pattern **ret, int *ret_n);
