@@ -1,0 +1,209 @@
+/* Copy-versus-truth figures (see compare.h). */
+#include <math.h>
+#include <string.h>
+#include "compare.h"
+#include "image.h"
+#include "json-util.h"
+
+#define CMP_FIXED_POINT_ITER 4
+#define CMP_MIN_NORMAL_Z     0.1   /* copy normal this close to the world x–y plane: skip */
+
+struct truth {
+        double pitch, origin[2];
+        int nx, ny;
+        struct imp_image *img;
+        int c_h, c_nx, c_ny, c_nz, c_m;
+};
+
+static double truth_at(const struct truth *t, int i, int j, int c) {
+        return *(imp_image_f32(t->img, i, j) + c);
+}
+
+/* Bilinear truth height at world (x, y); false outside the grid or when a corner of the
+ * cell is not canvas (no interpolation across the frame step). */
+static bool truth_height(const struct truth *t, double x, double y, double *ret) {
+        double fx = (x - t->origin[0]) / t->pitch, fy = (y - t->origin[1]) / t->pitch;
+        if (!(fx >= 0 && fy >= 0 && fx <= t->nx - 1 && fy <= t->ny - 1))
+                return false;
+        int x0 = IMP_MIN((int) fx, t->nx - 2 < 0 ? 0 : t->nx - 2), y0 = IMP_MIN((int) fy, t->ny - 2 < 0 ? 0 : t->ny - 2);
+        int x1 = IMP_MIN(x0 + 1, t->nx - 1), y1 = IMP_MIN(y0 + 1, t->ny - 1);
+        double ax = fx - x0, ay = fy - y0;
+        if (truth_at(t, x0, y0, t->c_m) < 0.5 || truth_at(t, x1, y0, t->c_m) < 0.5 ||
+            truth_at(t, x0, y1, t->c_m) < 0.5 || truth_at(t, x1, y1, t->c_m) < 0.5)
+                return false;
+        double a = truth_at(t, x0, y0, t->c_h), b = truth_at(t, x1, y0, t->c_h);
+        double c = truth_at(t, x0, y1, t->c_h), d = truth_at(t, x1, y1, t->c_h);
+        *ret = (a * (1 - ax) + b * ax) * (1 - ay) + (c * (1 - ax) + d * ax) * ay;
+        return isfinite(*ret);
+}
+
+static int cmp_double(const void *a, const void *b) {
+        double x = *(const double *) a, y = *(const double *) b;
+        return (x > y) - (x < y);
+}
+
+static int load_exr(const char *dir, const char *what, struct imp_image **ret_img, char ***ret_names,
+                    struct imp_error *err) {
+        char path[4096];
+        snprintf(path, sizeof path, "%s/heightfield.exr", dir);
+        int r = imp_exr_read(path, ret_img, ret_names, err);
+        if (r < 0)
+                imp_error_prefix(err, "%s: ", what);
+        return r;
+}
+
+static int channel(char **names, const char *name, const char *path, struct imp_error *err) {
+        int c = imp_image_channel_index(names, name);
+        if (c < 0)
+                return imp_error_set(err, -EBADMSG, "%s/heightfield.exr: channel \"%s\" missing", path, name);
+        return c;
+}
+
+int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_compare_result *ret,
+                     struct imp_error *err) {
+        if (!copy_dir || !truth_dir || !ret)
+                return imp_error_set(err, -EINVAL, "compare: bad arguments");
+        char path[4096];
+        int r;
+        _cleanup_json_ json_t *cj = NULL, *tj = NULL;
+        snprintf(path, sizeof path, "%s/copy.json", copy_dir);
+        if ((r = imp_json_load(path, &cj, err)) < 0)
+                return r;
+        double M[16], cpitch;
+        long long cnx, cny, tnx, tny;
+        if ((r = imp_json_get_doubles(cj, "canvas_to_world", true, 16, M, path, err)) < 0 ||
+            (r = imp_json_get_double(cj, "pitch_mm", true, &cpitch, path, err)) < 0 ||
+            (r = imp_json_get_int(cj, "nx", true, &cnx, path, err)) < 0 ||
+            (r = imp_json_get_int(cj, "ny", true, &cny, path, err)) < 0)
+                return r;
+        if (!(cpitch > 0))
+                return imp_error_set(err, -EBADMSG, "%s: pitch_mm must be > 0", path);
+
+        struct truth t = {};
+        snprintf(path, sizeof path, "%s/truth.json", truth_dir);
+        if ((r = imp_json_load(path, &tj, err)) < 0)
+                return r;
+        if ((r = imp_json_get_double(tj, "pitch_mm", true, &t.pitch, path, err)) < 0 ||
+            (r = imp_json_get_doubles(tj, "origin_mm", true, 2, t.origin, path, err)) < 0 ||
+            (r = imp_json_get_int(tj, "nx", true, &tnx, path, err)) < 0 ||
+            (r = imp_json_get_int(tj, "ny", true, &tny, path, err)) < 0)
+                return r;
+        if (!(t.pitch > 0))
+                return imp_error_set(err, -EBADMSG, "%s: pitch_mm must be > 0", path);
+
+        _cleanup_image_ struct imp_image *cimg = NULL, *timg = NULL;
+        char **cnames = NULL, **tnames = NULL;
+        if ((r = load_exr(copy_dir, "copy", &cimg, &cnames, err)) < 0)
+                return r;
+        if ((r = load_exr(truth_dir, "truth", &timg, &tnames, err)) < 0) {
+                imp_strv_free(cnames);
+                return r;
+        }
+        int ch = channel(cnames, "height", copy_dir, err), cnxc = channel(cnames, "nx", copy_dir, err),
+            cnyc = channel(cnames, "ny", copy_dir, err), cm = channel(cnames, "mask", copy_dir, err);
+        t.c_h = channel(tnames, "height", truth_dir, err), t.c_nx = channel(tnames, "nx", truth_dir, err);
+        t.c_ny = channel(tnames, "ny", truth_dir, err), t.c_nz = channel(tnames, "nz", truth_dir, err);
+        t.c_m = channel(tnames, "mask", truth_dir, err);
+        imp_strv_free(cnames);
+        imp_strv_free(tnames);
+        if (ch < 0 || cnxc < 0 || cnyc < 0 || cm < 0 || t.c_h < 0 || t.c_nx < 0 || t.c_ny < 0 || t.c_nz < 0 || t.c_m < 0)
+                return -EBADMSG;
+        if (cimg->width != cnx || cimg->height != cny)
+                return imp_error_set(err, -EBADMSG, "%s: heightfield.exr is %dx%d, copy.json says %lldx%lld",
+                                     copy_dir, cimg->width, cimg->height, cnx, cny);
+        if (timg->width != tnx || timg->height != tny)
+                return imp_error_set(err, -EBADMSG, "%s: heightfield.exr is %dx%d, truth.json says %lldx%lld",
+                                     truth_dir, timg->width, timg->height, tnx, tny);
+        t.nx = timg->width, t.ny = timg->height, t.img = timg;
+
+        struct imp_compare_result res = {};
+        for (int j = 0; j < cimg->height; j++)
+                for (int i = 0; i < cimg->width; i++)
+                        for (int c = 0; c < cimg->channels; c++)
+                                res.nan_count += !isfinite(*(imp_image_f32(cimg, i, j) + c));
+
+        double ex[3] = { M[0], M[4], M[8] }, ey[3] = { M[1], M[5], M[9] }, ez[3] = { M[2], M[6], M[10] };
+        double o[3] = { M[3], M[7], M[11] };
+        size_t n_tex = (size_t) cimg->width * cimg->height;
+        _cleanup_free_ double *diff = malloc((n_tex ? n_tex : 1) * sizeof(double));
+        if (!diff)
+                return imp_error_set(err, -ENOMEM, "compare: out of memory");
+        double sum_ang = 0;
+        size_t n = 0;
+        for (int j = 0; j < cimg->height && fabs(ez[2]) >= CMP_MIN_NORMAL_Z; j++)
+                for (int i = 0; i < cimg->width; i++) {
+                        const float *p = imp_image_f32(cimg, i, j);
+                        if (!(p[cm] >= 0.5) || !isfinite(p[ch]))
+                                continue;
+                        double P[3];
+                        for (int q = 0; q < 3; q++)
+                                P[q] = o[q] + i * cpitch * ex[q] + j * cpitch * ey[q] + p[ch] * ez[q];
+                        double zt, s = 0;
+                        bool ok = true;
+                        for (int it = 0; it < CMP_FIXED_POINT_ITER && ok; it++) {
+                                ok = truth_height(&t, P[0] + s * ez[0], P[1] + s * ez[1], &zt);
+                                s = (zt - P[2]) / ez[2];
+                        }
+                        if (!ok)
+                                continue;
+                        diff[n++] = -s;
+                        double nxv = isfinite(p[cnxc]) ? p[cnxc] : 0, nyv = isfinite(p[cnyc]) ? p[cnyc] : 0;
+                        double nz = sqrt(fmax(0.0, 1 - nxv * nxv - nyv * nyv)), nw[3];
+                        for (int q = 0; q < 3; q++)
+                                nw[q] = nxv * ex[q] + nyv * ey[q] + nz * ez[q];
+                        int ti = (int) lround((P[0] + s * ez[0] - t.origin[0]) / t.pitch);
+                        int tj2 = (int) lround((P[1] + s * ez[1] - t.origin[1]) / t.pitch);
+                        ti = IMP_CLAMP(ti, 0, t.nx - 1), tj2 = IMP_CLAMP(tj2, 0, t.ny - 1);
+                        double tn[3] = { truth_at(&t, ti, tj2, t.c_nx), truth_at(&t, ti, tj2, t.c_ny),
+                                         truth_at(&t, ti, tj2, t.c_nz) };
+                        double ln = sqrt(tn[0] * tn[0] + tn[1] * tn[1] + tn[2] * tn[2]);
+                        double cs = ln > 0 ? (nw[0] * tn[0] + nw[1] * tn[1] + nw[2] * tn[2]) / ln : 1;
+                        sum_ang += acos(IMP_CLAMP(cs, -1.0, 1.0)) * 180.0 / M_PI;
+                }
+        res.n_compared = n;
+
+        size_t inter = 0, uni = 0;
+        for (int j = 0; j < t.ny; j++)
+                for (int i = 0; i < t.nx; i++) {
+                        bool a = truth_at(&t, i, j, t.c_m) >= 0.5;
+                        double X[3] = { t.origin[0] + i * t.pitch - o[0], t.origin[1] + j * t.pitch - o[1],
+                                        truth_at(&t, i, j, t.c_h) - o[2] };
+                        double u = (X[0] * ex[0] + X[1] * ex[1] + X[2] * ex[2]) / cpitch;
+                        double v = (X[0] * ey[0] + X[1] * ey[1] + X[2] * ey[2]) / cpitch;
+                        long ci = lround(u), cj = lround(v);
+                        bool b = isfinite(u) && isfinite(v) && ci >= 0 && cj >= 0 && ci < cimg->width &&
+                                 cj < cimg->height && *(imp_image_f32(cimg, (int) ci, (int) cj) + cm) >= 0.5;
+                        inter += a && b;
+                        uni += a || b;
+                }
+        res.mask_iou = uni ? (double) inter / uni : 0;
+
+        if (n == 0)
+                return imp_error_set(err, -ENODATA, "compare %s vs %s: no copy texel over the truth canvas",
+                                     copy_dir, truth_dir);
+        res.normal_err_deg_mean = sum_ang / n;
+        qsort(diff, n, sizeof(double), cmp_double);
+        double med = n % 2 ? diff[n / 2] : 0.5 * (diff[n / 2 - 1] + diff[n / 2]);
+        double ss = 0, mx = 0;
+        for (size_t k = 0; k < n; k++) {
+                double d = diff[k] - med;
+                ss += d * d;
+                mx = fmax(mx, fabs(d));
+        }
+        res.height_offset_mm = med;
+        res.height_rmse_um = sqrt(ss / n) * 1000.0;
+        res.height_max_abs_um = mx * 1000.0;
+        *ret = res;
+        return 0;
+}
+
+json_t *imp_compare_result_to_json(const struct imp_compare_result *r) {
+        return json_pack("{s:f,s:f,s:f,s:f,s:f,s:I,s:I}",
+                         "height_rmse_um", r->height_rmse_um,
+                         "height_offset_mm", r->height_offset_mm,
+                         "height_max_abs_um", r->height_max_abs_um,
+                         "normal_err_deg_mean", r->normal_err_deg_mean,
+                         "mask_iou", r->mask_iou,
+                         "nan_count", (json_int_t) r->nan_count,
+                         "n_compared", (json_int_t) r->n_compared);
+}

@@ -1,0 +1,38 @@
+/* Digital copy versus simulator truth: height rmse, normal error, canvas-mask IoU, NaN
+ * count. Library code: no logging.
+ *
+ * Heights: every copy texel with mask = 1 is mapped to the world through canvas_to_world;
+ * the truth surface is intersected along the copy's canvas normal through that point
+ * (fixed-point iteration on the truth's bilinear world-z heightfield), which gives the
+ * truth height in the copy's frame. The copy's height origin is the PCA plane through its
+ * canvas points, an arbitrary offset, so the median of (copy − truth) over the compared
+ * texels is subtracted before the rmse (reported as height_offset_mm). Texels whose world
+ * point falls outside the truth grid or on the truth frame (truth mask 0) are not compared.
+ * Normals: the copy normal (nx, ny, √(1−nx²−ny²)) rotated to the world vs the truth normal
+ * at the nearest truth sample; mean angle over the compared texels.
+ * Mask IoU: over the truth grid samples; A = truth canvas mask, B = copy mask at the copy
+ * texel nearest to the sample's world point; IoU = |A∩B| / |A∪B| (frame excluded since A
+ * excludes it and a copy texel on the frame counts against B). */
+#pragma once
+#include <stddef.h>
+#include <jansson.h>
+#include "error.h"
+
+struct imp_compare_result {
+        double height_rmse_um;
+        double height_offset_mm;      /* median (copy − truth) removed */
+        double height_max_abs_um;     /* after offset */
+        double normal_err_deg_mean;
+        double mask_iou;
+        size_t nan_count;             /* non-finite samples over all copy EXR channels */
+        size_t n_compared;            /* texels in the height/normal figures */
+};
+
+/* Reads COPY_DIR/{copy.json,heightfield.exr} and TRUTH_DIR/{truth.json,heightfield.exr}.
+ * Returns 0; file errors as imp_json_load / imp_exr_read with err filled; -EBADMSG when a
+ * required field or channel is missing; -ENODATA when no texel could be compared (the
+ * figures are then left at 0 and the result is not written). */
+int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_compare_result *ret,
+                     struct imp_error *err);
+
+json_t *imp_compare_result_to_json(const struct imp_compare_result *r);

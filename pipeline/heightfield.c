@@ -1,0 +1,620 @@
+/* Canvas extraction and heightfield resampling (seed §4.2, §5; see heightfield.h). Works
+ * on the range-image grid first (PCA, Sobel, seed fill, erosion, PCA again, vertex
+ * normals), then rasterises the range-image mesh into the canvas-frame grid. */
+#include <math.h>
+#include <string.h>
+#include <sys/stat.h>
+#include "heightfield.h"
+#include "image.h"
+#include "json-util.h"
+
+#define HF_DEFAULT_GRADIENT_REL   0.25
+#define HF_DEFAULT_GRADIENT_FLOOR 1e-3
+#define HF_DEFAULT_ERODE_PX       3
+#define HF_DEFAULT_MAX_EDGE       4.0
+#define HF_MAX_TEXELS             ((size_t) 1 << 28)
+#define HF_PLANE_WEAK_RATIO       0.99
+
+void imp_heightfield_options_default(struct imp_heightfield_options *opt) {
+        *opt = (struct imp_heightfield_options) {
+                .gradient_rel = HF_DEFAULT_GRADIENT_REL,
+                .gradient_floor_mm = HF_DEFAULT_GRADIENT_FLOOR,
+                .erode_px = HF_DEFAULT_ERODE_PX,
+                .max_edge_factor = HF_DEFAULT_MAX_EDGE,
+        };
+}
+
+void imp_heightfield_done(struct imp_heightfield *hf) {
+        if (!hf)
+                return;
+        free(hf->height_mm);
+        free(hf->nx_);
+        free(hf->ny_);
+        free(hf->sigma_mm);
+        free(hf->mask);
+        *hf = (struct imp_heightfield) {};
+}
+
+static double dot3(const double a[3], const double b[3]) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+static void cross3(const double a[3], const double b[3], double o[3]) {
+        o[0] = a[1] * b[2] - a[2] * b[1];
+        o[1] = a[2] * b[0] - a[0] * b[2];
+        o[2] = a[0] * b[1] - a[1] * b[0];
+}
+static bool normalize3(double v[3]) {
+        double l = sqrt(dot3(v, v));
+        if (!(l > 0) || !isfinite(l))
+                return false;
+        v[0] /= l, v[1] /= l, v[2] /= l;
+        return true;
+}
+
+void imp_heightfield_eigen3(const double A[9], double ret_val[3], double ret_vec[9]) {
+        double a[3][3], v[3][3] = { { 1, 0, 0 }, { 0, 1, 0 }, { 0, 0, 1 } };
+        for (int i = 0; i < 9; i++)
+                a[i / 3][i % 3] = A[i];
+        for (int sweep = 0; sweep < 50; sweep++) {
+                double off = fabs(a[0][1]) + fabs(a[0][2]) + fabs(a[1][2]);
+                double scale = fabs(a[0][0]) + fabs(a[1][1]) + fabs(a[2][2]);
+                if (off <= 1e-300 || off <= 1e-17 * scale)
+                        break;
+                for (int p = 0; p < 2; p++)
+                        for (int q = p + 1; q < 3; q++) {
+                                if (a[p][q] == 0)
+                                        continue;
+                                double theta = (a[q][q] - a[p][p]) / (2 * a[p][q]);
+                                double t = (theta >= 0 ? 1 : -1) / (fabs(theta) + sqrt(theta * theta + 1));
+                                double c = 1 / sqrt(t * t + 1), s = t * c;
+                                for (int k = 0; k < 3; k++) {     /* A ← A·J */
+                                        double akp = a[k][p], akq = a[k][q];
+                                        a[k][p] = c * akp - s * akq;
+                                        a[k][q] = s * akp + c * akq;
+                                }
+                                for (int k = 0; k < 3; k++) {     /* A ← Jᵀ·A */
+                                        double apk = a[p][k], aqk = a[q][k];
+                                        a[p][k] = c * apk - s * aqk;
+                                        a[q][k] = s * apk + c * aqk;
+                                }
+                                for (int k = 0; k < 3; k++) {     /* V ← V·J */
+                                        double vkp = v[k][p], vkq = v[k][q];
+                                        v[k][p] = c * vkp - s * vkq;
+                                        v[k][q] = s * vkp + c * vkq;
+                                }
+                        }
+        }
+        int idx[3] = { 0, 1, 2 };
+        for (int i = 0; i < 3; i++)
+                for (int j = i + 1; j < 3; j++)
+                        if (a[idx[j]][idx[j]] < a[idx[i]][idx[i]]) {
+                                int t = idx[i]; idx[i] = idx[j]; idx[j] = t;
+                        }
+        for (int i = 0; i < 3; i++) {
+                ret_val[i] = a[idx[i]][idx[i]];
+                for (int k = 0; k < 3; k++)
+                        ret_vec[3 * i + k] = v[k][idx[i]];
+        }
+}
+
+/* PCA of the points selected by sel (or all valid): centroid and normal (smallest axis,
+ * turned towards the camera). Returns the point count. */
+static size_t pca_plane(const struct imp_range_image *r, const uint8_t *sel, double ret_m[3],
+                        double ret_n[3], bool *ret_weak) {
+        size_t N = (size_t) r->width * r->height, cnt = 0;
+        double m[3] = { 0, 0, 0 };
+        for (size_t i = 0; i < N; i++)
+                if (sel ? sel[i] : r->valid[i]) {
+                        for (int c = 0; c < 3; c++)
+                                m[c] += r->xyz[3 * i + c];
+                        cnt++;
+                }
+        if (cnt == 0)
+                return 0;
+        for (int c = 0; c < 3; c++)
+                m[c] /= cnt;
+        double A[9] = { 0 };
+        for (size_t i = 0; i < N; i++)
+                if (sel ? sel[i] : r->valid[i]) {
+                        double d[3] = { r->xyz[3 * i] - m[0], r->xyz[3 * i + 1] - m[1], r->xyz[3 * i + 2] - m[2] };
+                        for (int a = 0; a < 3; a++)
+                                for (int b = a; b < 3; b++)
+                                        A[3 * a + b] += d[a] * d[b];
+                }
+        A[3] = A[1], A[6] = A[2], A[7] = A[5];
+        double val[3], vec[9];
+        imp_heightfield_eigen3(A, val, vec);
+        double n[3] = { vec[0], vec[1], vec[2] };
+        double toc[3] = { r->camera_centre_mm[0] - m[0], r->camera_centre_mm[1] - m[1], r->camera_centre_mm[2] - m[2] };
+        if (dot3(n, toc) < 0)
+                n[0] = -n[0], n[1] = -n[1], n[2] = -n[2];
+        if (!normalize3(n))
+                n[0] = 0, n[1] = 0, n[2] = 1;
+        memcpy(ret_m, m, sizeof m);
+        memcpy(ret_n, n, sizeof n);
+        *ret_weak = val[0] >= HF_PLANE_WEAK_RATIO * val[1];
+        return cnt;
+}
+
+/* k-th smallest of v[0..n) (quickselect; reorders v). */
+static float select_kth(float *v, size_t n, size_t k) {
+        size_t lo = 0, hi = n - 1;
+        while (lo < hi) {
+                float pivot = v[lo + (hi - lo) / 2];
+                size_t i = lo, j = hi;
+                while (i <= j) {
+                        while (v[i] < pivot) i++;
+                        while (v[j] > pivot) j--;
+                        if (i <= j) {
+                                float t = v[i]; v[i] = v[j]; v[j] = t;
+                                i++;
+                                if (j == 0)
+                                        break;
+                                j--;
+                        }
+                }
+                if (k <= j)
+                        hi = j;
+                else if (k >= i)
+                        lo = i;
+                else
+                        return v[k];
+        }
+        return v[k];
+}
+
+/* Percentile p (0..100) of n values (copied). */
+static int percentile(const float *v, size_t n, double p, float *ret) {
+        if (n == 0)
+                return -ENODATA;
+        _cleanup_free_ float *tmp = malloc(n * sizeof(float));
+        if (!tmp)
+                return -ENOMEM;
+        memcpy(tmp, v, n * sizeof(float));
+        size_t k = (size_t) llround(p / 100.0 * (double) (n - 1));
+        *ret = select_kth(tmp, n, k);
+        return 0;
+}
+
+/* Sobel magnitude of h on the valid pixels (normalised by 1/8: height change per pixel);
+ * invalid neighbours take the centre value, image borders are clamped. */
+static void sobel(const float *h, const uint8_t *valid, int w, int hh, float *g) {
+        #pragma omp parallel for schedule(static)
+        for (int y = 0; y < hh; y++)
+                for (int x = 0; x < w; x++) {
+                        size_t i = (size_t) y * w + x;
+                        if (!valid[i]) {
+                                g[i] = INFINITY;
+                                continue;
+                        }
+                        float n[3][3];
+                        for (int dy = -1; dy <= 1; dy++)
+                                for (int dx = -1; dx <= 1; dx++) {
+                                        int xx = IMP_CLAMP(x + dx, 0, w - 1), yy = IMP_CLAMP(y + dy, 0, hh - 1);
+                                        size_t j = (size_t) yy * w + xx;
+                                        n[dy + 1][dx + 1] = valid[j] ? h[j] : h[i];
+                                }
+                        float gx = (n[0][2] + 2 * n[1][2] + n[2][2]) - (n[0][0] + 2 * n[1][0] + n[2][0]);
+                        float gy = (n[2][0] + 2 * n[2][1] + n[2][2]) - (n[0][0] + 2 * n[0][1] + n[0][2]);
+                        g[i] = sqrtf(gx * gx + gy * gy) / 8.0f;
+                }
+}
+
+/* 4-connected fill from seed over pixels with g <= T. */
+static int seed_fill(const float *g, int w, int h, size_t seed, float T, uint8_t *mask) {
+        size_t N = (size_t) w * h, top = 0;
+        _cleanup_free_ uint32_t *stack = malloc(N * sizeof(uint32_t));
+        if (!stack)
+                return -ENOMEM;
+        memset(mask, 0, N);
+        mask[seed] = 1;
+        stack[top++] = (uint32_t) seed;
+        while (top > 0) {
+                size_t i = stack[--top];
+                int x = (int) (i % w), y = (int) (i / w);
+                const int dx[4] = { 1, -1, 0, 0 }, dy[4] = { 0, 0, 1, -1 };
+                for (int k = 0; k < 4; k++) {
+                        int xx = x + dx[k], yy = y + dy[k];
+                        if (xx < 0 || yy < 0 || xx >= w || yy >= h)
+                                continue;
+                        size_t j = (size_t) yy * w + xx;
+                        if (!mask[j] && g[j] <= T) {
+                                mask[j] = 1;
+                                stack[top++] = (uint32_t) j;
+                        }
+                }
+        }
+        return 0;
+}
+
+/* k steps of 8-neighbour erosion; outside the image counts as outside the mask. */
+static int erode(uint8_t *mask, int w, int h, int k) {
+        size_t N = (size_t) w * h;
+        _cleanup_free_ uint8_t *tmp = malloc(N);
+        if (!tmp)
+                return -ENOMEM;
+        for (int step = 0; step < k; step++) {
+                memcpy(tmp, mask, N);
+                #pragma omp parallel for schedule(static)
+                for (int y = 0; y < h; y++)
+                        for (int x = 0; x < w; x++) {
+                                size_t i = (size_t) y * w + x;
+                                if (!tmp[i])
+                                        continue;
+                                bool keep = x > 0 && y > 0 && x < w - 1 && y < h - 1;
+                                for (int dy = -1; keep && dy <= 1; dy++)
+                                        for (int dx = -1; keep && dx <= 1; dx++)
+                                                keep = tmp[i + (ptrdiff_t) dy * w + dx];
+                                mask[i] = keep;
+                        }
+        }
+        return 0;
+}
+
+/* Nearest pixel to the centre (ring by ring) that is valid with g <= T. */
+static bool find_seed(const float *g, int w, int h, float T, size_t *ret) {
+        int cx = w / 2, cy = h / 2, rmax = IMP_MAX(w, h);
+        for (int r = 0; r <= rmax; r++)
+                for (int y = cy - r; y <= cy + r; y++) {
+                        if (y < 0 || y >= h)
+                                continue;
+                        int step = (y == cy - r || y == cy + r) ? 1 : 2 * r;
+                        for (int x = cx - r; x <= cx + r; x += step ? step : 1) {
+                                if (x >= 0 && x < w && g[(size_t) y * w + x] <= T) {
+                                        *ret = (size_t) y * w + x;
+                                        return true;
+                                }
+                        }
+                }
+        return false;
+}
+
+/* Per-pixel data in the canvas frame: (u, v, h) and the vertex normal, σ_h. */
+struct hf_ctx {
+        const struct imp_range_image *r;
+        const uint8_t *canvas;
+        float *uvh;          /* 3 per pixel */
+        float *nrm;          /* 3 per pixel */
+        float *sig;
+        double max_edge2;
+};
+
+static bool edge_ok(const struct hf_ctx *c, size_t a, size_t b) {
+        double s = 0;
+        for (int k = 0; k < 3; k++) {
+                double d = c->uvh[3 * a + k] - c->uvh[3 * b + k];
+                s += d * d;
+        }
+        return s <= c->max_edge2;
+}
+
+static void vertex_normals(struct hf_ctx *c) {
+        int w = c->r->width, h = c->r->height;
+        static const int ox[8] = { 1, 1, 0, -1, -1, -1, 0, 1 }, oy[8] = { 0, 1, 1, 1, 0, -1, -1, -1 };
+        #pragma omp parallel for schedule(static)
+        for (int y = 0; y < h; y++)
+                for (int x = 0; x < w; x++) {
+                        size_t i = (size_t) y * w + x;
+                        if (!c->canvas[i])
+                                continue;
+                        double sum[3] = { 0, 0, 0 };
+                        for (int k = 0; k < 8; k++) {
+                                int x1 = x + ox[k], y1 = y + oy[k], x2 = x + ox[(k + 1) % 8], y2 = y + oy[(k + 1) % 8];
+                                if (x1 < 0 || y1 < 0 || x1 >= w || y1 >= h || x2 < 0 || y2 < 0 || x2 >= w || y2 >= h)
+                                        continue;
+                                size_t a = (size_t) y1 * w + x1, b = (size_t) y2 * w + x2;
+                                if (!c->canvas[a] || !c->canvas[b] || !edge_ok(c, i, a) || !edge_ok(c, i, b))
+                                        continue;
+                                double e1[3], e2[3], n[3];
+                                for (int q = 0; q < 3; q++) {
+                                        e1[q] = c->uvh[3 * a + q] - c->uvh[3 * i + q];
+                                        e2[q] = c->uvh[3 * b + q] - c->uvh[3 * i + q];
+                                }
+                                cross3(e1, e2, n);
+                                if (n[2] < 0)   /* orient by the (u, v) winding: towards +h */
+                                        n[0] = -n[0], n[1] = -n[1], n[2] = -n[2];
+                                if (!normalize3(n))
+                                        continue;
+                                for (int q = 0; q < 3; q++)
+                                        sum[q] += n[q];
+                        }
+                        if (!normalize3(sum))
+                                sum[0] = 0, sum[1] = 0, sum[2] = 1;
+                        for (int q = 0; q < 3; q++)
+                                c->nrm[3 * i + q] = (float) sum[q];
+                }
+}
+
+/* Rasterise triangle (a, b, c) of range pixels into the grid. */
+static void raster_tri(const struct hf_ctx *c, size_t a, size_t b, size_t d, struct imp_heightfield *hf,
+                       double umin, double vmin) {
+        double p = hf->pitch_mm;
+        double X[3], Y[3];
+        size_t id[3] = { a, b, d };
+        for (int k = 0; k < 3; k++) {
+                X[k] = (c->uvh[3 * id[k]] - umin) / p;
+                Y[k] = (c->uvh[3 * id[k] + 1] - vmin) / p;
+        }
+        double area = (X[1] - X[0]) * (Y[2] - Y[0]) - (X[2] - X[0]) * (Y[1] - Y[0]);
+        if (fabs(area) < 1e-12)
+                return;
+        int i0 = (int) ceil(fmin(X[0], fmin(X[1], X[2])) - 1e-9), i1 = (int) floor(fmax(X[0], fmax(X[1], X[2])) + 1e-9);
+        int j0 = (int) ceil(fmin(Y[0], fmin(Y[1], Y[2])) - 1e-9), j1 = (int) floor(fmax(Y[0], fmax(Y[1], Y[2])) + 1e-9);
+        i0 = IMP_MAX(i0, 0), j0 = IMP_MAX(j0, 0), i1 = IMP_MIN(i1, hf->nx - 1), j1 = IMP_MIN(j1, hf->ny - 1);
+        const double eps = -1e-9;
+        for (int j = j0; j <= j1; j++)
+                for (int i = i0; i <= i1; i++) {
+                        double l1 = ((X[2] - X[0]) * (j - Y[0]) - (i - X[0]) * (Y[2] - Y[0])) / -area;
+                        double l2 = ((X[1] - X[0]) * (j - Y[0]) - (i - X[0]) * (Y[1] - Y[0])) / area;
+                        double l0 = 1 - l1 - l2;
+                        if (l0 < eps || l1 < eps || l2 < eps)
+                                continue;
+                        double L[3] = { l0, l1, l2 }, hh = 0, s = 0, n[3] = { 0, 0, 0 };
+                        for (int k = 0; k < 3; k++) {
+                                hh += L[k] * c->uvh[3 * id[k] + 2];
+                                s += L[k] * c->sig[id[k]];
+                                for (int q = 0; q < 3; q++)
+                                        n[q] += L[k] * c->nrm[3 * id[k] + q];
+                        }
+                        if (!normalize3(n))
+                                n[0] = 0, n[1] = 0, n[2] = 1;
+                        size_t t = (size_t) j * hf->nx + i;
+                        hf->height_mm[t] = (float) hh;
+                        hf->sigma_mm[t] = (float) s;
+                        hf->nx_[t] = (float) n[0];
+                        hf->ny_[t] = (float) n[1];
+                        hf->mask[t] = 1;
+                }
+}
+
+int imp_heightfield_from_range(const struct imp_range_image *range,
+                               const struct imp_heightfield_options *opt, struct imp_heightfield *ret) {
+        struct imp_heightfield_options defaults;
+        if (!range || !ret || range->width <= 0 || range->height <= 0 || !range->xyz || !range->valid)
+                return -EINVAL;
+        if (!opt) {
+                imp_heightfield_options_default(&defaults);
+                opt = &defaults;
+        }
+        if (opt->erode_px < 0 || !(opt->gradient_rel > 0) || !(opt->max_edge_factor > 0))
+                return -EINVAL;
+        int w = range->width, h = range->height, r;
+        size_t N = (size_t) w * h;
+        if (N > UINT32_MAX)
+                return -E2BIG;
+        struct imp_heightfield hf = {};
+        double m1[3], n1[3];
+        bool weak;
+        hf.n_range_points = pca_plane(range, NULL, m1, n1, &weak);
+        if (hf.n_range_points < 3)
+                return -ENODATA;
+
+        /* Canvas mask on the range grid: first-PCA height, Sobel, seed fill, erosion. */
+        _cleanup_free_ uint8_t *canvas = malloc(N);
+        if (!canvas)
+                return -ENOMEM;
+        if (opt->skip_extraction) {
+                for (size_t i = 0; i < N; i++)
+                        canvas[i] = range->valid[i] != 0;
+        } else {
+                _cleanup_free_ float *h1 = malloc(N * sizeof(float)), *g = malloc(N * sizeof(float));
+                _cleanup_free_ float *hv = malloc(hf.n_range_points * sizeof(float));
+                if (!h1 || !g || !hv)
+                        return -ENOMEM;
+                size_t k = 0;
+                for (size_t i = 0; i < N; i++) {
+                        if (!range->valid[i]) {
+                                h1[i] = 0;
+                                continue;
+                        }
+                        double d[3] = { range->xyz[3 * i] - m1[0], range->xyz[3 * i + 1] - m1[1], range->xyz[3 * i + 2] - m1[2] };
+                        h1[i] = hv[k++] = (float) dot3(d, n1);
+                }
+                float p1, p99;
+                if ((r = percentile(hv, k, 1, &p1)) < 0 || (r = percentile(hv, k, 99, &p99)) < 0)
+                        return r;
+                float T = (float) fmax(opt->gradient_rel * (p99 - p1), opt->gradient_floor_mm);
+                hf.gradient_threshold_mm = T;
+                sobel(h1, range->valid, w, h, g);
+                size_t seed, centre = (size_t) (h / 2) * w + w / 2;
+                if (!find_seed(g, w, h, T, &seed))
+                        return -ENODATA;
+                if (seed != centre)
+                        hf.flags |= IMP_HF_SEED_MOVED;
+                if ((r = seed_fill(g, w, h, seed, T, canvas)) < 0 || (r = erode(canvas, w, h, opt->erode_px)) < 0)
+                        return r;
+        }
+
+        /* Canvas frame from the canvas points. */
+        double m[3], ez[3];
+        hf.n_canvas_points = pca_plane(range, canvas, m, ez, &weak);
+        if (hf.n_canvas_points < 3)
+                return -ENODATA;
+        if (weak)
+                hf.flags |= IMP_HF_PLANE_WEAK;
+        double ex[3] = { 1, 0, 0 }, ey[3];
+        if (fabs(ez[0]) > 0.9)
+                ex[0] = 0, ex[1] = 1;
+        double pr = dot3(ex, ez);
+        for (int q = 0; q < 3; q++)
+                ex[q] -= pr * ez[q];
+        normalize3(ex);
+        cross3(ez, ex, ey);
+
+        _cleanup_free_ float *uvh = malloc(N * 3 * sizeof(float)), *nrm = malloc(N * 3 * sizeof(float));
+        _cleanup_free_ float *sig = malloc(N * sizeof(float));
+        if (!uvh || !nrm || !sig)
+                return -ENOMEM;
+        double umin = INFINITY, vmin = INFINITY, umax = -INFINITY, vmax = -INFINITY, ss = 0;
+        for (size_t i = 0; i < N; i++) {
+                if (!canvas[i])
+                        continue;
+                const float *X = range->xyz + 3 * i;
+                double d[3] = { X[0] - m[0], X[1] - m[1], X[2] - m[2] };
+                double u = dot3(d, ex), v = dot3(d, ey), hh = dot3(d, ez);
+                uvh[3 * i] = (float) u, uvh[3 * i + 1] = (float) v, uvh[3 * i + 2] = (float) hh;
+                double ray[3] = { X[0] - range->camera_centre_mm[0], X[1] - range->camera_centre_mm[1],
+                                  X[2] - range->camera_centre_mm[2] };
+                double cosr = normalize3(ray) ? fabs(dot3(ray, ez)) : 1.0;
+                sig[i] = range->sigma_mm ? (float) (range->sigma_mm[i] * cosr) : 0.0f;
+                umin = fmin(umin, u), umax = fmax(umax, u), vmin = fmin(vmin, v), vmax = fmax(vmax, v);
+                ss += hh * hh;
+        }
+        hf.plane_rms_mm = sqrt(ss / hf.n_canvas_points);
+
+        /* Footprint: median 3D distance between horizontally (or vertically) adjacent
+         * canvas points. */
+        {
+                _cleanup_free_ float *dist = malloc(N * sizeof(float));
+                if (!dist)
+                        return -ENOMEM;
+                size_t nd = 0;
+                for (int y = 0; y < h; y++)
+                        for (int x = 0; x < w; x++) {
+                                size_t i = (size_t) y * w + x;
+                                if (!canvas[i])
+                                        continue;
+                                size_t j = x + 1 < w ? i + 1 : (y + 1 < h ? i + w : i);
+                                if (j == i || !canvas[j])
+                                        continue;
+                                double s2 = 0;
+                                for (int q = 0; q < 3; q++) {
+                                        double dd = range->xyz[3 * i + q] - range->xyz[3 * j + q];
+                                        s2 += dd * dd;
+                                }
+                                dist[nd++] = (float) sqrt(s2);
+                        }
+                if (nd == 0)
+                        for (int y = 0; y + 1 < h; y++)
+                                for (int x = 0; x < w; x++) {
+                                        size_t i = (size_t) y * w + x, j = i + w;
+                                        if (!canvas[i] || !canvas[j])
+                                                continue;
+                                        double s2 = 0;
+                                        for (int q = 0; q < 3; q++) {
+                                                double dd = range->xyz[3 * i + q] - range->xyz[3 * j + q];
+                                                s2 += dd * dd;
+                                        }
+                                        dist[nd++] = (float) sqrt(s2);
+                                }
+                float med;
+                if (nd == 0 || (r = percentile(dist, nd, 50, &med)) < 0 || !(med > 0))
+                        return -ENODATA;
+                hf.footprint_mm = med;
+        }
+        hf.pitch_mm = opt->pitch_mm > 0 ? opt->pitch_mm : hf.footprint_mm;
+        double gx = floor((umax - umin) / hf.pitch_mm + 1e-9) + 1, gy = floor((vmax - vmin) / hf.pitch_mm + 1e-9) + 1;
+        if (!(gx * gy <= (double) HF_MAX_TEXELS))
+                return -E2BIG;
+        hf.nx = (int) gx, hf.ny = (int) gy;
+        size_t n_tex = (size_t) hf.nx * hf.ny;
+        hf.height_mm = calloc(n_tex, sizeof(float));
+        hf.nx_ = calloc(n_tex, sizeof(float));
+        hf.ny_ = calloc(n_tex, sizeof(float));
+        hf.sigma_mm = calloc(n_tex, sizeof(float));
+        hf.mask = calloc(n_tex, 1);
+        if (!hf.height_mm || !hf.nx_ || !hf.ny_ || !hf.sigma_mm || !hf.mask) {
+                imp_heightfield_done(&hf);
+                return -ENOMEM;
+        }
+
+        double max_edge = opt->max_edge_factor * fmax(hf.footprint_mm, hf.pitch_mm);
+        struct hf_ctx c = { .r = range, .canvas = canvas, .uvh = uvh, .nrm = nrm, .sig = sig,
+                            .max_edge2 = max_edge * max_edge };
+        vertex_normals(&c);
+        for (int y = 0; y + 1 < h; y++)
+                for (int x = 0; x + 1 < w; x++) {
+                        size_t a = (size_t) y * w + x, b = a + 1, d = a + w, e = d + 1;
+                        if (canvas[a] && canvas[b] && canvas[d] && edge_ok(&c, a, b) && edge_ok(&c, a, d) &&
+                            edge_ok(&c, b, d))
+                                raster_tri(&c, a, b, d, &hf, umin, vmin);
+                        if (canvas[b] && canvas[e] && canvas[d] && edge_ok(&c, b, e) && edge_ok(&c, e, d) &&
+                            edge_ok(&c, b, d))
+                                raster_tri(&c, b, e, d, &hf, umin, vmin);
+                }
+        for (size_t t = 0; t < n_tex; t++)
+                hf.n_mask_texels += hf.mask[t];
+        if (hf.n_mask_texels == 0) {
+                imp_heightfield_done(&hf);
+                return -ENODATA;
+        }
+
+        double o[3];
+        for (int q = 0; q < 3; q++)
+                o[q] = m[q] + umin * ex[q] + vmin * ey[q];
+        double *M = hf.canvas_to_world;
+        for (int q = 0; q < 3; q++) {
+                M[4 * q + 0] = ex[q];
+                M[4 * q + 1] = ey[q];
+                M[4 * q + 2] = ez[q];
+                M[4 * q + 3] = o[q];
+        }
+        M[12] = M[13] = M[14] = 0, M[15] = 1;
+        *ret = hf;
+        return 0;
+}
+
+json_t *imp_heightfield_stage_json(const struct imp_heightfield *hf) {
+        return json_pack("{s:I,s:I,s:I,s:f,s:f,s:f,s:f,s:b,s:b}",
+                         "range_points", (json_int_t) hf->n_range_points,
+                         "canvas_points", (json_int_t) hf->n_canvas_points,
+                         "mask_texels", (json_int_t) hf->n_mask_texels,
+                         "plane_rms_mm", hf->plane_rms_mm,
+                         "gradient_threshold_mm", hf->gradient_threshold_mm,
+                         "footprint_mm", hf->footprint_mm,
+                         "pitch_mm", hf->pitch_mm,
+                         "seed_moved", (hf->flags & IMP_HF_SEED_MOVED) != 0,
+                         "plane_weak", (hf->flags & IMP_HF_PLANE_WEAK) != 0);
+}
+
+int imp_heightfield_save(const struct imp_heightfield *hf, const char *copy_dir, struct imp_error *err) {
+        if (!hf || !copy_dir || hf->nx <= 0 || hf->ny <= 0)
+                return imp_error_set(err, -EINVAL, "heightfield save: bad arguments");
+        int r = imp_mkdir_p(copy_dir, 0755);
+        if (r < 0)
+                return imp_error_set(err, r, "%s: cannot create directory: %s", copy_dir, strerror(-r));
+        _cleanup_image_ struct imp_image *img = NULL;
+        if ((r = imp_image_new(hf->nx, hf->ny, 5, IMP_PIX_F32, &img)) < 0)
+                return imp_error_set(err, r, "heightfield %dx%d: cannot allocate: %s", hf->nx, hf->ny, strerror(-r));
+        for (int j = 0; j < hf->ny; j++)
+                for (int i = 0; i < hf->nx; i++) {
+                        size_t t = (size_t) j * hf->nx + i;
+                        float *p = imp_image_f32(img, i, j);
+                        p[0] = hf->height_mm[t];
+                        p[1] = hf->nx_[t];
+                        p[2] = hf->ny_[t];
+                        p[3] = hf->sigma_mm[t];
+                        p[4] = hf->mask[t];
+                }
+        static const char *const names[] = { "height", "nx", "ny", "sigma", "mask" };
+        char path[4096];
+        snprintf(path, sizeof path, "%s/heightfield.exr", copy_dir);
+        if ((r = imp_exr_write(path, img, names, false, err)) < 0)
+                return r;
+
+        snprintf(path, sizeof path, "%s/copy.json", copy_dir);
+        _cleanup_json_ json_t *j = NULL;
+        struct stat st;
+        if (stat(path, &st) == 0) {
+                if ((r = imp_json_load(path, &j, err)) < 0)
+                        return r;
+                if (!json_is_object(j))
+                        return imp_error_set(err, -EBADMSG, "%s: expected a JSON object", path);
+        } else
+                j = json_object();
+        json_t *m = json_array();
+        for (int k = 0; k < 16; k++)
+                json_array_append_new(m, json_real(hf->canvas_to_world[k]));
+        json_object_set_new(j, "units", json_string("mm"));
+        json_object_set_new(j, "pitch_mm", json_real(hf->pitch_mm));
+        json_object_set_new(j, "nx", json_integer(hf->nx));
+        json_object_set_new(j, "ny", json_integer(hf->ny));
+        json_object_set_new(j, "canvas_to_world", m);
+        if (!json_is_object(json_object_get(j, "provenance")))
+                json_object_set_new(j, "provenance", json_object());
+        json_t *stages = json_object_get(j, "stages");
+        if (!json_is_object(stages)) {
+                stages = json_object();
+                json_object_set_new(j, "stages", stages);
+        }
+        json_object_set_new(stages, "heightfield", imp_heightfield_stage_json(hf));
+        return imp_json_save_atomic(path, j, err);
+}

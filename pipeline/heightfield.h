@@ -1,0 +1,82 @@
+/* Canvas extraction and heightfield (seed §4.2, §5): range image → PCA plane → Sobel of
+ * the height → seed fill from the image centre stopped at high gradient → erosion → PCA on
+ * the canvas points → resampling onto a regular grid in the canvas frame by rasterising
+ * the range-image mesh (no invented surface across holes) → normals averaged over the
+ * 8-neighbourhood triangles. Library code: no logging.
+ *
+ * Canvas frame: z = the canvas-PCA normal turned towards the camera (height grows towards
+ * the viewer), x = world x projected on the plane (world y when the plane is nearly
+ * perpendicular to world x), y = z × x; origin = the canvas points' minimum corner in
+ * (x, y), at height 0 = the PCA plane through the canvas points' centroid. Texel (i, j)
+ * sits at canvas (i·pitch, j·pitch); canvas_to_world maps (i·pitch, j·pitch, h, 1). */
+#pragma once
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <jansson.h>
+#include "error.h"
+#include "triangulate.h"
+
+struct imp_heightfield_options {
+        /* Seed fill stops at pixels whose Sobel gradient magnitude (height change per range
+         * pixel, Sobel normalised by 1/8) exceeds gradient_rel × (h99 − h1), h1/h99 the 1st
+         * and 99th percentiles of the first-PCA height over all valid points. A frame
+         * standing a few mm off a canvas whose relief spans a fraction of that stops the
+         * fill; paint relief does not. Default 0.25. */
+        double gradient_rel;
+        double gradient_floor_mm;     /* threshold never below this (noise-free flat data);
+                                         default 1e-3 mm per pixel */
+        int erode_px;                 /* erosion of the filled mask (8-neighbour steps); default 3 */
+        double pitch_mm;              /* grid pitch; <= 0: median distance between horizontally
+                                         neighbouring canvas points (camera footprint) */
+        double max_edge_factor;       /* mesh triangles with an edge longer than this × the
+                                         footprint are not rasterised (holes stay holes);
+                                         default 4 */
+        bool skip_extraction;         /* keep every valid point (no seed fill / erosion) */
+};
+void imp_heightfield_options_default(struct imp_heightfield_options *opt);
+
+/* Quality flags (bits). */
+enum {
+        IMP_HF_SEED_MOVED   = 1 << 0, /* the centre pixel was invalid or steep; nearest usable used */
+        IMP_HF_PLANE_WEAK   = 1 << 1, /* the two smallest PCA eigenvalues are within 1 %:
+                                         the plane orientation is not determined by the data
+                                         (e.g. points along a line); the normal is still a unit
+                                         vector */
+};
+
+struct imp_heightfield {
+        int nx, ny;                   /* texels */
+        double pitch_mm;
+        float *height_mm;             /* nx·ny, row-major (j·nx + i); 0 where mask = 0 */
+        float *nx_, *ny_;             /* normal x, y in the canvas frame; 0 where mask = 0 */
+        float *sigma_mm;              /* height σ (range σ projected on the normal); 0 off mask */
+        uint8_t *mask;                /* 1 = canvas texel covered by the measured mesh */
+        double canvas_to_world[16];   /* row-major 4×4 */
+        /* figures */
+        size_t n_range_points, n_canvas_points, n_mask_texels;
+        double plane_rms_mm;          /* rms height about the canvas plane */
+        double gradient_threshold_mm; /* the Sobel threshold that was used */
+        double footprint_mm;          /* median neighbour distance */
+        unsigned flags;               /* IMP_HF_* */
+};
+
+/* Builds the heightfield. Returns 0; -EINVAL on bad arguments; -ENODATA when fewer than 3
+ * valid points, no usable seed or an empty canvas (the data cannot determine a canvas);
+ * -E2BIG when the grid would exceed 2^28 texels; -ENOMEM. On success the caller frees
+ * *ret with imp_heightfield_done(); on failure *ret is untouched. */
+int imp_heightfield_from_range(const struct imp_range_image *range,
+                               const struct imp_heightfield_options *opt, struct imp_heightfield *ret);
+void imp_heightfield_done(struct imp_heightfield *hf);   /* frees members; accepts zeroed */
+
+/* The heightfield stage's figures as a JSON object (for copy.json "stages"). */
+json_t *imp_heightfield_stage_json(const struct imp_heightfield *hf);
+
+/* Writes COPY_DIR/heightfield.exr (float channels height, nx, ny, sigma, mask) and
+ * creates or updates COPY_DIR/copy.json (units, pitch_mm, nx, ny, canvas_to_world,
+ * provenance {} kept, stages.heightfield). Creates COPY_DIR. */
+int imp_heightfield_save(const struct imp_heightfield *hf, const char *copy_dir, struct imp_error *err);
+
+/* Symmetric 3×3 eigen-decomposition (Jacobi): eigenvalues ascending in ret_val, unit
+ * eigenvectors as rows of ret_vec. Shared with compare.c and tests. */
+void imp_heightfield_eigen3(const double A[9], double ret_val[3], double ret_vec[9]);

@@ -1,0 +1,7 @@
+# Geometry pipeline (issue #4 stages 1, 3, 4, 5): HDR merge, triangulation, heightfield,
+# relief boxes, copy-vs-truth comparison; hard numerical cases under the stability label.
+impasto_test(test-hdr LIBS impasto_pipeline)
+impasto_test(test-triangulate LIBS impasto_pipeline)
+impasto_test(test-heightfield LIBS impasto_pipeline)
+impasto_test(test-boxes LIBS impasto_pipeline)
+impasto_test(test-geometry-stability LABELS stability LIBS impasto_pipeline)
