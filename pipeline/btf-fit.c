@@ -1,0 +1,811 @@
+/* Per-texel one-lobe Lafortune fit (seed 000 eq. 1; docs/btf-fit.md): variable projection
+ * — for a fixed lobe the model is linear in ρd, ρs, solved per channel by a closed-form
+ * 2-variable NNLS — and Levenberg–Marquardt on the lobe (Cx, Cy, log k) in the Cz = 1
+ * gauge, with bounds, a Huber loss scaled by the MAD, a k-grid multi-start, and honest
+ * flags when the data cannot determine the lobe. Then hole filling and the tiled driver. */
+#include <errno.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "btf.h"
+
+#define MAXP 3                        /* lobe parameters: (cx, cy, log k) or (cxy, log k) */
+#define COND_MAX 1e12                 /* reported condition numbers are capped here */
+#define RHO_S_MAX 1e4                 /* last-resort cap of the reported ρs */
+#define PEAK_SEEN_FLAG 0.15           /* LOBE_UNCERTAIN when the brightest seen lobe value is
+                                         below this fraction of the lobe's peak */
+#define PEAK_SEEN_MIN 0.01            /* k is lowered until the peak is at most 1/this times
+                                         the brightest seen lobe value (no wild extrapolation) */
+#define LAMBDA_INIT 1e-3
+#define LAMBDA_MAX 1e8
+#define STEP_MIN 1e-4                 /* stop when no parameter moves more than this */
+
+static const double k_grid[] = { 2, 5, 12, 30, 80, 200, 500 };
+
+void imp_btf_fit_params_default(struct imp_btf_fit_params *ret) {
+        *ret = (struct imp_btf_fit_params) {
+                .min_samples = 6,
+                .k_min = 1.0,
+                .k_max = 1000.0,
+                .c_max = 1.0,
+                .max_iter = 30,
+                .tol = 1e-4,
+                .robust_passes = 2,
+                .huber_delta = 1.345,
+                .sigma_floor = 0.002,
+                .matte_threshold = 0.01,
+                .cxy_tau = 1e-3,
+                .k_rel_uncertain = 0.2,
+                .k_default = 10.0,
+                .c_prior_sigma = 0.5,
+        };
+}
+
+/* Per-texel workspace (on the stack: ~30 kB). W = l_z² · robust weight: residuals are
+ * those of V/E, i.e. cos θl · (y − model) with y = V / (E cos θl). */
+struct work {
+        int n;
+        float ax[IMP_BTF_MAX_SAMPLES], ay[IMP_BTF_MAX_SAMPLES], az[IMP_BTF_MAX_SAMPLES];
+        float wl[IMP_BTF_MAX_SAMPLES], om[IMP_BTF_MAX_SAMPLES], W[IMP_BTF_MAX_SAMPLES];
+        float y[3][IMP_BTF_MAX_SAMPLES];
+        float d[IMP_BTF_MAX_SAMPLES], g[IMP_BTF_MAX_SAMPLES], ld[IMP_BTF_MAX_SAMPLES];
+        float tmp[IMP_BTF_MAX_SAMPLES];
+};
+
+/* One evaluation of the reduced problem at a lobe. g is normalised by its largest value
+ * over the samples (ρs absorbs any scale), so it lies in [0, 1] for every k. */
+struct eval {
+        double cx, cy, k;
+        double ldmax;                 /* max ln d over samples with d > 0 (-HUGE_VAL: none) */
+        double rd[3], rs[3];          /* NNLS solution per channel (rs for normalised g) */
+        bool rd_active[3];            /* ρd_c > 0 (free) */
+        double sw, sg, sgg;
+        double cost;                  /* Σ W Σ_c r² */
+};
+
+/* ---- the linear part: 2-variable non-negative least squares ---------------------- */
+
+static double q_cost(double a, double b, double sw, double sg, double sgg, double sy, double sgy, double syy) {
+        return syy - 2.0 * (a * sy + b * sgy) + a * a * sw + 2.0 * a * b * sg + b * b * sgg;
+}
+
+/* min Σ W (y − a − b g)², a, b ≥ 0: the unconstrained optimum when feasible, otherwise
+ * the best of the KKT faces (a = 0, b = 0, both 0) — exact for this convex 2-D QP. */
+static double nnls2(double sw, double sg, double sgg, double sy, double sgy, double syy,
+                    double *ret_a, double *ret_b) {
+        double det = sw * sgg - sg * sg;
+        if (det > 1e-12 * sw * sgg && sgg > 0.0) {
+                double a = (sgg * sy - sg * sgy) / det, b = (sw * sgy - sg * sy) / det;
+                if (a >= 0.0 && b >= 0.0) {
+                        *ret_a = a;
+                        *ret_b = b;
+                        return q_cost(a, b, sw, sg, sgg, sy, sgy, syy);
+                }
+        }
+        double best_a = 0.0, best_b = 0.0, best = syy;
+        if (sgg > 0.0 && sgy > 0.0) {
+                double b = sgy / sgg, c = q_cost(0.0, b, sw, sg, sgg, sy, sgy, syy);
+                if (c < best) { best = c; best_a = 0.0; best_b = b; }
+        }
+        if (sw > 0.0 && sy > 0.0) {
+                double a = sy / sw, c = q_cost(a, 0.0, sw, sg, sgg, sy, sgy, syy);
+                if (c < best) { best = c; best_a = a; best_b = 0.0; }
+        }
+        *ret_a = best_a;
+        *ret_b = best_b;
+        return best;
+}
+
+/* Fills w->d, w->ld, w->g for the lobe and solves the linear part. */
+static void evaluate(struct work *w, double cx, double cy, double k, struct eval *e) {
+        int n = w->n;
+        double ldmax = -HUGE_VAL;
+        for (int i = 0; i < n; i++) {
+                float d = (float) cx * w->ax[i] + (float) cy * w->ay[i] + w->az[i];
+                w->d[i] = d;
+                float ld = d > 0.0f ? logf(d) : -HUGE_VALF;
+                w->ld[i] = ld;
+                if (ld > ldmax)
+                        ldmax = ld;
+        }
+        double sw = 0, sg = 0, sgg = 0, sy[3] = { 0 }, sgy[3] = { 0 }, syy[3] = { 0 };
+        float kf = (float) k, lm = (float) ldmax;
+        for (int i = 0; i < n; i++) {
+                float g = w->d[i] > 0.0f ? expf(kf * (w->ld[i] - lm)) : 0.0f;
+                w->g[i] = g;
+                double W = w->W[i], Wg = W * g;
+                sw += W;
+                sg += Wg;
+                sgg += Wg * g;
+                for (int c = 0; c < 3; c++) {
+                        double y = w->y[c][i];
+                        sy[c] += W * y;
+                        sgy[c] += Wg * y;
+                        syy[c] += W * y * y;
+                }
+        }
+        e->cx = cx;
+        e->cy = cy;
+        e->k = k;
+        e->ldmax = ldmax;
+        e->sw = sw;
+        e->sg = sg;
+        e->sgg = sgg;
+        e->cost = 0.0;
+        for (int c = 0; c < 3; c++) {
+                double cc = nnls2(sw, sg, sgg, sy[c], sgy[c], syy[c], &e->rd[c], &e->rs[c]);
+                e->cost += fmax(cc, 0.0);
+                e->rd_active[c] = e->rd[c] > 0.0;
+        }
+}
+
+/* ---- the lobe: Gauss–Newton matrix of the reduced problem ------------------------ */
+
+/* Derivatives of ln g w.r.t. the lobe parameters, for sample i (g > 0). Scale terms
+ * (the derivative of the normalisation) are dropped: they lie in the span of g and are
+ * projected out with the linear parameters. */
+static int dlng(const struct work *w, const struct eval *e, bool cxy, int i, double ret[MAXP]) {
+        double q = e->k / w->d[i];
+        if (cxy) {
+                ret[0] = q * (w->ax[i] + w->ay[i]);
+                ret[1] = e->k * (w->ld[i] - e->ldmax);
+                return 2;
+        }
+        ret[0] = q * w->ax[i];
+        ret[1] = q * w->ay[i];
+        ret[2] = e->k * (w->ld[i] - e->ldmax);
+        return 3;
+}
+
+/* H = Jᵀ(I − P)J (variable projection, Kaufman) and b = −½ ∇cost, at the lobe of e (w's
+ * d, ld, g must be those of e). Returns the number of parameters. */
+static int normal_matrix(const struct work *w, const struct eval *e, bool cxy, double H[MAXP][MAXP],
+                         double b[MAXP]) {
+        double A[MAXP][MAXP] = { { 0 } }, s1[MAXP] = { 0 }, s2[MAXP] = { 0 };
+        int np = cxy ? 2 : 3;
+        memset(b, 0, MAXP * sizeof *b);
+        for (int i = 0; i < w->n; i++) {
+                double g = w->g[i];
+                if (!(g > 0.0))
+                        continue;
+                double dg[MAXP], W = w->W[i], R = 0.0;
+                dlng(w, e, cxy, i, dg);
+                for (int j = 0; j < np; j++)
+                        dg[j] *= g;
+                for (int c = 0; c < 3; c++)
+                        R += e->rs[c] * (w->y[c][i] - e->rd[c] - e->rs[c] * g);
+                for (int j = 0; j < np; j++) {
+                        double Wd = W * dg[j];
+                        s1[j] += Wd;
+                        s2[j] += Wd * g;
+                        b[j] += Wd * R;
+                        for (int l = 0; l <= j; l++)
+                                A[j][l] += Wd * dg[l];
+                }
+        }
+        memset(H, 0, sizeof(double) * MAXP * MAXP);
+        double det = e->sw * e->sgg - e->sg * e->sg;
+        for (int c = 0; c < 3; c++) {
+                double rs2 = e->rs[c] * e->rs[c];
+                if (rs2 == 0.0)
+                        continue;
+                for (int j = 0; j < np; j++)
+                        for (int l = 0; l <= j; l++) {
+                                double proj;
+                                if (e->rd_active[c] && det > 0.0)
+                                        proj = (e->sgg * s1[j] * s1[l] - e->sg * (s1[j] * s2[l] + s2[j] * s1[l]) +
+                                                e->sw * s2[j] * s2[l]) / det;
+                                else
+                                        proj = e->sgg > 0.0 ? s2[j] * s2[l] / e->sgg : 0.0;
+                                H[j][l] += rs2 * (A[j][l] - proj);
+                        }
+        }
+        for (int j = 0; j < np; j++)
+                for (int l = 0; l < j; l++)
+                        H[l][j] = H[j][l];
+        for (int j = 0; j < np; j++)
+                H[j][j] = fmax(H[j][j], 0.0);
+        return np;
+}
+
+/* Cholesky solve of the small SPD system M x = r; false when not positive definite. */
+static bool chol_solve(int np, double M[MAXP][MAXP], const double r[MAXP], double x[MAXP]) {
+        double L[MAXP][MAXP] = { { 0 } };
+        for (int j = 0; j < np; j++) {
+                double s = M[j][j];
+                for (int k = 0; k < j; k++)
+                        s -= L[j][k] * L[j][k];
+                if (!(s > 0.0))
+                        return false;
+                L[j][j] = sqrt(s);
+                for (int i = j + 1; i < np; i++) {
+                        double t = M[i][j];
+                        for (int k = 0; k < j; k++)
+                                t -= L[i][k] * L[j][k];
+                        L[i][j] = t / L[j][j];
+                }
+        }
+        double z[MAXP];
+        for (int i = 0; i < np; i++) {
+                double s = r[i];
+                for (int k = 0; k < i; k++)
+                        s -= L[i][k] * z[k];
+                z[i] = s / L[i][i];
+        }
+        for (int i = np - 1; i >= 0; i--) {
+                double s = z[i];
+                for (int k = i + 1; k < np; k++)
+                        s -= L[k][i] * x[k];
+                x[i] = s / L[i][i];
+        }
+        return true;
+}
+
+/* Eigenvalues of a symmetric np×np matrix (cyclic Jacobi; np ≤ 3). */
+static void sym_eig(int np, const double M[MAXP][MAXP], double ev[MAXP]) {
+        double a[MAXP][MAXP];
+        memcpy(a, M, sizeof a);
+        for (int sweep = 0; sweep < 20; sweep++) {
+                double off = 0.0;
+                for (int p = 0; p < np; p++)
+                        for (int q = p + 1; q < np; q++)
+                                off += a[p][q] * a[p][q];
+                if (off < 1e-30)
+                        break;
+                for (int p = 0; p < np; p++)
+                        for (int q = p + 1; q < np; q++) {
+                                if (a[p][q] == 0.0)
+                                        continue;
+                                double th = 0.5 * (a[q][q] - a[p][p]) / a[p][q];
+                                double t = (th >= 0 ? 1.0 : -1.0) / (fabs(th) + sqrt(th * th + 1.0));
+                                double c = 1.0 / sqrt(t * t + 1.0), s = t * c;
+                                for (int k = 0; k < np; k++) {
+                                        double akp = a[k][p], akq = a[k][q];
+                                        a[k][p] = c * akp - s * akq;
+                                        a[k][q] = s * akp + c * akq;
+                                }
+                                for (int k = 0; k < np; k++) {
+                                        double apk = a[p][k], aqk = a[q][k];
+                                        a[p][k] = c * apk - s * aqk;
+                                        a[q][k] = s * apk + c * aqk;
+                                }
+                        }
+        }
+        for (int i = 0; i < np; i++)
+                ev[i] = a[i][i];
+}
+
+/* Condition number of H after scaling it to unit diagonal; COND_MAX when singular. */
+static double equilibrated_cond(int np, const double H[MAXP][MAXP]) {
+        double S[MAXP][MAXP], ev[MAXP], lo = HUGE_VAL, hi = 0.0;
+        for (int j = 0; j < np; j++)
+                if (!(H[j][j] > 0.0))
+                        return COND_MAX;
+        for (int j = 0; j < np; j++)
+                for (int l = 0; l < np; l++)
+                        S[j][l] = H[j][l] / sqrt(H[j][j] * H[l][l]);
+        sym_eig(np, S, ev);
+        for (int j = 0; j < np; j++) {
+                lo = fmin(lo, ev[j]);
+                hi = fmax(hi, ev[j]);
+        }
+        if (!(lo > hi / COND_MAX))
+                return COND_MAX;
+        return hi / lo;
+}
+
+/* ---- Levenberg–Marquardt on the lobe --------------------------------------------- */
+
+/* Bounds and the prior of the lobe parameters. The prior mu·Σ(c + 1)² (Cz = 1 gauge)
+ * pulls Cx, Cy towards the mirror lobe only along directions the data leave free. */
+struct bounds { double c_max, lk_min, lk_max, mu; };
+
+static double prior_cost(bool cxy, const struct bounds *bd, const double th[MAXP]) {
+        if (cxy)
+                return 2.0 * bd->mu * (th[0] + 1.0) * (th[0] + 1.0);
+        return bd->mu * ((th[0] + 1.0) * (th[0] + 1.0) + (th[1] + 1.0) * (th[1] + 1.0));
+}
+
+static void theta_to_lobe(bool cxy, const double th[MAXP], double *cx, double *cy, double *k) {
+        *cx = th[0];
+        *cy = cxy ? th[0] : th[1];
+        *k = exp(th[cxy ? 1 : 2]);
+}
+
+static void clamp_theta(bool cxy, const struct bounds *bd, double th[MAXP]) {
+        int np = cxy ? 2 : 3;
+        for (int j = 0; j < np - 1; j++)
+                th[j] = IMP_CLAMP(th[j], -bd->c_max, bd->c_max);
+        th[np - 1] = IMP_CLAMP(th[np - 1], bd->lk_min, bd->lk_max);
+}
+
+/* Minimises the reduced cost from th (updated in place); e ends as the evaluation at th
+ * with w's arrays matching it. Stopping rule: relative cost decrease < tol on an
+ * accepted step, no parameter moving more than STEP_MIN, λ > LAMBDA_MAX, or max_evals. */
+static void lm(struct work *w, bool cxy, const struct bounds *bd, double tol, int max_evals,
+               double th[MAXP], struct eval *e) {
+        int np = cxy ? 2 : 3;
+        double cx, cy, k, lambda = LAMBDA_INIT;
+        bool stale = false;           /* w's arrays hold a rejected trial, not th */
+        double lo[MAXP], hi[MAXP];
+        for (int j = 0; j < np - 1; j++) {
+                lo[j] = -bd->c_max;
+                hi[j] = bd->c_max;
+        }
+        lo[np - 1] = bd->lk_min;
+        hi[np - 1] = bd->lk_max;
+        theta_to_lobe(cxy, th, &cx, &cy, &k);
+        evaluate(w, cx, cy, k, e);
+        double cost = e->cost + prior_cost(cxy, bd, th);
+        for (int evals = 1; evals < max_evals;) {
+                double H[MAXP][MAXP], b[MAXP];
+                normal_matrix(w, e, cxy, H, b);
+                for (int j = 0; j < np - 1; j++) {
+                        double m = cxy ? 2.0 * bd->mu : bd->mu;
+                        H[j][j] += m;
+                        b[j] -= m * (th[j] + 1.0);
+                }
+                double dmax = 0.0;
+                for (int j = 0; j < np; j++)
+                        dmax = fmax(dmax, H[j][j]);
+                if (!(dmax > 0.0) || !(cost > 0.0))
+                        break;                /* the lobe does not affect the fit, or exact */
+                bool accepted = false, done = false;
+                while (!accepted && !done && evals < max_evals) {
+                        double M[MAXP][MAXP], rhs[MAXP], step[MAXP], nt[MAXP], moved = 0.0;
+                        memcpy(M, H, sizeof M);
+                        memcpy(rhs, b, sizeof rhs);
+                        for (int j = 0; j < np; j++)
+                                M[j][j] += lambda * fmax(H[j][j], 1e-9 * dmax);
+                        /* Projected step: a parameter on a bound whose descent direction
+                         * points outwards is held (its row and column removed). */
+                        for (int j = 0; j < np; j++)
+                                if ((th[j] <= lo[j] && b[j] < 0.0) || (th[j] >= hi[j] && b[j] > 0.0)) {
+                                        for (int l = 0; l < np; l++)
+                                                M[j][l] = M[l][j] = 0.0;
+                                        M[j][j] = 1.0;
+                                        rhs[j] = 0.0;
+                                }
+                        if (!chol_solve(np, M, rhs, step)) {
+                                lambda *= 4.0;
+                                done = lambda > LAMBDA_MAX;
+                                continue;
+                        }
+                        for (int j = 0; j < np; j++)
+                                nt[j] = th[j] + step[j];
+                        clamp_theta(cxy, bd, nt);
+                        for (int j = 0; j < np; j++)
+                                moved = fmax(moved, fabs(nt[j] - th[j]));
+                        if (moved < STEP_MIN) {
+                                done = true;
+                                break;
+                        }
+                        struct eval ne;
+                        theta_to_lobe(cxy, nt, &cx, &cy, &k);
+                        evaluate(w, cx, cy, k, &ne);
+                        evals++;
+                        double ncost = ne.cost + prior_cost(cxy, bd, nt);
+                        if (ncost < cost) {
+                                double rel = (cost - ncost) / cost;
+                                memcpy(th, nt, sizeof(double) * np);
+                                *e = ne;
+                                cost = ncost;
+                                stale = false;
+                                lambda = fmax(lambda / 3.0, 1e-9);
+                                accepted = true;
+                                done = rel < tol;
+                        } else {
+                                stale = true;
+                                lambda *= 4.0;
+                                done = lambda > LAMBDA_MAX;
+                        }
+                }
+                if (!accepted || done)
+                        break;
+        }
+        if (stale) {
+                theta_to_lobe(cxy, th, &cx, &cy, &k);
+                evaluate(w, cx, cy, k, e);
+        }
+}
+
+/* ---- robust weights -------------------------------------------------------------- */
+
+static float select_kth(float *a, int n, int k) {
+        int lo = 0, hi = n - 1;
+        while (lo < hi) {
+                float pivot = a[(lo + hi) / 2];
+                int i = lo, j = hi;
+                while (i <= j) {
+                        while (a[i] < pivot) i++;
+                        while (a[j] > pivot) j--;
+                        if (i <= j) {
+                                float t = a[i]; a[i] = a[j]; a[j] = t;
+                                i++;
+                                j--;
+                        }
+                }
+                if (k <= j)
+                        hi = j;
+                else if (k >= i)
+                        lo = i;
+                else
+                        break;
+        }
+        return a[k];
+}
+
+/* Residual of sample i in white units (V/E), channels pooled. */
+static double sample_residual(const struct work *w, const double rd[3], const double rs[3], int i) {
+        double s = 0.0;
+        for (int c = 0; c < 3; c++) {
+                double r = w->y[c][i] - rd[c] - rs[c] * w->g[i];
+                s += r * r;
+        }
+        return sqrt(w->wl[i] * s / 3.0);
+}
+
+/* Huber weights with σ = 1.4826 · MAD (floored): W = l_z² · min(1, δσ/|r|). */
+static void huber_reweight(struct work *w, const double rd[3], const double rs[3],
+                           const struct imp_btf_fit_params *p) {
+        for (int i = 0; i < w->n; i++)
+                w->tmp[i] = (float) sample_residual(w, rd, rs, i);
+        float med = select_kth(w->tmp, w->n, w->n / 2);
+        double sigma = fmax(1.4826 * med, p->sigma_floor), thr = p->huber_delta * sigma;
+        for (int i = 0; i < w->n; i++) {
+                double r = sample_residual(w, rd, rs, i);
+                w->om[i] = r > thr ? (float) (thr / r) : 1.0f;
+                w->W[i] = w->wl[i] * w->om[i];
+        }
+}
+
+/* ---- the texel -------------------------------------------------------------------- */
+
+static int load_work(struct work *w, const struct imp_btf_sample *s, int n) {
+        int m = 0;
+        for (int i = 0; i < n; i++) {
+                const struct imp_btf_sample *q = &s[i];
+                bool ok = q->e_cos > 0.0f && q->l[2] > 0.0f && isfinite(q->e_cos);
+                for (int c = 0; c < 3; c++)
+                        ok = ok && isfinite(q->v[c]) && isfinite(q->l[c]) && isfinite(q->value[c]);
+                if (!ok)
+                        continue;
+                w->ax[m] = q->v[0] * q->l[0];
+                w->ay[m] = q->v[1] * q->l[1];
+                w->az[m] = q->v[2] * q->l[2];
+                w->wl[m] = q->l[2] * q->l[2];
+                w->om[m] = 1.0f;
+                w->W[m] = w->wl[m];
+                for (int c = 0; c < 3; c++)
+                        w->y[c][m] = q->value[c] / q->e_cos;
+                m++;
+        }
+        w->n = m;
+        return m;
+}
+
+static void set_default_lobe(const struct imp_btf_fit_params *p, struct imp_btf_texel *t) {
+        t->cx = -1.0f;
+        t->cy = -1.0f;
+        t->cz = 1.0f;
+        t->k = (float) p->k_default;
+        for (int c = 0; c < 3; c++)
+                t->rho_s[c] = 0.0f;
+        t->cond = 0.0f;
+}
+
+/* ρd only (ρs = 0): Huber-reweighted weighted mean per channel. */
+static void fit_matte(struct work *w, const struct imp_btf_fit_params *p, struct imp_btf_texel *t) {
+        double rd[3] = { 0 }, rs[3] = { 0 };
+        for (int i = 0; i < w->n; i++)
+                w->g[i] = 0.0f;
+        for (int pass = 0; pass <= p->robust_passes && w->n > 0; pass++) {
+                if (pass > 0)
+                        huber_reweight(w, rd, rs, p);
+                double sw = 0.0, sy[3] = { 0 };
+                for (int i = 0; i < w->n; i++) {
+                        sw += w->W[i];
+                        for (int c = 0; c < 3; c++)
+                                sy[c] += w->W[i] * w->y[c][i];
+                }
+                for (int c = 0; c < 3; c++)
+                        rd[c] = sw > 0.0 ? fmax(sy[c] / sw, 0.0) : 0.0;
+        }
+        double ss = 0.0, so = 0.0;
+        for (int i = 0; i < w->n; i++) {
+                double r = sample_residual(w, rd, rs, i);
+                ss += w->om[i] * r * r;
+                so += w->om[i];
+        }
+        for (int c = 0; c < 3; c++)
+                t->rho_d[c] = (float) rd[c];
+        set_default_lobe(p, t);
+        t->rms = so > 0.0 ? (float) sqrt(ss / so) : 0.0f;
+}
+
+/* Whether Cx and Cy can be told apart: the information about the weaker combination of
+ * (Cx, Cy), relative to the information the lobe carries about Cz, at the lobe whose
+ * d and g are in w. */
+static bool cx_cy_separable(const struct work *w, double tau) {
+        double gxx = 0, gxy = 0, gyy = 0, gz = 0;
+        for (int i = 0; i < w->n; i++) {
+                if (!(w->g[i] > 0.0f))
+                        continue;
+                double q = w->g[i] / w->d[i], Wq2 = w->W[i] * q * q;
+                gxx += Wq2 * w->ax[i] * w->ax[i];
+                gxy += Wq2 * w->ax[i] * w->ay[i];
+                gyy += Wq2 * w->ay[i] * w->ay[i];
+                gz += Wq2 * w->az[i] * w->az[i];
+        }
+        double tr = gxx + gyy, disc = sqrt(fmax(0.25 * (gxx - gyy) * (gxx - gyy) + gxy * gxy, 0.0));
+        double lmin = 0.5 * tr - disc;
+        return gz > 0.0 && lmin >= tau * gz;
+}
+
+int imp_btf_fit_texel(const struct imp_btf_sample *samples, int n, const struct imp_btf_fit_params *p,
+                      struct imp_btf_texel *ret) {
+        if (n < 0 || (n > 0 && !samples) || !p || !ret || !(p->k_min > 0.0) || !(p->k_max >= p->k_min) ||
+            !(p->c_max > 0.0) || p->min_samples < 1 || !(p->c_prior_sigma > 0.0) || !(p->sigma_floor > 0.0))
+                return -EINVAL;
+        if (n > IMP_BTF_MAX_SAMPLES)
+                return -E2BIG;
+
+        struct work w;
+        struct imp_btf_texel t = { 0 };
+        int m = load_work(&w, samples, n);
+        t.n_samples = (uint16_t) m;
+        if (m < p->min_samples) {
+                fit_matte(&w, p, &t);
+                t.flags = IMP_BTF_FEW_SAMPLES;
+                *ret = t;
+                return 0;
+        }
+
+        /* Multi-start: the mirror lobe C = (-1, -1, 1) over a grid of k; LM from the best. */
+        struct bounds bd = { p->c_max, log(p->k_min), log(p->k_max),
+                             p->sigma_floor * p->sigma_floor / (p->c_prior_sigma * p->c_prior_sigma) };
+        struct eval e, best = { .cost = HUGE_VAL };
+        for (size_t i = 0; i < ARRAY_SIZE(k_grid); i++) {
+                double k = IMP_CLAMP(k_grid[i], p->k_min, p->k_max);
+                evaluate(&w, -1.0, -1.0, k, &e);
+                if (e.cost < best.cost)
+                        best = e;
+        }
+        double spec = fmax(best.rs[0], fmax(best.rs[1], best.rs[2]));
+        if (!(best.ldmax > -HUGE_VAL) || spec < p->matte_threshold) {
+                fit_matte(&w, p, &t);
+                t.flags = IMP_BTF_MATTE;
+                *ret = t;
+                return 0;
+        }
+        evaluate(&w, best.cx, best.cy, best.k, &e);
+        bool cxy = !cx_cy_separable(&w, p->cxy_tau);
+        double th[MAXP];
+        if (cxy) {
+                th[0] = -1.0;
+                th[1] = log(best.k);
+        } else {
+                th[0] = -1.0;
+                th[1] = -1.0;
+                th[2] = log(best.k);
+        }
+        lm(&w, cxy, &bd, p->tol, p->max_iter, th, &e);
+        for (int pass = 0; pass < p->robust_passes; pass++) {
+                huber_reweight(&w, e.rd, e.rs, p);
+                lm(&w, cxy, &bd, p->tol, IMP_MAX(p->max_iter / 3, 2), th, &e);
+        }
+
+        spec = fmax(e.rs[0], fmax(e.rs[1], e.rs[2]));
+        if (!(e.ldmax > -HUGE_VAL) || spec < p->matte_threshold) {
+                fit_matte(&w, p, &t);
+                t.flags = IMP_BTF_MATTE;
+                *ret = t;
+                return 0;
+        }
+
+        /* Bound the extrapolation from the brightest seen lobe value to the lobe's peak:
+         * lower k (same C) until peak_seen ≥ PEAK_SEEN_MIN, and re-solve ρ. */
+        double cx, cy, k;
+        theta_to_lobe(cxy, th, &cx, &cy, &k);
+        double mx = fmax(1.0, fmax(fabs(cx), fabs(cy)));
+        double peak_seen = exp(k * (e.ldmax - log(mx)));   /* brightest seen / peak, ≤ 1 */
+        bool extrapolated = peak_seen < PEAK_SEEN_FLAG;
+        if (peak_seen < PEAK_SEEN_MIN) {
+                k = fmax(log(PEAK_SEEN_MIN) / (e.ldmax - log(mx)), p->k_min);
+                th[cxy ? 1 : 2] = log(k);
+                evaluate(&w, cx, cy, k, &e);
+                peak_seen = exp(k * (e.ldmax - log(mx)));
+        }
+
+        /* Uncertainty of log k and conditioning, from the projected normal matrix with
+         * the prior (the curvature of what LM minimised). */
+        double H[MAXP][MAXP], b[MAXP], Hi[MAXP][MAXP], unit[MAXP] = { 0 }, col[MAXP];
+        int np = normal_matrix(&w, &e, cxy, H, b);
+        for (int j = 0; j < np - 1; j++)
+                H[j][j] += cxy ? 2.0 * bd.mu : bd.mu;
+        double so = 0.0, ss = 0.0;
+        for (int i = 0; i < w.n; i++) {
+                double r = sample_residual(&w, e.rd, e.rs, i);
+                ss += w.om[i] * r * r;
+                so += w.om[i];
+        }
+        double dof = fmax(3.0 * so - np - 6.0, 1.0);
+        double sigma2 = fmax(e.cost / dof, p->sigma_floor * p->sigma_floor);
+        double var_lk = HUGE_VAL;
+        memcpy(Hi, H, sizeof Hi);
+        unit[np - 1] = 1.0;
+        if (chol_solve(np, Hi, unit, col))
+                var_lk = col[np - 1];
+        double se_lk = var_lk < HUGE_VAL ? sqrt(sigma2 * var_lk) : HUGE_VAL;
+        double lk = th[np - 1];
+
+        /* Report the lobe with max |C_i| = 1: ρs becomes the peak specular albedo. */
+        for (int c = 0; c < 3; c++) {
+                t.rho_d[c] = (float) e.rd[c];
+                t.rho_s[c] = (float) fmin(e.rs[c] / fmax(peak_seen, 1e-300), RHO_S_MAX);
+        }
+        t.cx = (float) (cx / mx);
+        t.cy = (float) (cy / mx);
+        t.cz = (float) (1.0 / mx);
+        t.k = (float) k;
+        t.rms = so > 0.0 ? (float) sqrt(ss / so) : 0.0f;
+        t.cond = (float) equilibrated_cond(np, H);
+        t.flags = cxy ? IMP_BTF_CX_EQ_CY : 0;
+        if (lk <= bd.lk_min + 1e-3 || lk >= bd.lk_max - 1e-3)
+                t.flags |= IMP_BTF_K_BOUND;
+        if (!(se_lk <= p->k_rel_uncertain) || extrapolated)
+                t.flags |= IMP_BTF_LOBE_UNCERTAIN;
+        *ret = t;
+        return 0;
+}
+
+/* ---- hole filling ----------------------------------------------------------------- */
+
+static bool needs_fill(uint16_t f) {
+        return !(f & IMP_BTF_MASKED) && (f & (IMP_BTF_FEW_SAMPLES | IMP_BTF_HIDDEN));
+}
+
+int imp_btf_fill(struct imp_btf_texel *texels, int width, int height) {
+        if (!texels || width <= 0 || height <= 0)
+                return -EINVAL;
+        size_t n = (size_t) width * height;
+        /* gen: 0 = valid source, -1 = still to fill, g > 0 = filled in pass g. */
+        _cleanup_free_ int *gen = malloc(n * sizeof *gen);
+        _cleanup_free_ int *todo = malloc(n * sizeof *todo);
+        if (!gen || !todo)
+                return -ENOMEM;
+        size_t n_todo = 0;
+        for (size_t i = 0; i < n; i++) {
+                bool f = needs_fill(texels[i].flags);
+                gen[i] = (texels[i].flags & IMP_BTF_MASKED) ? -2 : f ? -1 : 0;
+                if (f)
+                        todo[n_todo++] = (int) i;
+        }
+        int filled = 0;
+        for (int pass = 1; n_todo > 0; pass++) {
+                size_t keep = 0;
+                int before = filled;
+                for (size_t q = 0; q < n_todo; q++) {
+                        int i = todo[q], u = i % width, v = i / width, cnt = 0, lobes = 0;
+                        double acc[10] = { 0 }, lk = 0.0, lobe[3] = { 0 };
+                        for (int dv = -1; dv <= 1; dv++)
+                                for (int du = -1; du <= 1; du++) {
+                                        int uu = u + du, vv = v + dv;
+                                        if ((!du && !dv) || uu < 0 || vv < 0 || uu >= width || vv >= height)
+                                                continue;
+                                        int j = vv * width + uu;
+                                        if (gen[j] < 0 || gen[j] == pass)
+                                                continue;
+                                        const struct imp_btf_texel *s = &texels[j];
+                                        for (int c = 0; c < 3; c++) {
+                                                acc[c] += s->rho_d[c];
+                                                acc[3 + c] += s->rho_s[c];
+                                        }
+                                        acc[6] += s->rms;
+                                        cnt++;
+                                        if (!(s->flags & IMP_BTF_MATTE)) {
+                                                lobe[0] += s->cx;
+                                                lobe[1] += s->cy;
+                                                lobe[2] += s->cz;
+                                                lk += log(fmax(s->k, 1e-6));
+                                                lobes++;
+                                        }
+                                }
+                        if (!cnt) {
+                                todo[keep++] = i;
+                                continue;
+                        }
+                        struct imp_btf_texel *t = &texels[i];
+                        for (int c = 0; c < 3; c++) {
+                                t->rho_d[c] = (float) (acc[c] / cnt);
+                                t->rho_s[c] = (float) (acc[3 + c] / cnt);
+                        }
+                        t->rms = (float) (acc[6] / cnt);
+                        t->cond = 0.0f;
+                        t->flags |= IMP_BTF_FILLED;
+                        if (lobes) {
+                                t->cx = (float) (lobe[0] / lobes);
+                                t->cy = (float) (lobe[1] / lobes);
+                                t->cz = (float) (lobe[2] / lobes);
+                                t->k = (float) exp(lk / lobes);
+                                t->flags &= (uint16_t) ~IMP_BTF_MATTE;
+                        } else {
+                                t->flags |= IMP_BTF_MATTE;
+                        }
+                        gen[i] = pass;
+                        filled++;
+                }
+                n_todo = keep;
+                if (filled == before)
+                        break;
+        }
+        return filled;
+}
+
+/* ---- the tiled driver ------------------------------------------------------------- */
+
+int imp_btf_fit_grid(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
+                     const struct imp_btf_sample_params *sp, const struct imp_btf_fit_params *fp,
+                     int tile_texels, struct imp_btf_texel *ret_texels, struct imp_btf_stats *ret_stats) {
+        if (!hf || !cap || !sp || !fp || !ret_texels || tile_texels < 0)
+                return -EINVAL;
+        if (cap->n_lights <= 0 || cap->n_lights > IMP_BTF_MAX_SAMPLES)
+                return -E2BIG;
+        int T = tile_texels ? tile_texels : 64;
+        _cleanup_btf_samples_ struct imp_btf_samples *buf = NULL;
+        int r = imp_btf_samples_new(T * T, cap->n_lights, &buf);
+        if (r < 0)
+                return r;
+        struct imp_btf_stats st = { 0 };
+        struct imp_btf_texel dflt = { 0 };
+        r = imp_btf_fit_texel(NULL, 0, fp, &dflt);    /* checks fp */
+        if (r < 0)
+                return r;
+        dflt = (struct imp_btf_texel) { 0 };
+        set_default_lobe(fp, &dflt);
+
+        for (int y0 = 0; y0 < hf->height; y0 += T)
+                for (int x0 = 0; x0 < hf->width; x0 += T) {
+                        int w = IMP_MIN(T, hf->width - x0), h = IMP_MIN(T, hf->height - y0);
+                        r = imp_btf_samples_extract(hf, cap, sp, x0, y0, w, h, buf);
+                        if (r < 0)
+                                return r;
+                        long n_samples = 0, n_shadowed = 0;
+#pragma omp parallel for schedule(dynamic, 8) reduction(+ : n_samples, n_shadowed)
+                        for (int i = 0; i < w * h; i++) {
+                                struct imp_btf_texel *t = &ret_texels[(size_t) (y0 + i / w) * hf->width + x0 + i % w];
+                                uint16_t sf = buf->flags[i];
+                                n_samples += buf->count[i];
+                                n_shadowed += buf->n_shadowed[i];
+                                if (sf & (IMP_BTF_MASKED | IMP_BTF_HIDDEN)) {
+                                        *t = dflt;
+                                        t->flags = sf;
+                                        continue;
+                                }
+                                /* Cannot fail: fp checked above, count ≤ IMP_BTF_MAX_SAMPLES. */
+                                (void) imp_btf_fit_texel(buf->samples + (size_t) i * buf->max_per_texel,
+                                                         buf->count[i], fp, t);
+                                t->flags |= sf;
+                        }
+                        st.n_samples += n_samples;
+                        st.n_shadowed += n_shadowed;
+                }
+
+        r = imp_btf_fill(ret_texels, hf->width, hf->height);
+        if (r < 0)
+                return r;
+        for (size_t i = 0; i < (size_t) hf->width * hf->height; i++) {
+                uint16_t f = ret_texels[i].flags;
+                st.n_masked += !!(f & IMP_BTF_MASKED);
+                st.n_hidden += !!(f & IMP_BTF_HIDDEN);
+                st.n_few += !!(f & IMP_BTF_FEW_SAMPLES);
+                st.n_filled += !!(f & IMP_BTF_FILLED);
+                st.n_matte += !!(f & IMP_BTF_MATTE);
+                st.n_cx_eq_cy += !!(f & IMP_BTF_CX_EQ_CY);
+                st.n_fitted += !(f & (IMP_BTF_MASKED | IMP_BTF_HIDDEN | IMP_BTF_FEW_SAMPLES));
+        }
+        if (ret_stats)
+                *ret_stats = st;
+        return 0;
+}

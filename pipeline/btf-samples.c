@@ -1,0 +1,370 @@
+/* Radiance samples per heightfield texel (seed 000 §4.4): back-project each texel into
+ * every frame, express view and light directions in the texel's local frame, and reject
+ * what is not direct illumination — self-shadowed lights and hidden texels found by ray
+ * casting on the heightfield (linear search then bisection, seed §5.2), saturated and
+ * invalid pixels. Works on one tile of texels at a time. */
+#include <errno.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "btf.h"
+
+void imp_btf_sample_params_default(struct imp_btf_sample_params *ret) {
+        *ret = (struct imp_btf_sample_params) {
+                .min_cos_l = 0.02,
+                .min_e_cos = 1e-6,
+                .saturation_value = 0.0,
+                .dark_value = -HUGE_VAL,
+                .march_step_texels = 0.5,
+                .march_refine = 8,
+                .shadow_bias_texels = 0.05,
+        };
+}
+
+int imp_btf_samples_new(int capacity_texels, int max_per_texel, struct imp_btf_samples **ret) {
+        if (capacity_texels <= 0 || max_per_texel <= 0 || max_per_texel > IMP_BTF_MAX_SAMPLES)
+                return -EINVAL;
+        struct imp_btf_samples *s = calloc(1, sizeof *s);
+        if (!s)
+                return -ENOMEM;
+        s->capacity_texels = capacity_texels;
+        s->max_per_texel = max_per_texel;
+        s->count = calloc(capacity_texels, sizeof *s->count);
+        s->flags = calloc(capacity_texels, sizeof *s->flags);
+        s->n_shadowed = calloc(capacity_texels, sizeof *s->n_shadowed);
+        s->samples = malloc((size_t) capacity_texels * max_per_texel * sizeof *s->samples);
+        if (!s->count || !s->flags || !s->n_shadowed || !s->samples) {
+                imp_btf_samples_free(s);
+                return -ENOMEM;
+        }
+        *ret = s;
+        return 0;
+}
+
+void imp_btf_samples_free(struct imp_btf_samples *s) {
+        if (!s)
+                return;
+        free(s->count);
+        free(s->flags);
+        free(s->n_shadowed);
+        free(s->samples);
+        free(s);
+}
+
+double imp_btf_light_irradiance(const struct imp_rig_light *light, const double X[3]) {
+        double d[3] = { X[0] - light->pos_mm[0], X[1] - light->pos_mm[1], X[2] - light->pos_mm[2] };
+        double r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+        if (!(r2 > 0.0))
+                return 0.0;
+        double e = light->intensity * 1e6 / r2;
+        if (light->profile_exp != 0.0) {
+                double c = (d[0] * light->axis[0] + d[1] * light->axis[1] + d[2] * light->axis[2]) / sqrt(r2);
+                e *= c > 0.0 ? pow(c, light->profile_exp) : 0.0;
+        }
+        return e;
+}
+
+/* ---- geometry helpers ---------------------------------------------------------- */
+
+/* Rigid 4×4 (row-major) → rotation R, translation t; false when not rigid. */
+static bool rigid_parts(const double M[16], double R[9], double t[3]) {
+        for (int i = 0; i < 3; i++) {
+                for (int j = 0; j < 3; j++)
+                        R[3 * i + j] = M[4 * i + j];
+                t[i] = M[4 * i + 3];
+        }
+        if (fabs(M[12]) + fabs(M[13]) + fabs(M[14]) + fabs(M[15] - 1.0) > 1e-12)
+                return false;
+        for (int i = 0; i < 3; i++)
+                for (int j = 0; j < 3; j++) {
+                        double dot = R[i] * R[j] + R[3 + i] * R[3 + j] + R[6 + i] * R[6 + j];
+                        if (!(fabs(dot - (i == j)) < 1e-6))
+                                return false;
+                }
+        return true;
+}
+
+static void mat_apply(const double R[9], const double t[3], const double x[3], double ret[3]) {
+        for (int i = 0; i < 3; i++)
+                ret[i] = R[3 * i] * x[0] + R[3 * i + 1] * x[1] + R[3 * i + 2] * x[2] + t[i];
+}
+
+/* World → canvas: Rᵀ (x − t). */
+static void mat_apply_inv(const double R[9], const double t[3], const double x[3], double ret[3]) {
+        double y[3] = { x[0] - t[0], x[1] - t[1], x[2] - t[2] };
+        for (int i = 0; i < 3; i++)
+                ret[i] = R[i] * y[0] + R[3 + i] * y[1] + R[6 + i] * y[2];
+}
+
+/* The OpenCV pinhole with Brown–Conrady distortion (the model of imp_pinhole_project()
+ * in rig.h), local so that this stage does not depend on the calibration module. */
+static bool project(const struct imp_pinhole *m, const double X[3], double px[2]) {
+        double Y[3];
+        mat_apply(m->R, m->t, X, Y);
+        if (!(Y[2] > 0.0))
+                return false;
+        double x = Y[0] / Y[2], y = Y[1] / Y[2];
+        double r2 = x * x + y * y;
+        double radial = 1.0 + r2 * (m->k1 + r2 * (m->k2 + r2 * m->k3));
+        double xd = x * radial + 2.0 * m->p1 * x * y + m->p2 * (r2 + 2.0 * x * x);
+        double yd = y * radial + m->p1 * (r2 + 2.0 * y * y) + 2.0 * m->p2 * x * y;
+        px[0] = m->fx * xd + m->cx;
+        px[1] = m->fy * yd + m->cy;
+        return true;
+}
+
+static void camera_centre(const struct imp_pinhole *m, double C[3]) {
+        for (int i = 0; i < 3; i++)
+                C[i] = -(m->R[i] * m->t[0] + m->R[3 + i] * m->t[1] + m->R[6 + i] * m->t[2]);
+}
+
+/* ---- ray casting on the heightfield (canvas frame) ------------------------------- */
+
+double imp_btf_heightfield_hmax(const struct imp_btf_heightfield *hf) {
+        double hmax = -HUGE_VAL;
+        size_t n = (size_t) hf->width * hf->height;
+        for (size_t i = 0; i < n; i++)
+                if (isfinite(hf->height_mm[i]) && hf->height_mm[i] > hmax)
+                        hmax = hf->height_mm[i];
+        return hmax;
+}
+
+/* Bilinear height at canvas (x, y); false outside the grid. Non-finite → -HUGE_VAL. */
+static bool height_at(const struct imp_btf_heightfield *hf, double x, double y, double *ret) {
+        double fu = x / hf->pitch_mm, fv = y / hf->pitch_mm;
+        if (!(fu >= 0.0 && fv >= 0.0 && fu <= hf->width - 1 && fv <= hf->height - 1))
+                return false;
+        int u = IMP_MIN((int) fu, hf->width - 2), v = IMP_MIN((int) fv, hf->height - 2);
+        u = IMP_MAX(u, 0);
+        v = IMP_MAX(v, 0);
+        double a = fu - u, b = fv - v;
+        const float *h0 = hf->height_mm + (size_t) v * hf->width + u;
+        const float *h1 = hf->width > 1 ? h0 + 1 : h0;
+        const float *h2 = hf->height > 1 ? h0 + hf->width : h0;
+        const float *h3 = hf->height > 1 ? h1 + hf->width : h1;
+        double h = (1 - b) * ((1 - a) * *h0 + a * *h1) + b * ((1 - a) * *h2 + a * *h3);
+        *ret = isfinite(h) ? h : -HUGE_VAL;
+        return true;
+}
+
+bool imp_btf_heightfield_ray(const struct imp_btf_heightfield *hf, const struct imp_btf_sample_params *p,
+                             double hmax_mm, const double o[3], const double d[3], double max_t_mm,
+                             double *ret_t_mm) {
+        double step = p->march_step_texels * hf->pitch_mm;
+        double bias = p->shadow_bias_texels * hf->pitch_mm;
+        double t_prev = 0.0;
+        if (!(step > 0.0))
+                return false;
+        for (double t = step; t <= max_t_mm; t += step) {
+                double x = o[0] + t * d[0], y = o[1] + t * d[1], z = o[2] + t * d[2], h;
+                if (z > hmax_mm || !height_at(hf, x, y, &h))
+                        return false;
+                if (z < h - bias) {
+                        /* Bisection between the last point above and the first below. */
+                        double lo = t_prev, hi = t;
+                        for (int i = 0; i < p->march_refine; i++) {
+                                double m = 0.5 * (lo + hi), hm;
+                                if (height_at(hf, o[0] + m * d[0], o[1] + m * d[1], &hm) &&
+                                    o[2] + m * d[2] < hm - bias)
+                                        hi = m;
+                                else
+                                        lo = m;
+                        }
+                        if (ret_t_mm)
+                                *ret_t_mm = hi;
+                        return true;
+                }
+                t_prev = t;
+        }
+        return false;
+}
+
+/* ---- frames ------------------------------------------------------------------ */
+
+enum { PIX_OK, PIX_SATURATED, PIX_INVALID };
+
+/* Bilinear value at pixel position px (pixel centres at integers). */
+static int frame_sample(const struct imp_image *f, const struct imp_image *valid, double sat,
+                        const double px[2], float ret[3]) {
+        int x0 = (int) floor(px[0]), y0 = (int) floor(px[1]);
+        double a = px[0] - x0, b = px[1] - y0;
+        int x1 = IMP_MIN(x0 + 1, f->width - 1), y1 = IMP_MIN(y0 + 1, f->height - 1);
+        int xs[2] = { x0, x1 }, ys[2] = { y0, y1 };
+        double w[4] = { (1 - a) * (1 - b), a * (1 - b), (1 - a) * b, a * b };
+        double acc[3] = { 0, 0, 0 };
+        int state = PIX_OK;
+        for (int k = 0; k < 4; k++) {
+                int x = xs[k & 1], y = ys[k >> 1];
+                const float *q = imp_image_f32(f, x, y);
+                for (int c = 0; c < 3; c++) {
+                        double val = q[f->channels == 3 ? c : 0];
+                        if (!isfinite(val))
+                                return PIX_INVALID;
+                        if (sat > 0.0 && val >= sat)
+                                state = PIX_SATURATED;
+                        acc[c] += w[k] * val;
+                }
+                if (valid) {
+                        uint8_t fl = *imp_image_u8(valid, x, y);
+                        if (fl & IMP_BTF_PIX_SATURATED)
+                                state = PIX_SATURATED;
+                        else if (fl && state == PIX_OK)
+                                state = PIX_INVALID;
+                }
+        }
+        for (int c = 0; c < 3; c++)
+                ret[c] = (float) acc[c];
+        return state;
+}
+
+static int check_capture(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap) {
+        if (!hf || !cap || !cap->camera || !cap->lights || !cap->frames || hf->width <= 0 ||
+            hf->height <= 0 || !(hf->pitch_mm > 0.0) || !hf->height_mm || !hf->normal)
+                return -EINVAL;
+        if (cap->n_lights <= 0 || cap->n_lights > IMP_BTF_MAX_SAMPLES)
+                return -E2BIG;
+        const struct imp_pinhole *m = cap->camera;
+        for (int i = 0; i < cap->n_lights; i++) {
+                const struct imp_image *f = cap->frames[i];
+                if (!f || f->type != IMP_PIX_F32 || (f->channels != 1 && f->channels != 3) ||
+                    f->width != m->width || f->height != m->height)
+                        return -EINVAL;
+                const struct imp_image *v = cap->valid ? cap->valid[i] : NULL;
+                if (v && (v->type != IMP_PIX_U8 || v->width != f->width || v->height != f->height))
+                        return -EINVAL;
+        }
+        return 0;
+}
+
+/* Everything per light and per capture that does not depend on the texel. */
+struct scene {
+        double R[9], t[3];            /* canvas → world */
+        double cam_c[3];              /* camera centre, canvas frame */
+        double hmax;
+        double (*light_c)[3];         /* light positions, canvas frame */
+        double colour_inv[IMP_BTF_MAX_SAMPLES][3];
+};
+
+static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
+                          const struct imp_btf_sample_params *p, const struct scene *sc, int u, int v,
+                          struct imp_btf_sample *out, uint16_t *ret_count, uint16_t *ret_flags,
+                          uint16_t *ret_shadowed) {
+        size_t idx = (size_t) v * hf->width + u;
+        const float *nf = hf->normal + 3 * idx;
+        double n[3] = { nf[0], nf[1], nf[2] };
+        double nl = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+        int count = 0, shadowed = 0;
+        uint16_t flags = 0;
+
+        *ret_count = 0;
+        *ret_shadowed = 0;
+        if ((hf->mask && !hf->mask[idx]) || !isfinite(hf->height_mm[idx]) || !(nl > 0.5 && nl < 2.0)) {
+                *ret_flags = IMP_BTF_MASKED;
+                return;
+        }
+        for (int i = 0; i < 3; i++)
+                n[i] /= nl;
+        double P[3] = { u * hf->pitch_mm, v * hf->pitch_mm, hf->height_mm[idx] }, Pw[3], px[2];
+        double tb[3], bb[3], wv[3], vloc[3];
+        imp_local_frame(n, tb, bb);
+
+        double dist_c = 0.0;
+        for (int i = 0; i < 3; i++) {
+                wv[i] = sc->cam_c[i] - P[i];
+                dist_c += wv[i] * wv[i];
+        }
+        dist_c = sqrt(dist_c);
+        for (int i = 0; i < 3; i++)
+                wv[i] /= dist_c;
+        imp_to_local(tb, bb, n, wv, vloc);
+        mat_apply(sc->R, sc->t, P, Pw);
+        if (!(vloc[2] > 0.0) || !project(cap->camera, Pw, px) || !(px[0] >= 0.0 && px[1] >= 0.0 &&
+            px[0] <= cap->camera->width - 1 && px[1] <= cap->camera->height - 1) ||
+            imp_btf_heightfield_ray(hf, p, sc->hmax, P, wv, dist_c, NULL)) {
+                *ret_flags = IMP_BTF_HIDDEN;
+                return;
+        }
+
+        for (int j = 0; j < cap->n_lights; j++) {
+                double wl[3], lloc[3], r = 0.0;
+                for (int i = 0; i < 3; i++) {
+                        wl[i] = sc->light_c[j][i] - P[i];
+                        r += wl[i] * wl[i];
+                }
+                r = sqrt(r);
+                for (int i = 0; i < 3; i++)
+                        wl[i] /= r;
+                imp_to_local(tb, bb, n, wl, lloc);
+                if (!(lloc[2] >= p->min_cos_l))
+                        continue;
+                double e_cos = imp_btf_light_irradiance(&cap->lights[j], Pw) * lloc[2];
+                if (!(e_cos >= p->min_e_cos))
+                        continue;
+                if (imp_btf_heightfield_ray(hf, p, sc->hmax, P, wl, r, NULL)) {
+                        shadowed++;
+                        continue;
+                }
+                float val[3];
+                int st = frame_sample(cap->frames[j], cap->valid ? cap->valid[j] : NULL,
+                                      p->saturation_value, px, val);
+                if (st == PIX_SATURATED)
+                        flags |= IMP_BTF_SATURATED;
+                if (st != PIX_OK)
+                        continue;
+                if (val[0] < p->dark_value && val[1] < p->dark_value && val[2] < p->dark_value)
+                        continue;
+                struct imp_btf_sample *s = &out[count++];
+                for (int i = 0; i < 3; i++) {
+                        s->v[i] = (float) vloc[i];
+                        s->l[i] = (float) lloc[i];
+                        s->value[i] = (float) (val[i] * sc->colour_inv[j][i]);
+                }
+                s->e_cos = (float) e_cos;
+        }
+        *ret_count = (uint16_t) count;
+        *ret_flags = flags;
+        *ret_shadowed = (uint16_t) shadowed;
+}
+
+int imp_btf_samples_extract(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
+                            const struct imp_btf_sample_params *p, int x0, int y0, int w, int h,
+                            struct imp_btf_samples *out) {
+        int r = check_capture(hf, cap);
+        if (r < 0)
+                return r;
+        if (!p || !out || w <= 0 || h <= 0 || x0 < 0 || y0 < 0 || x0 + w > hf->width || y0 + h > hf->height)
+                return -EINVAL;
+        if ((long) w * h > out->capacity_texels || cap->n_lights > out->max_per_texel)
+                return -E2BIG;
+
+        _cleanup_free_ struct scene *sc = malloc(sizeof *sc);
+        _cleanup_free_ double (*light_c)[3] = malloc(cap->n_lights * sizeof *light_c);
+        if (!sc || !light_c)
+                return -ENOMEM;
+        if (!rigid_parts(hf->canvas_to_world, sc->R, sc->t))
+                return -EINVAL;
+        double cw[3];
+        camera_centre(cap->camera, cw);
+        mat_apply_inv(sc->R, sc->t, cw, sc->cam_c);
+        sc->hmax = imp_btf_heightfield_hmax(hf);
+        sc->light_c = light_c;
+        for (int j = 0; j < cap->n_lights; j++) {
+                const struct imp_rig_light *L = &cap->lights[j];
+                bool unset = L->colour[0] == 0.0 && L->colour[1] == 0.0 && L->colour[2] == 0.0;
+                mat_apply_inv(sc->R, sc->t, L->pos_mm, light_c[j]);
+                for (int c = 0; c < 3; c++)
+                        sc->colour_inv[j][c] = unset ? 1.0 : L->colour[c] > 0.0 ? 1.0 / L->colour[c] : 0.0;
+        }
+
+        out->x0 = x0;
+        out->y0 = y0;
+        out->w = w;
+        out->h = h;
+#pragma omp parallel for schedule(dynamic, 16)
+        for (int i = 0; i < w * h; i++)
+                extract_texel(hf, cap, p, sc, x0 + i % w, y0 + i / w,
+                              out->samples + (size_t) i * out->max_per_texel, &out->count[i],
+                              &out->flags[i], &out->n_shadowed[i]);
+        return 0;
+}

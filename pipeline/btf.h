@@ -1,0 +1,180 @@
+/* Bidirectional texture recovery (seed 000 §4.4, issue #5 stages 1–2): radiance samples
+ * per texel of a heightfield (local view/light directions, irradiance, measured value,
+ * self-shadowed and hidden samples rejected by ray casting on the heightfield, §5.2's
+ * linear-then-binary search), and a per-texel one-lobe Lafortune fit (lafortune.h).
+ * The fit's parameterisation, bounds, initial guesses, stopping rule and flags are in
+ * docs/btf-fit.md. Library code: no logging; errors are negative errno. */
+#pragma once
+#include <stdbool.h>
+#include <stdint.h>
+#include "image.h"
+#include "lafortune.h"
+#include "rig.h"
+
+/* ---- input: the heightfield and the capture ------------------------------------- */
+
+/* A heightfield on a regular grid (read-only view; nothing is owned). Texel (u, v) sits
+ * at canvas point (u·pitch_mm, v·pitch_mm, height_mm[v·width + u]); canvas_to_world
+ * maps canvas points (row-major 4×4, last row 0 0 0 1) to the world frame of the rig and
+ * must be rigid (rotation + translation). Non-finite heights never occlude. */
+struct imp_btf_heightfield {
+        int width, height;            /* texels */
+        double pitch_mm;              /* grid spacing, > 0 */
+        const float *height_mm;       /* width·height, row-major */
+        const float *normal;          /* 3 per texel, unit, canvas frame (z out of the paint) */
+        const uint8_t *mask;          /* width·height, non-zero = paint; NULL = all */
+        double canvas_to_world[16];
+};
+
+/* Per-pixel flags of the optional validity images (one u8 channel per frame). */
+enum {
+        IMP_BTF_PIX_SATURATED = 1 << 0,   /* clipped in every exposure of the merge */
+        IMP_BTF_PIX_INVALID   = 1 << 1,   /* no usable exposure (too dark, defect) */
+};
+
+/* One camera and one HDR-merged linear frame per light (frames[i] lit by lights[i]).
+ * Frames: f32, 1 or 3 channels, camera->width × camera->height; 1.0 = a white
+ * Lambertian reference at normal incidence under irradiance 1. valid: NULL, or one u8
+ * image per frame (NULL entries allowed) with the IMP_BTF_PIX_* flags. */
+struct imp_btf_capture {
+        const struct imp_pinhole *camera;
+        const struct imp_rig_light *lights;
+        int n_lights;                 /* 1 .. IMP_BTF_MAX_SAMPLES */
+        const struct imp_image *const *frames;
+        const struct imp_image *const *valid;
+};
+
+/* ---- samples --------------------------------------------------------------------- */
+
+#define IMP_BTF_MAX_SAMPLES 512       /* per texel; the fit's workspace is on the stack */
+
+/* One radiance sample of one texel, in the texel's local frame (imp_local_frame()).
+ * value is the frame value divided by the light's colour (a colour of (0,0,0) counts as
+ * white), so value / e_cos estimates f(v, l) of lafortune.h. */
+struct imp_btf_sample {
+        float v[3];                   /* unit, towards the camera */
+        float l[3];                   /* unit, towards the light; l[2] = cos θl > 0 */
+        float e_cos;                  /* E · cos θl, E = irradiance at normal incidence */
+        float value[3];               /* measured V, RGB (mono frames: replicated) */
+};
+
+/* Per-texel flags: sample stage (HIDDEN, SATURATED, MASKED) and fit stage (the rest). */
+enum imp_btf_flag {
+        IMP_BTF_FEW_SAMPLES    = 1 << 0,  /* fewer than min_samples usable samples */
+        IMP_BTF_CX_EQ_CY       = 1 << 1,  /* Cx, Cy not separable: constrained Cx = Cy */
+        IMP_BTF_MATTE          = 1 << 2,  /* no specular seen: ρs = 0, lobe = default */
+        IMP_BTF_SATURATED      = 1 << 3,  /* ≥ 1 sample rejected as saturated */
+        IMP_BTF_HIDDEN         = 1 << 4,  /* camera cannot see the texel */
+        IMP_BTF_FILLED         = 1 << 5,  /* values copied from neighbours */
+        IMP_BTF_MASKED         = 1 << 6,  /* outside the paint mask (or no normal): zeros */
+        IMP_BTF_K_BOUND        = 1 << 7,  /* k ended at k_min or k_max */
+        IMP_BTF_LOBE_UNCERTAIN = 1 << 8,  /* lobe width poorly determined (see docs) */
+};
+
+struct imp_btf_sample_params {
+        double min_cos_l;             /* discard lights with cos θl below this (0.02) */
+        double min_e_cos;             /* discard samples with E·cos θl below this (1e-6) */
+        double saturation_value;      /* any channel ≥ this is saturated; 0 = use flags only */
+        double dark_value;            /* discard when every channel < this (-HUGE_VAL: off) */
+        double march_step_texels;     /* linear-search step along the ray, texels (0.5) */
+        int march_refine;             /* binary-refinement steps after a hit (8) */
+        double shadow_bias_texels;    /* a ray is blocked when it is this far below (0.05) */
+};
+void imp_btf_sample_params_default(struct imp_btf_sample_params *ret);
+
+/* The samples of one tile of texels. Texel i (row-major in the tile) has its samples at
+ * samples[i·max_per_texel .. + count[i]). Caller frees with imp_btf_samples_free(). */
+struct imp_btf_samples {
+        int capacity_texels, max_per_texel;
+        int x0, y0, w, h;             /* the tile extracted last */
+        uint16_t *count;              /* per texel */
+        uint16_t *flags;              /* per texel: HIDDEN, SATURATED, MASKED */
+        uint16_t *n_shadowed;         /* per texel: samples rejected as self-shadowed */
+        struct imp_btf_sample *samples;
+};
+int imp_btf_samples_new(int capacity_texels, int max_per_texel, struct imp_btf_samples **ret);
+void imp_btf_samples_free(struct imp_btf_samples *s);
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_btf_samples *, imp_btf_samples_free);
+#define _cleanup_btf_samples_ _cleanup_(imp_btf_samples_freep)
+
+/* Extract the samples of texels [x0, x0+w) × [y0, y0+h) into out (w·h ≤ capacity,
+ * n_lights ≤ max_per_texel). Texels are processed in parallel (OpenMP). -EINVAL on bad
+ * arguments (frame size or type, non-rigid transform, tile outside the grid), -E2BIG
+ * when the tile or the light count exceeds out's capacity. */
+int imp_btf_samples_extract(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
+                            const struct imp_btf_sample_params *p, int x0, int y0, int w, int h,
+                            struct imp_btf_samples *out);
+
+/* Ray against the heightfield in canvas coordinates: origin o (on the surface), unit
+ * direction d. Linear search in steps of march_step_texels·pitch, then march_refine
+ * bisections (seed §5.2). True when the ray passes below the surface (by more than the
+ * bias) before it rises above the highest texel, leaves the grid or reaches max_t_mm;
+ * *ret_t_mm (may be NULL) gets the refined distance of the hit. hmax_mm: the grid's
+ * highest finite height (imp_btf_heightfield_hmax()). */
+bool imp_btf_heightfield_ray(const struct imp_btf_heightfield *hf, const struct imp_btf_sample_params *p,
+                             double hmax_mm, const double o[3], const double d[3], double max_t_mm,
+                             double *ret_t_mm);
+double imp_btf_heightfield_hmax(const struct imp_btf_heightfield *hf);
+
+/* Irradiance at normal incidence of a near-field light at world point X (mm):
+ * E = intensity · (1000 / |X − pos|)² · max(0, cos ∠(X − pos, axis))^profile_exp
+ * (profile_exp = 0: isotropic). */
+double imp_btf_light_irradiance(const struct imp_rig_light *light, const double X[3]);
+
+/* ---- fit ------------------------------------------------------------------------- */
+
+struct imp_btf_fit_params {
+        int min_samples;              /* fewer → FEW_SAMPLES, filled from neighbours (6) */
+        double k_min, k_max;          /* lobe exponent bounds (1, 1000) */
+        double c_max;                 /* |Cx|, |Cy| ≤ c_max in the Cz = 1 gauge (1: the lobe
+                                         peaks at the mirror direction, see docs) */
+        int max_iter;                 /* LM iterations per pass (30) */
+        double tol;                   /* stop: relative cost decrease below this (1e-4) */
+        int robust_passes;            /* Huber reweightings after the least-squares pass (2) */
+        double huber_delta;           /* Huber threshold in robust σ (1.345) */
+        double sigma_floor;           /* lower bound of the robust σ, white units (0.002) */
+        double matte_threshold;       /* MATTE when the largest seen specular term < this (0.01) */
+        double cxy_tau;               /* CX_EQ_CY when the Cx/Cy information ratio < this (1e-3) */
+        double k_rel_uncertain;       /* LOBE_UNCERTAIN when σ(log k) > this (0.2) */
+        double k_default;             /* k of the default lobe of MATTE / FEW_SAMPLES texels (10) */
+        double c_prior_sigma;         /* prior σ of Cx, Cy around the mirror lobe (-1), as a
+                                         pseudo-observation of σ sigma_floor (0.5) */
+};
+void imp_btf_fit_params_default(struct imp_btf_fit_params *ret);
+
+/* The fitted texture of one texel. The lobe is normalised so that max(|Cx|,|Cy|,|Cz|)
+ * = 1: the lobe peaks at 1 and ρs is the peak specular albedo. All fields are finite. */
+struct imp_btf_texel {
+        float rho_d[3], rho_s[3];
+        float cx, cy, cz, k;
+        float rms;                    /* RMS residual of V/E (white units, robust weights) */
+        float cond;                   /* condition number of the equilibrated lobe normal
+                                         matrix (1 = ideal; 0 = no lobe fitted; ≤ 1e12) */
+        uint16_t n_samples;           /* usable samples */
+        uint16_t flags;               /* enum imp_btf_flag */
+};
+
+/* Fit one texel from n samples (0 ≤ n ≤ IMP_BTF_MAX_SAMPLES; samples that are not
+ * finite or have e_cos ≤ 0 or l[2] ≤ 0 are ignored). Thread-safe, allocates nothing.
+ * Always fills *ret with finite values and flags (n < min_samples: matte estimate,
+ * default lobe, FEW_SAMPLES). -E2BIG when n is too large, -EINVAL on bad params. */
+int imp_btf_fit_texel(const struct imp_btf_sample *samples, int n, const struct imp_btf_fit_params *p,
+                      struct imp_btf_texel *ret);
+
+/* Fill texels flagged FEW_SAMPLES or HIDDEN (not MASKED) with the mean of their valid
+ * 8-neighbours, growing inwards pass by pass; filled texels get FILLED. Texels with no
+ * valid texel in reach keep their values. Returns the number filled. */
+int imp_btf_fill(struct imp_btf_texel *texels, int width, int height);
+
+struct imp_btf_stats {
+        long n_fitted, n_matte, n_few, n_hidden, n_masked, n_filled, n_cx_eq_cy;
+        long n_samples, n_shadowed;
+};
+
+/* The whole stage: tile by tile (tile_texels² texels at a time, 0 = 64), extract the
+ * samples and fit each texel (OpenMP), then imp_btf_fill(). ret_texels: caller's array
+ * of hf->width·hf->height texels. ret_stats may be NULL. Errors as the functions above,
+ * -ENOMEM when the tile's sample buffer cannot be allocated. */
+int imp_btf_fit_grid(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
+                     const struct imp_btf_sample_params *sp, const struct imp_btf_fit_params *fp,
+                     int tile_texels, struct imp_btf_texel *ret_texels, struct imp_btf_stats *ret_stats);

@@ -1,0 +1,214 @@
+/* The per-texel Lafortune fit against synthetic texels with a known BRDF under a 48-light
+ * near-field dome (rings at 15°, 35°, 60°, radius 500 mm; camera 300 mm above the dome
+ * centre; 1 % relative noise), the single-viewpoint Cx = Cy detection, and the tiled
+ * driver end to end on rendered frames. Tolerances are stated where they are checked. */
+#include <stdlib.h>
+
+#include "btf.h"
+#include "unit/btf-synth.h"
+#include "unit/test.h"
+
+#define NOISE_REL 0.01
+#define RHO_D_MEDIAN_REL_TOL 0.03     /* median relative error of ρd */
+#define K_REL_TOL 0.20                /* k where ρs ≥ 0.1 and the lobe is determined */
+#define RERENDER_RMSE_TOL 0.02        /* re-rendered V/E, fraction of white */
+
+static const double elev[3] = { 15, 35, 60 };
+static struct imp_rig_light lights[48];
+static const double eye_top[3] = { 0, 0, 300 };
+
+static int cmp_double(const void *a, const void *b) {
+        double x = *(const double *) a, y = *(const double *) b;
+        return (x > y) - (x < y);
+}
+
+static const struct imp_lafortune materials[3] = {
+        { .rho_d = { 0.60f, 0.45f, 0.30f }, .rho_s = { 0, 0, 0 }, .cx = -1, .cy = -1, .cz = 1, .k = 10 },
+        { .rho_d = { 0.35f, 0.30f, 0.25f }, .rho_s = { 0.4f, 0.4f, 0.4f }, .cx = -1, .cy = -1, .cz = 1, .k = 20 },
+        { .rho_d = { 0.20f, 0.25f, 0.30f }, .rho_s = { 0.8f, 0.8f, 0.8f }, .cx = -1, .cy = -1, .cz = 1, .k = 100 },
+};
+static const char *material_names[3] = { "matte", "semi-glossy k=20", "glossy k=100" };
+
+/* RMS over the sampled directions of (fit − truth) · cos θl, i.e. V/E in white units. */
+static double rerender_rmse(const struct imp_btf_sample *s, int n, const struct imp_lafortune *truth,
+                            const struct imp_btf_texel *t) {
+        struct imp_lafortune fit = { .cx = t->cx, .cy = t->cy, .cz = t->cz, .k = t->k };
+        memcpy(fit.rho_d, t->rho_d, sizeof fit.rho_d);
+        memcpy(fit.rho_s, t->rho_s, sizeof fit.rho_s);
+        double ss = 0.0;
+        for (int i = 0; i < n; i++) {
+                double v[3] = { s[i].v[0], s[i].v[1], s[i].v[2] }, l[3] = { s[i].l[0], s[i].l[1], s[i].l[2] };
+                for (int c = 0; c < 3; c++) {
+                        double d = (imp_lafortune_eval(&fit, c, v, l) - imp_lafortune_eval(truth, c, v, l)) * l[2];
+                        ss += d * d;
+                }
+        }
+        return n ? sqrt(ss / (3.0 * n)) : 0.0;
+}
+
+static void test_accuracy(void) {
+        struct imp_btf_fit_params p;
+        imp_btf_fit_params_default(&p);
+        static struct imp_btf_sample s[IMP_BTF_MAX_SAMPLES];
+        static double rel_rho_d[3 * 49 * 3];
+        int n_rel = 0;
+        uint64_t rng = 12345;
+        const double n_up[3] = { 0, 0, 1 };
+
+        for (int m = 0; m < 3; m++) {
+                int n_k = 0, n_k_ok = 0, n_uncertain = 0, n_matte = 0, n_tex = 0;
+                double ss_rr = 0.0, worst_k = 0.0;
+                for (int gy = -3; gy <= 3; gy++)
+                        for (int gx = -3; gx <= 3; gx++) {
+                                double P[3] = { 50.0 * gx, 50.0 * gy, 0.0 };
+                                int n = synth_samples(P, n_up, eye_top, lights, 48, &materials[m], NOISE_REL, &rng, s);
+                                struct imp_btf_texel t;
+                                CHECK_OK(imp_btf_fit_texel(s, n, &p, &t));
+                                n_tex++;
+                                for (int c = 0; c < 3; c++) {
+                                        CHECK_FINITE(t.rho_d[c]);
+                                        CHECK_FINITE(t.rho_s[c]);
+                                        rel_rho_d[n_rel++] = fabs(t.rho_d[c] - materials[m].rho_d[c]) / materials[m].rho_d[c];
+                                }
+                                CHECK_FINITE(t.k);
+                                CHECK_FINITE(t.cond);
+                                n_matte += !!(t.flags & IMP_BTF_MATTE);
+                                double rr = rerender_rmse(s, n, &materials[m], &t);
+                                ss_rr += rr * rr;
+                                if (materials[m].rho_s[0] >= 0.1) {
+                                        if (t.flags & (IMP_BTF_LOBE_UNCERTAIN | IMP_BTF_MATTE)) {
+                                                n_uncertain++;
+                                        } else {
+                                                double e = fabs(t.k - materials[m].k) / materials[m].k;
+                                                worst_k = fmax(worst_k, e);
+                                                n_k++;
+                                                n_k_ok += e <= K_REL_TOL;
+                                                CHECK_MSG(e <= K_REL_TOL, "%s at (%g, %g): k %g vs %g", material_names[m],
+                                                          P[0], P[1], t.k, materials[m].k);
+                                        }
+                                }
+                        }
+                double rmse = sqrt(ss_rr / n_tex);
+                fprintf(stderr, "%-17s: re-rendered RMSE %.4f, MATTE %d/%d, k checked %d (worst rel err %.3f), "
+                        "lobe flagged uncertain %d\n", material_names[m], rmse, n_matte, n_tex, n_k, worst_k, n_uncertain);
+                CHECK_LE(rmse, RERENDER_RMSE_TOL);
+                if (materials[m].rho_s[0] == 0.0)
+                        CHECK_GE(n_matte, 0.9 * n_tex);          /* matte recognised as such */
+                else
+                        CHECK_GE(n_k, 0.3 * n_tex);  /* not vacuous: ≥ 30 % of texels see the lobe well */
+        }
+        qsort(rel_rho_d, n_rel, sizeof *rel_rho_d, cmp_double);
+        double median = rel_rho_d[n_rel / 2];
+        fprintf(stderr, "rho_d relative error: median %.4f, 90th percentile %.4f\n", median,
+                rel_rho_d[(int) (0.9 * n_rel)]);
+        CHECK_LE(median, RHO_D_MEDIAN_REL_TOL);
+}
+
+/* Camera straight above the texel: v = n, so Cx vx lx and Cy vy ly vanish and cannot be
+ * told apart; a texel on the camera's x axis has vy = 0. Two oblique cameras fix it. */
+static void test_single_viewpoint(void) {
+        struct imp_btf_fit_params p;
+        imp_btf_fit_params_default(&p);
+        static struct imp_btf_sample s[2 * 48];
+        uint64_t rng = 777;
+        const double n_up[3] = { 0, 0, 1 };
+        struct imp_btf_texel t;
+
+        const double below[2][3] = { { 0, 0, 0 }, { 100, 0, 0 } };
+        for (int i = 0; i < 2; i++) {
+                int n = synth_samples(below[i], n_up, eye_top, lights, 48, &materials[1], NOISE_REL, &rng, s);
+                CHECK_OK(imp_btf_fit_texel(s, n, &p, &t));
+                CHECK_MSG(t.flags & IMP_BTF_CX_EQ_CY, "texel (%g, %g): flags 0x%x, expected CX_EQ_CY",
+                          below[i][0], below[i][1], t.flags);
+                CHECK_NEAR(t.cx, t.cy, 1e-6);
+                CHECK(!(t.flags & IMP_BTF_MATTE));
+        }
+
+        /* Anisotropic lobe seen from two oblique viewpoints: separable. */
+        struct imp_lafortune aniso = materials[1];
+        aniso.cx = -1.0f;
+        aniso.cy = -0.85f;
+        aniso.k = 20;
+        const double P[3] = { 0, 0, 0 }, eye_a[3] = { -180, -60, 300 }, eye_b[3] = { 60, 200, 300 };
+        int n = synth_samples(P, n_up, eye_a, lights, 48, &aniso, NOISE_REL, &rng, s);
+        n += synth_samples(P, n_up, eye_b, lights, 48, &aniso, NOISE_REL, &rng, s + n);
+        CHECK_OK(imp_btf_fit_texel(s, n, &p, &t));
+        fprintf(stderr, "two views: C = (%.3f, %.3f, %.3f), k = %.1f, flags 0x%x, cond %.3g\n", t.cx, t.cy, t.cz,
+                t.k, t.flags, t.cond);
+        CHECK(!(t.flags & IMP_BTF_CX_EQ_CY));
+        CHECK_NEAR(t.cx, -1.0, 0.1);                    /* tolerances: 0.1 on C, 20 % on k */
+        CHECK_NEAR(t.cy, -0.85, 0.1);
+        CHECK_NEAR(t.cz, 1.0, 0.1);
+        CHECK_NEAR(t.k, 20.0, 0.2 * 20.0);
+}
+
+/* The tiled driver on frames rendered from a flat canvas: left half matte, right half
+ * semi-glossy; 16-texel tiles so that partial tiles occur. */
+struct halves { double split_x; };
+static void brdf_halves(double x, double y, void *ctx, struct imp_lafortune *ret) {
+        const struct halves *h = ctx;
+        *ret = x < h->split_x ? materials[0] : materials[1];
+}
+
+static void test_grid_end_to_end(void) {
+        enum { W = 50, H = 40, NL = 48 };
+        const double pitch = 0.5, origin[3] = { 70, 30, 0 };
+        static float height[W * H], normal[3 * W * H];
+        for (int i = 0; i < W * H; i++) {
+                normal[3 * i + 2] = 1.0f;
+        }
+        struct imp_btf_heightfield hf = { .width = W, .height = H, .pitch_mm = pitch, .height_mm = height,
+                                          .normal = normal,
+                                          .canvas_to_world = { 1, 0, 0, origin[0], 0, 1, 0, origin[1],
+                                                               0, 0, 1, origin[2], 0, 0, 0, 1 } };
+        struct imp_pinhole cam;
+        const double target[3] = { origin[0] + 0.5 * W * pitch, origin[1] + 0.5 * H * pitch, 0 };
+        synth_camera(&cam, eye_top, target, 200, 160, 2400.0);
+        struct halves hv = { origin[0] + 0.5 * W * pitch };
+        struct imp_image *frames[NL] = { 0 };
+        uint64_t rng = 99;
+        for (int j = 0; j < NL; j++) {
+                CHECK_OK(imp_image_new(cam.width, cam.height, 3, IMP_PIX_F32, &frames[j]));
+                synth_render_flat(&cam, &lights[j], 0.0, brdf_halves, &hv, NOISE_REL, &rng, frames[j]);
+        }
+        struct imp_btf_capture cap = { .camera = &cam, .lights = lights, .n_lights = NL,
+                                       .frames = (const struct imp_image *const *) frames };
+        struct imp_btf_sample_params sp;
+        struct imp_btf_fit_params fp;
+        imp_btf_sample_params_default(&sp);
+        imp_btf_fit_params_default(&fp);
+        static struct imp_btf_texel tex[W * H];
+        struct imp_btf_stats st;
+        CHECK_OK(imp_btf_fit_grid(&hf, &cap, &sp, &fp, 16, tex, &st));
+        fprintf(stderr, "grid: fitted %ld, matte %ld, hidden %ld, few %ld, samples %ld, shadowed %ld\n", st.n_fitted,
+                st.n_matte, st.n_hidden, st.n_few, st.n_samples, st.n_shadowed);
+        CHECK_INT_EQ(st.n_fitted, W * H);
+        CHECK_INT_EQ(st.n_hidden, 0);
+        CHECK_INT_EQ(st.n_shadowed, 0);                 /* flat: nothing casts a shadow */
+        CHECK_INT_EQ(st.n_samples, (long) W * H * NL);
+        int bad = 0;
+        for (int v = 0; v < H; v++)
+                for (int u = 0; u < W; u++) {
+                        const struct imp_btf_texel *t = &tex[v * W + u];
+                        double x = origin[0] + u * pitch;
+                        if (fabs(x - hv.split_x) < 2.0 * pitch)
+                                continue;       /* bilinear taps straddle the boundary */
+                        const struct imp_lafortune *m = x < hv.split_x ? &materials[0] : &materials[1];
+                        for (int c = 0; c < 3; c++)
+                                bad += !(fabs(t->rho_d[c] - m->rho_d[c]) <= 0.05 * m->rho_d[c]);  /* 5 % each */
+                        bad += m->rho_s[0] == 0.0f ? !(t->flags & IMP_BTF_MATTE) : !!(t->flags & IMP_BTF_MATTE);
+                }
+        fprintf(stderr, "grid: %d texel checks off\n", bad);
+        CHECK_LE(bad, 0.01 * W * H);                    /* ≤ 1 % of checks off */
+        for (int j = 0; j < NL; j++)
+                imp_image_free(frames[j]);
+}
+
+int main(void) {
+        const double centre[3] = { 0, 0, 0 };
+        CHECK_INT_EQ(synth_dome(lights, elev, 3, 16, 500.0, centre, 1.0, 0.0), 48);
+        test_accuracy();
+        test_single_viewpoint();
+        test_grid_end_to_end();
+        return TEST_DONE();
+}
