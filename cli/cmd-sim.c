@@ -1,0 +1,251 @@
+/* `impasto sim`: the simulated rig from the command line.
+ *   impasto sim render --scene FILE --plan FILE --out DIR [--seed N] [--threads N] [--quiet]
+ *       renders every frame of the plan into a capture set at DIR, plus DIR/truth/
+ *   impasto sim info --scene FILE [--plan FILE]
+ *       prints the scene summary (and the plan's frame count and capture-time estimate) */
+#include <getopt.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#ifdef _OPENMP
+#include <omp.h>
+#endif
+#include "captureset.h"
+#include "commands.h"
+#include "log.h"
+#include "plan.h"
+#include "render.h"
+#include "scene.h"
+
+#define EXIT_USAGE 2
+#define EXIT_BADINPUT 3
+
+struct sim_args {
+        const char *scene, *plan, *out;
+        long long seed;
+        bool has_seed, quiet;
+        int threads;
+};
+
+static void usage(FILE *f) {
+        fprintf(f, "usage: impasto sim render --scene FILE --plan FILE --out DIR [--seed N] [--threads N] [--quiet]\n"
+                   "       impasto sim info --scene FILE [--plan FILE]\n");
+}
+
+static int parse_args(int argc, char **argv, struct sim_args *a) {
+        static const struct option opts[] = {
+                { "scene", required_argument, NULL, 's' }, { "plan", required_argument, NULL, 'p' },
+                { "out", required_argument, NULL, 'o' },   { "seed", required_argument, NULL, 'S' },
+                { "threads", required_argument, NULL, 't' }, { "quiet", no_argument, NULL, 'q' },
+                { "help", no_argument, NULL, 'h' },         { 0 } };
+        int c;
+        optind = 1;
+        while ((c = getopt_long(argc, argv, "s:p:o:S:t:qh", opts, NULL)) != -1) {
+                char *end = NULL;
+                switch (c) {
+                case 's': a->scene = optarg; break;
+                case 'p': a->plan = optarg; break;
+                case 'o': a->out = optarg; break;
+                case 'q': a->quiet = true; break;
+                case 'S':
+                        a->seed = strtoll(optarg, &end, 0);
+                        if (!*optarg || *end || a->seed < 0) {
+                                log_error("--seed: expected an integer >= 0, got '%s'", optarg);
+                                return -EINVAL;
+                        }
+                        a->has_seed = true;
+                        break;
+                case 't':
+                        a->threads = (int) strtol(optarg, &end, 10);
+                        if (!*optarg || *end || a->threads < 1 || a->threads > 1024) {
+                                log_error("--threads: expected 1 to 1024, got '%s'", optarg);
+                                return -EINVAL;
+                        }
+                        break;
+                case 'h': usage(stdout); exit(0);
+                default: return -EINVAL;
+                }
+        }
+        if (optind < argc) {
+                log_error("unexpected argument '%s'", argv[optind]);
+                return -EINVAL;
+        }
+        return 0;
+}
+
+static double now_s(void) {
+        struct timespec ts;
+        clock_gettime(CLOCK_MONOTONIC, &ts);
+        return ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+static void print_counters(FILE *f, const struct imp_sim_counters *c) {
+        fprintf(f, "counters: shading_evals %llu, shadow_rays %llu, shadow_steps %llu, indirect_paths %llu, "
+                   "grid_vertices %llu, indirect_lookups %llu, random_draws %llu, projector_lookups %llu, "
+                   "distortion_evals %llu, defocus_taps %llu\n",
+                (unsigned long long) c->shading_evals, (unsigned long long) c->shadow_rays,
+                (unsigned long long) c->shadow_steps, (unsigned long long) c->indirect_paths,
+                (unsigned long long) c->grid_vertices, (unsigned long long) c->indirect_lookups,
+                (unsigned long long) c->random_draws, (unsigned long long) c->projector_lookups,
+                (unsigned long long) c->distortion_evals, (unsigned long long) c->defocus_taps);
+}
+
+static int load_scene(const struct sim_args *a, struct imp_scene **ret) {
+        struct imp_error err = { 0 };
+        int r = imp_scene_load(a->scene, ret, &err);
+        if (r < 0) {
+                log_error("%s", err.msg[0] ? err.msg : strerror(-r));
+                return EXIT_BADINPUT;
+        }
+        if (a->has_seed)
+                imp_scene_set_seed(*ret, (uint64_t) a->seed);
+        return 0;
+}
+
+static int cmd_info(const struct sim_args *a) {
+        _cleanup_(imp_scene_freep) struct imp_scene *scene = NULL;
+        int rc = load_scene(a, &scene);
+        if (rc)
+                return rc;
+        _cleanup_free_ char *text = imp_scene_describe(scene);
+        fputs(text ? text : "(out of memory)\n", stdout);
+        if (a->plan) {
+                struct imp_error err = { 0 };
+                _cleanup_(imp_plan_freep) struct imp_plan *plan = NULL;
+                int r = imp_plan_load(a->plan, imp_scene_rig(scene), &plan, &err);
+                if (r < 0) {
+                        log_error("%s", err.msg[0] ? err.msg : strerror(-r));
+                        return EXIT_BADINPUT;
+                }
+                printf("plan %s: %zu frames, estimated capture time %.1f s\n", a->plan, imp_plan_count(plan),
+                       imp_plan_estimate_s(plan, imp_scene_rig(scene)));
+        }
+        return 0;
+}
+
+/* The simulated timeline: a settle before each light or pattern change, then exposure and
+ * readout back to back. */
+static void stamp(struct imp_frame_record *rec, const struct imp_frame_record *prev, const struct imp_rig *rig,
+                  long long *t_ns) {
+        double readout_us = 0;
+        for (int i = 0; i < rig->n_cameras; i++)
+                if (!strcmp(rig->cameras[i].name, rec->camera))
+                        readout_us = rig->cameras[i].sensor.readout_us;
+        if (!prev || prev->light != rec->light || prev->pattern.kind != rec->pattern.kind ||
+            prev->pattern.bit != rec->pattern.bit || prev->pattern.step != rec->pattern.step ||
+            prev->pattern.inverse != rec->pattern.inverse || prev->pattern.axis != rec->pattern.axis)
+                *t_ns += (long long) (rig->settle_us * 1e3);
+        rec->t_light_on_ns = *t_ns;
+        *t_ns += (long long) (rig->settle_us * 1e3);
+        rec->t_trigger_ns = *t_ns;
+        *t_ns += (long long) ((rec->exposure_us + readout_us) * 1e3);
+        rec->t_frame_ns = *t_ns;
+}
+
+static int cmd_render(const struct sim_args *a) {
+        if (!a->scene || !a->plan || !a->out) {
+                usage(stderr);
+                return EXIT_USAGE;
+        }
+#ifdef _OPENMP
+        if (a->threads > 0)
+                omp_set_num_threads(a->threads);
+#endif
+        struct imp_error err = { 0 };
+        _cleanup_(imp_scene_freep) struct imp_scene *scene = NULL;
+        int rc = load_scene(a, &scene);
+        if (rc)
+                return rc;
+        _cleanup_(imp_plan_freep) struct imp_plan *plan = NULL;
+        int r = imp_plan_load(a->plan, imp_scene_rig(scene), &plan, &err);
+        if (r < 0) {
+                log_error("%s", err.msg[0] ? err.msg : strerror(-r));
+                return EXIT_BADINPUT;
+        }
+        double t0 = now_s();
+        _cleanup_(imp_render_freep) struct imp_render *rd = NULL;
+        if ((r = imp_render_new(scene, &rd, &err)) < 0) {
+                log_error_errno(r, "%s: %m", err.msg);
+                return 1;
+        }
+        const struct imp_rig *rig = imp_render_rig(rd);
+        _cleanup_(imp_captureset_closep) struct imp_captureset *cs = NULL;
+        if ((r = imp_captureset_create(a->out, rig, a->plan, &cs, &err)) < 0) {
+                log_error_errno(r, "%s", err.msg[0] ? err.msg : "cannot create the capture set: %m");
+                return 1;
+        }
+        size_t n = imp_plan_count(plan), written = 0, dropped = 0;
+        if (!a->quiet)
+                fprintf(stderr, "sim: scene %s, %zu frames, view maps in %.2f s\n", imp_scene_name(scene), n,
+                        now_s() - t0);
+        long long t_ns = 0;
+        double last = now_s();
+        const struct imp_frame_record *prev = NULL;
+        for (size_t i = 0; i < n; i++) {
+                struct imp_frame_record rec = *imp_plan_frame(plan, i);
+                stamp(&rec, prev, rig, &t_ns);
+                prev = imp_plan_frame(plan, i);
+                _cleanup_image_ struct imp_image *frame = NULL;
+                imp_error_clear(&err);
+                r = imp_render_frame(rd, &rec, &frame, &err);
+                if (r == -EAGAIN) {
+                        dropped++;
+                        if (!a->quiet)
+                                fprintf(stderr, "sim: frame %zu dropped (effect dropped_frame)\n", i);
+                        continue;
+                }
+                if (r < 0) {
+                        log_error_errno(r, "%s", err.msg[0] ? err.msg : "render: %m");
+                        return 1;
+                }
+                if ((r = imp_captureset_add_frame(cs, &rec, frame, &err)) < 0) {
+                        log_error_errno(r, "frame %zu: %s", i, err.msg[0] ? err.msg : "cannot write");
+                        return 1;
+                }
+                written++;
+                if (!a->quiet && (now_s() - last > 2.0 || i + 1 == n)) {
+                        fprintf(stderr, "sim: frame %zu/%zu (%.0f%%), %.1f s\n", i + 1, n, 100.0 * (i + 1) / n,
+                                now_s() - t0);
+                        last = now_s();
+                }
+        }
+        if ((r = imp_sim_write_truth(scene, rd, a->out, &err)) < 0) {
+                log_error_errno(r, "%s", err.msg[0] ? err.msg : "truth: %m");
+                return 1;
+        }
+        printf("sim: wrote %zu frames (%zu dropped) and truth/ to %s in %.1f s\n", written, dropped, a->out,
+               now_s() - t0);
+        print_counters(stdout, imp_render_counters(rd));
+        return 0;
+}
+
+static int run(int argc, char **argv) {
+        if (argc < 2 || !strcmp(argv[1], "--help") || !strcmp(argv[1], "-h")) {
+                usage(argc < 2 ? stderr : stdout);
+                return argc < 2 ? EXIT_USAGE : 0;
+        }
+        struct sim_args a = { 0 };
+        if (parse_args(argc - 1, argv + 1, &a) < 0) {
+                usage(stderr);
+                return EXIT_USAGE;
+        }
+        if (!strcmp(argv[1], "render"))
+                return cmd_render(&a);
+        if (!strcmp(argv[1], "info")) {
+                if (!a.scene) {
+                        usage(stderr);
+                        return EXIT_USAGE;
+                }
+                return cmd_info(&a);
+        }
+        log_error("sim: unknown subcommand '%s'", argv[1]);
+        usage(stderr);
+        return EXIT_USAGE;
+}
+
+const struct imp_command imp_cmd_sim = {
+        .name = "sim",
+        .summary = "simulated rig: render a capture set with ground truth, describe a scene",
+        .run = run,
+};

@@ -1,0 +1,413 @@
+/* Scan plan parsing and expansion into the frame list (see plan.h for the file format
+ * and the frame order). */
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+#include "conf.h"
+#include "plan.h"
+
+struct imp_plan {
+        size_t n_frames;
+        struct imp_frame_record *frames;
+        int gray_bits[2];
+};
+
+void imp_plan_free(struct imp_plan *p) {
+        if (!p)
+                return;
+        free(p->frames);
+        free(p);
+}
+
+size_t imp_plan_count(const struct imp_plan *p) { return p->n_frames; }
+const struct imp_frame_record *imp_plan_frame(const struct imp_plan *p, size_t i) {
+        return i < p->n_frames ? &p->frames[i] : NULL;
+}
+int imp_plan_gray_bits(const struct imp_plan *p, int axis) {
+        return axis == 0 || axis == 1 ? p->gray_bits[axis] : 0;
+}
+
+/* The settings as read, before expansion. */
+struct plan_spec {
+        int n_cameras;
+        char cameras[4][32];
+        int tiles;
+        double gain_db;
+        bool sl;
+        int gray_bits[2];          /* per axis; 0 = axis not scanned */
+        bool inverse, white, black;
+        int n_periods, steps;
+        double periods_px[IMP_PLAN_MAX_PERIODS];
+        int n_sl_exp;
+        double sl_exp_us[IMP_PLAN_MAX_EXPOSURES];
+        bool dome;
+        int n_lights;
+        int *lights;               /* rig light ids */
+        int n_dome_exp;
+        double dome_exp_us[IMP_PLAN_MAX_EXPOSURES];
+        int dark_count;
+};
+
+static int line_of(const config_setting_t *s) {
+        return s ? config_setting_source_line(s) : 0;
+}
+
+static int parse_cameras(const struct imp_conf *c, const struct imp_rig *rig, struct plan_spec *ps,
+                         struct imp_error *err) {
+        config_setting_t *list = config_setting_lookup(imp_conf_root(c), "cameras");
+        if (!list) {
+                ps->n_cameras = rig->n_cameras;
+                for (int i = 0; i < rig->n_cameras; i++)
+                        snprintf(ps->cameras[i], sizeof ps->cameras[i], "%s", rig->cameras[i].name);
+                if (ps->n_cameras == 0)
+                        return imp_error_set(err, -EINVAL, "%s: cameras: the rig has no camera",
+                                             imp_conf_path(c));
+                return 0;
+        }
+        if (!config_setting_is_aggregate(list) || config_setting_length(list) == 0 ||
+            config_setting_length(list) > 4)
+                return imp_error_set(err, -EINVAL, "%s:%d: cameras: expected a list of 1 to 4 camera names",
+                                     imp_conf_path(c), line_of(list));
+        for (int i = 0; i < config_setting_length(list); i++) {
+                config_setting_t *e = config_setting_get_elem(list, i);
+                const char *name = config_setting_get_string(e);
+                if (!name)
+                        return imp_error_set(err, -EINVAL, "%s:%d: cameras.[%d]: expected a camera name",
+                                             imp_conf_path(c), line_of(e), i);
+                bool found = false;
+                for (int k = 0; k < rig->n_cameras; k++)
+                        found |= !strcmp(rig->cameras[k].name, name);
+                if (!found)
+                        return imp_error_set(err, -EINVAL, "%s:%d: cameras.[%d]: no camera \"%s\" in the rig",
+                                             imp_conf_path(c), line_of(e), i, name);
+                snprintf(ps->cameras[i], sizeof ps->cameras[i], "%s", name);
+        }
+        ps->n_cameras = config_setting_length(list);
+        return 0;
+}
+
+static int ceil_log2(int n) {
+        int b = 0;
+        while ((1 << b) < n)
+                b++;
+        return b;
+}
+
+static int parse_sl(const struct imp_conf *c, const struct imp_rig *rig, struct plan_spec *ps,
+                    struct imp_error *err) {
+        static const char *const known[] = { "gray_bits", "inverse", "axes", "phase", "white",
+                                             "black", "exposures_us", NULL };
+        config_setting_t *g = NULL;
+        int r = imp_conf_get_group(c, NULL, "structured_light", false, &g, err);
+        if (r < 0 || !g)
+                return r;
+        r = imp_conf_check_known(c, g, known, err);
+        if (r < 0)
+                return r;
+        if (!rig->has_projector)
+                return imp_error_set(err, -EINVAL, "%s:%d: structured_light: the rig has no projector",
+                                     imp_conf_path(c), line_of(g));
+        ps->sl = true;
+        ps->inverse = true;
+        ps->white = ps->black = true;
+        bool axes[2] = { true, true };
+        config_setting_t *al = config_setting_lookup(g, "axes");
+        if (al) {
+                if (!config_setting_is_aggregate(al) || config_setting_length(al) == 0)
+                        return imp_error_set(err, -EINVAL, "%s:%d: structured_light.axes: expected a list of \"x\", \"y\"",
+                                             imp_conf_path(c), line_of(al));
+                axes[0] = axes[1] = false;
+                for (int i = 0; i < config_setting_length(al); i++) {
+                        config_setting_t *e = config_setting_get_elem(al, i);
+                        const char *s = config_setting_get_string(e);
+                        if (s && !strcmp(s, "x"))
+                                axes[0] = true;
+                        else if (s && !strcmp(s, "y"))
+                                axes[1] = true;
+                        else
+                                return imp_error_set(err, -EINVAL,
+                                                     "%s:%d: structured_light.axes.[%d]: expected \"x\" or \"y\", got %s%s%s",
+                                                     imp_conf_path(c), line_of(e), i, s ? "\"" : "",
+                                                     s ? s : "a non-string", s ? "\"" : "");
+                }
+        }
+        long long bits = -1;
+        r = imp_conf_get_int(c, g, "gray_bits", false, 1, 16, &bits, err);
+        if (r < 0)
+                return r;
+        const int size[2] = { rig->projector.model.width, rig->projector.model.height };
+        for (int a = 0; a < 2; a++)
+                ps->gray_bits[a] = !axes[a] ? 0 : bits > 0 ? (int) bits : ceil_log2(size[a]);
+        if ((r = imp_conf_get_bool(c, g, "inverse", false, &ps->inverse, err)) < 0 ||
+            (r = imp_conf_get_bool(c, g, "white", false, &ps->white, err)) < 0 ||
+            (r = imp_conf_get_bool(c, g, "black", false, &ps->black, err)) < 0)
+                return r;
+        config_setting_t *ph = NULL;
+        if ((r = imp_conf_get_group(c, g, "phase", false, &ph, err)) < 0)
+                return r;
+        if (ph) {
+                static const char *const pknown[] = { "periods_px", "steps", NULL };
+                long long steps = 4;
+                if ((r = imp_conf_check_known(c, ph, pknown, err)) < 0 ||
+                    (r = imp_conf_get_doubles(c, ph, "periods_px", false, -1, ps->periods_px,
+                                              IMP_PLAN_MAX_PERIODS, &ps->n_periods, err)) < 0 ||
+                    (r = imp_conf_get_int(c, ph, "steps", false, 3, 64, &steps, err)) < 0)
+                        return r;
+                if (!config_setting_lookup(ph, "periods_px")) {
+                        ps->periods_px[0] = 16.0;
+                        ps->n_periods = 1;
+                }
+                for (int i = 0; i < ps->n_periods; i++)
+                        if (!(ps->periods_px[i] >= 2.0))
+                                return imp_error_set(err, -EINVAL,
+                                                     "%s:%d: structured_light.phase.periods_px: expected periods >= 2, got %g",
+                                                     imp_conf_path(c), line_of(ph), ps->periods_px[i]);
+                ps->steps = (int) steps;
+        }
+        r = imp_conf_get_doubles(c, g, "exposures_us", true, -1, ps->sl_exp_us,
+                                 IMP_PLAN_MAX_EXPOSURES, &ps->n_sl_exp, err);
+        if (r < 0)
+                return r;
+        for (int i = 0; i < ps->n_sl_exp; i++)
+                if (!(ps->sl_exp_us[i] > 0))
+                        return imp_error_set(err, -EINVAL,
+                                             "%s:%d: structured_light.exposures_us: expected exposures > 0, got %g",
+                                             imp_conf_path(c), line_of(g), ps->sl_exp_us[i]);
+        if (ps->n_sl_exp == 0)
+                return imp_error_set(err, -EINVAL, "%s:%d: structured_light.exposures_us: expected at least one exposure",
+                                     imp_conf_path(c), line_of(g));
+        return 0;
+}
+
+static int parse_dome(const struct imp_conf *c, const struct imp_rig *rig, struct plan_spec *ps,
+                      struct imp_error *err) {
+        static const char *const known[] = { "lights", "exposures_us", NULL };
+        config_setting_t *g = NULL;
+        int r = imp_conf_get_group(c, NULL, "dome", false, &g, err);
+        if (r < 0 || !g)
+                return r;
+        if ((r = imp_conf_check_known(c, g, known, err)) < 0)
+                return r;
+        ps->dome = true;
+        config_setting_t *l = config_setting_lookup(g, "lights");
+        const char *s = l ? config_setting_get_string(l) : "all";
+        if (s) {
+                if (strcmp(s, "all"))
+                        return imp_error_set(err, -EINVAL, "%s:%d: dome.lights: expected \"all\" or a list of light ids, got \"%s\"",
+                                             imp_conf_path(c), line_of(l), s);
+                ps->n_lights = rig->n_lights;
+                ps->lights = calloc(rig->n_lights > 0 ? rig->n_lights : 1, sizeof(int));
+                if (!ps->lights)
+                        return -ENOMEM;
+                for (int i = 0; i < rig->n_lights; i++)
+                        ps->lights[i] = rig->lights[i].id;
+        } else {
+                if (!config_setting_is_aggregate(l))
+                        return imp_error_set(err, -EINVAL, "%s:%d: dome.lights: expected \"all\" or a list of light ids",
+                                             imp_conf_path(c), line_of(l));
+                int n = config_setting_length(l);
+                ps->lights = calloc(n > 0 ? n : 1, sizeof(int));
+                if (!ps->lights)
+                        return -ENOMEM;
+                for (int i = 0; i < n; i++) {
+                        config_setting_t *e = config_setting_get_elem(l, i);
+                        bool ok = config_setting_type(e) == CONFIG_TYPE_INT;
+                        int id = ok ? config_setting_get_int(e) : -1;
+                        bool found = false;
+                        for (int k = 0; ok && k < rig->n_lights; k++)
+                                found |= rig->lights[k].id == id;
+                        if (!found)
+                                return imp_error_set(err, -EINVAL, "%s:%d: dome.lights.[%d]: expected a light id of the rig (%d lights)",
+                                                     imp_conf_path(c), line_of(e), i, rig->n_lights);
+                        ps->lights[i] = id;
+                }
+                ps->n_lights = n;
+        }
+        if (ps->n_lights == 0)
+                return imp_error_set(err, -EINVAL, "%s:%d: dome.lights: no light to sweep",
+                                     imp_conf_path(c), line_of(g));
+        r = imp_conf_get_doubles(c, g, "exposures_us", true, -1, ps->dome_exp_us,
+                                 IMP_PLAN_MAX_EXPOSURES, &ps->n_dome_exp, err);
+        if (r < 0)
+                return r;
+        for (int i = 0; i < ps->n_dome_exp; i++)
+                if (!(ps->dome_exp_us[i] > 0))
+                        return imp_error_set(err, -EINVAL, "%s:%d: dome.exposures_us: expected exposures > 0, got %g",
+                                             imp_conf_path(c), line_of(g), ps->dome_exp_us[i]);
+        if (ps->n_dome_exp == 0)
+                return imp_error_set(err, -EINVAL, "%s:%d: dome.exposures_us: expected at least one exposure",
+                                     imp_conf_path(c), line_of(g));
+        return 0;
+}
+
+/* Appends one record (growing the array); cap is doubled as needed. */
+static int push(struct imp_plan *p, size_t *cap, const struct imp_frame_record *tmpl) {
+        if (p->n_frames == *cap) {
+                size_t ncap = *cap ? *cap * 2 : 256;
+                struct imp_frame_record *f = realloc(p->frames, ncap * sizeof *f);
+                if (!f)
+                        return -ENOMEM;
+                p->frames = f;
+                *cap = ncap;
+        }
+        p->frames[p->n_frames] = *tmpl;
+        p->frames[p->n_frames].seq = (long long) p->n_frames;
+        p->n_frames++;
+        return 0;
+}
+
+static int expand_sl(struct imp_plan *p, size_t *cap, const struct plan_spec *ps,
+                     struct imp_frame_record *t) {
+        int r;
+        snprintf(t->step, sizeof t->step, "structured-light");
+        t->light = -1;
+        for (int e = 0; e < ps->n_sl_exp; e++) {
+                t->exposure_index = e;
+                t->exposure_us = ps->sl_exp_us[e];
+                if (ps->white) {
+                        t->pattern = (struct imp_pattern) { .kind = IMP_PAT_WHITE };
+                        if ((r = push(p, cap, t)) < 0) return r;
+                }
+                if (ps->black) {
+                        t->pattern = (struct imp_pattern) { .kind = IMP_PAT_BLACK };
+                        if ((r = push(p, cap, t)) < 0) return r;
+                }
+                for (int a = 0; a < 2; a++) {
+                        for (int b = 0; b < ps->gray_bits[a]; b++)
+                                for (int inv = 0; inv <= (ps->inverse ? 1 : 0); inv++) {
+                                        t->pattern = (struct imp_pattern) { .kind = IMP_PAT_GRAY, .axis = a,
+                                                .bit = b, .nbits = ps->gray_bits[a], .inverse = inv };
+                                        if ((r = push(p, cap, t)) < 0) return r;
+                                }
+                        for (int k = 0; ps->gray_bits[a] > 0 && k < ps->n_periods; k++)
+                                for (int s = 0; s < ps->steps; s++) {
+                                        t->pattern = (struct imp_pattern) { .kind = IMP_PAT_PHASE, .axis = a,
+                                                .period_px = ps->periods_px[k], .step = s, .steps = ps->steps };
+                                        if ((r = push(p, cap, t)) < 0) return r;
+                                }
+                }
+        }
+        return 0;
+}
+
+static int expand(struct imp_plan *p, const struct plan_spec *ps) {
+        size_t cap = 0;
+        int r;
+        /* distinct exposures, for the dark frames */
+        double dist[2 * IMP_PLAN_MAX_EXPOSURES];
+        int nd = 0;
+        for (int i = 0; i < ps->n_sl_exp + ps->n_dome_exp; i++) {
+                double e = i < ps->n_sl_exp ? ps->sl_exp_us[i] : ps->dome_exp_us[i - ps->n_sl_exp];
+                bool seen = false;
+                for (int k = 0; k < nd; k++)
+                        seen |= dist[k] == e;
+                if (!seen)
+                        dist[nd++] = e;
+        }
+        for (int tile = 0; tile < ps->tiles; tile++)
+                for (int ci = 0; ci < ps->n_cameras; ci++) {
+                        struct imp_frame_record t = { .tile = tile, .light = -1, .gain_db = ps->gain_db };
+                        snprintf(t.camera, sizeof t.camera, "%s", ps->cameras[ci]);
+                        if (ps->sl && (r = expand_sl(p, &cap, ps, &t)) < 0)
+                                return r;
+                        t.pattern = (struct imp_pattern) { .kind = IMP_PAT_NONE };
+                        snprintf(t.step, sizeof t.step, "dome");
+                        for (int l = 0; ps->dome && l < ps->n_lights; l++)
+                                for (int e = 0; e < ps->n_dome_exp; e++) {
+                                        t.light = ps->lights[l];
+                                        t.exposure_index = e;
+                                        t.exposure_us = ps->dome_exp_us[e];
+                                        if ((r = push(p, &cap, &t)) < 0)
+                                                return r;
+                                }
+                        snprintf(t.step, sizeof t.step, "dark");
+                        t.light = -1;
+                        for (int e = 0; e < nd; e++)
+                                for (int k = 0; k < ps->dark_count; k++) {
+                                        t.exposure_index = e;
+                                        t.exposure_us = dist[e];
+                                        if ((r = push(p, &cap, &t)) < 0)
+                                                return r;
+                                }
+                }
+        return 0;
+}
+
+static int plan_from_conf(const struct imp_conf *c, const struct imp_rig *rig, struct imp_plan **ret,
+                          struct imp_error *err) {
+        static const char *const known[] = { "cameras", "tiles", "gain_db", "structured_light",
+                                             "dome", "dark", "name", "description", NULL };
+        struct plan_spec ps = { .tiles = 1 };
+        long long tiles = 1, dark = 0;
+        int r;
+        if ((r = imp_conf_check_known(c, imp_conf_root(c), known, err)) < 0 ||
+            (r = parse_cameras(c, rig, &ps, err)) < 0 ||
+            (r = imp_conf_get_int(c, NULL, "tiles", false, 1, 100000, &tiles, err)) < 0 ||
+            (r = imp_conf_get_double(c, NULL, "gain_db", false, 0.0, 48.0, &ps.gain_db, err)) < 0 ||
+            (r = parse_sl(c, rig, &ps, err)) < 0 ||
+            (r = parse_dome(c, rig, &ps, err)) < 0 ||
+            (r = imp_conf_get_int(c, NULL, "dark.count", false, 0, 1000, &dark, err)) < 0)
+                goto out;
+        ps.tiles = (int) tiles;
+        ps.dark_count = (int) dark;
+        if (!ps.sl && !ps.dome && ps.dark_count == 0) {
+                r = imp_error_set(err, -EINVAL, "%s: the plan captures nothing (no structured_light, dome or dark)",
+                                  imp_conf_path(c));
+                goto out;
+        }
+        struct imp_plan *p = calloc(1, sizeof *p);
+        if (!p) {
+                r = -ENOMEM;
+                goto out;
+        }
+        p->gray_bits[0] = ps.gray_bits[0];
+        p->gray_bits[1] = ps.gray_bits[1];
+        r = expand(p, &ps);
+        if (r < 0) {
+                imp_plan_free(p);
+                goto out;
+        }
+        *ret = p;
+out:
+        free(ps.lights);
+        return r;
+}
+
+int imp_plan_load(const char *path, const struct imp_rig *rig, struct imp_plan **ret,
+                  struct imp_error *err) {
+        _cleanup_(imp_conf_freep) struct imp_conf *c = NULL;
+        int r = imp_conf_load(path, &c, err);
+        if (r < 0)
+                return r;
+        return plan_from_conf(c, rig, ret, err);
+}
+
+int imp_plan_load_string(const char *text, const char *name, const struct imp_rig *rig,
+                         struct imp_plan **ret, struct imp_error *err) {
+        _cleanup_(imp_conf_freep) struct imp_conf *c = NULL;
+        int r = imp_conf_load_string(text, name, &c, err);
+        if (r < 0)
+                return r;
+        return plan_from_conf(c, rig, ret, err);
+}
+
+static bool same_pattern(const struct imp_pattern *a, const struct imp_pattern *b) {
+        return a->kind == b->kind && a->axis == b->axis && a->bit == b->bit &&
+               a->inverse == b->inverse && a->period_px == b->period_px && a->step == b->step;
+}
+
+double imp_plan_estimate_s(const struct imp_plan *p, const struct imp_rig *rig) {
+        double total_us = 0;
+        for (size_t i = 0; i < p->n_frames; i++) {
+                const struct imp_frame_record *f = &p->frames[i];
+                double readout_us = 0;
+                for (int k = 0; k < rig->n_cameras; k++)
+                        if (!strcmp(rig->cameras[k].name, f->camera))
+                                readout_us = rig->cameras[k].sensor.readout_us;
+                total_us += f->exposure_us + readout_us + rig->settle_us;
+                if (i > 0 && (f->light != p->frames[i - 1].light ||
+                              !same_pattern(&f->pattern, &p->frames[i - 1].pattern)))
+                        total_us += rig->settle_us;
+        }
+        return total_us * 1e-6;
+}

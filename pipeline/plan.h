@@ -1,0 +1,58 @@
+/* Scan plans: a libconfig file saying what to capture (cameras, tiles, structured-light
+ * patterns, exposure stacks, dome sweep, dark frames), expanded against a rig into the
+ * ordered frame list that the daemon captures and the simulator renders. Shared by both;
+ * library code: no logging, errors name FILE:LINE: FIELD.
+ *
+ * File format (every group optional unless noted):
+ *   cameras = ["cam0"];                 # default: every camera of the rig
+ *   tiles = 1;                          # gantry positions (frames repeat per tile)
+ *   gain_db = 0.0;
+ *   structured_light = {
+ *     gray_bits = 10;                   # default per axis: ceil(log2(projector size))
+ *     inverse = true;                   # each Gray bit followed by its inverse
+ *     axes = ["x", "y"];
+ *     phase = { periods_px = [16.0, 64.0]; steps = 4; };   # omit for none
+ *     white = true; black = true;
+ *     exposures_us = [5000.0, 20000.0]; # the stack; required when the group is present
+ *   };
+ *   dome = { lights = "all";            # or [0, 3, 7] (rig light ids)
+ *            exposures_us = [10000.0]; };
+ *   dark = { count = 4; };              # per distinct exposure of the plan
+ *
+ * Frame order (per tile, per camera): structured light exposure-major (white, black, then
+ * per axis the Gray bits MSB first, each followed by its inverse, then the phase shifts
+ * period by period, step by step), then the dome light-major (a light's exposure stack
+ * is contiguous, so a light is switched once), then the dark frames. */
+#pragma once
+#include <stdbool.h>
+#include <stddef.h>
+#include "captureset.h"
+#include "error.h"
+#include "rig.h"
+
+#define IMP_PLAN_MAX_EXPOSURES 8
+#define IMP_PLAN_MAX_PERIODS 8
+
+struct imp_plan;   /* opaque: the parsed settings and the expanded frame list */
+
+/* Loads and expands a plan against `rig` (needed for projector size, light ids and camera
+ * names). Caller frees with imp_plan_free(). -EINVAL/-ENOENT with "FILE:LINE: FIELD: …". */
+int imp_plan_load(const char *path, const struct imp_rig *rig, struct imp_plan **ret,
+                  struct imp_error *err);
+/* The same from text; `name` stands for the file name in messages. */
+int imp_plan_load_string(const char *text, const char *name, const struct imp_rig *rig,
+                         struct imp_plan **ret, struct imp_error *err);
+void imp_plan_free(struct imp_plan *p);
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_plan *, imp_plan_free);
+
+size_t imp_plan_count(const struct imp_plan *p);
+/* Frame i (seq == i), with file, crc32 and timestamps empty. */
+const struct imp_frame_record *imp_plan_frame(const struct imp_plan *p, size_t i);
+/* Gray bits used for axis 0 (x) / 1 (y); 0 when that axis is not scanned. */
+int imp_plan_gray_bits(const struct imp_plan *p, int axis);
+
+/* Capture-time estimate in seconds: Σ over frames (exposure + camera readout + rig
+ * settle) + one extra settle per light or pattern switch (a change of light id or of
+ * projector pattern between consecutive frames). Cameras absent from the rig count a
+ * readout of 0. */
+double imp_plan_estimate_s(const struct imp_plan *p, const struct imp_rig *rig);

@@ -1,0 +1,149 @@
+/* The simulator's scene: a painting (procedural or loaded heightfield, per-texel Lafortune
+ * BRDF by paint region, optional varnish, a frame raised around the canvas), the rig that
+ * looks at it (cameras, projector, dome lights — the TRUE calibration), and the explicit
+ * list of effects to simulate. Nothing the list does not name is computed.
+ * Loaded from a libconfig file (the files in config/scenes/ document the format). */
+#pragma once
+#include <stdbool.h>
+#include <stdint.h>
+#include "error.h"
+#include "lafortune.h"
+#include "rig.h"
+#include "indirect.h"
+#include "surface.h"
+
+enum imp_sim_effect {
+        IMP_FX_DIRECT,          /* light from the dome light or the projector, BRDF shading */
+        IMP_FX_SHADOWS,         /* cast shadows: rays marched towards the light */
+        IMP_FX_PROJECTOR,       /* projector pattern illumination */
+        IMP_FX_INDIRECT,        /* interreflection via irradiance-vector grids (sim/indirect.h) */
+        IMP_FX_AMBIENT,         /* constant ambient term */
+        IMP_FX_NOISE,           /* shot, read, dark-current noise and PRNU */
+        IMP_FX_BAYER,           /* RGGB mosaic */
+        IMP_FX_DISTORTION,      /* Brown–Conrady lens distortion (camera and projector) */
+        IMP_FX_VIGNETTING,      /* cos⁴ fall-off */
+        IMP_FX_DEFOCUS,         /* Gaussian blur (camera image and projector pattern) */
+        IMP_FX_DROPPED_FRAME,   /* the scene's dropped_frames produce no frame */
+        IMP_FX_HOT_PIXELS,      /* a fixed sparse set of pixels with a large dark current */
+        IMP_FX_COUNT
+};
+
+const char *imp_sim_effect_name(enum imp_sim_effect fx);
+/* -EINVAL for an unknown name. */
+int imp_sim_effect_from_name(const char *name);
+
+#define IMP_SCENE_MAX_REGIONS 16
+
+/* A paint region: its BRDF (after the varnish is applied) and how much ρd varies from
+ * texel to texel (relative rms of a smooth pigment-density noise). */
+struct imp_scene_region {
+        char name[32];
+        struct imp_lafortune brdf;
+        double tint_variation;
+};
+
+/* Per-camera rendering options beyond the rig's sensor model. */
+struct imp_scene_camera_opts {
+        bool colour;                  /* 3-channel RGB frames (else mono, see render.h) */
+        double defocus_px;            /* Gaussian sigma of the image blur (effect defocus) */
+};
+
+struct imp_scene;   /* opaque */
+
+/* Loads a scene; all errors name FILE:LINE: FIELD. Caller frees with imp_scene_free(). */
+int imp_scene_load(const char *path, struct imp_scene **ret, struct imp_error *err);
+int imp_scene_load_string(const char *text, const char *name, struct imp_scene **ret,
+                          struct imp_error *err);
+void imp_scene_free(struct imp_scene *s);
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_scene *, imp_scene_free);
+
+const char *imp_scene_name(const struct imp_scene *s);
+uint64_t imp_scene_seed(const struct imp_scene *s);
+void imp_scene_set_seed(struct imp_scene *s, uint64_t seed);
+bool imp_scene_has_effect(const struct imp_scene *s, enum imp_sim_effect fx);
+/* For tests and benchmarks: switch an effect on or off after loading. Turning on
+ * `indirect` allocates the albedo plane; -ENOMEM otherwise 0. */
+int imp_scene_set_effect(struct imp_scene *s, enum imp_sim_effect fx, bool on);
+
+/* The true rig (distortion included whether or not `distortion` is listed). */
+const struct imp_rig *imp_scene_rig(const struct imp_scene *s);
+const struct imp_scene_camera_opts *imp_scene_camera_opts(const struct imp_scene *s, int cam);
+/* Index of the camera named `name` or -ENOENT; of the light with id `id` or -ENOENT. */
+int imp_scene_camera_index(const struct imp_scene *s, const char *name);
+int imp_scene_light_index(const struct imp_scene *s, int id);
+
+/* The sampled surface (canvas + frame). The albedo plane is set only with `indirect`. */
+const struct imp_sim_surface *imp_scene_surface(const struct imp_scene *s);
+/* Unit normals of the samples, ny × nx × 3 (central differences of the heights). */
+const float *imp_scene_normals(const struct imp_scene *s);
+/* Per-sample paint region (index into the region table) and ρd multiplier. */
+const uint8_t *imp_scene_region_map(const struct imp_scene *s);
+const float *imp_scene_tint(const struct imp_scene *s);
+const struct imp_scene_region *imp_scene_regions(const struct imp_scene *s, int *ret_n);
+/* The BRDF of sample i (= y·nx + x): region BRDF with ρd scaled by the tint. */
+void imp_scene_texel_brdf(const struct imp_scene *s, size_t i, struct imp_lafortune *ret);
+double imp_scene_max_height_mm(const struct imp_scene *s);
+double imp_scene_min_height_mm(const struct imp_scene *s);
+double imp_scene_frame_height_mm(const struct imp_scene *s);
+
+/* Effect parameters. */
+double imp_scene_ambient(const struct imp_scene *s);            /* irradiance, linear units */
+bool imp_scene_frame_dropped(const struct imp_scene *s, long long seq);
+double imp_scene_hot_pixel_fraction(const struct imp_scene *s);
+double imp_scene_hot_pixel_e_per_s(const struct imp_scene *s);
+/* Interreflection grid parameters (seed taken from the scene seed). */
+void imp_scene_indirect_params(const struct imp_scene *s, struct imp_indirect_params *ret);
+
+/* One printable summary (for `impasto sim info`); malloc'd. */
+char *imp_scene_describe(const struct imp_scene *s);
+
+/* ---- procedural painting (sim/painting.c), used by the scene loader ---- */
+
+/* A heightfield layer; params in mm. Layers add up in list order over the canvas. */
+enum imp_layer_kind { IMP_LAYER_WEAVE, IMP_LAYER_STROKES, IMP_LAYER_RIDGE, IMP_LAYER_CRAQUELURE,
+                      IMP_LAYER_STEP, IMP_LAYER_FILE, IMP_LAYER_COUNT };
+struct imp_layer {
+        enum imp_layer_kind kind;
+        double amplitude_mm;          /* WEAVE, STROKES: peak height; RIDGE: crest height;
+                                         CRAQUELURE: crack depth; STEP: step height; FILE: scale */
+        double period_mm;             /* WEAVE: thread spacing; CRAQUELURE: cell size */
+        double width_mm;              /* STROKES: max stroke width; RIDGE: ramp width;
+                                         CRAQUELURE: crack width */
+        double length_mm;             /* STROKES: max stroke length */
+        double cliff_mm;              /* RIDGE: horizontal extent of the steep side */
+        double start_mm[2], end_mm[2];/* RIDGE: crest from start to end */
+        double at_mm;                 /* STEP: position of the edge along `axis` */
+        int axis;                     /* STEP: 0 = x (raised where x < at), 1 = y */
+        int count;                    /* STROKES */
+        uint64_t seed;
+        char path[512];               /* FILE: EXR/PNG/TIFF, first channel, spans the canvas */
+};
+
+/* Adds `layer` to the canvas part of `h` (samples with is_frame 0). -errno on a file
+ * error (message in err). */
+int imp_painting_add_layer(const struct imp_sim_surface *surf, float *h, const struct imp_layer *layer,
+                           struct imp_error *err);
+
+/* Region shapes for the BRDF map. */
+enum imp_shape_kind { IMP_SHAPE_ALL, IMP_SHAPE_BLOB, IMP_SHAPE_STRIPE, IMP_SHAPE_RECT };
+struct imp_shape {
+        enum imp_shape_kind kind;
+        double centre_mm[2];          /* BLOB, STRIPE (a point on the centre line) */
+        double radius_mm;             /* BLOB */
+        double wobble;                /* BLOB: relative radius modulation */
+        double width_mm, angle_rad;   /* STRIPE */
+        double min_mm[2], max_mm[2];  /* RECT */
+        uint64_t seed;
+};
+bool imp_shape_contains(const struct imp_shape *sh, double x_mm, double y_mm);
+/* Smooth value noise in [-1, 1] with feature size `scale_mm`, deterministic in seed. */
+double imp_value_noise(uint64_t seed, double x_mm, double y_mm, double scale_mm);
+/* splitmix64-style mixer used by every deterministic random choice of the simulator. */
+static inline uint64_t imp_mix64(uint64_t z) {
+        z += 0x9e3779b97f4a7c15ull;
+        z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
+        z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
+        return z ^ (z >> 31);
+}
+/* Uniform in [0, 1) from a 64-bit hash. */
+static inline double imp_u01(uint64_t h) { return (double) (h >> 11) * (1.0 / 9007199254740992.0); }
