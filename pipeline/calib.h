@@ -1,0 +1,196 @@
+/* Projector–camera calibration results (Moreno & Taubin 2012): the C-side structs the
+ * OpenCV shim (pipeline/cv/cv-calib.h) fills, their JSON form, a readable summary and the
+ * conversion to the rig model. Pure C, no OpenCV; usable from C++ (extern "C").
+ * Units: pixels for image quantities, the board's square unit for translations. */
+#pragma once
+#include <math.h>
+#include <stdarg.h>
+#include <stdbool.h>
+#include <stdio.h>
+#include <jansson.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+#include "error.h"
+
+/* Intrinsic parameter order everywhere (OpenCV's): fx fy cx cy k1 k2 p1 p2 k3. */
+#define IMP_CALIB_N_INTR        9
+#define IMP_CALIB_MAX_CAPTURES  64
+#define IMP_CALIB_MAX_WARNINGS  24
+#define IMP_CALIB_WARNING_LEN   256
+
+/* A relative 1σ of fx or fy above this means the focal length is not determined by the
+ * views (e.g. every board fronto-parallel): flagged, warned, never reported as confident. */
+#define IMP_CALIB_FOCAL_REL_STD_MAX     0.01
+/* When no view tilts the board more than this from fronto-parallel, the focal length is
+ * unobservable (f/Z scale ambiguity, Zhang 2000) whatever the local covariance claims:
+ * near that degeneracy the fit wanders to a wrong f with a deceptively small σ. Flagged,
+ * and σ(fx), σ(fy) are inflated to |f| (100 %) in std and cov. */
+#define IMP_CALIB_MIN_TILT_DEG          10.0
+/* A 1σ of cx or cy above this many pixels: principal point not determined. */
+#define IMP_CALIB_PP_STD_MAX_PX         20.0
+/* Fewer usable views than this is an error for the procam calibration. */
+#define IMP_CALIB_MIN_VIEWS             3
+
+enum {
+        IMP_CALIB_FOCAL_UNDETERMINED = 1u << 0,  /* rel. std of fx/fy > IMP_CALIB_FOCAL_REL_STD_MAX */
+        IMP_CALIB_PP_UNDETERMINED    = 1u << 1,  /* std of cx/cy > IMP_CALIB_PP_STD_MAX_PX */
+        IMP_CALIB_FEW_VIEWS          = 1u << 2,  /* fewer than IMP_CALIB_MIN_VIEWS views */
+        IMP_CALIB_RANK_DEFICIENT     = 1u << 3,  /* normal matrix singular: pseudo-inverse with
+                                                    floored eigenvalues, so the std values are
+                                                    huge (finite) placeholders, not data */
+};
+
+/* One set of planar-target observations: n object points (board frame, z = 0, square
+ * units) and their n image points (pixels). Arrays are borrowed, not owned. */
+struct imp_calib_view {
+        int n;
+        const double *obj;      /* 3n */
+        const double *img;      /* 2n */
+};
+
+/* A calibrated pinhole device with Brown–Conrady distortion (OpenCV's model). */
+struct imp_calib_intrinsics {
+        int width, height;                      /* pixels */
+        double fx, fy, cx, cy;                  /* pixels */
+        double dist[5];                         /* k1 k2 p1 p2 k3 */
+        double rms_px;                          /* RMS reprojection error over all points */
+        double worst_px;                        /* largest single point residual */
+        int worst_view, worst_point;            /* where it is */
+        int n_views, n_points;
+        /* First-order uncertainty: cov = σ² (JᵀJ)⁻¹ over intrinsics and every view's pose,
+         * σ² = Σr² / (N − P) with N points and P parameters (OpenCV's convention, which is
+         * conservative: the textbook 2N − P gives smaller values); this is the intrinsics
+         * block (extrinsics marginalised). */
+        double std[IMP_CALIB_N_INTR];           /* OpenCV's stdDeviationsIntrinsics */
+        double cov[IMP_CALIB_N_INTR * IMP_CALIB_N_INTR];
+        double sigma_px;                        /* σ, the residual scale used above */
+        /* 1σ (worst direction) uncertainty of where a fixed camera-frame point reprojects,
+         * for the point seen at the image centre and at the image corner (0, 0):
+         * Σq = Jθ cov Jθᵀ, Jθ = ∂(projection)/∂(intrinsics). See docs/calibration.md. */
+        double proj_unc_centre_px, proj_unc_corner_px;
+        double max_tilt_deg;                    /* largest board tilt from fronto-parallel */
+        unsigned flags;                         /* IMP_CALIB_* */
+};
+
+struct imp_calib_stereo {
+        /* Camera → projector: X_proj = R · X_cam + t (t in square units). */
+        double R[9];                            /* row-major */
+        double t[3];
+        double rms_px;                          /* stereoCalibrate's RMS, both devices */
+        double worst_view_rms_px;               /* worst per-view RMS (either device) */
+        int worst_view;
+};
+
+struct imp_calib_capture {
+        char dir[512];
+        bool used;
+        int n_corners_cam;                      /* chessboard corners found on the white frame */
+        int n_corners_proj;                     /* corners that got a projector coordinate */
+        int n_decoded_px;                       /* decoded camera pixels in all corner windows */
+        char why[IMP_CALIB_WARNING_LEN];        /* why skipped, when !used */
+};
+
+struct imp_calib_procam_opts {
+        int proj_w, proj_h;                     /* projector pixels */
+        int board_cols, board_rows;             /* inner corners, e.g. 9 × 7 */
+        double square;                          /* square side, length unit of the output */
+        int black_threshold;                    /* white − black must exceed this (DN); default 40 */
+        int white_threshold;                    /* GrayCodePattern white threshold; default 5 */
+        int window_half_px;                     /* homography window half side; 0 = upstream's
+                                                   ceil(camera width / 180) */
+};
+static inline void imp_calib_procam_opts_default(struct imp_calib_procam_opts *o) {
+        *o = (struct imp_calib_procam_opts) { .proj_w = 1024, .proj_h = 768, .board_cols = 9,
+                .board_rows = 7, .square = 1.0, .black_threshold = 40, .white_threshold = 5,
+                .window_half_px = 0 };
+}
+
+struct imp_calib_procam {
+        struct imp_calib_intrinsics camera, projector;
+        struct imp_calib_stereo stereo;
+        int window_half_px;                     /* the one used */
+        int n_captures, n_used;
+        struct imp_calib_capture captures[IMP_CALIB_MAX_CAPTURES];
+        int n_warnings;
+        char warnings[IMP_CALIB_MAX_WARNINGS][IMP_CALIB_WARNING_LEN];
+};
+
+/* The helpers below are inline so that the OpenCV shim (library impasto_cv, which does not
+ * link impasto_pipeline) can use them too. */
+
+/* Appends a warning; beyond IMP_CALIB_MAX_WARNINGS the last slot says some were dropped. */
+static inline __attribute__((format(printf, 2, 3)))
+void imp_calib_warn(struct imp_calib_procam *r, const char *fmt, ...) {
+        va_list ap;
+        if (r->n_warnings >= IMP_CALIB_MAX_WARNINGS) {
+                snprintf(r->warnings[IMP_CALIB_MAX_WARNINGS - 1], IMP_CALIB_WARNING_LEN,
+                         "more warnings were dropped");
+                return;
+        }
+        va_start(ap, fmt);
+        vsnprintf(r->warnings[r->n_warnings++], IMP_CALIB_WARNING_LEN, fmt, ap);
+        va_end(ap);
+}
+
+/* Sets IMP_CALIB_FOCAL_UNDETERMINED / _PP_UNDETERMINED / _FEW_VIEWS in in->flags from
+ * its std values and view count (keeps the other flags); returns the flags. A non-finite
+ * or non-positive std counts as undetermined. */
+static inline unsigned imp_calib_intrinsics_assess(struct imp_calib_intrinsics *in) {
+        double rfx = in->fx != 0 ? in->std[0] / fabs(in->fx) : HUGE_VAL;
+        double rfy = in->fy != 0 ? in->std[1] / fabs(in->fy) : HUGE_VAL;
+        if (!(rfx <= IMP_CALIB_FOCAL_REL_STD_MAX) || !(rfy <= IMP_CALIB_FOCAL_REL_STD_MAX) ||
+            !(in->std[0] > 0) || !(in->std[1] > 0))
+                in->flags |= IMP_CALIB_FOCAL_UNDETERMINED;
+        if (!(in->std[2] <= IMP_CALIB_PP_STD_MAX_PX) || !(in->std[3] <= IMP_CALIB_PP_STD_MAX_PX))
+                in->flags |= IMP_CALIB_PP_UNDETERMINED;
+        if (in->n_views < IMP_CALIB_MIN_VIEWS)
+                in->flags |= IMP_CALIB_FEW_VIEWS;
+        return in->flags;
+}
+/* One line per flag ("camera: focal length not determined by the views (fx 1σ 12 %)…"),
+ * written into buf (lines end with '\n'); returns the number of flags described. */
+static inline int imp_calib_flags_describe(const struct imp_calib_intrinsics *in, const char *who,
+                                           char *buf, size_t size) {
+        int n = 0;
+        size_t o = 0;
+        buf[0] = 0;
+#define IMP_CALIB_DESCRIBE_(...) do { int w_ = snprintf(buf + o, o < size ? size - o : 0, __VA_ARGS__); \
+                if (w_ > 0) { o += (size_t) w_; if (o > size) o = size; } \
+                n++; } while (0)
+        if (in->flags & IMP_CALIB_FOCAL_UNDETERMINED)
+                IMP_CALIB_DESCRIBE_("%s: focal length not determined by the views (fx %.4g ± %.3g, "
+                                    "fy %.4g ± %.3g px, 1σ; largest board tilt %.1f°); tilt the "
+                                    "board towards and away from the device\n", who, in->fx,
+                                    in->std[0], in->fy, in->std[1], in->max_tilt_deg);
+        if (in->flags & IMP_CALIB_PP_UNDETERMINED)
+                IMP_CALIB_DESCRIBE_("%s: principal point not determined by the views (cx %.4g ± %.3g, "
+                                    "cy %.4g ± %.3g px, 1σ)\n", who, in->cx, in->std[2], in->cy,
+                                    in->std[3]);
+        if (in->flags & IMP_CALIB_FEW_VIEWS)
+                IMP_CALIB_DESCRIBE_("%s: only %d view%s, at least %d needed for a trustworthy "
+                                    "calibration\n", who, in->n_views, in->n_views == 1 ? "" : "s",
+                                    IMP_CALIB_MIN_VIEWS);
+        if (in->flags & IMP_CALIB_RANK_DEFICIENT)
+                IMP_CALIB_DESCRIBE_("%s: the views leave some parameters undetermined (singular normal "
+                                    "matrix); the reported uncertainties are lower bounds of "
+                                    "'unknown'\n", who);
+#undef IMP_CALIB_DESCRIBE_
+        return n;
+}
+
+/* JSON (new reference; NULL only when out of memory). */
+json_t *imp_calib_intrinsics_to_json(const struct imp_calib_intrinsics *in);
+json_t *imp_calib_procam_to_json(const struct imp_calib_procam *r);
+/* Readable summary. */
+void imp_calib_procam_print(const struct imp_calib_procam *r, FILE *f);
+/* Writes a rig.json (pipeline/rig.h) with one camera "camera0" at the world origin and
+ * the projector "projector" posed by the stereo result. Translations are in the board's
+ * square unit; rig.json expects mm, so pass square_mm_per_unit (1 when squares are in mm). */
+int imp_calib_procam_save_rig(const struct imp_calib_procam *r, double mm_per_unit,
+                              const char *path, struct imp_error *err);
+
+#ifdef __cplusplus
+}
+#endif

@@ -1,0 +1,642 @@
+/* Projector–camera calibration over OpenCV (see cv-calib.h): corner detection, local
+ * homographies from decoded Gray code, calibrateCamera / stereoCalibrate, and the
+ * first-order covariance behind the reported uncertainties. Every OpenCV exception stops
+ * at this boundary. */
+#include <algorithm>
+#include <cerrno>
+#include <cfloat>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <memory>
+#include <new>
+#include <string>
+#include <vector>
+#include <sys/stat.h>
+#include <opencv2/calib3d.hpp>
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+#include <opencv2/structured_light.hpp>
+#include "cv-calib.h"
+#include "cv-graycode.h"
+
+namespace {
+
+/* Eigenvalues of the column-scaled normal matrix below this fraction of the largest are
+ * treated as zero: the pseudo-inverse then floors them here, so the corresponding
+ * uncertainties come out huge (and finite) instead of NaN or silently small. */
+constexpr double NORMAL_EIG_FLOOR_REL = 1e-12;
+/* RANSAC reprojection threshold of the local homographies, projector pixels: decoded
+ * coordinates are integers (±0.5 px quantisation) plus a little noise; decoding errors at
+ * code transitions are far larger. */
+constexpr double HOMOGRAPHY_RANSAC_PX = 2.0;
+/* cornerSubPix half window (pixels) and stopping rule. */
+constexpr int SUBPIX_HALF_PX = 5;
+
+bool is_u8_gray(const struct imp_image *im) {
+        return im && im->data && im->type == IMP_PIX_U8 && im->channels == 1;
+}
+
+cv::Mat wrap(const struct imp_image *im) {
+        return cv::Mat(im->height, im->width, CV_8UC1, im->data, im->stride);
+}
+
+bool all_finite(const cv::Mat &m) {
+        return cv::checkRange(m, true, nullptr, -DBL_MAX, DBL_MAX);
+}
+
+std::vector<cv::Point3f> obj_points(const struct imp_calib_view &v) {
+        std::vector<cv::Point3f> o((size_t) v.n);
+        for (int i = 0; i < v.n; i++)
+                o[i] = cv::Point3f((float) v.obj[3 * i], (float) v.obj[3 * i + 1], (float) v.obj[3 * i + 2]);
+        return o;
+}
+
+std::vector<cv::Point2f> img_points(const struct imp_calib_view &v) {
+        std::vector<cv::Point2f> p((size_t) v.n);
+        for (int i = 0; i < v.n; i++)
+                p[i] = cv::Point2f((float) v.img[2 * i], (float) v.img[2 * i + 1]);
+        return p;
+}
+
+/* Covariance of all parameters [fx fy cx cy k1 k2 p1 p2 k3 | r0 t0 | r1 t1 …] as
+ * σ² (JᵀJ)⁻¹, J from projectPoints' analytic derivatives at the solution. Columns are
+ * scaled to unit norm before the (pseudo-)inverse; returns true when JᵀJ was rank
+ * deficient and eigenvalues had to be floored. Also fills rms, worst residual, σ. */
+bool covariance(const std::vector<std::vector<cv::Point3f>> &obj,
+                const std::vector<std::vector<cv::Point2f>> &img, const cv::Mat &K, const cv::Mat &D,
+                const std::vector<cv::Mat> &rv, const std::vector<cv::Mat> &tv,
+                struct imp_calib_intrinsics *out) {
+        const int M = (int) obj.size(), P = IMP_CALIB_N_INTR + 6 * M;
+        int N = 0;
+        for (const auto &o : obj)
+                N += (int) o.size();
+        cv::Mat J = cv::Mat::zeros(2 * N, P, CV_64F);
+        double sse = 0, worst = -1;
+        int row = 0;
+        for (int v = 0; v < M; v++) {
+                std::vector<cv::Point2f> proj;
+                cv::Mat jac;
+                cv::projectPoints(obj[v], rv[v], tv[v], K, D, proj, jac);
+                for (size_t i = 0; i < proj.size(); i++) {
+                        double dx = proj[i].x - img[v][i].x, dy = proj[i].y - img[v][i].y;
+                        double e2 = dx * dx + dy * dy;
+                        sse += e2;
+                        if (e2 > worst) {
+                                worst = e2;
+                                out->worst_view = v;
+                                out->worst_point = (int) i;
+                        }
+                        for (int k = 0; k < 2; k++) {
+                                const double *jr = jac.ptr<double>((int) (2 * i + k));
+                                double *Jr = J.ptr<double>(row + (int) (2 * i + k));
+                                for (int c = 0; c < IMP_CALIB_N_INTR; c++)
+                                        Jr[c] = jr[6 + c];          /* f(2) c(2) dist(5) */
+                                for (int c = 0; c < 6; c++)
+                                        Jr[IMP_CALIB_N_INTR + 6 * v + c] = jr[c];   /* r(3) t(3) */
+                        }
+                }
+                row += 2 * (int) proj.size();
+        }
+        out->n_points = N;
+        out->rms_px = std::sqrt(sse / std::max(N, 1));
+        out->worst_px = std::sqrt(std::max(worst, 0.0));
+        /* OpenCV's convention (calibrateCamera's stdDeviations*): σ² = Σr² / (N − P) with N
+         * counting points, not coordinates. The textbook 2N − P would give std smaller by
+         * √((2N − P)/(N − P)) (≈ 1.46 on the real captures); we keep OpenCV's, conservative,
+         * so that std and cov agree. */
+        int dof = N - P;
+        double sigma2 = sse / std::max(dof, 1);
+        out->sigma_px = std::sqrt(sigma2);
+
+        cv::Mat scale(P, 1, CV_64F);
+        for (int c = 0; c < P; c++) {
+                double n = cv::norm(J.col(c));
+                scale.at<double>(c) = n > 0 ? 1.0 / n : 1.0;
+        }
+        for (int c = 0; c < P; c++)
+                J.col(c) *= scale.at<double>(c);
+        cv::Mat JtJ = J.t() * J, evals, evecs;
+        cv::eigen(JtJ, evals, evecs);                      /* descending */
+        double emax = std::max(evals.at<double>(0), DBL_MIN);
+        bool deficient = dof <= 0;
+        cv::Mat inv_e(P, 1, CV_64F);
+        for (int i = 0; i < P; i++) {
+                double e = evals.at<double>(i);
+                if (!(e >= emax * NORMAL_EIG_FLOOR_REL)) {
+                        e = emax * NORMAL_EIG_FLOOR_REL;
+                        deficient = true;
+                }
+                inv_e.at<double>(i) = 1.0 / e;
+        }
+        cv::Mat cov = evecs.t() * cv::Mat::diag(inv_e) * evecs;
+        for (int a = 0; a < IMP_CALIB_N_INTR; a++)
+                for (int b = 0; b < IMP_CALIB_N_INTR; b++)
+                        out->cov[a * IMP_CALIB_N_INTR + b] =
+                                sigma2 * cov.at<double>(a, b) * scale.at<double>(a) * scale.at<double>(b);
+        return deficient;
+}
+
+/* 1σ, worst direction, of where the camera-frame point seen at pixel q reprojects when
+ * the intrinsics vary with covariance cov (first order). */
+double projection_uncertainty(const cv::Mat &K, const cv::Mat &D, const double *cov, double qx, double qy) {
+        std::vector<cv::Point2f> q{ cv::Point2f((float) qx, (float) qy) }, n;
+        cv::undistortPoints(q, n, K, D, cv::noArray(), cv::noArray(),
+                            cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 100, 1e-12));
+        std::vector<cv::Point3f> P{ cv::Point3f(n[0].x, n[0].y, 1.0f) };
+        std::vector<cv::Point2f> out;
+        cv::Mat jac, zero = cv::Mat::zeros(3, 1, CV_64F);
+        cv::projectPoints(P, zero, zero, K, D, out, jac);
+        cv::Mat Jt = jac(cv::Rect(6, 0, IMP_CALIB_N_INTR, 2)).clone();
+        cv::Mat C(IMP_CALIB_N_INTR, IMP_CALIB_N_INTR, CV_64F, const_cast<double *>(cov));
+        cv::Mat S = Jt * C * Jt.t(), ev;
+        cv::eigen(S, ev);
+        return std::sqrt(std::max(ev.at<double>(0), 0.0));
+}
+
+int intrinsics_cpp(const struct imp_calib_view *views, int n_views, int width, int height,
+                   struct imp_calib_intrinsics *ret, double *ret_rvecs, double *ret_tvecs,
+                   struct imp_error *err) {
+        std::vector<std::vector<cv::Point3f>> obj;
+        std::vector<std::vector<cv::Point2f>> img;
+        for (int v = 0; v < n_views; v++) {
+                obj.push_back(obj_points(views[v]));
+                img.push_back(img_points(views[v]));
+        }
+        cv::Mat K, D, stdI, stdE, perView;
+        std::vector<cv::Mat> rv, tv;
+        double rms;
+        try {
+                rms = cv::calibrateCamera(obj, img, cv::Size(width, height), K, D, rv, tv, stdI, stdE,
+                                          perView, 0,
+                                          cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS,
+                                                           100, DBL_EPSILON));
+        } catch (const cv::Exception &e) {
+                return imp_error_set(err, -EDOM, "calibrateCamera failed on %d views (the data do not "
+                                     "determine the intrinsics): %s", n_views, e.what());
+        }
+        K.convertTo(K, CV_64F);
+        D.convertTo(D, CV_64F);
+        D = D.reshape(1, 1);
+        if (!std::isfinite(rms) || !all_finite(K) || !all_finite(D) || D.cols < 5 ||
+            K.at<double>(0, 0) <= 0 || K.at<double>(1, 1) <= 0)
+                return imp_error_set(err, -EDOM, "calibrateCamera gave a non-finite or non-positive "
+                                     "result on %d views: the views do not determine the intrinsics",
+                                     n_views);
+        for (int v = 0; v < n_views; v++)
+                if (!all_finite(rv[v]) || !all_finite(tv[v]))
+                        return imp_error_set(err, -EDOM, "calibrateCamera gave a non-finite pose for "
+                                             "view %d", v);
+
+        struct imp_calib_intrinsics r = {};
+        r.width = width;
+        r.height = height;
+        r.fx = K.at<double>(0, 0);
+        r.fy = K.at<double>(1, 1);
+        r.cx = K.at<double>(0, 2);
+        r.cy = K.at<double>(1, 2);
+        for (int i = 0; i < 5; i++)
+                r.dist[i] = D.at<double>(0, i);
+        r.n_views = n_views;
+        if (covariance(obj, img, K, D, rv, tv, &r))
+                r.flags |= IMP_CALIB_RANK_DEFICIENT;
+        /* OpenCV's own std (same σ² and J up to scaling); ours where it is not finite. */
+        stdI.convertTo(stdI, CV_64F);
+        for (int i = 0; i < IMP_CALIB_N_INTR; i++) {
+                double s = i < (int) stdI.total() ? stdI.at<double>(i) : NAN;
+                double mine = std::sqrt(std::max(r.cov[i * IMP_CALIB_N_INTR + i], 0.0));
+                if (!std::isfinite(s) || (r.flags & IMP_CALIB_RANK_DEFICIENT))
+                        s = mine;
+                r.std[i] = s;
+        }
+        /* Tilt of each board: angle between its normal (R's third column) and the axis. */
+        for (int v = 0; v < n_views; v++) {
+                cv::Mat Rv;
+                cv::Rodrigues(rv[v], Rv);
+                double c = std::fabs(Rv.at<double>(2, 2));
+                r.max_tilt_deg = std::max(r.max_tilt_deg, std::acos(std::min(c, 1.0)) * 180.0 / M_PI);
+        }
+        if (r.max_tilt_deg < IMP_CALIB_MIN_TILT_DEG) {
+                r.flags |= IMP_CALIB_FOCAL_UNDETERMINED;
+                for (int i = 0; i < 2; i++) {
+                        double f = i ? r.fy : r.fx, s = std::max(std::fabs(f), r.std[i]) / std::max(r.std[i], DBL_MIN);
+                        r.std[i] *= s;
+                        for (int k = 0; k < IMP_CALIB_N_INTR; k++) {
+                                r.cov[i * IMP_CALIB_N_INTR + k] *= s;
+                                r.cov[k * IMP_CALIB_N_INTR + i] *= s;
+                        }
+                }
+        }
+        r.proj_unc_centre_px = projection_uncertainty(K, D, r.cov, (width - 1) / 2.0, (height - 1) / 2.0);
+        r.proj_unc_corner_px = projection_uncertainty(K, D, r.cov, 0.0, 0.0);
+        if (!std::isfinite(r.proj_unc_centre_px) || !std::isfinite(r.proj_unc_corner_px))
+                return imp_error_set(err, -EDOM, "projection uncertainty is not finite");
+        imp_calib_intrinsics_assess(&r);
+        if (ret_rvecs && ret_tvecs)
+                for (int v = 0; v < n_views; v++)
+                        for (int k = 0; k < 3; k++) {
+                                ret_rvecs[3 * v + k] = rv[v].at<double>(k);
+                                ret_tvecs[3 * v + k] = tv[v].at<double>(k);
+                        }
+        *ret = r;
+        return 0;
+}
+
+cv::Mat K_of(const struct imp_calib_intrinsics *in) {
+        return (cv::Mat_<double>(3, 3) << in->fx, 0, in->cx, 0, in->fy, in->cy, 0, 0, 1);
+}
+
+cv::Mat D_of(const struct imp_calib_intrinsics *in) {
+        return cv::Mat(1, 5, CV_64F, const_cast<double *>(in->dist)).clone();
+}
+
+}  // namespace
+
+extern "C" int imp_cv_calib_find_corners(const struct imp_image *img, int cols, int rows,
+                                         double *ret_px, struct imp_error *err) {
+        if (!is_u8_gray(img) || cols < 2 || rows < 2 || !ret_px)
+                return imp_error_set(err, -EINVAL, "chessboard: bad arguments (u8 grey image and "
+                                     ">= 2x2 inner corners expected)");
+        std::vector<cv::Point2f> c;
+        try {
+                cv::Mat m = wrap(img);
+                bool found = cv::findChessboardCorners(m, cv::Size(cols, rows), c,
+                                                       cv::CALIB_CB_ADAPTIVE_THRESH |
+                                                       cv::CALIB_CB_NORMALIZE_IMAGE);
+                if (!found || (int) c.size() != cols * rows)
+                        return imp_error_set(err, -ENOENT, "no chessboard with %dx%d inner corners found",
+                                             cols, rows);
+                cv::cornerSubPix(m, c, cv::Size(SUBPIX_HALF_PX, SUBPIX_HALF_PX), cv::Size(-1, -1),
+                                 cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 50, 1e-3));
+        } catch (const std::bad_alloc &) {
+                return imp_error_set(err, -ENOMEM, "chessboard: out of memory");
+        } catch (const cv::Exception &e) {
+                return imp_error_set(err, -EINVAL, "chessboard: %s", e.what());
+        }
+        for (size_t i = 0; i < c.size(); i++) {
+                ret_px[2 * i] = c[i].x;
+                ret_px[2 * i + 1] = c[i].y;
+        }
+        return 0;
+}
+
+extern "C" int imp_cv_calib_points_to_projector(int proj_w, int proj_h, const struct imp_image *const *frames,
+                                                size_t n_frames, const struct imp_image *white,
+                                                const struct imp_image *black, int black_threshold,
+                                                int white_threshold, int half_px, const double *cam_px,
+                                                int n, double *ret_proj, uint8_t *ret_ok, int *ret_n_decoded,
+                                                struct imp_error *err) {
+        if (proj_w < 1 || proj_h < 1 || !frames || !is_u8_gray(white) || !is_u8_gray(black) ||
+            black->width != white->width || black->height != white->height || half_px < 1 ||
+            !cam_px || n < 0 || !ret_proj || !ret_ok || black_threshold < 0 || white_threshold < 0)
+                return imp_error_set(err, -EINVAL, "local homographies: bad arguments");
+        for (size_t i = 0; i < n_frames; i++)
+                if (!is_u8_gray(frames[i]) || frames[i]->width != white->width ||
+                    frames[i]->height != white->height)
+                        return imp_error_set(err, -EINVAL, "local homographies: frame %zu is not u8 "
+                                             "grey %dx%d", i, white->width, white->height);
+        std::vector<double> proj((size_t) 2 * n, -1.0);
+        std::vector<uint8_t> ok((size_t) n, 0);
+        int n_decoded = 0;
+        try {
+                auto g = cv::structured_light::GrayCodePattern::create(proj_w, proj_h);
+                if (n_frames != g->getNumberOfPatternImages())
+                        return imp_error_set(err, -EINVAL, "local homographies: %zu frames, a %dx%d "
+                                             "projector needs %zu", n_frames, proj_w, proj_h,
+                                             (size_t) g->getNumberOfPatternImages());
+                g->setBlackThreshold((size_t) black_threshold);
+                g->setWhiteThreshold((size_t) white_threshold);
+                std::vector<cv::Mat> mats;
+                for (size_t i = 0; i < n_frames; i++)
+                        mats.push_back(wrap(frames[i]));
+                cv::Mat wm = wrap(white), bm = wrap(black);
+                const int W = white->width, H = white->height;
+                for (int i = 0; i < n; i++) {
+                        int cx = (int) std::lround(cam_px[2 * i]), cy = (int) std::lround(cam_px[2 * i + 1]);
+                        std::vector<cv::Point2f> src, dst;
+                        for (int y = std::max(cy - half_px, 0); y <= std::min(cy + half_px, H - 1); y++)
+                                for (int x = std::max(cx - half_px, 0); x <= std::min(cx + half_px, W - 1); x++) {
+                                        if ((int) wm.at<uint8_t>(y, x) - (int) bm.at<uint8_t>(y, x) <= black_threshold)
+                                                continue;
+                                        cv::Point pp;
+                                        if (g->getProjPixel(mats, x, y, pp))
+                                                continue;       /* true means "not decoded" */
+                                        src.emplace_back((float) x, (float) y);
+                                        dst.emplace_back((float) pp.x, (float) pp.y);
+                                }
+                        n_decoded += (int) src.size();
+                        if ((int) src.size() < half_px * half_px)
+                                continue;
+                        cv::Mat Hm = cv::findHomography(src, dst, cv::RANSAC, HOMOGRAPHY_RANSAC_PX);
+                        if (Hm.empty() || !all_finite(Hm))
+                                continue;
+                        std::vector<cv::Point2d> in{ cv::Point2d(cam_px[2 * i], cam_px[2 * i + 1]) }, out;
+                        cv::perspectiveTransform(in, out, Hm);
+                        if (!std::isfinite(out[0].x) || !std::isfinite(out[0].y))
+                                continue;
+                        proj[2 * i] = out[0].x;
+                        proj[2 * i + 1] = out[0].y;
+                        ok[i] = 1;
+                }
+        } catch (const std::bad_alloc &) {
+                return imp_error_set(err, -ENOMEM, "local homographies: out of memory");
+        } catch (const cv::Exception &e) {
+                return imp_error_set(err, -EINVAL, "local homographies: %s", e.what());
+        }
+        std::copy(proj.begin(), proj.end(), ret_proj);
+        std::copy(ok.begin(), ok.end(), ret_ok);
+        if (ret_n_decoded)
+                *ret_n_decoded = n_decoded;
+        return 0;
+}
+
+extern "C" int imp_cv_calib_intrinsics(const struct imp_calib_view *views, int n_views, int width,
+                                       int height, struct imp_calib_intrinsics *ret, double *ret_rvecs,
+                                       double *ret_tvecs, struct imp_error *err) {
+        if (!views || n_views < 1 || width < 1 || height < 1 || !ret)
+                return imp_error_set(err, -EINVAL, "calibration: bad arguments");
+        for (int v = 0; v < n_views; v++) {
+                if (views[v].n < 4 || !views[v].obj || !views[v].img)
+                        return imp_error_set(err, -EINVAL, "calibration: view %d has %d points, at "
+                                             "least 4 needed", v, views[v].n);
+                for (int i = 0; i < 3 * views[v].n; i++)
+                        if (!std::isfinite(views[v].obj[i]))
+                                return imp_error_set(err, -EINVAL, "calibration: view %d: object point "
+                                                     "%d is not finite", v, i / 3);
+                for (int i = 0; i < 2 * views[v].n; i++)
+                        if (!std::isfinite(views[v].img[i]))
+                                return imp_error_set(err, -EINVAL, "calibration: view %d: image point "
+                                                     "%d is not finite", v, i / 2);
+        }
+        try {
+                return intrinsics_cpp(views, n_views, width, height, ret, ret_rvecs, ret_tvecs, err);
+        } catch (const std::bad_alloc &) {
+                return imp_error_set(err, -ENOMEM, "calibration: out of memory");
+        } catch (const cv::Exception &e) {
+                return imp_error_set(err, -EDOM, "calibration: %s", e.what());
+        }
+}
+
+extern "C" int imp_cv_calib_stereo(const struct imp_calib_view *views_a, const struct imp_calib_view *views_b,
+                                   int n_views, const struct imp_calib_intrinsics *a,
+                                   const struct imp_calib_intrinsics *b, struct imp_calib_stereo *ret,
+                                   struct imp_error *err) {
+        if (!views_a || !views_b || n_views < 1 || !a || !b || !ret)
+                return imp_error_set(err, -EINVAL, "stereo calibration: bad arguments");
+        std::vector<std::vector<cv::Point3f>> obj;
+        std::vector<std::vector<cv::Point2f>> ia, ib;
+        for (int v = 0; v < n_views; v++) {
+                if (views_a[v].n != views_b[v].n || views_a[v].n < 4)
+                        return imp_error_set(err, -EINVAL, "stereo calibration: view %d: %d and %d "
+                                             "points (equal and >= 4 expected)", v, views_a[v].n,
+                                             views_b[v].n);
+                obj.push_back(obj_points(views_a[v]));
+                ia.push_back(img_points(views_a[v]));
+                ib.push_back(img_points(views_b[v]));
+        }
+        struct imp_calib_stereo r = {};
+        try {
+                cv::Mat KA = K_of(a), DA = D_of(a), KB = K_of(b), DB = D_of(b), R, T, E, F, perView;
+                r.rms_px = cv::stereoCalibrate(obj, ia, ib, KA, DA, KB, DB, cv::Size(a->width, a->height),
+                                               R, T, E, F, perView, cv::CALIB_FIX_INTRINSIC,
+                                               cv::TermCriteria(cv::TermCriteria::COUNT +
+                                                                cv::TermCriteria::EPS, 100, 1e-10));
+                R.convertTo(R, CV_64F);
+                T.convertTo(T, CV_64F);
+                perView.convertTo(perView, CV_64F);
+                if (!std::isfinite(r.rms_px) || !all_finite(R) || !all_finite(T))
+                        return imp_error_set(err, -EDOM, "stereoCalibrate gave a non-finite pose");
+                for (int i = 0; i < 9; i++)
+                        r.R[i] = R.at<double>(i / 3, i % 3);
+                for (int i = 0; i < 3; i++)
+                        r.t[i] = T.at<double>(i);
+                r.worst_view_rms_px = -1;
+                for (int v = 0; v < perView.rows; v++)
+                        for (int c = 0; c < perView.cols; c++)
+                                if (perView.at<double>(v, c) > r.worst_view_rms_px) {
+                                        r.worst_view_rms_px = perView.at<double>(v, c);
+                                        r.worst_view = v;
+                                }
+        } catch (const std::bad_alloc &) {
+                return imp_error_set(err, -ENOMEM, "stereo calibration: out of memory");
+        } catch (const cv::Exception &e) {
+                return imp_error_set(err, -EDOM, "stereo calibration: %s", e.what());
+        }
+        *ret = r;
+        return 0;
+}
+
+/* ---- the whole procedure on capture directories ---- */
+
+namespace {
+
+void copy_str(char *dst, size_t size, const std::string &s) {
+        size_t n = std::min(s.size(), size - 1);
+        memcpy(dst, s.data(), n);
+        dst[n] = 0;
+}
+
+struct images {
+        std::vector<struct imp_image *> v;
+        ~images() {
+                for (auto *im : v)
+                        imp_image_free(im);
+        }
+};
+
+int load_frame(const std::string &dir, int idx, struct imp_image **ret, struct imp_error *err) {
+        char name[32];
+        snprintf(name, sizeof name, "/graycode_%02d.png", idx);
+        std::string path = dir + name;
+        struct imp_image *im = nullptr;
+        int r = imp_png_read(path.c_str(), &im, err);
+        if (r < 0)
+                return r;
+        if (!is_u8_gray(im)) {
+                imp_image_free(im);
+                return imp_error_set(err, -EMEDIUMTYPE, "%s: expected an 8-bit greyscale PNG (%s, %d "
+                                     "channels)", path.c_str(), imp_pixel_type_name(im->type), im->channels);
+        }
+        *ret = im;
+        return 0;
+}
+
+struct capture_points {
+        std::vector<double> obj;                 /* all corners, 3 per corner */
+        std::vector<double> cam;                 /* 2 per corner */
+        std::vector<double> obj_p, cam_p, proj;  /* the corners that got a projector coordinate */
+};
+
+/* One capture: -errno on bad input (missing/unreadable file, size mismatch); 1 when the
+ * capture is to be skipped (cap->why says why); 0 when used. */
+int do_capture(const char *dir, const struct imp_calib_procam_opts *o, int n_pat, int *cam_w, int *cam_h,
+               int *half_px, struct imp_calib_capture *cap, capture_points *pts, struct imp_error *err) {
+        struct stat st;
+        if (stat(dir, &st) < 0 || !S_ISDIR(st.st_mode))
+                return imp_error_set(err, -ENOENT, "capture %s: not a directory (expected "
+                                     "graycode_00.png … graycode_%02d.png in it)", dir, n_pat + 1);
+        images im;
+        im.v.assign((size_t) n_pat + 2, nullptr);
+        int r = load_frame(dir, n_pat, &im.v[n_pat], err);              /* white */
+        if (r < 0)
+                return r;
+        r = load_frame(dir, n_pat + 1, &im.v[n_pat + 1], err);          /* black */
+        if (r < 0)
+                return r;
+        const struct imp_image *white = im.v[n_pat], *black = im.v[n_pat + 1];
+        if (*cam_w == 0) {
+                *cam_w = white->width;
+                *cam_h = white->height;
+                if (*half_px <= 0)
+                        *half_px = (int) std::ceil(white->width / 180.0);   /* procam-calibration's */
+        }
+        if (white->width != *cam_w || white->height != *cam_h || black->width != *cam_w ||
+            black->height != *cam_h)
+                return imp_error_set(err, -EINVAL, "capture %s: images are %dx%d, the first capture's "
+                                     "are %dx%d", dir, white->width, white->height, *cam_w, *cam_h);
+        const int nc = o->board_cols * o->board_rows;
+        std::vector<double> corners((size_t) 2 * nc);
+        struct imp_error cerr = {};
+        r = imp_cv_calib_find_corners(white, o->board_cols, o->board_rows, corners.data(), &cerr);
+        if (r == -ENOENT) {
+                char name[32];
+                snprintf(name, sizeof name, "/graycode_%02d.png", n_pat);
+                copy_str(cap->why, sizeof cap->why, std::string(dir) + name + " (white frame): " + cerr.msg);
+                return 1;
+        }
+        if (r < 0)
+                return imp_error_set(err, r, "%s/graycode_%02d.png: %s", dir, n_pat, cerr.msg);
+        cap->n_corners_cam = nc;
+        for (int i = 0; i < n_pat; i++) {
+                r = load_frame(dir, i, &im.v[i], err);
+                if (r < 0)
+                        return r;
+                if (im.v[i]->width != *cam_w || im.v[i]->height != *cam_h)
+                        return imp_error_set(err, -EINVAL, "%s/graycode_%02d.png: %dx%d, expected %dx%d",
+                                             dir, i, im.v[i]->width, im.v[i]->height, *cam_w, *cam_h);
+        }
+        std::vector<double> proj((size_t) 2 * nc);
+        std::vector<uint8_t> ok((size_t) nc);
+        r = imp_cv_calib_points_to_projector(o->proj_w, o->proj_h, im.v.data(), (size_t) n_pat, white,
+                                             black, o->black_threshold, o->white_threshold, *half_px,
+                                             corners.data(), nc, proj.data(), ok.data(),
+                                             &cap->n_decoded_px, err);
+        if (r < 0)
+                return imp_error_prefix(err, "capture %s: ", dir);
+        for (int i = 0; i < nc; i++) {
+                double X = o->square * (i % o->board_cols), Y = o->square * (i / o->board_cols);
+                pts->obj.insert(pts->obj.end(), { X, Y, 0.0 });
+                pts->cam.insert(pts->cam.end(), { corners[2 * i], corners[2 * i + 1] });
+                if (!ok[i])
+                        continue;
+                cap->n_corners_proj++;
+                pts->obj_p.insert(pts->obj_p.end(), { X, Y, 0.0 });
+                pts->cam_p.insert(pts->cam_p.end(), { corners[2 * i], corners[2 * i + 1] });
+                pts->proj.insert(pts->proj.end(), { proj[2 * i], proj[2 * i + 1] });
+        }
+        if (cap->n_corners_proj < 4) {
+                copy_str(cap->why, sizeof cap->why, "capture " + std::string(dir) + ": only " +
+                         std::to_string(cap->n_corners_proj) + " of " + std::to_string(nc) +
+                         " corners got a projector coordinate (too few decoded pixels within ±" +
+                         std::to_string(*half_px) + " px; check the black/white thresholds)");
+                return 1;
+        }
+        return 0;
+}
+
+void warn_flags(struct imp_calib_procam *r, const struct imp_calib_intrinsics *in, const char *who) {
+        char buf[1024];
+        if (imp_calib_flags_describe(in, who, buf, sizeof buf) <= 0)
+                return;
+        for (char *line = strtok(buf, "\n"); line; line = strtok(nullptr, "\n"))
+                imp_calib_warn(r, "%s", line);
+}
+
+int procam_cpp(const char *const *dirs, int n_dirs, const struct imp_calib_procam_opts *o,
+               struct imp_calib_procam *ret, struct imp_error *err) {
+        int n_pat = imp_cv_graycode_count(o->proj_w, o->proj_h);
+        if (n_pat < 0)
+                return imp_error_set(err, -EINVAL, "bad projector size %dx%d", o->proj_w, o->proj_h);
+        std::unique_ptr<struct imp_calib_procam> res(new struct imp_calib_procam());
+        std::vector<capture_points> pts((size_t) n_dirs);
+        int cam_w = 0, cam_h = 0, half_px = o->window_half_px;
+        for (int d = 0; d < n_dirs; d++) {
+                struct imp_calib_capture *cap = &res->captures[d];
+                copy_str(cap->dir, sizeof cap->dir, dirs[d]);
+                int r = do_capture(dirs[d], o, n_pat, &cam_w, &cam_h, &half_px, cap, &pts[d], err);
+                if (r < 0)
+                        return r;
+                cap->used = r == 0;
+                if (!cap->used) {
+                        imp_calib_warn(res.get(), "%s; capture skipped", cap->why);
+                        continue;
+                }
+                res->n_used++;
+                if (cap->n_corners_proj < cap->n_corners_cam)
+                        imp_calib_warn(res.get(), "capture %s: %d of %d corners had too few decoded "
+                                       "pixels within ±%d px and are left out of the projector "
+                                       "calibration", dirs[d], cap->n_corners_cam - cap->n_corners_proj,
+                                       cap->n_corners_cam, half_px);
+        }
+        res->n_captures = n_dirs;
+        res->window_half_px = half_px;
+        if (res->n_used < IMP_CALIB_MIN_VIEWS) {
+                std::string why;
+                for (int d = 0; d < n_dirs; d++)
+                        if (!res->captures[d].used)
+                                why += std::string("\n  ") + res->captures[d].why;
+                return imp_error_set(err, -EDOM, "%d usable capture%s of %d, at least %d needed "
+                                     "(board %dx%d inner corners)%s", res->n_used,
+                                     res->n_used == 1 ? "" : "s", n_dirs, IMP_CALIB_MIN_VIEWS,
+                                     o->board_cols, o->board_rows, why.c_str());
+        }
+        std::vector<struct imp_calib_view> vc, vp, vcp;
+        for (int d = 0; d < n_dirs; d++) {
+                if (!res->captures[d].used)
+                        continue;
+                const capture_points &p = pts[d];
+                vc.push_back({ (int) p.cam.size() / 2, p.obj.data(), p.cam.data() });
+                vp.push_back({ (int) p.proj.size() / 2, p.obj_p.data(), p.proj.data() });
+                vcp.push_back({ (int) p.cam_p.size() / 2, p.obj_p.data(), p.cam_p.data() });
+        }
+        int r = imp_cv_calib_intrinsics(vc.data(), (int) vc.size(), cam_w, cam_h, &res->camera,
+                                        nullptr, nullptr, err);
+        if (r < 0)
+                return imp_error_prefix(err, "camera: ");
+        r = imp_cv_calib_intrinsics(vp.data(), (int) vp.size(), o->proj_w, o->proj_h, &res->projector,
+                                    nullptr, nullptr, err);
+        if (r < 0)
+                return imp_error_prefix(err, "projector: ");
+        r = imp_cv_calib_stereo(vcp.data(), vp.data(), (int) vp.size(), &res->camera, &res->projector,
+                                &res->stereo, err);
+        if (r < 0)
+                return r;
+        warn_flags(res.get(), &res->camera, "camera");
+        warn_flags(res.get(), &res->projector, "projector");
+        *ret = *res;
+        return 0;
+}
+
+}  // namespace
+
+extern "C" int imp_cv_calib_procam(const char *const *dirs, int n_dirs,
+                                   const struct imp_calib_procam_opts *opts, struct imp_calib_procam *ret,
+                                   struct imp_error *err) {
+        if (!dirs || n_dirs < 1 || !opts || !ret)
+                return imp_error_set(err, -EINVAL, "procam calibration: no captures given");
+        if (n_dirs > IMP_CALIB_MAX_CAPTURES)
+                return imp_error_set(err, -EINVAL, "procam calibration: %d captures, at most %d",
+                                     n_dirs, IMP_CALIB_MAX_CAPTURES);
+        if (opts->board_cols < 2 || opts->board_rows < 2 || !(opts->square > 0) ||
+            !std::isfinite(opts->square) || opts->black_threshold < 0 || opts->white_threshold < 0 ||
+            opts->window_half_px < 0)
+                return imp_error_set(err, -EINVAL, "procam calibration: bad options (board %dx%d, "
+                                     "square %g)", opts->board_cols, opts->board_rows, opts->square);
+        try {
+                return procam_cpp(dirs, n_dirs, opts, ret, err);
+        } catch (const std::bad_alloc &) {
+                return imp_error_set(err, -ENOMEM, "procam calibration: out of memory");
+        } catch (const cv::Exception &e) {
+                return imp_error_set(err, -EINVAL, "procam calibration: %s", e.what());
+        }
+}

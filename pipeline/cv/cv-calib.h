@@ -1,0 +1,63 @@
+/* Projector–camera calibration over OpenCV (Moreno & Taubin, "Simple, accurate, and robust
+ * projector-camera calibration", 3DIMPVT 2012) behind a C API: chessboard corners on the
+ * white frame, Gray code decoded around each corner, a local homography per corner giving
+ * its sub-pixel projector coordinate, then calibrateCamera for each device and
+ * stereoCalibrate (intrinsics fixed) for the pose. Library code: no logging; OpenCV
+ * exceptions stop here and become negative errnos with a message in err. */
+#pragma once
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+#include "image.h"
+#include "../calib.h"
+
+/* Inner chessboard corners (cols × rows, row-major from the first found corner) on a u8
+ * grey image, refined by cornerSubPix. ret_px: 2·cols·rows doubles, untouched on failure.
+ * -ENOENT: the board of that size was not found (err says so). */
+int imp_cv_calib_find_corners(const struct imp_image *img, int cols, int rows, double *ret_px,
+                              struct imp_error *err);
+
+/* Projector coordinates of camera points by local homographies (Moreno & Taubin §3):
+ * around each point, camera pixels within ±half_px whose white − black > black_threshold
+ * are decoded with GrayCodePattern::getProjPixel (white_threshold); at least half_px²
+ * decoded pixels are needed, then a RANSAC homography camera→projector maps the point.
+ * frames: imp_cv_graycode_count(proj_w, proj_h) pattern frames, u8 grey, size of white.
+ * ret_proj: 2n doubles; ret_ok[i] = 1 when point i got one (else its coords are -1).
+ * *ret_n_decoded: decoded pixels in all windows (may be NULL). */
+int imp_cv_calib_points_to_projector(int proj_w, int proj_h, const struct imp_image *const *frames,
+                                     size_t n_frames, const struct imp_image *white,
+                                     const struct imp_image *black, int black_threshold,
+                                     int white_threshold, int half_px, const double *cam_px,
+                                     int n, double *ret_proj, uint8_t *ret_ok, int *ret_n_decoded,
+                                     struct imp_error *err);
+
+/* cv::calibrateCamera (5 distortion terms, default flags) on planar views, then the
+ * first-order covariance and projection uncertainty (see calib.h), then
+ * imp_calib_intrinsics_assess(). ret_rvecs / ret_tvecs (3·n_views each) may be NULL.
+ * -EDOM with a message when the data do not determine a finite result (OpenCV gave
+ * non-finite values or threw on degenerate input); -EINVAL on bad arguments. */
+int imp_cv_calib_intrinsics(const struct imp_calib_view *views, int n_views, int width, int height,
+                            struct imp_calib_intrinsics *ret, double *ret_rvecs, double *ret_tvecs,
+                            struct imp_error *err);
+
+/* cv::stereoCalibrate with CALIB_FIX_INTRINSIC: views_a / views_b share object points
+ * (views_a[i].obj is used; the n of both must agree). */
+int imp_cv_calib_stereo(const struct imp_calib_view *views_a, const struct imp_calib_view *views_b,
+                        int n_views, const struct imp_calib_intrinsics *a,
+                        const struct imp_calib_intrinsics *b, struct imp_calib_stereo *ret,
+                        struct imp_error *err);
+
+/* The whole procedure on capture directories DIR/graycode_00.png … graycode_NN.png
+ * (NN+1 = Gray-code frames + white + black, OpenCV's order). A capture whose board is not
+ * found, or with fewer than 3 corners mapped, is skipped with a warning in ret; fewer than
+ * IMP_CALIB_MIN_VIEWS usable captures is -EDOM. Missing/unreadable images: the reader's
+ * errno, err naming the file. ret is written only on success. */
+int imp_cv_calib_procam(const char *const *dirs, int n_dirs, const struct imp_calib_procam_opts *opts,
+                        struct imp_calib_procam *ret, struct imp_error *err);
+
+#ifdef __cplusplus
+}
+#endif

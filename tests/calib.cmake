@@ -1,0 +1,11 @@
+# Projector–camera calibration (pipeline/calib.c, pipeline/cv/cv-calib.cpp, issue #8).
+# All three run OpenCV's calibration code, which trips LeakSanitizer in OpenCV's own
+# thread-local caches, so they are labelled integration (not run under ASan in CI).
+if(TARGET impasto_cv)
+  # The five real captures of kamino410/procam-calibration (tests/../shared/data).
+  impasto_test(test-calib-procam LABELS integration LIBS impasto_cv impasto_pipeline TIMEOUT 120)
+  # Rendered chessboards seen by a known camera: the intrinsics must come back.
+  impasto_test(test-calib-synth LABELS integration LIBS impasto_cv impasto_pipeline TIMEOUT 120)
+  # Degenerate view sets: fronto-parallel boards, one view; flags and finite outputs.
+  impasto_test(test-calib-stability LABELS integration LIBS impasto_cv impasto_pipeline TIMEOUT 120)
+endif()
