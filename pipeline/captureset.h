@@ -8,18 +8,7 @@
 #include <stdint.h>
 #include "image.h"
 #include "rig.h"
-
-enum imp_pattern_kind { IMP_PAT_NONE, IMP_PAT_WHITE, IMP_PAT_BLACK, IMP_PAT_GRAY, IMP_PAT_PHASE };
-
-struct imp_pattern {
-        enum imp_pattern_kind kind;
-        int axis;                     /* 0: encodes projector columns (x), 1: rows (y) */
-        int bit;                      /* GRAY: bit index, 0 = most significant */
-        int nbits;                    /* GRAY: total bits for this axis */
-        bool inverse;                 /* GRAY: the inverted pattern */
-        double period_px;             /* PHASE: sinusoid period in projector pixels */
-        int step, steps;              /* PHASE: step i of N, phase offset 2π i / N */
-};
+#include "pattern.h"
 
 struct imp_frame_record {
         long long seq;                /* 0-based position in the plan */
