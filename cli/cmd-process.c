@@ -1,56 +1,17 @@
-/* `impasto process CAPTURE_DIR --out COPY_DIR`: a capture set in, the digital copy out.
- * Runs every stage that exists, in order: HDR merge of each exposure stack, structured-light
- * decoding, triangulation, heightfield (seed 000 §4.2), relief boxes (§4.3), and, when the
- * set holds a dome sweep, the shadow-aware Lafortune fit (§4.4); writes the copy's files
- * and copy.json with per-stage figures. */
+/* `impasto process CAPTURE_DIR --out COPY_DIR`: a capture set in, the digital copy out
+ * (pipeline/process.c does the work), with a progress bar on a terminal. */
 #include <errno.h>
 #include <getopt.h>
-#include <math.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
-#include <sys/resource.h>
 #include <time.h>
 #include <unistd.h>
-#include "boxes.h"
-#include "btf.h"
-#include "captureset.h"
 #include "commands.h"
-#include "copy-previews.h"
-
-#define IMP_HDR_MAX_STACK 8   /* exposures per stack, as many as a plan may list */
-#include "hdr.h"
-#include "heightfield.h"
-#include "json-util.h"
 #include "log.h"
-#include "structured-light.h"
-#include "triangulate.h"
-#include "version.h"
+#include "process.h"
 
-/* One exposure stack: the frames of one (step, camera, tile, pattern, light). */
-struct stack {
-        size_t first;                 /* manifest index of the first frame */
-        size_t idx[IMP_HDR_MAX_STACK];
-        int n;
-};
-
-struct process_opts {
-        const char *capture, *out;
-        double pitch_mm;
-        int cell_px;
-        double delta_frac;
-        bool btf;
-        bool progress;
-};
-
-static double now_s(void) {
-        struct timespec ts;
-        clock_gettime(CLOCK_MONOTONIC, &ts);
-        return ts.tv_sec + ts.tv_nsec * 1e-9;
-}
-
-static void progress(const struct process_opts *o, const char *stage, size_t done, size_t total) {
-        if (!o->progress)
-                return;
+static void progress_bar(void *userdata, const char *stage, size_t done, size_t total) {
         int width = 30, fill = total ? (int) (width * done / total) : width;
         fprintf(stderr, "\r%-18s [%.*s%*s] %zu/%zu", stage, fill,
                 "##############################", width - fill, "", done, total);
@@ -59,437 +20,17 @@ static void progress(const struct process_opts *o, const char *stage, size_t don
         fflush(stderr);
 }
 
-static bool same_shot(const struct imp_frame_record *a, const struct imp_frame_record *b) {
-        const struct imp_pattern *p = &a->pattern, *q = &b->pattern;
-        return !strcmp(a->step, b->step) && !strcmp(a->camera, b->camera) && a->tile == b->tile &&
-               a->light == b->light && p->kind == q->kind && p->axis == q->axis && p->bit == q->bit &&
-               p->inverse == q->inverse && p->period_px == q->period_px && p->step == q->step &&
-               p->steps == q->steps;
-}
-
-/* Groups consecutive manifest records of one camera and step into exposure stacks. */
-static int collect_stacks(const struct imp_captureset *cs, const char *step, const char *camera,
-                          struct stack **ret, size_t *ret_n) {
-        size_t n = imp_captureset_count(cs), count = 0;
-        _cleanup_free_ struct stack *v = calloc(n ? n : 1, sizeof *v);
-        if (!v)
-                return -ENOMEM;
-        for (size_t i = 0; i < n; i++) {
-                const struct imp_frame_record *r = imp_captureset_record(cs, i);
-                if (strcmp(r->step, step) || strcmp(r->camera, camera) || r->tile != 0)
-                        continue;
-                struct stack *s = NULL;
-                for (size_t k = count; k-- > 0;)
-                        if (same_shot(imp_captureset_record(cs, v[k].first), r)) {
-                                s = &v[k];
-                                break;
-                        }
-                if (!s) {
-                        s = &v[count++];
-                        s->first = i;
-                }
-                if (s->n < IMP_HDR_MAX_STACK)
-                        s->idx[s->n++] = i;
-        }
-        *ret = TAKE_PTR(v);
-        *ret_n = count;
-        return 0;
-}
-
-/* Loads and merges one stack into linear values (mono: the mean of the channels). */
-static int merge_stack(const struct imp_captureset *cs, const struct stack *s,
-                       const struct imp_sensor *sensor, struct imp_hdr_result *ret,
-                       struct imp_error *err) {
-        struct imp_image *frames[IMP_HDR_MAX_STACK] = {};
-        struct imp_hdr_exposure ex[IMP_HDR_MAX_STACK];
-        int r = 0;
-        for (int k = 0; k < s->n; k++) {
-                r = imp_captureset_load_frame(cs, s->idx[k], &frames[k], err);
-                if (r < 0)
-                        goto out;
-                const struct imp_frame_record *rec = imp_captureset_record(cs, s->idx[k]);
-                ex[k] = (struct imp_hdr_exposure) { frames[k], rec->exposure_us, rec->gain_db };
-        }
-        struct imp_hdr_options opt;
-        imp_hdr_options_default(&opt);
-        opt.demosaic = true;
-        r = imp_hdr_merge(ex, s->n, sensor, &opt, ret);
-        if (r < 0)
-                imp_error_set(err, r, "%s: HDR merge of frame %zu failed: %s",
-                              imp_captureset_dir(cs), s->first, strerror(-r));
-out:
-        for (int k = 0; k < s->n; k++)
-                imp_image_free(frames[k]);
-        return r;
-}
-
-/* Collapses a C-channel f32 image to one channel (mean), in place of a new image. */
-static int to_mono(struct imp_image **img) {
-        struct imp_image *src = *img;
-        if (src->channels == 1)
-                return 0;
-        struct imp_image *m;
-        int r = imp_image_new(src->width, src->height, 1, IMP_PIX_F32, &m);
-        if (r < 0)
-                return r;
-        for (int y = 0; y < src->height; y++)
-                for (int x = 0; x < src->width; x++) {
-                        const float *p = imp_image_f32(src, x, y);
-                        double sum = 0;
-                        for (int c = 0; c < src->channels; c++)
-                                sum += p[c];
-                        *imp_image_f32(m, x, y) = (float) (sum / src->channels);
-                }
-        imp_image_free(src);
-        *img = m;
-        return 0;
-}
-
-static double median_of(const float *v, size_t n) {
-        if (n == 0)
-                return 0;
-        _cleanup_free_ float *c = malloc(n * sizeof *c);
-        if (!c)
-                return 0;
-        size_t m = 0;
-        for (size_t i = 0; i < n; i++)
-                if (isfinite(v[i]) && v[i] > 0)
-                        c[m++] = v[i];
-        if (!m)
-                return 0;
-        /* nth element by partial selection (quickselect) */
-        size_t lo = 0, hi = m - 1, k = m / 2;
-        while (lo < hi) {
-                float piv = c[(lo + hi) / 2];
-                size_t i = lo, j = hi;
-                while (i <= j) {
-                        while (c[i] < piv) i++;
-                        while (c[j] > piv) j--;
-                        if (i <= j) {
-                                float t = c[i]; c[i] = c[j]; c[j] = t;
-                                i++;
-                                if (j == 0) break;
-                                j--;
-                        }
-                }
-                if (k <= j) hi = j;
-                else if (k >= i) lo = i;
-                else break;
-        }
-        return c[k];
-}
-
-struct geometry_out {
-        struct imp_heightfield hf;
-        struct imp_boxes boxes;
-        json_t *stages;
-};
-
-static int run_geometry(const struct process_opts *o, const struct imp_captureset *cs,
-                        struct geometry_out *g, struct imp_error *err) {
-        const struct imp_rig *rig = imp_captureset_rig(cs);
-        if (rig->n_cameras < 1 || !rig->has_projector)
-                return imp_error_set(err, -EINVAL, "%s/rig.json: a camera and a projector are needed "
-                                     "for the geometry (found %d cameras, %s projector)", o->capture,
-                                     rig->n_cameras, rig->has_projector ? "a" : "no");
-        const struct imp_rig_camera *cam = &rig->cameras[0];
-        _cleanup_free_ struct stack *stacks = NULL;
-        size_t n_stacks;
-        int r = collect_stacks(cs, "structured-light", cam->name, &stacks, &n_stacks);
-        if (r < 0)
-                return imp_error_set(err, r, "out of memory");
-        if (n_stacks == 0)
-                return imp_error_set(err, -EINVAL, "%s/manifest.jsonl: no structured-light frames "
-                                     "for camera %s", o->capture, cam->name);
-
-        double t0 = now_s();
-        struct imp_image **imgs = calloc(n_stacks, sizeof *imgs);
-        struct imp_pattern *pats = calloc(n_stacks, sizeof *pats);
-        struct imp_sl_result *sl = NULL;
-        struct imp_range_image range = {};
-        size_t n_sat = 0, n_dark = 0;
-        double white_level = 0;
-        if (!imgs || !pats) {
-                r = imp_error_set(err, -ENOMEM, "out of memory");
-                goto out;
-        }
-        for (size_t i = 0; i < n_stacks; i++) {
-                struct imp_hdr_result h = {};
-                r = merge_stack(cs, &stacks[i], &cam->sensor, &h, err);
-                if (r < 0)
-                        goto out;
-                n_sat += h.n_saturated;
-                n_dark += h.n_dark;
-                imgs[i] = TAKE_PTR(h.value);
-                imp_hdr_result_done(&h);
-                r = to_mono(&imgs[i]);
-                if (r < 0)
-                        goto out;
-                pats[i] = imp_captureset_record(cs, stacks[i].first)->pattern;
-                if (pats[i].kind == IMP_PAT_WHITE)
-                        white_level = median_of(imgs[i]->data, (size_t) imgs[i]->width * imgs[i]->height);
-                progress(o, "hdr merge", i + 1, n_stacks);
-        }
-        double t_hdr = now_s();
-
-        struct imp_sl_params slp;
-        imp_sl_params_default(&slp, IMP_PIX_F32);
-        if (white_level > 0) {
-                /* Thresholds are fractions of white (defaults assume white = 1). */
-                slp.shadow_threshold *= white_level;
-                slp.min_bit_contrast *= white_level;
-                slp.min_direct *= white_level;
-                slp.min_modulation *= white_level;
-        }
-        slp.proj_width = rig->projector.model.width;
-        slp.proj_height = rig->projector.model.height;
-        slp.black_level = rig->projector.black_level;
-        struct imp_sl_frames fr = { pats, (const struct imp_image *const *) imgs, (int) n_stacks };
-        r = imp_sl_decode(&fr, &slp, &sl, err);
-        if (r < 0) {
-                imp_error_prefix(err, "%s: structured light: ", o->capture);
-                goto out;
-        }
-        progress(o, "decode", 1, 1);
-        double t_sl = now_s();
-
-        struct imp_projector_coords pc;
-        imp_projector_coords_from_sl(sl, &pc);
-        struct imp_triangulate_options to;
-        imp_triangulate_options_default(&to);
-        r = imp_triangulate(&cam->model, &rig->projector.model, &pc, &to, &range);
-        if (r < 0) {
-                imp_error_set(err, r, "%s: triangulation failed: %s", o->capture, strerror(-r));
-                goto out;
-        }
-        progress(o, "triangulate", 1, 1);
-        double t_tri = now_s();
-
-        struct imp_heightfield_options ho;
-        imp_heightfield_options_default(&ho);
-        if (o->pitch_mm > 0)
-                ho.pitch_mm = o->pitch_mm;
-        r = imp_heightfield_from_range(&range, &ho, &g->hf);
-        if (r < 0) {
-                imp_error_set(err, r, "%s: heightfield failed: %s", o->capture, strerror(-r));
-                goto out;
-        }
-        r = imp_heightfield_save(&g->hf, o->out, err);
-        if (r < 0)
-                goto out;
-        progress(o, "heightfield", 1, 1);
-        double t_hf = now_s();
-
-        struct imp_boxes_options bo;
-        imp_boxes_options_default(&bo);
-        if (o->cell_px > 0)
-                bo.cell_px = o->cell_px;
-        if (o->delta_frac > 0)
-                bo.delta_frac = o->delta_frac;
-        r = imp_boxes_classify(&g->hf, &bo, &g->boxes);
-        if (r < 0) {
-                imp_error_set(err, r, "%s: relief classification failed: %s", o->capture, strerror(-r));
-                goto out;
-        }
-        char path[4096];
-        snprintf(path, sizeof path, "%s/boxes.json", o->out);
-        r = imp_boxes_save(&g->boxes, path, err);
-        if (r < 0)
-                goto out;
-        progress(o, "boxes", 1, 1);
-        double t_box = now_s();
-
-        g->stages = json_pack("{s:{s:i,s:I,s:I,s:f,s:f}, s:{s:I,s:I,s:I,s:I,s:I,s:f}, s:{s:I,s:f}, s:o, s:{s:i,s:I,s:f,s:f}}",
-                "hdr", "stacks", (int) n_stacks, "saturated_samples", (json_int_t) n_sat,
-                       "dark_samples", (json_int_t) n_dark, "white_level", white_level, "seconds", t_hdr - t0,
-                "structured_light", "valid_x", (json_int_t) sl->n_valid_x, "valid_y", (json_int_t) sl->n_valid_y,
-                       "valid_xy", (json_int_t) sl->n_valid_xy, "shadow", (json_int_t) sl->n_shadow,
-                       "disagree", (json_int_t) sl->n_disagree, "seconds", t_sl - t_hdr,
-                "triangulation", "points", (json_int_t) range.n_valid, "seconds", t_tri - t_sl,
-                "heightfield", imp_heightfield_stage_json(&g->hf),
-                "boxes", "cell_px", g->boxes.cell_px, "boxes", (json_int_t) g->boxes.n_boxes,
-                       "delta0_mm", g->boxes.delta0_mm, "seconds", t_box - t_hf);
-        json_object_set_new(json_object_get(g->stages, "heightfield"), "seconds", json_real(t_hf - t_tri));
-        r = 0;
-out:
-        if (imgs)
-                for (size_t i = 0; i < n_stacks; i++)
-                        imp_image_free(imgs[i]);
-        free(imgs);
-        free(pats);
-        imp_sl_result_free(sl);
-        imp_range_image_done(&range);
-        return r;
-}
-
-/* The dome sweep → per-texel Lafortune BRDF (seed 000 §4.4). */
-static int run_appearance(const struct process_opts *o, const struct imp_captureset *cs,
-                          const struct geometry_out *g, json_t *stages, struct imp_error *err) {
-        const struct imp_rig *rig = imp_captureset_rig(cs);
-        const struct imp_rig_camera *cam = &rig->cameras[0];
-        _cleanup_free_ struct stack *stacks = NULL;
-        size_t n_stacks;
-        int r = collect_stacks(cs, "dome", cam->name, &stacks, &n_stacks);
-        if (r < 0)
-                return imp_error_set(err, r, "out of memory");
-        if (n_stacks == 0)
-                return 0;   /* no dome sweep: a geometry-only copy */
-        if (n_stacks > IMP_BTF_MAX_SAMPLES)
-                n_stacks = IMP_BTF_MAX_SAMPLES;
-
-        double t0 = now_s();
-        const struct imp_heightfield *hf = &g->hf;
-        size_t nt = (size_t) hf->nx * hf->ny;
-        struct imp_image **frames = calloc(n_stacks, sizeof *frames);
-        struct imp_image **valid = calloc(n_stacks, sizeof *valid);
-        struct imp_rig_light *lights = calloc(n_stacks, sizeof *lights);
-        float *normal = malloc(nt * 3 * sizeof *normal);
-        struct imp_btf_texel *tex = calloc(nt, sizeof *tex);
-        struct imp_image *maps[3] = {};
-        if (!frames || !valid || !lights || !normal || !tex) {
-                r = imp_error_set(err, -ENOMEM, "out of memory");
-                goto out;
-        }
-        size_t n_used = 0;
-        for (size_t i = 0; i < n_stacks; i++) {
-                int id = imp_captureset_record(cs, stacks[i].first)->light;
-                const struct imp_rig_light *L = NULL;
-                for (int k = 0; k < rig->n_lights; k++)
-                        if (rig->lights[k].id == id)
-                                L = &rig->lights[k];
-                if (!L) {
-                        r = imp_error_set(err, -EINVAL, "%s/manifest.jsonl: frame %zu: light %d is not in rig.json",
-                                          o->capture, stacks[i].first, id);
-                        goto out;
-                }
-                struct imp_hdr_result h = {};
-                r = merge_stack(cs, &stacks[i], &cam->sensor, &h, err);
-                if (r < 0)
-                        goto out;
-                /* Validity per pixel from the merge flags (any channel). */
-                struct imp_image *vimg;
-                r = imp_image_new(h.value->width, h.value->height, 1, IMP_PIX_U8, &vimg);
-                if (r < 0) {
-                        imp_hdr_result_done(&h);
-                        goto out;
-                }
-                for (int y = 0; y < h.flags->height; y++)
-                        for (int x = 0; x < h.flags->width; x++) {
-                                const uint8_t *f = imp_image_u8(h.flags, x, y);
-                                uint8_t v = 0;
-                                for (int c = 0; c < h.flags->channels; c++) {
-                                        if (f[c] & IMP_HDR_SATURATED) v |= IMP_BTF_PIX_SATURATED;
-                                        if (f[c] & IMP_HDR_DARK) v |= IMP_BTF_PIX_INVALID;
-                                }
-                                *imp_image_u8(vimg, x, y) = v;
-                        }
-                frames[n_used] = TAKE_PTR(h.value);
-                valid[n_used] = vimg;
-                lights[n_used] = *L;
-                n_used++;
-                imp_hdr_result_done(&h);
-                progress(o, "dome hdr merge", i + 1, n_stacks);
-        }
-        double t_hdr = now_s();
-
-        for (size_t i = 0; i < nt; i++) {
-                double nx = hf->nx_[i], ny = hf->ny_[i], s = 1 - nx * nx - ny * ny;
-                normal[3 * i] = (float) nx;
-                normal[3 * i + 1] = (float) ny;
-                normal[3 * i + 2] = (float) sqrt(s > 0 ? s : 0);
-        }
-        struct imp_btf_heightfield bh = { hf->nx, hf->ny, hf->pitch_mm, hf->height_mm, normal, hf->mask, {} };
-        memcpy(bh.canvas_to_world, hf->canvas_to_world, sizeof bh.canvas_to_world);
-        struct imp_btf_capture cap = { &cam->model, lights, (int) n_used,
-                                       (const struct imp_image *const *) frames,
-                                       (const struct imp_image *const *) valid };
-        struct imp_btf_sample_params sp;
-        struct imp_btf_fit_params fp;
-        imp_btf_sample_params_default(&sp);
-        imp_btf_fit_params_default(&fp);
-        struct imp_btf_stats st = {};
-        r = imp_btf_fit_grid(&bh, &cap, &sp, &fp, 64, tex, &st);
-        if (r < 0) {
-                imp_error_set(err, r, "%s: BTF fit failed: %s", o->capture, strerror(-r));
-                goto out;
-        }
-        progress(o, "btf fit", 1, 1);
-        double t_fit = now_s();
-
-        /* rho_d.exr, rho_s.exr (RGB half), lobe.exr (cx, cy, cz, k half): seed 000 §6. */
-        for (int m = 0; m < 3; m++) {
-                r = imp_image_new(hf->nx, hf->ny, m == 2 ? 4 : 3, IMP_PIX_F32, &maps[m]);
-                if (r < 0)
-                        goto out;
-        }
-        for (int y = 0; y < hf->ny; y++)
-                for (int x = 0; x < hf->nx; x++) {
-                        const struct imp_btf_texel *t = &tex[(size_t) y * hf->nx + x];
-                        float *d = imp_image_f32(maps[0], x, y), *s = imp_image_f32(maps[1], x, y);
-                        float *l = imp_image_f32(maps[2], x, y);
-                        for (int c = 0; c < 3; c++) {
-                                d[c] = t->rho_d[c];
-                                s[c] = t->rho_s[c];
-                        }
-                        l[0] = t->cx; l[1] = t->cy; l[2] = t->cz; l[3] = t->k;
-                }
-        static const char *const rgb[] = { "R", "G", "B" }, *const lobe[] = { "cx", "cy", "cz", "k" };
-        static const char *const files[] = { "rho_d.exr", "rho_s.exr", "lobe.exr" };
-        for (int m = 0; m < 3; m++) {
-                char path[4096];
-                snprintf(path, sizeof path, "%s/%s", o->out, files[m]);
-                r = imp_exr_write(path, maps[m], m == 2 ? lobe : rgb, true, err);
-                if (r < 0)
-                        goto out;
-        }
-        json_object_set_new(stages, "btf", json_pack("{s:i,s:I,s:I,s:I,s:I,s:I,s:I,s:I,s:I,s:f,s:f}",
-                "lights", (int) n_used, "fitted", (json_int_t) st.n_fitted, "matte", (json_int_t) st.n_matte,
-                "few_samples", (json_int_t) st.n_few, "hidden", (json_int_t) st.n_hidden,
-                "filled", (json_int_t) st.n_filled, "cx_eq_cy", (json_int_t) st.n_cx_eq_cy,
-                "samples", (json_int_t) st.n_samples, "shadowed", (json_int_t) st.n_shadowed,
-                "seconds_hdr", t_hdr - t0, "seconds_fit", t_fit - t_hdr));
-        r = 0;
-out:
-        for (size_t i = 0; i < n_stacks; i++) {
-                if (frames) imp_image_free(frames[i]);
-                if (valid) imp_image_free(valid[i]);
-        }
-        for (int m = 0; m < 3; m++)
-                imp_image_free(maps[m]);
-        free(frames);
-        free(valid);
-        free(lights);
-        free(normal);
-        free(tex);
-        return r;
-}
-
-static int write_copy_json(const struct process_opts *o, const struct geometry_out *g,
-                           json_t *stages, double seconds, struct imp_error *err) {
-        const struct imp_heightfield *hf = &g->hf;
-        json_t *m = json_array();
-        for (int i = 0; i < 16; i++)
-                json_array_append_new(m, json_real(hf->canvas_to_world[i]));
-        struct rusage ru;
-        getrusage(RUSAGE_SELF, &ru);
-        _cleanup_json_ json_t *j = json_pack("{s:s,s:i,s:s,s:f,s:i,s:i,s:o,s:{s:s,s:s,s:f,s:I},s:O}",
-                "format", "impasto-digital-copy", "version", 1, "units", "mm",
-                "pitch_mm", hf->pitch_mm, "nx", hf->nx, "ny", hf->ny, "canvas_to_world", m,
-                "provenance", "software", "impasto " IMPASTO_VERSION_STRING, "capture", o->capture,
-                              "seconds", seconds, "peak_rss_kib", (json_int_t) ru.ru_maxrss,
-                "stages", stages);
-        char path[4096];
-        snprintf(path, sizeof path, "%s/copy.json", o->out);
-        return imp_json_save_atomic(path, j, err);
-}
-
 static void usage(FILE *f) {
         fprintf(f, "usage: impasto process CAPTURE_DIR --out COPY_DIR [--pitch MM] [--cell N]\n"
                    "                       [--delta FRACTION] [--no-btf] [--quiet]\n");
 }
 
 static int run(int argc, char **argv) {
-        struct process_opts o = { .btf = true, .progress = isatty(STDERR_FILENO) };
+        struct imp_process_options o;
+        imp_process_options_default(&o);
+        const char *out = NULL;
+        if (isatty(STDERR_FILENO))
+                o.progress = progress_bar;
         static const struct option longopts[] = {
                 { "out", required_argument, NULL, 'o' }, { "pitch", required_argument, NULL, 'p' },
                 { "cell", required_argument, NULL, 'n' }, { "delta", required_argument, NULL, 'd' },
@@ -499,49 +40,30 @@ static int run(int argc, char **argv) {
         int c;
         while ((c = getopt_long(argc, argv, "o:h", longopts, NULL)) >= 0)
                 switch (c) {
-                case 'o': o.out = optarg; break;
+                case 'o': out = optarg; break;
                 case 'p': o.pitch_mm = atof(optarg); break;
                 case 'n': o.cell_px = atoi(optarg); break;
                 case 'd': o.delta_frac = atof(optarg); break;
                 case 'B': o.btf = false; break;
-                case 'q': o.progress = false; break;
+                case 'q': o.progress = NULL; break;
                 case 'h': usage(stdout); return 0;
                 default: usage(stderr); return 2;
                 }
-        if (optind + 1 != argc || !o.out) {
+        if (optind + 1 != argc || !out) {
                 usage(stderr);
                 return 2;
         }
-        o.capture = argv[optind];
-        double t0 = now_s();
+        struct timespec t0, t1;
+        clock_gettime(CLOCK_MONOTONIC, &t0);
         struct imp_error err = {};
-        _cleanup_(imp_captureset_closep) struct imp_captureset *cs = NULL;
-        int r = imp_captureset_open(o.capture, &cs, &err);
-        if (r < 0) {
-                log_error("%s", err.msg);
-                return 3;
-        }
-        r = imp_mkdir_p(o.out, 0755);
-        if (r < 0) {
-                log_error_errno(r, "%s: cannot create the copy directory: %m", o.out);
-                return 1;
-        }
-        struct geometry_out g = {};
-        r = run_geometry(&o, cs, &g, &err);
-        if (r >= 0 && o.btf)
-                r = run_appearance(&o, cs, &g, g.stages, &err);
-        if (r >= 0)
-                r = imp_copy_previews(o.out, &g.hf, &err);
-        if (r >= 0)
-                r = write_copy_json(&o, &g, g.stages, now_s() - t0, &err);
-        json_decref(g.stages);
-        imp_boxes_done(&g.boxes);
-        imp_heightfield_done(&g.hf);
+        int r = imp_process_capture(argv[optind], out, &o, &err);
         if (r < 0) {
                 log_error("%s", err.msg[0] ? err.msg : strerror(-r));
                 return r == -EINVAL || r == -EBADMSG ? 3 : 1;
         }
-        printf("digital copy written to %s (%.1f s)\n", o.out, now_s() - t0);
+        clock_gettime(CLOCK_MONOTONIC, &t1);
+        printf("digital copy written to %s (%.1f s)\n", out,
+               (t1.tv_sec - t0.tv_sec) + (t1.tv_nsec - t0.tv_nsec) * 1e-9);
         return 0;
 }
 
