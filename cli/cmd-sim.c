@@ -2,12 +2,19 @@
  *   impasto sim render --scene FILE --plan FILE --out DIR [--seed N] [--threads N] [--quiet]
  *       renders every frame of the plan into a capture set at DIR, plus DIR/truth/
  *   impasto sim info --scene FILE [--plan FILE]
- *       prints the scene summary (and the plan's frame count and capture-time estimate) */
+ *       prints the scene summary (and the plan's frame count and capture-time estimate)
+ *   impasto sim serve --scene FILE [--address A] [--modbus-port P] [--seed N] [--rig-out FILE]
+ *                     [--ready-file FILE] [--fault SPEC]...
+ *       serves the scene as devices (sim/serve.h) until SIGTERM/SIGINT, then exits 0 */
+#include <fcntl.h>
 #include <getopt.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
+#include <pthread.h>
+#include <unistd.h>
 #ifdef _OPENMP
 #include <omp.h>
 #endif
@@ -17,12 +24,18 @@
 #include "plan.h"
 #include "render.h"
 #include "scene.h"
+#include "serve.h"
 
 #define EXIT_USAGE 2
 #define EXIT_BADINPUT 3
+#define MAX_FAULTS 16
 
 struct sim_args {
         const char *scene, *plan, *out;
+        const char *address, *rig_out, *ready_file;
+        long modbus_port;
+        const char *faults[MAX_FAULTS];
+        int n_faults;
         long long seed;
         bool has_seed, quiet;
         int threads;
@@ -30,7 +43,11 @@ struct sim_args {
 
 static void usage(FILE *f) {
         fprintf(f, "usage: impasto sim render --scene FILE --plan FILE --out DIR [--seed N] [--threads N] [--quiet]\n"
-                   "       impasto sim info --scene FILE [--plan FILE]\n");
+                   "       impasto sim info --scene FILE [--plan FILE]\n"
+                   "       impasto sim serve --scene FILE [--address 127.0.0.1] [--modbus-port 15020] [--seed N]\n"
+                   "                         [--rig-out FILE] [--ready-file FILE] [--fault SPEC]...\n"
+                   "         SPEC: drop-frame=N, modbus-exception=N[:CODE], modbus-delay=N:MS,\n"
+                   "               modbus-disconnect=N, frame-delay=MS, projector-fault=CODE\n");
 }
 
 static int parse_args(int argc, char **argv, struct sim_args *a) {
@@ -38,6 +55,9 @@ static int parse_args(int argc, char **argv, struct sim_args *a) {
                 { "scene", required_argument, NULL, 's' }, { "plan", required_argument, NULL, 'p' },
                 { "out", required_argument, NULL, 'o' },   { "seed", required_argument, NULL, 'S' },
                 { "threads", required_argument, NULL, 't' }, { "quiet", no_argument, NULL, 'q' },
+                { "address", required_argument, NULL, 'a' }, { "modbus-port", required_argument, NULL, 'm' },
+                { "rig-out", required_argument, NULL, 'r' }, { "ready-file", required_argument, NULL, 'R' },
+                { "fault", required_argument, NULL, 'f' },
                 { "help", no_argument, NULL, 'h' },         { 0 } };
         int c;
         optind = 1;
@@ -62,6 +82,23 @@ static int parse_args(int argc, char **argv, struct sim_args *a) {
                                 log_error("--threads: expected 1 to 1024, got '%s'", optarg);
                                 return -EINVAL;
                         }
+                        break;
+                case 'a': a->address = optarg; break;
+                case 'r': a->rig_out = optarg; break;
+                case 'R': a->ready_file = optarg; break;
+                case 'm':
+                        a->modbus_port = strtol(optarg, &end, 10);
+                        if (!*optarg || *end || a->modbus_port < 1 || a->modbus_port > 65535) {
+                                log_error("--modbus-port: expected 1 to 65535, got '%s'", optarg);
+                                return -EINVAL;
+                        }
+                        break;
+                case 'f':
+                        if (a->n_faults == MAX_FAULTS) {
+                                log_error("--fault: at most %d", MAX_FAULTS);
+                                return -EINVAL;
+                        }
+                        a->faults[a->n_faults++] = optarg;
                         break;
                 case 'h': usage(stdout); exit(0);
                 default: return -EINVAL;
@@ -220,6 +257,59 @@ static int cmd_render(const struct sim_args *a) {
         return 0;
 }
 
+/* Serves until SIGTERM or SIGINT. The signals are blocked before any device thread starts,
+ * so every thread inherits the mask and sigwait() here is the only receiver. */
+static int cmd_serve(const struct sim_args *a) {
+        if (!a->scene) {
+                usage(stderr);
+                return EXIT_USAGE;
+        }
+        sigset_t set;
+        sigemptyset(&set);
+        sigaddset(&set, SIGTERM);
+        sigaddset(&set, SIGINT);
+        pthread_sigmask(SIG_BLOCK, &set, NULL);
+        _cleanup_(imp_scene_freep) struct imp_scene *scene = NULL;
+        int rc = load_scene(a, &scene);
+        if (rc)
+                return rc;
+        struct imp_error err = { 0 };
+        struct imp_serve_config cfg = { .address = a->address, .modbus_port = (uint16_t) a->modbus_port };
+        _cleanup_(imp_serve_freep) struct imp_serve *s = NULL;
+        int r = imp_serve_new(scene, &cfg, &s, &err);
+        if (r < 0) {
+                log_error("%s", err.msg[0] ? err.msg : strerror(-r));
+                return 1;
+        }
+        for (int i = 0; i < a->n_faults; i++)
+                if (imp_serve_fault(s, a->faults[i], &err) < 0) {
+                        log_error("%s", err.msg);
+                        return EXIT_USAGE;
+                }
+        if (a->rig_out && (r = imp_rig_save(a->rig_out, imp_serve_rig(s), &err)) < 0) {
+                log_error("%s", err.msg[0] ? err.msg : strerror(-r));
+                return 1;
+        }
+        _cleanup_free_ char *text = imp_serve_describe(s);
+        fprintf(stderr, "sim serve: %s", text ? text : "serving\n");
+        if (a->ready_file) {
+                int fd = open(a->ready_file, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+                if (fd < 0) {
+                        log_error_errno(-errno, "--ready-file %s: %m", a->ready_file);
+                        return 1;
+                }
+                dprintf(fd, "%d\n", (int) getpid());
+                close(fd);
+        }
+        int sig = 0;
+        sigwait(&set, &sig);
+        fprintf(stderr, "sim serve: %s, stopping (%llu frames served)\n", strsignal(sig),
+                (unsigned long long) imp_serve_frames(s, 0));
+        if (a->ready_file)
+                unlink(a->ready_file);
+        return 0;
+}
+
 static int run(int argc, char **argv) {
         if (argc < 2 || !strcmp(argv[1], "--help") || !strcmp(argv[1], "-h")) {
                 usage(argc < 2 ? stderr : stdout);
@@ -232,6 +322,8 @@ static int run(int argc, char **argv) {
         }
         if (!strcmp(argv[1], "render"))
                 return cmd_render(&a);
+        if (!strcmp(argv[1], "serve"))
+                return cmd_serve(&a);
         if (!strcmp(argv[1], "info")) {
                 if (!a.scene) {
                         usage(stderr);
@@ -246,6 +338,6 @@ static int run(int argc, char **argv) {
 
 const struct imp_command imp_cmd_sim = {
         .name = "sim",
-        .summary = "simulated rig: render a capture set with ground truth, describe a scene",
+        .summary = "simulated rig: render a capture set with ground truth, serve it as devices, describe a scene",
         .run = run,
 };

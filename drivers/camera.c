@@ -8,10 +8,22 @@
 #ifdef IMPASTO_HAVE_ARAVIS
 extern const struct imp_camera_ops imp_camera_aravis_ops;
 #endif
+#ifdef IMPASTO_HAVE_V4L2
+extern const struct imp_camera_ops imp_camera_v4l2_ops;
+#endif
+#ifdef IMPASTO_HAVE_LIBCAMERA
+extern const struct imp_camera_ops imp_camera_libcamera_ops;
+#endif
 
 static const struct imp_camera_ops *const camera_backends[] = {
 #ifdef IMPASTO_HAVE_ARAVIS
         &imp_camera_aravis_ops,
+#endif
+#ifdef IMPASTO_HAVE_V4L2
+        &imp_camera_v4l2_ops,
+#endif
+#ifdef IMPASTO_HAVE_LIBCAMERA
+        &imp_camera_libcamera_ops,
 #endif
         NULL,
 };
@@ -195,10 +207,21 @@ int imp_camera_grab(struct imp_camera *c, unsigned timeout_ms, const struct imp_
                 return -ENOTCONN;
         struct imp_frame f = {};
         int r = c->ops->grab(c->state, timeout_ms, c->buf, c->buf_size, &f);
+        if (r == -ENODEV) {
+                /* Unplugged: release the stream now, so nothing waits on a dead device. */
+                c->acquiring = false;
+                if (c->ops->stop)
+                        (void) c->ops->stop(c->state);
+        }
         if (r < 0)
                 return r;
         f.data = c->buf;
         c->frame = f;
         *ret_frame = &c->frame;
         return 0;
+}
+
+const char *imp_camera_last_error(const struct imp_camera *c) {
+        const char *e = c && c->ops->last_error ? c->ops->last_error(c->state) : NULL;
+        return e ? e : "";
 }

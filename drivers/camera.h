@@ -88,6 +88,8 @@ struct imp_camera_ops {
          * -EIO for an incomplete frame (its buffer is recycled), -EMSGSIZE if dst is short. */
         int (*grab)(void *state, unsigned timeout_ms, void *dst, size_t dst_size,
                     struct imp_frame *ret_frame);
+        /* Human detail of the last failure ("/dev/video0: VIDIOC_DQBUF: ..."), or NULL. */
+        const char *(*last_error)(void *state);
 };
 
 struct imp_camera;
@@ -113,6 +115,11 @@ int imp_camera_set_roi(struct imp_camera *camera, unsigned x, unsigned y,
 int imp_camera_start(struct imp_camera *camera, const struct imp_camera_acq *acq);
 int imp_camera_stop(struct imp_camera *camera);
 int imp_camera_trigger_software(struct imp_camera *camera);
-/* Next frame. *ret_frame points into the camera: valid until the next grab, stop or close. */
+/* Next frame. *ret_frame points into the camera: valid until the next grab, stop or close.
+ * -ENODEV: the camera is gone; the camera is then stopped (grab answers -ENOTCONN). */
 int imp_camera_grab(struct imp_camera *camera, unsigned timeout_ms,
                     const struct imp_frame **ret_frame);
+/* The backend's detail of its last failure ("" when it keeps none). Valid until the next call. */
+const char *imp_camera_last_error(const struct imp_camera *camera);
+/* Backends built before the last_error slot existed test for it. */
+#define IMP_CAMERA_HAVE_LAST_ERROR 1

@@ -61,6 +61,9 @@ const struct imp_projector_ops *imp_projector_backend(const char *name);
  * again). -ENOENT: no backend by that name. */
 int imp_projector_open(const char *backend, const char *address, unsigned timeout_ms,
                        struct imp_projector **ret);
+/* The same with an explicit backend table (tests; backends outside the built-in list). */
+int imp_projector_open_ops(const struct imp_projector_ops *ops, const char *address, unsigned timeout_ms,
+                           struct imp_projector **ret);
 void imp_projector_close(struct imp_projector *p);
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_projector *, imp_projector_close);
 int imp_projector_get_info(struct imp_projector *p, struct imp_projector_info *ret_info);

@@ -40,7 +40,9 @@ static void fill_pattern(ArvBuffer *buffer, void *data, guint32 exposure_us, gui
                 .pattern = imp_emu_rig_get_pattern(g->rig),
                 .n_lights = imp_emu_rig_n_lights(g->rig),
                 .frame_index = atomic_load(&g->frames),
+                .frame_id = arv_buffer_get_frame_id(buffer),
         };
+        imp_emu_rig_get_pattern_desc(g->rig, &st.pattern_desc);
         imp_emu_rig_get_lights(g->rig, st.level_permille, IMP_EMU_MAX_LIGHTS);
         (void) g->fill(g->userdata, &st, pixels, width, height, bpp);
         atomic_fetch_add(&g->frames, 1);
@@ -89,6 +91,20 @@ void imp_emu_gige_free(struct imp_emu_gige *g) {
         if (g->gv)
                 g_object_unref(g->gv);  /* joins the camera thread before the callback data goes */
         free(g);
+}
+
+int imp_emu_gige_set_sensor_size(struct imp_emu_gige *g, unsigned width, unsigned height) {
+        if (!g || width == 0 || height == 0 || width > 16384 || height > 16384)
+                return -EINVAL;
+        ArvFakeCamera *fc = arv_gv_fake_camera_get_fake_camera(g->gv);
+        if (!arv_fake_camera_write_register(fc, ARV_FAKE_CAMERA_REGISTER_SENSOR_WIDTH, width) ||
+            !arv_fake_camera_write_register(fc, ARV_FAKE_CAMERA_REGISTER_SENSOR_HEIGHT, height) ||
+            !arv_fake_camera_write_register(fc, ARV_FAKE_CAMERA_REGISTER_X_OFFSET, 0) ||
+            !arv_fake_camera_write_register(fc, ARV_FAKE_CAMERA_REGISTER_Y_OFFSET, 0) ||
+            !arv_fake_camera_write_register(fc, ARV_FAKE_CAMERA_REGISTER_WIDTH, width) ||
+            !arv_fake_camera_write_register(fc, ARV_FAKE_CAMERA_REGISTER_HEIGHT, height))
+                return -EIO;
+        return 0;
 }
 
 uint64_t imp_emu_gige_frames_filled(struct imp_emu_gige *g) {

@@ -30,7 +30,35 @@
 #define AX_COMMAND      6
 #define AX_SPEED        7
 #define AX_TRAVEL       8
-#define N_REGISTERS     0x0300
+/* Projector sequencer block (map version 1 addition). */
+#define REG_PROJ_CAPACITY       0x0300  /* RO */
+#define REG_PROJ_WIDTH          0x0301  /* RO */
+#define REG_PROJ_HEIGHT         0x0302  /* RO */
+#define REG_PROJ_COUNT          0x0303  /* RW, commits the sequence */
+#define REG_PROJ_SHOW           0x0304  /* RW, index or 0xFFFF dark */
+#define REG_PROJ_SHOWN          0x0305  /* RO */
+#define REG_PROJ_FAULT          0x0306  /* RO */
+#define REG_PROJ_FAULT_INDEX    0x0307  /* RO */
+#define REG_PROJ_COMMAND        0x0308  /* WO */
+#define REG_PROJ_TRIGGERS       0x0309  /* RO */
+#define REG_PROJ_SHOWS          0x030A  /* RO */
+#define REG_PROJ_DESC0          0x0400
+#define PROJ_DESC_STRIDE        8
+#define PD_KIND 0
+#define PD_AXIS 1
+#define PD_BIT 2
+#define PD_NBITS 3
+#define PD_INVERSE 4
+#define PD_PERIOD 5
+#define PD_STEP 6
+#define PD_STEPS 7
+#define PROJ_MAX_PATTERNS       256
+#define PROJ_DARK               0xFFFFu
+#define PROJ_FAULT_DESCRIPTOR   1u
+#define PROJ_FAULT_INDEX        2u
+#define PROJ_CMD_CLEAR_FAULT    1
+#define PROJ_CMD_TRIGGER        2
+#define N_REGISTERS     (REG_PROJ_DESC0 + PROJ_MAX_PATTERNS * PROJ_DESC_STRIDE)
 #define MAGIC           0x494D
 #define MAP_VERSION     1
 
@@ -158,6 +186,20 @@ static int check_write(struct imp_emu_modbus *e, unsigned addr, uint16_t v) {
                 return v <= 1 ? 0 : MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
         if (addr >= REG_LEVEL0 && addr < REG_LEVEL0 + e->cfg.n_lights)
                 return v <= 1000 ? 0 : MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
+        if (addr == REG_PROJ_COUNT)
+                return v <= e->cfg.max_patterns ? 0 : MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
+        if (addr == REG_PROJ_SHOW)
+                return 0;               /* range and faults are checked when applied */
+        if (addr == REG_PROJ_COMMAND)
+                return v == PROJ_CMD_CLEAR_FAULT || v == PROJ_CMD_TRIGGER ? 0 : MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
+        if (addr >= REG_PROJ_DESC0 && addr < REG_PROJ_DESC0 + e->cfg.max_patterns * PROJ_DESC_STRIDE) {
+                switch ((addr - REG_PROJ_DESC0) % PROJ_DESC_STRIDE) {
+                case PD_KIND: return v <= IMP_PAT_PHASE ? 0 : MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
+                case PD_AXIS:
+                case PD_INVERSE: return v <= 1 ? 0 : MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
+                default: return 0;
+                }
+        }
         if (addr >= REG_AXIS0 && addr < REG_AXIS0 + e->cfg.n_axes * AXIS_STRIDE) {
                 unsigned off = (addr - REG_AXIS0) % AXIS_STRIDE;
                 if (off == AX_TARGET || off == AX_TARGET + 1)
@@ -188,6 +230,66 @@ static unsigned decode_write(const uint8_t *q, int hl, unsigned *addr, uint16_t 
         return 0;
 }
 
+static struct imp_pattern proj_desc_locked(struct imp_emu_modbus *e, unsigned i) {
+        const uint16_t *d = &e->map->tab_registers[REG_PROJ_DESC0 + i * PROJ_DESC_STRIDE];
+        return (struct imp_pattern) {
+                .kind = (enum imp_pattern_kind) d[PD_KIND], .axis = d[PD_AXIS], .bit = d[PD_BIT],
+                .nbits = d[PD_NBITS], .inverse = d[PD_INVERSE] != 0, .period_px = d[PD_PERIOD] / 100.0,
+                .step = d[PD_STEP], .steps = d[PD_STEPS],
+        };
+}
+
+/* The sequencer's own consistency rules for one descriptor. */
+static bool proj_desc_valid(const struct imp_pattern *p) {
+        switch (p->kind) {
+        case IMP_PAT_NONE:
+        case IMP_PAT_WHITE:
+        case IMP_PAT_BLACK:
+                return true;
+        case IMP_PAT_GRAY:
+                return p->nbits >= 1 && p->nbits <= 16 && p->bit >= 0 && p->bit < p->nbits;
+        case IMP_PAT_PHASE:
+                return p->period_px > 0 && p->steps >= 1 && p->step >= 0 && p->step < p->steps;
+        }
+        return false;
+}
+
+static void proj_dark_locked(struct imp_emu_modbus *e) {
+        e->map->tab_registers[REG_PROJ_SHOWN] = PROJ_DARK;
+        e->map->tab_registers[REG_PROJ_SHOW] = PROJ_DARK;
+        imp_emu_rig_set_pattern_desc(e->rig, -1, NULL);
+}
+
+static void proj_latch_fault_locked(struct imp_emu_modbus *e, unsigned code, unsigned index) {
+        e->map->tab_registers[REG_PROJ_FAULT] = (uint16_t) code;
+        e->map->tab_registers[REG_PROJ_FAULT_INDEX] = (uint16_t) index;
+        proj_dark_locked(e);
+}
+
+/* Semantic checks of a projector write before it is answered: 0 or the exception. A
+ * refusal also latches the fault (the controller's record of why). */
+static int proj_check_locked(struct imp_emu_modbus *e, unsigned addr, uint16_t v) {
+        uint16_t *t = e->map->tab_registers;
+        if (addr == REG_PROJ_COUNT) {
+                for (unsigned i = 0; i < v; i++) {
+                        struct imp_pattern p = proj_desc_locked(e, i);
+                        if (!proj_desc_valid(&p)) {
+                                t[REG_PROJ_COUNT] = 0;
+                                proj_latch_fault_locked(e, PROJ_FAULT_DESCRIPTOR, i);
+                                return MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
+                        }
+                }
+        } else if (addr == REG_PROJ_SHOW && v != PROJ_DARK) {
+                if (t[REG_PROJ_FAULT])
+                        return MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE;
+                if (v >= t[REG_PROJ_COUNT]) {
+                        proj_latch_fault_locked(e, PROJ_FAULT_INDEX, v);
+                        return MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
+                }
+        }
+        return 0;
+}
+
 static void apply_write_locked(struct imp_emu_modbus *e, unsigned addr, unsigned n, const uint16_t *v) {
         for (unsigned i = 0; i < n; i++) {
                 unsigned r = addr + i;
@@ -199,7 +301,27 @@ static void apply_write_locked(struct imp_emu_modbus *e, unsigned addr, unsigned
                         e->map->tab_registers[REG_COMMAND] = 0;
                 } else if (r >= REG_LEVEL0 && r < REG_LEVEL0 + e->cfg.n_lights)
                         imp_emu_rig_set_light(e->rig, r - REG_LEVEL0, v[i]);
-                else if (r >= REG_AXIS0 && (r - REG_AXIS0) % AXIS_STRIDE == AX_COMMAND) {
+                else if (r == REG_PROJ_COUNT)
+                        proj_dark_locked(e);    /* a new sequence starts dark */
+                else if (r == REG_PROJ_SHOW) {
+                        uint16_t *t = e->map->tab_registers;
+                        if (v[i] == PROJ_DARK)
+                                proj_dark_locked(e);
+                        else {
+                                struct imp_pattern p = proj_desc_locked(e, v[i]);
+                                t[REG_PROJ_SHOWN] = v[i];
+                                imp_emu_rig_set_pattern_desc(e->rig, v[i], &p);
+                        }
+                        t[REG_PROJ_SHOWS]++;
+                } else if (r == REG_PROJ_COMMAND) {
+                        uint16_t *t = e->map->tab_registers;
+                        if (v[i] == PROJ_CMD_CLEAR_FAULT)
+                                t[REG_PROJ_FAULT] = t[REG_PROJ_FAULT_INDEX] = 0;
+                        else if (v[i] == PROJ_CMD_TRIGGER)
+                                t[REG_PROJ_TRIGGERS]++;
+                        t[REG_PROJ_COMMAND] = 0;
+                } else if (r >= REG_AXIS0 && r < REG_AXIS0 + MAX_AXES * AXIS_STRIDE &&
+                           (r - REG_AXIS0) % AXIS_STRIDE == AX_COMMAND) {
                         axis_command_locked(e, (r - REG_AXIS0) / AXIS_STRIDE, v[i]);
                         e->map->tab_registers[r] = 0;
                 }
@@ -238,6 +360,8 @@ static void serve_request(struct imp_emu_modbus *e, int slot, const uint8_t *q, 
         unsigned n = decode_write(q, hl, &addr, vals, ARRAY_SIZE(vals));
         for (unsigned i = 0; i < n; i++) {
                 int exc = check_write(e, addr + i, vals[i]);
+                if (!exc)
+                        exc = proj_check_locked(e, addr + i, vals[i]);
                 if (exc) {
                         modbus_reply_exception(e->ctx, q, (unsigned) exc);
                         pthread_mutex_unlock(&e->lock);
@@ -321,13 +445,21 @@ int imp_emu_modbus_new(const struct imp_emu_modbus_config *cfg, struct imp_emu_r
                 e->cfg.speed_mm_per_s = 50;
         if (!e->cfg.travel_um)
                 e->cfg.travel_um = 100000;
+        if (!e->cfg.projector_width)
+                e->cfg.projector_width = 1024;
+        if (!e->cfg.projector_height)
+                e->cfg.projector_height = 768;
+        if (!e->cfg.max_patterns)
+                e->cfg.max_patterns = PROJ_MAX_PATTERNS;
         e->rig = rig;
         e->listen_fd = e->wake[0] = e->wake[1] = -1;
         for (int i = 0; i < MAX_CLIENTS; i++)
                 e->clients[i] = -1;
         pthread_mutex_init(&e->lock, NULL);
         int r = -EINVAL;
-        if (e->cfg.n_lights > IMP_EMU_MAX_LIGHTS || e->cfg.n_axes > MAX_AXES)
+        if (e->cfg.n_lights > IMP_EMU_MAX_LIGHTS || e->cfg.n_axes > MAX_AXES ||
+            e->cfg.max_patterns > PROJ_MAX_PATTERNS || e->cfg.projector_width > 65535 ||
+            e->cfg.projector_height > 65535)
                 goto fail;
         r = -ENOMEM;
         e->ctx = modbus_new_tcp(e->cfg.address, e->cfg.port);
@@ -344,6 +476,10 @@ int imp_emu_modbus_new(const struct imp_emu_modbus_config *cfg, struct imp_emu_r
                 put32(axreg(e, a, AX_TRAVEL), e->cfg.travel_um);
                 e->axes[a].status = ST_INPOS;
         }
+        t[REG_PROJ_CAPACITY] = (uint16_t) e->cfg.max_patterns;
+        t[REG_PROJ_WIDTH] = (uint16_t) e->cfg.projector_width;
+        t[REG_PROJ_HEIGHT] = (uint16_t) e->cfg.projector_height;
+        t[REG_PROJ_SHOW] = t[REG_PROJ_SHOWN] = PROJ_DARK;
         update_locked(e);
         e->listen_fd = modbus_tcp_listen(e->ctx, 8);
         if (e->listen_fd < 0) {
@@ -430,6 +566,33 @@ unsigned imp_emu_modbus_light(struct imp_emu_modbus *e, unsigned id) {
                 return 0;
         pthread_mutex_lock(&e->lock);
         unsigned v = e->map->tab_registers[REG_LEVEL0 + id];
+        pthread_mutex_unlock(&e->lock);
+        return v;
+}
+
+void imp_emu_modbus_projector_fault(struct imp_emu_modbus *e, unsigned code) {
+        pthread_mutex_lock(&e->lock);
+        proj_latch_fault_locked(e, code, 0);
+        pthread_mutex_unlock(&e->lock);
+}
+
+int imp_emu_modbus_projector_shown(struct imp_emu_modbus *e) {
+        pthread_mutex_lock(&e->lock);
+        uint16_t v = e->map->tab_registers[REG_PROJ_SHOWN];
+        pthread_mutex_unlock(&e->lock);
+        return v == PROJ_DARK ? -1 : (int) v;
+}
+
+unsigned imp_emu_modbus_projector_count(struct imp_emu_modbus *e) {
+        pthread_mutex_lock(&e->lock);
+        unsigned v = e->map->tab_registers[REG_PROJ_COUNT];
+        pthread_mutex_unlock(&e->lock);
+        return v;
+}
+
+unsigned imp_emu_modbus_projector_triggers(struct imp_emu_modbus *e) {
+        pthread_mutex_lock(&e->lock);
+        unsigned v = e->map->tab_registers[REG_PROJ_TRIGGERS];
         pthread_mutex_unlock(&e->lock);
         return v;
 }

@@ -12,6 +12,7 @@ struct imp_emu_rig {
         uint16_t level[IMP_EMU_MAX_LIGHTS];
         unsigned max_on;
         int pattern;
+        struct imp_pattern desc;        /* kind NONE when dark */
 };
 
 int imp_emu_rig_new(unsigned n_lights, struct imp_emu_rig **ret_rig) {
@@ -102,7 +103,37 @@ void imp_emu_rig_set_pattern(struct imp_emu_rig *r, int pattern) {
                 return;
         pthread_mutex_lock(&r->lock);
         r->pattern = pattern;
+        if (pattern < 0)
+                r->desc = (struct imp_pattern) { .kind = IMP_PAT_NONE };
         pthread_mutex_unlock(&r->lock);
+}
+
+void imp_emu_rig_set_pattern_desc(struct imp_emu_rig *r, int index, const struct imp_pattern *desc) {
+        if (!r)
+                return;
+        pthread_mutex_lock(&r->lock);
+        if (index < 0 || !desc) {
+                r->pattern = -1;
+                r->desc = (struct imp_pattern) { .kind = IMP_PAT_NONE };
+        } else {
+                r->pattern = index;
+                r->desc = *desc;
+        }
+        pthread_mutex_unlock(&r->lock);
+}
+
+int imp_emu_rig_get_pattern_desc(struct imp_emu_rig *r, struct imp_pattern *ret_desc) {
+        if (!r) {
+                if (ret_desc)
+                        *ret_desc = (struct imp_pattern) { .kind = IMP_PAT_NONE };
+                return -1;
+        }
+        pthread_mutex_lock(&r->lock);
+        int p = r->pattern;
+        if (ret_desc)
+                *ret_desc = r->desc;
+        pthread_mutex_unlock(&r->lock);
+        return p;
 }
 
 int imp_emu_rig_get_pattern(struct imp_emu_rig *r) {

@@ -1,0 +1,32 @@
+/* A Modbus TCP link with impasto's client policy (docs/dome-registers.md, "Client policy"):
+ * address "HOST:PORT[;timeout_ms=N][;retries=N][;unit=N]", a response timeout per request,
+ * bounded retries with doubling backoff and a fresh connection after any transport error,
+ * exceptions not retried (except 0x06 server busy). Shared by the Modbus backends. */
+#pragma once
+#include <modbus.h>
+#include <stdbool.h>
+#include <stdint.h>
+
+#define MB_LINK_DEFAULT_TIMEOUT_MS 200
+#define MB_LINK_DEFAULT_RETRIES 3               /* attempts in all */
+#define MB_LINK_MAX_WRITE 120                   /* registers per write request we send */
+#define MB_LINK_MAX_READ 120
+
+struct mb_link {
+        modbus_t *ctx;
+        bool connected;
+        unsigned timeout_ms, retries;
+        char host[192];
+        char error[384];
+};
+
+/* Parses the address and creates the context (no connection yet). -EINVAL for a bad
+ * address or option, -ENOMEM. On failure the link is left closed (mb_link_close is safe). */
+int mb_link_init(struct mb_link *l, const char *address, unsigned timeout_ms);
+void mb_link_close(struct mb_link *l);
+/* One transfer under the policy. write: n registers from regs at addr; read: into regs.
+ * -EIO for an exception (named in l->error), -ETIMEDOUT, -ECONNRESET, -EBUSY, -EIO. */
+int mb_link_xfer(struct mb_link *l, bool write, int addr, int n, uint16_t *regs);
+static inline int mb_link_write1(struct mb_link *l, int addr, uint16_t v) {
+        return mb_link_xfer(l, true, addr, 1, &v);
+}
