@@ -19,7 +19,7 @@ static void usage(FILE *f) {
         for (size_t i = 0; i < sizeof commands / sizeof commands[0]; i++)
                 if (commands[i])
                         fprintf(f, "  %-10s %s\n", commands[i]->name, commands[i]->summary);
-        fprintf(f, "\nexit codes: 0 ok, 1 failure, 2 usage, 3 bad input\n");
+        fprintf(f, "\nexit codes: 0 ok, 1 failure, 2 usage, 3 bad input, 4 daemon unreachable, 5 permission denied\n");
 }
 
 int main(int argc, char **argv) {

@@ -1,0 +1,93 @@
+/* `impasto jobs [list] [--limit N]`, `impasto jobs show ID`, `impasto jobs retry ID`: the
+ * processing queue (jobs.list, jobs.show, jobs.retry of proto/PROTOCOL.md). */
+#include <getopt.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "client.h"
+#include "commands.h"
+#include "log.h"
+
+static void usage(FILE *f) {
+        fprintf(f, "usage: impasto jobs [list] [--limit N] [--json] [--socket PATH]\n"
+                   "       impasto jobs show ID [--json] [--socket PATH]\n"
+                   "       impasto jobs retry ID [--json] [--socket PATH]\n");
+}
+
+static void human_list(const json_t *r) {
+        const json_t *list = json_object_get(r, "jobs"), *j;
+        size_t i;
+        if (!json_array_size(list)) {
+                printf("no jobs\n");
+                return;
+        }
+        printf("%-32s %-32s %-8s %-20s %s\n", "JOB", "SESSION", "STATE", "QUEUED", "PROGRESS");
+        json_array_foreach(list, i, j) {
+                double p = imp_client_num(j, "progress");
+                printf("%-32s %-32s %-8s %-20s %3.0f%%\n", imp_client_str(j, "job"), imp_client_str(j, "session"),
+                       imp_client_str(j, "state"), imp_client_str(j, "queued"), p == p ? 100 * p : 0);
+        }
+}
+
+static void human_show(const json_t *r) {
+        printf("job      %s\nsession  %s\nstate    %s\nqueued   %s\n", imp_client_str(r, "job"),
+               imp_client_str(r, "session"), imp_client_str(r, "state"), imp_client_str(r, "queued"));
+        if (*imp_client_str(r, "started"))
+                printf("started  %s\n", imp_client_str(r, "started"));
+        if (*imp_client_str(r, "ended"))
+                printf("ended    %s\n", imp_client_str(r, "ended"));
+        if (*imp_client_str(r, "output"))
+                printf("output   %s\n", imp_client_str(r, "output"));
+        const json_t *e = json_object_get(r, "error");
+        if (json_is_object(e))
+                printf("error    %s: %s\n", imp_client_str(e, "code"), imp_client_str(e, "message"));
+}
+
+static void human_retry(const json_t *r) {
+        printf("job %s: %s\n", imp_client_str(r, "job"), imp_client_str(r, "state"));
+}
+
+static int run(int argc, char **argv) {
+        struct imp_client_opts o = {};
+        long limit = 0;
+        static const struct option opts[] = {
+                { "json", no_argument, NULL, 'j' }, { "socket", required_argument, NULL, 'S' },
+                { "limit", required_argument, NULL, 'n' }, { "help", no_argument, NULL, 'h' }, {} };
+        int c;
+        while ((c = getopt_long(argc, argv, "h", opts, NULL)) >= 0)
+                switch (c) {
+                case 'j': o.json = true; break;
+                case 'S': o.socket = optarg; break;
+                case 'n': {
+                        char *end;
+                        limit = strtol(optarg, &end, 10);
+                        if (!*optarg || *end || limit < 1 || limit > 1000) {
+                                log_error("--limit: expected 1 to 1000, got '%s'", optarg);
+                                return IMP_EXIT_USAGE;
+                        }
+                        break;
+                }
+                case 'h': usage(stdout); return 0;
+                default: usage(stderr); return IMP_EXIT_USAGE;
+                }
+        int n = argc - optind;
+        const char *verb = n > 0 ? argv[optind] : "list";
+        if (!strcmp(verb, "list") && n <= 1) {
+                json_t *args = limit ? json_pack("{s:I}", "limit", (json_int_t) limit) : NULL;
+                return imp_client_simple(&o, "jobs.list", args, human_list);
+        }
+        if ((!strcmp(verb, "show") || !strcmp(verb, "retry")) && n == 2 && !limit) {
+                json_t *args = json_pack("{s:s}", "job", argv[optind + 1]);
+                if (!strcmp(verb, "show"))
+                        return imp_client_simple(&o, "jobs.show", args, human_show);
+                return imp_client_simple(&o, "jobs.retry", args, human_retry);
+        }
+        usage(stderr);
+        return IMP_EXIT_USAGE;
+}
+
+const struct imp_command imp_cmd_jobs = {
+        .name = "jobs",
+        .summary = "the processing queue: list, show and retry jobs",
+        .run = run,
+};

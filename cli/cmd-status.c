@@ -1,0 +1,55 @@
+/* `impasto status [--json] [--socket PATH]`: the daemon, the rig, the session in progress
+ * and the job queue at a glance (the `status` command of proto/PROTOCOL.md). */
+#include <getopt.h>
+#include <stdio.h>
+#include "client.h"
+#include "commands.h"
+
+static void usage(FILE *f) {
+        fprintf(f, "usage: impasto status [--json] [--socket PATH]\n");
+}
+
+static void human(const json_t *r) {
+        const json_t *d = json_object_get(r, "daemon"), *rig = json_object_get(r, "rig");
+        const json_t *s = json_object_get(r, "session"), *j = json_object_get(r, "jobs");
+        char up[32];
+        printf("daemon   impastod %s, pid %lld, up %s\n", imp_client_str(d, "version"),
+               imp_client_int(d, "pid"), imp_client_fmt_duration(imp_client_num(d, "uptime_s"), up, sizeof up));
+        if (json_is_object(rig))
+                printf("rig      %s, %s\n", imp_client_str(rig, "name"),
+                       json_is_true(json_object_get(rig, "calibrated")) ? "calibrated" : "NOT calibrated");
+        if (json_is_object(s))
+                printf("session  %s: %s, step %lld of %lld\n", imp_client_str(s, "session"),
+                       imp_client_str(s, "state"), imp_client_int(s, "step"), imp_client_int(s, "steps"));
+        else
+                printf("session  none\n");
+        if (json_is_object(j))
+                printf("jobs     %lld queued, %lld running\n", imp_client_int(j, "queued"),
+                       imp_client_int(j, "running"));
+}
+
+static int run(int argc, char **argv) {
+        struct imp_client_opts o = {};
+        static const struct option opts[] = {
+                { "json", no_argument, NULL, 'j' }, { "socket", required_argument, NULL, 'S' },
+                { "help", no_argument, NULL, 'h' }, {} };
+        int c;
+        while ((c = getopt_long(argc, argv, "h", opts, NULL)) >= 0)
+                switch (c) {
+                case 'j': o.json = true; break;
+                case 'S': o.socket = optarg; break;
+                case 'h': usage(stdout); return 0;
+                default: usage(stderr); return IMP_EXIT_USAGE;
+                }
+        if (optind != argc) {
+                usage(stderr);
+                return IMP_EXIT_USAGE;
+        }
+        return imp_client_simple(&o, "status", NULL, human);
+}
+
+const struct imp_command imp_cmd_status = {
+        .name = "status",
+        .summary = "the daemon, the rig, the running session and the job queue",
+        .run = run,
+};

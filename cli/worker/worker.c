@@ -1,0 +1,451 @@
+/* impasto-worker: turns queued capture sets into digital copies. A job is a JSON file
+ * (docs/jobs.md) naming a capture set and a copy directory; the worker claims it atomically
+ * (a flock on <id>.lock, then rename <id>.json -> <id>.json.running), runs
+ * imp_process_capture(), and renames it back with state done or failed (or queued again
+ * while attempts remain after a transient error), the error message kept.
+ *
+ *   impasto-worker JOB_FILE                    process that one job
+ *   impasto-worker --queue DIR [--once]        process the DIR/<id>.json jobs (--once: one)
+ *
+ * Exit codes: 0 the job is done (or, with --once, nothing was queued; without --once, the
+ * worker was stopped by SIGTERM/SIGINT), 1 the job failed or was put back for a retry,
+ * 2 usage, 3 the job file is malformed, not queued, or claimed by another worker,
+ * 4 the queue directory cannot be read. */
+#include <dirent.h>
+#include <errno.h>
+#include <fcntl.h>
+#include <getopt.h>
+#include <limits.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/file.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <unistd.h>
+#include "json-util.h"
+#include "log.h"
+#include "process.h"
+
+#define EXIT_DONE 0
+#define EXIT_JOB_FAILED 1
+#define EXIT_USAGE 2
+#define EXIT_BAD_JOB 3
+#define EXIT_QUEUE 4
+
+#define DEFAULT_MAX_ATTEMPTS 3
+#define MAX_ATTEMPTS_LIMIT 100
+#define POLL_INTERVAL_S 2.0
+#define PROGRESS_INTERVAL_S 1.0
+
+static volatile sig_atomic_t stop_requested;
+
+static void on_signal(int sig) {
+        stop_requested = 1;
+}
+
+/* One claimed or inspected job. */
+struct job {
+        json_t *doc;                  /* the whole file: unknown members are kept */
+        char id[129];
+        char path[PATH_MAX];          /* DIR/<id>.json */
+        char running[PATH_MAX];       /* DIR/<id>.json.running while claimed */
+        char lock[PATH_MAX];          /* DIR/<id>.lock */
+        char capture[PATH_MAX], copy[PATH_MAX];   /* resolved against DIR */
+        long long attempts, max_attempts;
+        int lock_fd;
+};
+
+static void job_done(struct job *j) {
+        json_decref(j->doc);
+        j->doc = NULL;
+        if (j->lock_fd >= 0) {
+                unlink(j->lock);
+                close(j->lock_fd);
+                j->lock_fd = -1;
+        }
+}
+
+static bool is_token(const char *s) {
+        size_t n = strlen(s);
+        if (n < 1 || n > 128 || s[0] == '.')
+                return false;
+        for (; *s; s++)
+                if (!(('a' <= *s && *s <= 'z') || ('A' <= *s && *s <= 'Z') || ('0' <= *s && *s <= '9') ||
+                      *s == '.' || *s == '_' || *s == '-'))
+                        return false;
+        return true;
+}
+
+static int resolve(const char *dir, const char *p, char *out, size_t size) {
+        int n = p[0] == '/' ? snprintf(out, size, "%s", p) : snprintf(out, size, "%s/%s", dir, p);
+        return n < 0 || (size_t) n >= size ? -ENAMETOOLONG : 0;
+}
+
+/* Reads and checks a job file; `path` is DIR/<id>.json. State is checked by the caller. */
+static int job_read(const char *path, const char *read_from, struct job *j, struct imp_error *err) {
+        *j = (struct job) { .lock_fd = -1 };
+        snprintf(j->path, sizeof j->path, "%s", path);
+        const char *slash = strrchr(path, '/');
+        char dir[PATH_MAX];
+        snprintf(dir, sizeof dir, "%.*s", slash ? (int) (slash - path) : 1, slash ? path : ".");
+        if (slash == path)
+                snprintf(dir, sizeof dir, "/");
+        int r = imp_json_load(read_from, &j->doc, err);
+        if (r < 0)
+                return r;
+        if (!json_is_object(j->doc))
+                return imp_error_set(err, -EINVAL, "%s: expected a JSON object", path);
+        const char *id, *capture, *copy, *state;
+        long long attempts = 0, max_attempts = DEFAULT_MAX_ATTEMPTS;
+        if ((r = imp_json_get_string(j->doc, "id", true, &id, path, err)) < 0 ||
+            (r = imp_json_get_string(j->doc, "capture", true, &capture, path, err)) < 0 ||
+            (r = imp_json_get_string(j->doc, "copy", true, &copy, path, err)) < 0 ||
+            (r = imp_json_get_string(j->doc, "state", true, &state, path, err)) < 0 ||
+            (r = imp_json_get_int(j->doc, "attempts", false, &attempts, path, err)) < 0 ||
+            (r = imp_json_get_int(j->doc, "max_attempts", false, &max_attempts, path, err)) < 0)
+                return r == -ENOENT ? -EINVAL : r;
+        if (!is_token(id))
+                return imp_error_set(err, -EINVAL, "%s: id: expected 1 to 128 of [A-Za-z0-9._-], got \"%s\"", path, id);
+        if (!capture[0] || !copy[0])
+                return imp_error_set(err, -EINVAL, "%s: %s: expected a path", path, capture[0] ? "copy" : "capture");
+        if (attempts < 0)
+                return imp_error_set(err, -EINVAL, "%s: attempts: expected an integer >= 0, got %lld", path, attempts);
+        if (max_attempts < 1 || max_attempts > MAX_ATTEMPTS_LIMIT)
+                return imp_error_set(err, -EINVAL, "%s: max_attempts: expected 1 to %d, got %lld", path,
+                                     MAX_ATTEMPTS_LIMIT, max_attempts);
+        snprintf(j->id, sizeof j->id, "%s", id);
+        int n1 = snprintf(j->running, sizeof j->running, "%s.running", path);
+        int n2 = snprintf(j->lock, sizeof j->lock, "%s/%s.lock", dir, id);
+        if (resolve(dir, capture, j->capture, sizeof j->capture) < 0 ||
+            resolve(dir, copy, j->copy, sizeof j->copy) < 0 || n1 < 0 || (size_t) n1 >= sizeof j->running ||
+            n2 < 0 || (size_t) n2 >= sizeof j->lock)
+                return imp_error_set(err, -ENAMETOOLONG, "%s: a path of the job is too long", path);
+        j->attempts = attempts;
+        j->max_attempts = max_attempts;
+        return 0;
+}
+
+static const char *job_state(const struct job *j) {
+        return json_string_value(json_object_get(j->doc, "state"));
+}
+
+/* flock on DIR/<id>.lock, held while the job is claimed; -EBUSY when another worker has it.
+ * The inode check closes the race with a holder that unlinks the lock file as it finishes. */
+static int job_lock(struct job *j) {
+        for (;;) {
+                int fd = open(j->lock, O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+                if (fd < 0)
+                        return negative_errno();
+                if (flock(fd, LOCK_EX | LOCK_NB) < 0) {
+                        int r = errno == EWOULDBLOCK ? -EBUSY : negative_errno();
+                        close(fd);
+                        return r;
+                }
+                struct stat a, b;
+                if (fstat(fd, &a) == 0 && stat(j->lock, &b) == 0 && a.st_ino == b.st_ino && a.st_dev == b.st_dev) {
+                        j->lock_fd = fd;
+                        return 0;
+                }
+                close(fd);   /* unlinked under us: take the new one */
+        }
+}
+
+static int job_write(struct job *j, const char *where, struct imp_error *err) {
+        return imp_json_save_atomic(where, j->doc, err);
+}
+
+static int set_state(struct job *j, const char *state, const char *error) {
+        if (json_object_set_new(j->doc, "state", json_string(state)) < 0 ||
+            json_object_set_new(j->doc, "attempts", json_integer(j->attempts)) < 0 ||
+            json_object_set_new(j->doc, "max_attempts", json_integer(j->max_attempts)) < 0 ||
+            json_object_set_new(j->doc, "error", error ? json_string(error) : json_null()) < 0)
+                return -ENOMEM;
+        return 0;
+}
+
+/* Puts the claimed file back under its queue name; the state written first. */
+static int job_release(struct job *j, struct imp_error *err) {
+        int r = job_write(j, j->running, err);
+        if (r < 0)
+                return r;
+        if (rename(j->running, j->path) < 0)
+                return imp_error_set(err, negative_errno(), "%s: cannot rename to %s: %m", j->running, j->path);
+        imp_fsync_parent_dir(j->path);
+        return 0;
+}
+
+/* Claims a queued job: lock, re-read under the lock, rename to .running, count the attempt.
+ * -EBUSY when another worker has it, -EALREADY when it is not queued. */
+static int job_claim(const char *path, struct job *j, struct imp_error *err) {
+        int r = job_read(path, path, j, err);
+        if (r < 0)
+                return r;
+        if (strcmp(job_state(j) ?: "", "queued")) {
+                imp_error_set(err, -EALREADY, "%s: job %s is %s, not queued", path, j->id, job_state(j) ?: "?");
+                return -EALREADY;
+        }
+        r = job_lock(j);
+        if (r < 0)
+                return imp_error_set(err, r, "%s: %s", path,
+                                     r == -EBUSY ? "claimed by another worker" : strerror(-r));
+        /* Another worker may have finished it between our read and the lock. */
+        json_decref(j->doc);
+        j->doc = NULL;
+        int lock_fd = TAKE_FD(j->lock_fd);
+        r = job_read(path, path, j, err);
+        j->lock_fd = lock_fd;
+        if (r < 0)
+                return r == -ENOENT ? imp_error_set(err, -EBUSY, "%s: claimed by another worker", path) : r;
+        if (strcmp(job_state(j) ?: "", "queued"))
+                return imp_error_set(err, -EALREADY, "%s: job %s is %s, not queued", path, j->id,
+                                     job_state(j) ?: "?");
+        if (rename(path, j->running) < 0)
+                return imp_error_set(err, negative_errno(), "%s: cannot claim: %m", path);
+        j->attempts++;
+        if ((r = set_state(j, "running", json_string_value(json_object_get(j->doc, "error")))) < 0)
+                return imp_error_set(err, r, "out of memory");
+        if ((r = job_write(j, j->running, err)) < 0) {
+                rename(j->running, path);
+                return r;
+        }
+        return 0;
+}
+
+/* Errors that another attempt will not fix: the capture set itself is wrong or missing. */
+static bool permanent(int r) {
+        return r == -EINVAL || r == -EBADMSG || r == -ENOENT;
+}
+
+struct progress_state {
+        const char *id;
+        char stage[64];
+        double last;
+};
+
+static double now_s(void) {
+        struct timespec ts;
+        clock_gettime(CLOCK_MONOTONIC, &ts);
+        return ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+static void on_progress(void *userdata, const char *stage, size_t done, size_t total) {
+        struct progress_state *p = userdata;
+        double t = now_s();
+        bool new_stage = strcmp(p->stage, stage) != 0;
+        if (!new_stage && done != total && t - p->last < PROGRESS_INTERVAL_S)
+                return;
+        snprintf(p->stage, sizeof p->stage, "%s", stage);
+        p->last = t;
+        printf("job %s: %s %zu/%zu\n", p->id, stage, done, total);
+        fflush(stdout);
+}
+
+/* Runs a claimed job to its next state and releases it. Returns the exit code. */
+static int job_run(struct job *j) {
+        printf("job %s: attempt %lld of %lld: %s -> %s\n", j->id, j->attempts, j->max_attempts, j->capture, j->copy);
+        fflush(stdout);
+        struct imp_process_options o;
+        imp_process_options_default(&o);
+        struct progress_state ps = { .id = j->id };
+        o.progress = on_progress;
+        o.userdata = &ps;
+        struct imp_error err = {};
+        int r = imp_process_capture(j->capture, j->copy, &o, &err);
+        const char *state = "done";
+        char msg[sizeof err.msg];
+        msg[0] = 0;
+        if (r < 0) {
+                snprintf(msg, sizeof msg, "%s", err.msg[0] ? err.msg : strerror(-r));
+                state = permanent(r) || j->attempts >= j->max_attempts ? "failed" : "queued";
+        }
+        if (set_state(j, state, r < 0 ? msg : NULL) < 0)
+                return log_error("out of memory"), EXIT_JOB_FAILED;
+        struct imp_error werr = {};
+        int w = job_release(j, &werr);
+        if (w < 0)
+                log_error("job %s: %s", j->id, werr.msg);
+        if (r < 0) {
+                log_error("job %s: %s", j->id, msg);
+                printf("job %s: %s after attempt %lld of %lld\n", j->id, state, j->attempts, j->max_attempts);
+        } else
+                printf("job %s: done, digital copy in %s\n", j->id, j->copy);
+        fflush(stdout);
+        return r < 0 || w < 0 ? EXIT_JOB_FAILED : EXIT_DONE;
+}
+
+static bool ends_with(const char *s, const char *suffix) {
+        size_t n = strlen(s), m = strlen(suffix);
+        return n >= m && !strcmp(s + n - m, suffix);
+}
+
+/* A .running file whose lock nobody holds was left by a worker that died: queue it again
+ * (its attempt counted) or fail it when the attempts are used up. */
+static void recover_stale(const char *dir, const char *name) {
+        char running[PATH_MAX], path[PATH_MAX];
+        snprintf(running, sizeof running, "%s/%s", dir, name);
+        snprintf(path, sizeof path, "%s/%.*s", dir, (int) (strlen(name) - strlen(".running")), name);
+        _cleanup_(job_done) struct job j = { .lock_fd = -1 };
+        struct imp_error err = {};
+        if (job_read(path, running, &j, &err) < 0) {
+                log_warning("%s: %s, ignoring", running, err.msg);
+                return;
+        }
+        if (job_lock(&j) < 0)
+                return;   /* its worker is alive */
+        if (access(running, F_OK) < 0)
+                return;   /* it finished meanwhile */
+        bool exhausted = j.attempts >= j.max_attempts;
+        char msg[256];
+        snprintf(msg, sizeof msg, "the worker stopped during attempt %lld", j.attempts);
+        if (set_state(&j, exhausted ? "failed" : "queued", msg) < 0 || job_release(&j, &err) < 0)
+                log_warning("%s: cannot recover: %s, ignoring", running, err.msg);
+        else
+                log_notice("job %s: %s; %s", j.id, msg, exhausted ? "failed" : "queued again");
+}
+
+/* Recovers every stale claim in DIR before the queue is scanned, so that a recovered job
+ * can run in the same pass. */
+static int recover_all(const char *dir) {
+        DIR *d = opendir(dir);
+        if (!d)
+                return negative_errno();
+        char **stale = NULL;
+        size_t n_stale = 0;
+        struct dirent *de;
+        while ((de = readdir(d)))
+                if (de->d_name[0] != '.' && ends_with(de->d_name, ".json.running")) {
+                        char **s = realloc(stale, (n_stale + 1) * sizeof *s);
+                        if (!s)
+                                break;
+                        stale = s;
+                        if ((stale[n_stale] = strdup(de->d_name)))
+                                n_stale++;
+                }
+        closedir(d);
+        for (size_t i = 0; i < n_stale; i++) {
+                recover_stale(dir, stale[i]);
+                free(stale[i]);
+        }
+        free(stale);
+        return 0;
+}
+
+/* One pass over DIR: recover stale claims, then run the oldest queued job. 1 when a job
+ * ran (*ret_exit set), 0 when none was queued, negative errno when DIR cannot be read. */
+static int queue_pass(const char *dir, int *ret_exit) {
+        int r = recover_all(dir);
+        if (r < 0)
+                return r;
+        DIR *d = opendir(dir);
+        if (!d)
+                return negative_errno();
+        char best[PATH_MAX] = "";
+        struct timespec best_t = {};
+        struct dirent *de;
+        while ((de = readdir(d))) {
+                if (de->d_name[0] == '.' || !ends_with(de->d_name, ".json"))
+                        continue;
+                char path[PATH_MAX];
+                struct stat st;
+                if (snprintf(path, sizeof path, "%s/%s", dir, de->d_name) >= (int) sizeof path ||
+                    stat(path, &st) < 0 || !S_ISREG(st.st_mode))
+                        continue;
+                /* oldest first, by modification time */
+                if (!best[0] || st.st_mtim.tv_sec < best_t.tv_sec ||
+                    (st.st_mtim.tv_sec == best_t.tv_sec && st.st_mtim.tv_nsec < best_t.tv_nsec)) {
+                        struct job j = { .lock_fd = -1 };
+                        struct imp_error err = {};
+                        int k = job_read(path, path, &j, &err);
+                        bool queued = k >= 0 && !strcmp(job_state(&j) ?: "", "queued");
+                        if (k < 0 && k != -ENOENT)
+                                log_warning("%s, ignoring", err.msg);
+                        job_done(&j);
+                        if (!queued)
+                                continue;
+                        snprintf(best, sizeof best, "%s", path);
+                        best_t = st.st_mtim;
+                }
+        }
+        closedir(d);
+        if (!best[0])
+                return 0;
+        _cleanup_(job_done) struct job j = { .lock_fd = -1 };
+        struct imp_error err = {};
+        r = job_claim(best, &j, &err);
+        if (r == -EBUSY || r == -EALREADY || r == -ENOENT) {
+                log_debug("%s", err.msg);
+                return queue_pass(dir, ret_exit);   /* lost the race: look again */
+        }
+        if (r < 0) {
+                log_warning("%s, ignoring", err.msg);
+                return 0;
+        }
+        *ret_exit = job_run(&j);
+        return 1;
+}
+
+static int run_queue(const char *dir, bool once) {
+        for (;;) {
+                int code = EXIT_DONE;
+                int r = queue_pass(dir, &code);
+                if (r < 0) {
+                        log_error_errno(r, "queue %s: %m", dir);
+                        return EXIT_QUEUE;
+                }
+                if (once)
+                        return r ? code : EXIT_DONE;
+                if (stop_requested)
+                        return EXIT_DONE;
+                if (r == 0) {
+                        struct timespec ts = { (time_t) POLL_INTERVAL_S, 0 };
+                        nanosleep(&ts, NULL);   /* a signal cuts it short */
+                        if (stop_requested)
+                                return EXIT_DONE;
+                }
+        }
+}
+
+static int run_file(const char *path) {
+        _cleanup_(job_done) struct job j = { .lock_fd = -1 };
+        struct imp_error err = {};
+        int r = job_claim(path, &j, &err);
+        if (r < 0) {
+                log_error("%s", err.msg);
+                return EXIT_BAD_JOB;
+        }
+        return job_run(&j);
+}
+
+static void usage(FILE *f) {
+        fprintf(f, "usage: impasto-worker JOB_FILE\n"
+                   "       impasto-worker --queue DIR [--once]\n"
+                   "exit codes: 0 done (or nothing queued), 1 the job failed or awaits a retry, 2 usage,\n"
+                   "            3 bad or unclaimable job file, 4 queue directory unreadable\n");
+}
+
+int main(int argc, char **argv) {
+        imp_log_set_ident("impasto-worker");
+        const char *queue = NULL;
+        bool once = false;
+        static const struct option opts[] = {
+                { "queue", required_argument, NULL, 'q' }, { "once", no_argument, NULL, '1' },
+                { "help", no_argument, NULL, 'h' }, {} };
+        int c;
+        while ((c = getopt_long(argc, argv, "h", opts, NULL)) >= 0)
+                switch (c) {
+                case 'q': queue = optarg; break;
+                case '1': once = true; break;
+                case 'h': usage(stdout); return 0;
+                default: usage(stderr); return EXIT_USAGE;
+                }
+        if (queue ? optind != argc : (optind + 1 != argc || once)) {
+                usage(stderr);
+                return EXIT_USAGE;
+        }
+        struct sigaction sa = { .sa_handler = on_signal };
+        sigaction(SIGTERM, &sa, NULL);
+        sigaction(SIGINT, &sa, NULL);
+        return queue ? run_queue(queue, once) : run_file(argv[optind]);
+}
