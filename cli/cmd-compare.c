@@ -1,10 +1,15 @@
 /* `impasto compare COPY_DIR --truth TRUTH_DIR [--json]`: accuracy of a digital copy
- * against the simulator's ground truth (pipeline/compare.h says how each figure is made). */
+ * against the simulator's ground truth (pipeline/compare.h and compare-appearance.h say how
+ * each figure is made). Appearance figures only when the copy has rho_d.exr; nan_count is
+ * then over every EXR of the copy. */
+#include <errno.h>
 #include <getopt.h>
+#include <sys/stat.h>
 #include <stdio.h>
 #include <string.h>
 #include "commands.h"
 #include "compare.h"
+#include "compare-appearance.h"
 #include "json-util.h"
 #include "log.h"
 
@@ -34,8 +39,23 @@ static int run(int argc, char **argv) {
                 log_error("%s", err.msg[0] ? err.msg : strerror(-r));
                 return 3;
         }
+        char path[4096];
+        struct stat st;
+        snprintf(path, sizeof path, "%s/rho_d.exr", argv[optind]);
+        bool has_app = stat(path, &st) == 0;
+        struct imp_compare_appearance app = {};
+        if (has_app) {
+                r = imp_compare_appearance(argv[optind], truth, &app, &err);
+                if (r < 0) {
+                        log_error("%s", err.msg[0] ? err.msg : strerror(-r));
+                        return 3;
+                }
+                res.nan_count += app.nan_count;
+        }
         if (as_json) {
                 _cleanup_json_ json_t *j = imp_compare_result_to_json(&res);
+                if (has_app)
+                        imp_compare_appearance_to_json(&app, j);
                 char *s = json_dumps(j, JSON_COMPACT);
                 printf("%s\n", s);
                 free(s);
@@ -47,6 +67,22 @@ static int run(int argc, char **argv) {
         printf("canvas mask IoU    %8.4f\n", res.mask_iou);
         printf("NaN/Inf samples    %8zu\n", res.nan_count);
         printf("texels compared    %8zu\n", res.n_compared);
+        if (!has_app)
+                return 0;
+        printf("rho_d rel. error   %8.4f     median (90th pct %.4f) over %zu texel-channels\n",
+               app.rho_d_rel_err_median, app.rho_d_rel_err_p90, app.rho_d_samples);
+        if (app.lobe_texels)
+                printf("lobe k rel. error  %8.4f     median (90th pct %.4f) over %zu glossy texels, %zu flagged\n"
+                       "rho_s rel. error   %8.4f     median, peak specular albedo\n",
+                       app.lobe_k_rel_err_median, app.lobe_k_rel_err_p90, app.lobe_texels, app.lobe_flagged,
+                       app.rho_s_rel_err_median);
+        else
+                printf("lobe k rel. error       n/a     (no unflagged glossy texel; %zu flagged)\n", app.lobe_flagged);
+        if (app.rerender_rmse >= 0)
+                printf("re-render rmse     %8.4f     V/E, white units, %zu held-out lights, %zu samples\n",
+                       app.rerender_rmse, app.rerender_lights, app.rerender_texels);
+        else
+                printf("re-render rmse          n/a     (no held-out lights: impasto process --holdout N)\n");
         return 0;
 }
 

@@ -22,7 +22,9 @@ static void progress_bar(void *userdata, const char *stage, size_t done, size_t 
 
 static void usage(FILE *f) {
         fprintf(f, "usage: impasto process CAPTURE_DIR --out COPY_DIR [--pitch MM] [--cell N]\n"
-                   "                       [--delta FRACTION] [--no-btf] [--quiet]\n");
+                   "                       [--delta FRACTION] [--no-btf] [--holdout N] [--quiet]\n"
+                   "  --holdout N   leave every Nth dome light out of the fit and report the\n"
+                   "                re-render error on those lights in copy.json\n");
 }
 
 static int run(int argc, char **argv) {
@@ -34,7 +36,8 @@ static int run(int argc, char **argv) {
         static const struct option longopts[] = {
                 { "out", required_argument, NULL, 'o' }, { "pitch", required_argument, NULL, 'p' },
                 { "cell", required_argument, NULL, 'n' }, { "delta", required_argument, NULL, 'd' },
-                { "no-btf", no_argument, NULL, 'B' }, { "quiet", no_argument, NULL, 'q' },
+                { "no-btf", no_argument, NULL, 'B' },
+                { "holdout", required_argument, NULL, 'H' }, { "quiet", no_argument, NULL, 'q' },
                 { "help", no_argument, NULL, 'h' }, {}
         };
         int c;
@@ -45,6 +48,16 @@ static int run(int argc, char **argv) {
                 case 'n': o.cell_px = atoi(optarg); break;
                 case 'd': o.delta_frac = atof(optarg); break;
                 case 'B': o.btf = false; break;
+                case 'H': {
+                        char *end;
+                        long v = strtol(optarg, &end, 10);
+                        if (end == optarg || *end || v < 0 || v > 1000) {
+                                log_error("--holdout: expected an integer 0..1000 (0 = none), got '%s'", optarg);
+                                return 2;
+                        }
+                        o.holdout_every = (int) v;
+                        break;
+                }
                 case 'q': o.progress = NULL; break;
                 case 'h': usage(stdout); return 0;
                 default: usage(stderr); return 2;

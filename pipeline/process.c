@@ -311,6 +311,68 @@ out:
         return r;
 }
 
+/* Held-out validation: every held-out light's HDR frame against the fitted copy shaded per
+ * texel, V = E·cos θl·f(v, l). The sample extractor does the geometry (view and light
+ * directions, irradiance, hidden / self-shadowed / saturated / invalid rejection) one light
+ * at a time, so every sample is one (texel, light) pair; residuals are of V/E. */
+static int validate_holdout(const struct imp_btf_heightfield *bh, const struct imp_pinhole *camera,
+                            const struct imp_rig_light *lights, struct imp_image *const *frames,
+                            struct imp_image *const *valid, int n, const struct imp_btf_texel *tex,
+                            json_t **ret) {
+        enum { TILE = 64 };
+        _cleanup_btf_samples_ struct imp_btf_samples *smp = NULL;
+        int r = imp_btf_samples_new(TILE * TILE, 1, &smp);
+        if (r < 0)
+                return r;
+        struct imp_btf_sample_params sp;
+        imp_btf_sample_params_default(&sp);
+        json_t *per = json_array();
+        double ss_all = 0;
+        size_t n_all = 0;
+        for (int li = 0; li < n; li++) {
+                const struct imp_image *fr = frames[li], *va = valid[li];
+                struct imp_btf_capture cap = { camera, &lights[li], 1, &fr, &va };
+                double ss = 0;
+                size_t cnt = 0;
+                for (int y0 = 0; y0 < bh->height; y0 += TILE)
+                        for (int x0 = 0; x0 < bh->width; x0 += TILE) {
+                                int w = IMP_MIN(TILE, bh->width - x0), h = IMP_MIN(TILE, bh->height - y0);
+                                r = imp_btf_samples_extract(bh, &cap, &sp, x0, y0, w, h, smp);
+                                if (r < 0)
+                                        goto fail;
+                                for (int k = 0; k < w * h; k++) {
+                                        if (smp->count[k] == 0)
+                                                continue;
+                                        const struct imp_btf_sample *q = &smp->samples[k];
+                                        const struct imp_btf_texel *t = &tex[(size_t) (y0 + k / w) * bh->width + x0 + k % w];
+                                        if (t->flags & IMP_BTF_MASKED)
+                                                continue;
+                                        struct imp_lafortune b = { .cx = t->cx, .cy = t->cy, .cz = t->cz, .k = t->k };
+                                        memcpy(b.rho_d, t->rho_d, sizeof b.rho_d);
+                                        memcpy(b.rho_s, t->rho_s, sizeof b.rho_s);
+                                        double v[3] = { q->v[0], q->v[1], q->v[2] }, l[3] = { q->l[0], q->l[1], q->l[2] };
+                                        double E = q->e_cos / q->l[2];
+                                        for (int c = 0; c < 3; c++) {
+                                                double d = (q->value[c] - q->e_cos * imp_lafortune_eval(&b, c, v, l)) / E;
+                                                if (isfinite(d)) {
+                                                        ss += d * d;
+                                                        cnt++;
+                                                }
+                                        }
+                                }
+                        }
+                ss_all += ss;
+                n_all += cnt;
+                json_array_append_new(per, json_real(cnt ? sqrt(ss / cnt) : -1.0));
+        }
+        *ret = json_pack("{s:i,s:I,s:f,s:o}", "lights", n, "texels", (json_int_t) (n_all / 3),
+                         "rmse", n_all ? sqrt(ss_all / n_all) : -1.0, "rmse_per_light", per);
+        return *ret ? 0 : -ENOMEM;
+fail:
+        json_decref(per);
+        return r;
+}
+
 /* The dome sweep → per-texel Lafortune BRDF (seed 000 §4.4). */
 static int run_appearance(const struct process_opts *o, const struct imp_captureset *cs,
                           const struct geometry_out *g, json_t *stages, struct imp_error *err) {
@@ -334,12 +396,16 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
         struct imp_rig_light *lights = calloc(n_stacks, sizeof *lights);
         float *normal = malloc(nt * 3 * sizeof *normal);
         struct imp_btf_texel *tex = calloc(nt, sizeof *tex);
-        struct imp_image *maps[3] = {};
-        if (!frames || !valid || !lights || !normal || !tex) {
+        struct imp_image *maps[4] = {};
+        struct imp_image **ho_frames = calloc(n_stacks, sizeof *ho_frames);
+        struct imp_image **ho_valid = calloc(n_stacks, sizeof *ho_valid);
+        struct imp_rig_light *ho_lights = calloc(n_stacks, sizeof *ho_lights);
+        size_t n_used = 0, n_held = 0;
+        json_t *validation = NULL;
+        if (!frames || !valid || !lights || !normal || !tex || !ho_frames || !ho_valid || !ho_lights) {
                 r = imp_error_set(err, -ENOMEM, "out of memory");
                 goto out;
         }
-        size_t n_used = 0;
         for (size_t i = 0; i < n_stacks; i++) {
                 int id = imp_captureset_record(cs, stacks[i].first)->light;
                 const struct imp_rig_light *L = NULL;
@@ -372,14 +438,25 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
                                 }
                                 *imp_image_u8(vimg, x, y) = v;
                         }
-                frames[n_used] = TAKE_PTR(h.value);
-                valid[n_used] = vimg;
-                lights[n_used] = *L;
-                n_used++;
+                int N = o->opt->holdout_every;
+                if (N > 0 && (i + 1) % (size_t) N == 0) {
+                        ho_frames[n_held] = TAKE_PTR(h.value);
+                        ho_valid[n_held] = vimg;
+                        ho_lights[n_held++] = *L;
+                } else {
+                        frames[n_used] = TAKE_PTR(h.value);
+                        valid[n_used] = vimg;
+                        lights[n_used++] = *L;
+                }
                 imp_hdr_result_done(&h);
                 progress(o, "dome hdr merge", i + 1, n_stacks);
         }
         double t_hdr = now_s();
+        if (n_used == 0) {
+                r = imp_error_set(err, -EINVAL, "%s: --holdout %d leaves no dome light for the fit",
+                                  o->capture, o->opt->holdout_every);
+                goto out;
+        }
 
         for (size_t i = 0; i < nt; i++) {
                 double nx = hf->nx_[i], ny = hf->ny_[i], s = 1 - nx * nx - ny * ny;
@@ -405,9 +482,21 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
         progress(o, "btf fit", 1, 1);
         double t_fit = now_s();
 
-        /* rho_d.exr, rho_s.exr (RGB half), lobe.exr (cx, cy, cz, k half): seed 000 §6. */
-        for (int m = 0; m < 3; m++) {
-                r = imp_image_new(hf->nx, hf->ny, m == 2 ? 4 : 3, IMP_PIX_F32, &maps[m]);
+        if (n_held > 0) {
+                r = validate_holdout(&bh, &cam->model, ho_lights, ho_frames, ho_valid, (int) n_held, tex,
+                                     &validation);
+                if (r < 0) {
+                        imp_error_set(err, r, "%s: held-out validation failed: %s", o->capture, strerror(-r));
+                        goto out;
+                }
+                progress(o, "validation", 1, 1);
+        }
+        double t_val = now_s();
+
+        /* rho_d.exr, rho_s.exr (RGB half), lobe.exr (cx, cy, cz, k half): seed 000 §6;
+         * fit-flags.exr (flags, half: the flags are integers below 2048, exact in half). */
+        for (int m = 0; m < 4; m++) {
+                r = imp_image_new(hf->nx, hf->ny, m == 2 ? 4 : m == 3 ? 1 : 3, IMP_PIX_F32, &maps[m]);
                 if (r < 0)
                         goto out;
         }
@@ -421,13 +510,15 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
                                 s[c] = t->rho_s[c];
                         }
                         l[0] = t->cx; l[1] = t->cy; l[2] = t->cz; l[3] = t->k;
+                        *imp_image_f32(maps[3], x, y) = t->flags;
                 }
         static const char *const rgb[] = { "R", "G", "B" }, *const lobe[] = { "cx", "cy", "cz", "k" };
-        static const char *const files[] = { "rho_d.exr", "rho_s.exr", "lobe.exr" };
-        for (int m = 0; m < 3; m++) {
+        static const char *const flags[] = { "flags" };
+        static const char *const files[] = { "rho_d.exr", "rho_s.exr", "lobe.exr", "fit-flags.exr" };
+        for (int m = 0; m < 4; m++) {
                 char path[4096];
                 snprintf(path, sizeof path, "%s/%s", o->out, files[m]);
-                r = imp_exr_write(path, maps[m], m == 2 ? lobe : rgb, true, err);
+                r = imp_exr_write(path, maps[m], m == 2 ? lobe : m == 3 ? flags : rgb, true, err);
                 if (r < 0)
                         goto out;
         }
@@ -437,13 +528,23 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
                 "filled", (json_int_t) st.n_filled, "cx_eq_cy", (json_int_t) st.n_cx_eq_cy,
                 "samples", (json_int_t) st.n_samples, "shadowed", (json_int_t) st.n_shadowed,
                 "seconds_hdr", t_hdr - t0, "seconds_fit", t_fit - t_hdr));
+        if (validation) {
+                json_object_set_new(validation, "seconds", json_real(t_val - t_fit));
+                json_object_set_new(json_object_get(stages, "btf"), "validation", TAKE_PTR(validation));
+        }
         r = 0;
 out:
         for (size_t i = 0; i < n_stacks; i++) {
                 if (frames) imp_image_free(frames[i]);
                 if (valid) imp_image_free(valid[i]);
+                if (ho_frames) imp_image_free(ho_frames[i]);
+                if (ho_valid) imp_image_free(ho_valid[i]);
         }
-        for (int m = 0; m < 3; m++)
+        json_decref(validation);
+        free(ho_frames);
+        free(ho_valid);
+        free(ho_lights);
+        for (int m = 0; m < 4; m++)
                 imp_image_free(maps[m]);
         free(frames);
         free(valid);

@@ -10,14 +10,22 @@ struct imp_process_options {
         int cell_px;                  /* relief box cell size n; <= 0: default 20 */
         double delta_frac;            /* δ0 as a fraction of the max height; <= 0: 0.3 */
         bool btf;                     /* fit the BTF when the set holds a dome sweep */
+        int holdout_every;            /* > 0: every Nth dome light (sweep positions N−1,
+                                         2N−1, …) is left out of the fit and re-rendered
+                                         with the fitted copy for validation; 0: none */
         /* Progress per stage (may be NULL); called from the calling thread. */
         void (*progress)(void *userdata, const char *stage, size_t done, size_t total);
         void *userdata;
 };
 
 void imp_process_options_default(struct imp_process_options *o);
-/* Writes COPY_DIR/{heightfield.exr, boxes.json, rho_d.exr, rho_s.exr, lobe.exr, copy.json,
- * previews/}. -EINVAL/-EBADMSG for a capture set that cannot be processed (message names
+/* Writes COPY_DIR/{heightfield.exr, boxes.json, rho_d.exr, rho_s.exr, lobe.exr,
+ * fit-flags.exr (channel "flags": enum imp_btf_flag per texel), copy.json, previews/}.
+ * With holdout_every > 0, copy.json stages.btf.validation = {lights, texels, rmse,
+ * rmse_per_light[]}: the held-out frames against the copy shaded per texel
+ * (V = E·cos θl·f(v, l)), over mask texels the camera sees that are lit, not
+ * self-shadowed (ray cast on the heightfield), not saturated and not too dark; rmse of
+ * V/E, so 1.0 = a white Lambertian at normal incidence (-1 when no sample qualified). -EINVAL/-EBADMSG for a capture set that cannot be processed (message names
  * the file and what is wrong), other negative errnos for I/O and memory. */
 int imp_process_capture(const char *capture_dir, const char *copy_dir,
                         const struct imp_process_options *o, struct imp_error *err);
