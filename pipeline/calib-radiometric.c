@@ -1,0 +1,266 @@
+/* Radiometric calibration: photon transfer (mean–variance) for the camera, phase-shift
+ * gamma for the projector. docs/calibration-lights.md explains the choices. */
+#include <errno.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+#include "calib-radiometric.h"
+#include "macro.h"
+
+#define QUANTISATION_VAR_DN2 (1.0 / 12.0)   /* rounding to integer DN */
+#define SAT_VAR_DROP 0.5                    /* variance below this × max so far: saturated */
+#define SAT_CLIP_FRACTION 0.001
+#define SAT_MARGIN_SIGMA 4.0
+#define NONLINEAR_PCT 1.0
+#define UNDETERMINED_SIGMA 1e30
+#define GAMMA_LO 0.3
+#define GAMMA_HI 5.0
+#define GAMMA_ITERS 60
+
+static bool same_shape(const struct imp_image *a, const struct imp_image *b) {
+        return a && b && a->width == b->width && a->height == b->height;
+}
+
+/* Mean of (a + b)/2, variance of (a − b)/2·… over the ROI: ret[0] mean, ret[1] var(a−b)/2,
+ * ret[2] spatial variance of a, ret[3] fraction at the clip code (either frame). */
+static void pair_stats(const struct imp_image *a, const struct imp_image *b, const int roi[4], double clip,
+                       double ret[4]) {
+        double s = 0, sd = 0, sdd = 0, sa = 0, saa = 0;
+        long n = 0, nc = 0;
+        for (int y = roi[1]; y < roi[1] + roi[3]; y++)
+                for (int x = roi[0]; x < roi[0] + roi[2]; x++) {
+                        double va = imp_image_get(a, x, y, 0), vb = b ? imp_image_get(b, x, y, 0) : va;
+                        double d = va - vb;
+                        s += 0.5 * (va + vb);
+                        sd += d;
+                        sdd += d * d;
+                        sa += va;
+                        saa += va * va;
+                        nc += va >= clip || vb >= clip;
+                        n++;
+                }
+        double md = sd / n, ma = sa / n;
+        ret[0] = s / n;
+        ret[1] = n > 1 ? (sdd - n * md * md) / (n - 1) / 2 : 0;
+        ret[2] = n > 1 ? (saa - n * ma * ma) / (n - 1) : 0;
+        ret[3] = (double) nc / n;
+}
+
+int imp_radiometric_ptc(const struct imp_ptc_input *in, struct imp_ptc_result *ret, struct imp_error *err) {
+        if (!in || !ret || in->n_levels < 1 || in->n_levels > IMP_PTC_MAX_LEVELS || !in->levels ||
+            in->n_darks < 1 || !in->darks || in->bits < 1 || in->bits > 16)
+                return imp_error_set(err, -EINVAL, "photon transfer: bad arguments (levels 1..%d, ≥ 1 dark, bits 1..16)",
+                                     IMP_PTC_MAX_LEVELS);
+        const struct imp_image *ref = in->darks[0];
+        for (int i = 0; i < in->n_darks; i++)
+                if (!same_shape(ref, in->darks[i]))
+                        return imp_error_set(err, -EINVAL, "photon transfer: dark frame %d differs in size", i);
+        for (int i = 0; i < in->n_levels; i++)
+                if (!same_shape(ref, in->levels[i].a) || !same_shape(ref, in->levels[i].b) ||
+                    !(in->levels[i].exposure_us > 0))
+                        return imp_error_set(err, -EINVAL, "photon transfer: level %d: missing frame, size differs "
+                                             "from the darks, or exposure ≤ 0", i);
+        int roi[4] = { 0, 0, ref->width, ref->height };
+        if (in->roi[2] > 0) {
+                memcpy(roi, in->roi, sizeof roi);
+                if (roi[0] < 0 || roi[1] < 0 || roi[3] < 1 || roi[0] + roi[2] > ref->width || roi[1] + roi[3] > ref->height)
+                        return imp_error_set(err, -EINVAL, "photon transfer: ROI outside the %dx%d frame", ref->width,
+                                             ref->height);
+        }
+        double clip = (double) ((1u << in->bits) - 1), st[4];
+        struct imp_ptc_result out = { .sensor.bits = in->bits, .n_points = in->n_levels };
+
+        /* black level and read noise from the darks */
+        double black = 0;
+        for (int i = 0; i < in->n_darks; i++) {
+                pair_stats(in->darks[i], NULL, roi, clip, st);
+                black += st[0] / in->n_darks;
+        }
+        double var_dark = -1;
+        if (in->n_darks >= 2) {
+                pair_stats(in->darks[0], in->darks[1], roi, clip, st);
+                var_dark = st[1];
+        }
+        out.sensor.black_level_dn = black;
+
+        /* per level, in exposure order */
+        int order[IMP_PTC_MAX_LEVELS];
+        for (int i = 0; i < in->n_levels; i++)
+                order[i] = i;
+        for (int i = 1; i < in->n_levels; i++)
+                for (int j = i; j > 0 && in->levels[order[j]].exposure_us < in->levels[order[j - 1]].exposure_us; j--) {
+                        int t = order[j]; order[j] = order[j - 1]; order[j - 1] = t;
+                }
+        double sp_sd[IMP_PTC_MAX_LEVELS], vmax = 0, sat_mean = INFINITY, sat_exp = INFINITY;
+        for (int k = 0; k < in->n_levels; k++) {
+                const struct imp_ptc_level *L = &in->levels[order[k]];
+                struct imp_ptc_point *p = &out.points[k];
+                pair_stats(L->a, L->b, roi, clip, st);
+                *p = (struct imp_ptc_point) { .exposure_us = L->exposure_us, .mean_dn = st[0] - black,
+                                              .var_dn2 = st[1], .clip_fraction = st[3] };
+                sp_sd[k] = sqrt(IMP_MAX(st[2], 0.0));
+                if (!isfinite(sat_exp) && (st[1] < SAT_VAR_DROP * vmax || st[3] > SAT_CLIP_FRACTION)) {
+                        sat_mean = p->mean_dn;
+                        sat_exp = L->exposure_us;
+                        out.flags |= IMP_PTC_SATURATION_FOUND;
+                }
+                if (!isfinite(sat_exp))
+                        vmax = IMP_MAX(vmax, st[1]);
+        }
+        /* the saturation mean: the largest mean among saturated levels (clip plateau) */
+        for (int k = 0; k < in->n_levels; k++)
+                if (out.points[k].exposure_us >= sat_exp) {
+                        out.points[k].saturated = true;
+                        sat_mean = IMP_MAX(sat_mean, out.points[k].mean_dn);
+                }
+
+        /* weighted fit var = q + s·mean, and the linear response mean = a + b·t */
+        double W = 0, Wx = 0, Wy = 0, Wxx = 0, Wxy = 0, T = 0, Tx = 0, Ty = 0, Txx = 0, Txy = 0;
+        int nu = 0;
+        for (int k = 0; k < in->n_levels; k++) {
+                struct imp_ptc_point *p = &out.points[k];
+                if (p->saturated || p->mean_dn + SAT_MARGIN_SIGMA * sp_sd[k] >= sat_mean || !(p->var_dn2 > 0))
+                        continue;
+                p->used = true;
+                nu++;
+                double w = 1 / (p->var_dn2 * p->var_dn2), x = p->mean_dn, y = p->var_dn2, t = p->exposure_us;
+                W += w; Wx += w * x; Wy += w * y; Wxx += w * x * x; Wxy += w * x * y;
+                T += 1; Tx += t; Ty += x; Txx += t * t; Txy += t * x;
+        }
+        double det = W * Wxx - Wx * Wx, slope = det > 0 ? (W * Wxy - Wx * Wy) / det : 0;
+        double icpt = det > 0 ? (Wy - slope * Wx) / W : 0;
+        double gscale = pow(10.0, in->gain_db / 20.0);   /* e/DN at gain_db = g₀ · 10^(−gain_db/20) */
+        if (nu < 3 || !(slope > 0)) {
+                out.flags |= IMP_PTC_FEW_LEVELS;
+                out.sensor.gain_e_per_dn = 1;
+                out.gain_sigma_e_per_dn = UNDETERMINED_SIGMA;
+        } else {
+                double g = 1 / slope;
+                /* residual-scaled slope variance: Var(s) = χ²/(n−2) · W/det */
+                double chi2 = 0;
+                for (int k = 0; k < in->n_levels; k++)
+                        if (out.points[k].used) {
+                                double r = out.points[k].var_dn2 - icpt - slope * out.points[k].mean_dn;
+                                chi2 += r * r / (out.points[k].var_dn2 * out.points[k].var_dn2);
+                        }
+                double vs = (nu > 2 ? chi2 / (nu - 2) : 1) * W / det;
+                out.sensor.gain_e_per_dn = g * gscale;
+                out.gain_sigma_e_per_dn = g * g * sqrt(vs) * gscale;
+        }
+        double g_eff = out.sensor.gain_e_per_dn / gscale;
+        out.read_noise_fit_e = icpt > QUANTISATION_VAR_DN2 ? g_eff * sqrt(icpt - QUANTISATION_VAR_DN2) : 0;
+        if (var_dark >= 0) {
+                out.read_noise_dark_e = g_eff * sqrt(IMP_MAX(var_dark - QUANTISATION_VAR_DN2, 0.0));
+                out.sensor.read_noise_e = out.read_noise_dark_e;
+        } else {
+                out.flags |= IMP_PTC_READ_FROM_INTERCEPT;
+                out.sensor.read_noise_e = out.read_noise_fit_e;
+        }
+        double tdet = T * Txx - Tx * Tx;
+        if (nu >= 2 && tdet > 0) {
+                out.response_dn_per_us = (T * Txy - Tx * Ty) / tdet;
+                out.response_offset_dn = (Ty - out.response_dn_per_us * Tx) / T;
+                double worst = 0, top = 0;
+                for (int k = 0; k < in->n_levels; k++)
+                        if (out.points[k].used) {
+                                const struct imp_ptc_point *p = &out.points[k];
+                                worst = IMP_MAX(worst, fabs(p->mean_dn - out.response_offset_dn -
+                                                            out.response_dn_per_us * p->exposure_us));
+                                top = IMP_MAX(top, p->mean_dn);
+                        }
+                out.max_nonlinearity_pct = top > 0 ? 100 * worst / top : 0;
+                if (out.max_nonlinearity_pct > NONLINEAR_PCT)
+                        out.flags |= IMP_PTC_NONLINEAR;
+        }
+        if (isfinite(sat_mean)) {
+                out.saturation_dn = sat_mean;
+                out.sensor.full_well_e = sat_mean * g_eff;
+        }
+        *ret = out;
+        return 0;
+}
+
+double imp_radiometric_dn_to_value(const struct imp_sensor *s, double exposure_us, double gain_db, double dn) {
+        double e_per_dn = s->gain_e_per_dn * pow(10.0, -gain_db / 20.0);
+        double denom = s->quantum_scale * exposure_us * 1e-6;
+        return denom > 0 ? (dn - s->black_level_dn) * e_per_dn / denom : 0;
+}
+
+/* Σ n^{1/γ} − ½·count over all samples. */
+static double gamma_residual(const double *n, size_t count, double gamma) {
+        double s = 0, inv = 1 / gamma;
+        for (size_t i = 0; i < count; i++)
+                s += pow(n[i], inv);
+        return s / count - 0.5;
+}
+
+int imp_radiometric_projector_gamma(const struct imp_image *white, const struct imp_image *black,
+                                    const struct imp_image *const *steps, int n_steps, double min_contrast,
+                                    double *ret_gamma, int *ret_pixels) {
+        if (!same_shape(white, black) || !steps || n_steps < 3 || !ret_gamma)
+                return -EINVAL;
+        for (int k = 0; k < n_steps; k++)
+                if (!same_shape(white, steps[k]))
+                        return -EINVAL;
+        size_t cap = (size_t) white->width * white->height * n_steps, cnt = 0;
+        _cleanup_free_ double *n = malloc(cap * sizeof *n);
+        if (!n)
+                return -ENOMEM;
+        int npx = 0;
+        for (int y = 0; y < white->height; y++)
+                for (int x = 0; x < white->width; x++) {
+                        double w = imp_image_get(white, x, y, 0), b = imp_image_get(black, x, y, 0);
+                        if (!(w - b > min_contrast))
+                                continue;
+                        for (int k = 0; k < n_steps; k++)
+                                n[cnt++] = IMP_CLAMP((imp_image_get(steps[k], x, y, 0) - b) / (w - b), 0.0, 1.0);
+                        npx++;
+                }
+        if (npx == 0)
+                return -ENOENT;
+        double lo = GAMMA_LO, hi = GAMMA_HI, flo = gamma_residual(n, cnt, lo), fhi = gamma_residual(n, cnt, hi);
+        int r = 0;
+        double g;
+        if (!(flo < 0)) {
+                g = lo;
+                r = 1;
+        } else if (!(fhi > 0)) {
+                g = hi;
+                r = 1;
+        } else {
+                for (int it = 0; it < GAMMA_ITERS; it++) {
+                        double mid = 0.5 * (lo + hi);
+                        if (gamma_residual(n, cnt, mid) < 0)
+                                lo = mid;
+                        else
+                                hi = mid;
+                }
+                g = 0.5 * (lo + hi);
+        }
+        *ret_gamma = g;
+        if (ret_pixels)
+                *ret_pixels = npx;
+        return r;
+}
+
+json_t *imp_radiometric_ptc_to_json(const struct imp_ptc_result *r) {
+        json_t *pts = json_array(), *flags = json_array();
+        for (int k = 0; k < r->n_points; k++) {
+                const struct imp_ptc_point *p = &r->points[k];
+                json_array_append_new(pts, json_pack("{s:f, s:f, s:f, s:f, s:b, s:b}", "exposure_us", p->exposure_us,
+                                                     "mean_dn", p->mean_dn, "var_dn2", p->var_dn2, "clip_fraction",
+                                                     p->clip_fraction, "used", p->used, "saturated", p->saturated));
+        }
+        static const char *const names[] = { "saturation_found", "few_levels", "read_from_intercept", "nonlinear" };
+        for (unsigned i = 0; i < ARRAY_SIZE(names); i++)
+                if (r->flags & (1u << i))
+                        json_array_append_new(flags, json_string(names[i]));
+        const struct imp_sensor *s = &r->sensor;
+        return json_pack("{s:{s:i, s:f, s:f, s:f, s:f}, s:f, s:f, s:f, s:f, s:f, s:f, s:f, s:o, s:o}",
+                         "sensor", "bits", s->bits, "black_level_dn", s->black_level_dn, "gain_e_per_dn",
+                         s->gain_e_per_dn, "read_noise_e", s->read_noise_e, "full_well_e", s->full_well_e,
+                         "gain_sigma_e_per_dn", r->gain_sigma_e_per_dn, "read_noise_dark_e", r->read_noise_dark_e,
+                         "read_noise_fit_e", r->read_noise_fit_e, "response_dn_per_us", r->response_dn_per_us,
+                         "response_offset_dn", r->response_offset_dn, "max_nonlinearity_pct",
+                         r->max_nonlinearity_pct, "saturation_dn", r->saturation_dn, "flags", flags, "points", pts);
+}

@@ -1,0 +1,6 @@
+# Dome light and radiometric calibration (pipeline/calib-lights.c, pipeline/calib-radiometric.c,
+# issue #8). Synthetic frames made in the tests with the simulator's models; no OpenCV.
+impasto_test(test-calib-radiometric LIBS impasto_pipeline TIMEOUT 60)
+impasto_test(test-calib-lights LIBS impasto_pipeline TIMEOUT 60)
+# Saturated highlights, near-parallel rays: flags, inflated σ, finite outputs.
+impasto_test(test-calib-lights-stability LABELS stability LIBS impasto_pipeline TIMEOUT 60)
