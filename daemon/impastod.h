@@ -1,0 +1,230 @@
+/* impastod internals shared by its modules: the daemon object (one event loop, its clients,
+ * sessions and jobs), the rig config with its open devices, and the calls between modules.
+ * Only the daemon includes this; nothing below daemon/ knows about sessions. */
+#pragma once
+#include <stdbool.h>
+#include <stdint.h>
+#include <limits.h>
+#include <jansson.h>
+#include <systemd/sd-event.h>
+#include "camera.h"
+#include "captureset.h"
+#include "dome.h"
+#include "error.h"
+#include "plan.h"
+#include "protocol.h"
+#include "rig.h"
+#ifdef IMPASTOD_HAVE_PROJECTOR
+#include "projector.h"
+#endif
+
+#define DAEMON_MAX_CAMERAS 4
+#define DAEMON_DEVICE_TIMEOUT_MS 3000
+#define DAEMON_OUT_SOFT_MAX (1024 * 1024)        /* progress/frame dropped beyond (PROTOCOL §6) */
+#define DAEMON_OUT_HARD_MAX (4 * 1024 * 1024)    /* connection closed beyond */
+
+/* ---- rig config (rigcfg.c) ---------------------------------------------------------- */
+
+enum dev_state { DEV_ABSENT, DEV_OK, DEV_BUSY, DEV_FAULT };
+const char *dev_state_name(enum dev_state s);
+
+struct dev_camera {
+        char name[32], backend[32], address[128];
+        struct imp_camera *cam;
+        bool started;
+        enum imp_pixel_format format;
+        enum dev_state state;
+        char detail[256];
+};
+
+struct dev_dome {
+        bool configured;
+        char name[32], backend[32], address[128];
+        struct imp_dome *dome;
+        enum dev_state state;
+        char detail[256];
+};
+
+struct dev_projector {
+        bool configured;
+        char name[32], backend[32], address[128];
+#ifdef IMPASTOD_HAVE_PROJECTOR
+        struct imp_projector *proj;
+#endif
+        enum dev_state state;
+        char detail[256];
+};
+
+struct rigcfg {
+        char name[64];
+        char path[PATH_MAX];
+        char calibration[PATH_MAX];     /* absolute path of rig.json */
+        json_t *config;                 /* the config as JSON, for the `rig` command */
+        int n_cameras;
+        struct dev_camera cameras[DAEMON_MAX_CAMERAS];
+        struct dev_dome dome;
+        struct dev_projector projector;
+        int32_t tile_pitch_um;          /* gantry step per tile on dome axis 0 (0: no gantry) */
+        unsigned timeout_ms;            /* device open timeout (--device-timeout-ms) */
+};
+
+int rigcfg_load(const char *path, struct rigcfg **ret, struct imp_error *err);
+void rigcfg_free(struct rigcfg *rc);
+/* Open every configured device that is not open yet; 0 when all are usable, else the first
+ * failure (device states and details say which). */
+int rigcfg_open_devices(struct rigcfg *rc, const struct imp_rig *rig, struct imp_error *err);
+/* Best effort: lights off, projector dark, cameras stopped. */
+void rigcfg_safe_state(struct rigcfg *rc);
+void rigcfg_close_devices(struct rigcfg *rc);
+struct dev_camera *rigcfg_camera(struct rigcfg *rc, const char *name);
+json_t *rigcfg_devices_json(struct rigcfg *rc);
+
+/* ---- sessions (session.c, store.c) ---------------------------------------------------- */
+
+enum session_state {
+        SESSION_IDLE,
+        SESSION_PREPARING,
+        SESSION_CAPTURING,              /* "running" on the wire */
+        SESSION_PAUSED,
+        SESSION_ABORTED,
+        SESSION_FAILED,
+        SESSION_COMPLETED,
+        _SESSION_STATE_MAX,
+};
+const char *session_state_name(enum session_state s);
+int session_state_from_name(const char *s);
+static inline bool session_state_final(enum session_state s) {
+        return s == SESSION_ABORTED || s == SESSION_FAILED || s == SESSION_COMPLETED;
+}
+
+struct daemon;
+
+struct session {
+        struct session *next;
+        struct daemon *d;
+        char id[128];
+        char name[65];
+        char plan_path[PATH_MAX];
+        char dir[PATH_MAX];
+        char started[32], ended[32];
+        enum session_state state;
+        bool interrupted;               /* found running after a restart */
+        struct imp_rig rig;             /* from the set's rig.json once open */
+        bool have_rig;
+        struct imp_plan *plan;
+        struct imp_captureset *cs;
+        size_t n_frames, frames_total;
+        long long bytes;
+        double estimate_s;
+        json_t *faults;                 /* array of fault objects */
+        /* capture loop */
+        sd_event_source *step_source;
+        int phase;                      /* 0: set devices up, 1: expose and store */
+        int attempt;
+        bool pause_requested;
+        uint64_t t_light_on_ns;
+        uint64_t run_started_us;        /* monotonic, at (re)start of capturing, for ETA */
+        size_t run_started_frames;
+        int current_tile;
+        int shown_pattern;              /* index into patterns[], -1 dark */
+        struct imp_pattern *patterns;   /* distinct patterns of the plan (projector upload) */
+        unsigned n_patterns;
+};
+
+/* store.c: session.json and the state directory. */
+int store_init(const char *state_dir, struct imp_error *err);
+int store_session_save(const struct session *s, struct imp_error *err);
+/* Loads every sessions/<id>/session.json into d's list (oldest first in the file system
+ * order, the list is sorted newest first). */
+int store_sessions_load(struct daemon *d);
+int store_free_bytes(const char *path, uint64_t *ret);
+uint64_t store_frame_bytes(const struct imp_rig *rig, const char *camera);
+void rfc3339_now(char buf[static 32]);
+
+/* session.c */
+int session_start(struct daemon *d, const char *plan_path, const char *name, struct session **ret,
+                  struct imp_proto_error *perr);
+int session_pause(struct session *s, struct imp_proto_error *perr);
+int session_resume(struct session *s, struct imp_proto_error *perr);
+int session_abort(struct session *s, struct imp_proto_error *perr);
+void session_free(struct session *s);
+struct session *session_find(struct daemon *d, const char *id);
+json_t *session_summary_json(const struct session *s);
+json_t *session_show_json(const struct session *s);
+/* Load a plan against the daemon's rig for validate/estimate. */
+int plan_check(struct daemon *d, const char *path, struct imp_plan **ret, struct imp_proto_error *perr);
+/* On shutdown: stop stepping, leave devices safe, flush. The state file keeps "running" so
+ * that the next start finds the session interrupted. */
+void session_shutdown(struct session *s);
+
+/* ---- jobs (jobs.c) --------------------------------------------------------------------- */
+
+enum job_state { JOB_QUEUED, JOB_RUNNING, JOB_DONE, JOB_FAILED };
+const char *job_state_name(enum job_state s);
+
+struct job {
+        struct job *next;
+        struct daemon *d;
+        char id[128];
+        char session[128];
+        char set_dir[PATH_MAX];
+        char output[PATH_MAX];
+        enum job_state state;
+        int attempts;
+        char queued[32], started[32], ended[32];
+        char error[512];
+        pid_t pid;
+        sd_event_source *child_source;
+};
+
+int jobs_load(struct daemon *d);
+int jobs_enqueue(struct daemon *d, const struct session *s);
+int jobs_retry(struct daemon *d, struct job *j, struct imp_proto_error *perr);
+struct job *jobs_find(struct daemon *d, const char *id);
+json_t *job_json(const struct job *j, bool full);
+void jobs_kick(struct daemon *d);
+void jobs_free_all(struct daemon *d);
+
+/* ---- server (server.c) ----------------------------------------------------------------- */
+
+struct client;
+
+int server_start(struct daemon *d);
+void server_stop(struct daemon *d);
+/* Event to every subscribed client; fields stolen. */
+void server_broadcast(struct daemon *d, const char *type, json_t *fields);
+
+/* ---- the daemon (main.c) ----------------------------------------------------------------- */
+
+struct daemon {
+        sd_event *event;
+        const char *socket_path;
+        const char *state_dir;
+        const char *rig_config;
+        const char *worker_cmd;
+        bool operators_all;
+        bool auto_resume;
+        unsigned max_clients;
+        unsigned retries;               /* attempts per capture step */
+        unsigned job_attempts;
+        uint64_t min_free_bytes;
+        unsigned device_timeout_ms;     /* 0: the default */
+        uint64_t started_us;
+
+        struct rigcfg *rigcfg;
+        struct imp_rig rig;
+        bool have_rig;
+
+        int listen_fd;
+        sd_event_source *listen_source;
+        struct client *clients;
+        unsigned n_clients;
+
+        struct session *sessions;       /* newest first */
+        struct session *active;         /* holds the rig: preparing, capturing or paused */
+        struct job *jobs;               /* newest first */
+        sd_event_source *job_timer;
+        bool stopping;
+};
+
+void daemon_notify_status(struct daemon *d);

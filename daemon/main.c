@@ -1,0 +1,255 @@
+/* impastod: the capture-rig daemon. One sd-event loop serves the control socket (socket
+ * activation or --socket), steps the capture session, reaps the processing workers and
+ * handles SIGTERM/SIGINT: lights off, projector dark, cameras stopped, state flushed,
+ * exit 0. systemd is told READY, STATUS, WATCHDOG and STOPPING. */
+#include <getopt.h>
+#include <signal.h>
+#include <string.h>
+#include <systemd/sd-daemon.h>
+#include "impastod.h"
+#include "log.h"
+#include "version.h"
+
+static void help(void) {
+        printf("usage: impastod --rig CONFIG [options]\n"
+               "  --rig PATH             rig config (devices and calibration)\n"
+               "  --socket PATH          control socket when not socket-activated (default /run/impasto/control.sock)\n"
+               "  --state-dir DIR        sessions and jobs (default /var/lib/impasto)\n"
+               "  --worker-cmd PATH      processing worker, run as PATH process SET --out COPY (default impasto)\n"
+               "  --resume               resume sessions interrupted by a stop or crash\n"
+               "  --operators-all        every client is an operator (tests)\n"
+               "  --max-clients N        connections at a time (default 32)\n"
+               "  --retries N            attempts per capture step before pausing (default 3)\n"
+               "  --job-attempts N       worker runs per job before it fails (default 3)\n"
+               "  --device-timeout-ms N  timeout of a device connection (default 3000)\n"
+               "  --min-free-bytes N     free space kept on the store; below it capture pauses (default 256 MiB)\n"
+               "  -v, --verbose          debug logging\n");
+}
+
+void daemon_notify_status(struct daemon *d) {
+        struct session *s = d->active;
+        if (s)
+                sd_notifyf(false, "STATUS=session %s %s, frame %zu of %zu", s->id, session_state_name(s->state),
+                           s->n_frames, s->frames_total);
+        else
+                sd_notify(false, "STATUS=idle");
+}
+
+static int on_signal(sd_event_source *src, const struct signalfd_siginfo *si, void *userdata) {
+        struct daemon *d = userdata;
+        log_info("signal %s: stopping", strsignal((int) si->ssi_signo));
+        d->stopping = true;
+        sd_notify(false, "STOPPING=1");
+        return sd_event_exit(d->event, 0);
+}
+
+static int parse_u64(const char *s, uint64_t *ret) {
+        char *end;
+        errno = 0;
+        unsigned long long v = strtoull(s, &end, 10);
+        if (errno || end == s || *end || s[0] == '-')
+                return -EINVAL;
+        *ret = v;
+        return 0;
+}
+
+static int parse_args(int argc, char **argv, struct daemon *d) {
+        enum { ARG_SOCKET = 256, ARG_STATE, ARG_WORKER, ARG_RESUME, ARG_OPS, ARG_MAXC, ARG_RETRIES, ARG_JOBS,
+               ARG_MINFREE, ARG_RIG, ARG_DEVTIMEOUT };
+        static const struct option opts[] = {
+                { "rig", required_argument, NULL, ARG_RIG },
+                { "socket", required_argument, NULL, ARG_SOCKET },
+                { "state-dir", required_argument, NULL, ARG_STATE },
+                { "worker-cmd", required_argument, NULL, ARG_WORKER },
+                { "resume", no_argument, NULL, ARG_RESUME },
+                { "operators-all", no_argument, NULL, ARG_OPS },
+                { "max-clients", required_argument, NULL, ARG_MAXC },
+                { "retries", required_argument, NULL, ARG_RETRIES },
+                { "job-attempts", required_argument, NULL, ARG_JOBS },
+                { "min-free-bytes", required_argument, NULL, ARG_MINFREE },
+                { "device-timeout-ms", required_argument, NULL, ARG_DEVTIMEOUT },
+                { "verbose", no_argument, NULL, 'v' },
+                { "help", no_argument, NULL, 'h' },
+                {},
+        };
+        int c;
+        uint64_t v;
+        while ((c = getopt_long(argc, argv, "vh", opts, NULL)) >= 0) {
+                switch (c) {
+                case ARG_RIG: d->rig_config = optarg; break;
+                case ARG_SOCKET: d->socket_path = optarg; break;
+                case ARG_STATE: d->state_dir = optarg; break;
+                case ARG_WORKER: d->worker_cmd = optarg; break;
+                case ARG_RESUME: d->auto_resume = true; break;
+                case ARG_OPS: d->operators_all = true; break;
+                case ARG_MAXC:
+                case ARG_RETRIES:
+                case ARG_JOBS:
+                        if (parse_u64(optarg, &v) < 0 || v < 1 || v > 10000) {
+                                log_error("--%s: expected an integer from 1 to 10000, got \"%s\"",
+                                          c == ARG_MAXC ? "max-clients" : c == ARG_RETRIES ? "retries" : "job-attempts",
+                                          optarg);
+                                return -EINVAL;
+                        }
+                        *(c == ARG_MAXC ? &d->max_clients : c == ARG_RETRIES ? &d->retries : &d->job_attempts) =
+                                (unsigned) v;
+                        break;
+                case ARG_MINFREE:
+                        if (parse_u64(optarg, &d->min_free_bytes) < 0) {
+                                log_error("--min-free-bytes: expected a byte count, got \"%s\"", optarg);
+                                return -EINVAL;
+                        }
+                        break;
+                case ARG_DEVTIMEOUT:
+                        if (parse_u64(optarg, &v) < 0 || v < 10 || v > 600000) {
+                                log_error("--device-timeout-ms: expected 10 to 600000, got \"%s\"", optarg);
+                                return -EINVAL;
+                        }
+                        d->device_timeout_ms = (unsigned) v;
+                        break;
+                case 'v': imp_log_set_level(IMP_LOG_DEBUG); break;
+                case 'h': help(); exit(0);
+                default: return -EINVAL;
+                }
+        }
+        if (optind < argc) {
+                log_error("unexpected argument \"%s\"", argv[optind]);
+                return -EINVAL;
+        }
+        if (!d->rig_config) {
+                log_error("--rig CONFIG is required");
+                return -EINVAL;
+        }
+        return 0;
+}
+
+#define AUTO_RESUME_ATTEMPTS 5
+#define AUTO_RESUME_DELAY_US 300000ULL
+
+/* A device may refuse the first connection after the daemon died holding it (a GigE camera
+ * keeps the dead controller's privilege for a while): retry a few times from a timer. */
+static int auto_resume(sd_event_source *src, uint64_t usec, void *userdata) {
+        struct daemon *d = userdata;
+        static unsigned attempt;
+        for (struct session *s = d->sessions; s; s = s->next) {
+                if (!s->interrupted || s->state != SESSION_PAUSED)
+                        continue;
+                _cleanup_proto_error_ struct imp_proto_error e = { 0 };
+                if (session_resume(s, &e) == 0)
+                        break;
+                if (e.code == IMP_PROTO_E_DEVICE && ++attempt < AUTO_RESUME_ATTEMPTS) {
+                        log_warning("session %s: resuming: %s (attempt %u of %u), retrying", s->id, e.message,
+                                    attempt, AUTO_RESUME_ATTEMPTS);
+                        (void) sd_event_add_time_relative(d->event, NULL, CLOCK_MONOTONIC, AUTO_RESUME_DELAY_US, 0,
+                                                          auto_resume, d);
+                } else
+                        log_error("session %s: resuming: %s", s->id, e.message);
+                break;          /* one session holds the rig */
+        }
+        return 0;
+}
+
+static int defer_resume(sd_event_source *src, void *userdata) {
+        return auto_resume(src, 0, userdata);
+}
+
+int main(int argc, char **argv) {
+        struct daemon d = {
+                .socket_path = "/run/impasto/control.sock",
+                .state_dir = "/var/lib/impasto",
+                .worker_cmd = "/usr/bin/impasto",
+                .max_clients = 32,
+                .retries = 3,
+                .job_attempts = 3,
+                .min_free_bytes = 256ull << 20,
+                .listen_fd = -1,
+        };
+        imp_log_set_ident("impastod");
+        if (parse_args(argc, argv, &d) < 0)
+                return 2;
+
+        /* Signals arrive through the loop; children and threads inherit the mask. */
+        sigset_t mask;
+        sigemptyset(&mask);
+        sigaddset(&mask, SIGTERM);
+        sigaddset(&mask, SIGINT);
+        sigaddset(&mask, SIGCHLD);
+        sigprocmask(SIG_BLOCK, &mask, NULL);
+        signal(SIGPIPE, SIG_IGN);
+
+        struct imp_error e = { 0 };
+        int r = rigcfg_load(d.rig_config, &d.rigcfg, &e);
+        if (r < 0) {
+                log_error_errno(r, "rig config: %s", e.msg);
+                return 1;
+        }
+        if (d.device_timeout_ms)
+                d.rigcfg->timeout_ms = d.device_timeout_ms;
+        r = imp_rig_load(d.rigcfg->calibration, &d.rig, &e);
+        if (r < 0)
+                log_warning_errno(r, "rig calibration: %s; sessions cannot start until it exists, ignoring", e.msg);
+        else
+                d.have_rig = true;
+        if ((r = store_init(d.state_dir, &e)) < 0) {
+                log_error_errno(r, "state directory: %s", e.msg);
+                return 1;
+        }
+        if ((r = sd_event_default(&d.event)) < 0) {
+                log_error_errno(r, "event loop: %m");
+                return 1;
+        }
+        sd_event_now(d.event, CLOCK_MONOTONIC, &d.started_us);
+        (void) sd_event_add_signal(d.event, NULL, SIGTERM, on_signal, &d);
+        (void) sd_event_add_signal(d.event, NULL, SIGINT, on_signal, &d);
+        (void) sd_event_set_watchdog(d.event, true);
+
+        int n = sd_listen_fds(true);
+        if (n > 1) {
+                log_error("socket activation passed %d sockets, expected one", n);
+                return 1;
+        }
+        if (n == 1)
+                d.listen_fd = SD_LISTEN_FDS_START;
+        if ((r = server_start(&d)) < 0) {
+                log_error_errno(r, "control socket %s: %m", d.socket_path);
+                return 1;
+        }
+        int ns = store_sessions_load(&d);
+        (void) jobs_load(&d);
+        log_info("impastod %s: rig %s, %d sessions in %s, socket %s", imp_version(), d.rigcfg->name,
+                 IMP_MAX(ns, 0), d.state_dir, n == 1 ? "(activated)" : d.socket_path);
+        if (d.auto_resume)
+                (void) sd_event_add_defer(d.event, NULL, defer_resume, &d);
+        jobs_kick(&d);
+        sd_notify(false, "READY=1");
+        daemon_notify_status(&d);
+
+        r = sd_event_loop(d.event);
+        if (r < 0)
+                log_error_errno(r, "event loop: %m");
+
+        /* Shutdown: the rig safe first, then the state files and the clients. */
+        sd_notify(false, "STOPPING=1");
+        d.stopping = true;
+        for (struct session *s = d.sessions; s; s = s->next)
+                if (s == d.active || s->cs)
+                        session_shutdown(s);
+        rigcfg_safe_state(d.rigcfg);
+        server_stop(&d);
+        if (n != 1 && d.listen_fd >= 0)
+                (void) unlink(d.socket_path);
+        if (d.listen_fd >= 0)
+                close(d.listen_fd);
+        jobs_free_all(&d);
+        while (d.sessions) {
+                struct session *s = d.sessions;
+                d.sessions = s->next;
+                session_free(s);
+        }
+        rigcfg_free(d.rigcfg);
+        if (d.have_rig)
+                imp_rig_free(&d.rig);
+        sd_event_unref(d.event);
+        log_info("stopped");
+        return r < 0 ? 1 : 0;
+}

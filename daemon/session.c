@@ -1,0 +1,701 @@
+/* Capture sessions: the state machine (idle → preparing → capturing ⇄ paused → completed |
+ * aborted | failed) and the capture loop, driven one step at a time from the event loop so
+ * that the socket stays responsive. A frame: (tile move) → projector pattern or dark →
+ * light → settle (timer) → exposure/gain → trigger → grab → light off when the next frame
+ * needs another → capture set → events. Device failures are retried a bounded number of
+ * times, then the session pauses with a fault, lights off and projector dark. */
+#include <math.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <time.h>
+#include "impastod.h"
+#include "json-util.h"
+#include "log.h"
+
+#define RETRY_DELAY_US 50000ULL         /* first retry after a failed step; grows linearly */
+#define GRAB_MARGIN_MS 2000U            /* beyond the exposure, before a grab times out */
+#define AXIS_MOVE_TIMEOUT_MS 60000U
+
+static const char *const state_names[_SESSION_STATE_MAX] = {
+        [SESSION_IDLE] = "idle",
+        [SESSION_PREPARING] = "preparing",
+        [SESSION_CAPTURING] = "running",
+        [SESSION_PAUSED] = "paused",
+        [SESSION_ABORTED] = "aborted",
+        [SESSION_FAILED] = "failed",
+        [SESSION_COMPLETED] = "completed",
+};
+
+const char *session_state_name(enum session_state s) {
+        return state_names[s];
+}
+
+int session_state_from_name(const char *s) {
+        for (int i = 0; i < _SESSION_STATE_MAX; i++)
+                if (!strcmp(s, state_names[i]))
+                        return i;
+        if (!strcmp(s, "capturing"))
+                return SESSION_CAPTURING;
+        return -EINVAL;
+}
+
+static uint64_t now_ns(clockid_t clk) {
+        struct timespec ts;
+        clock_gettime(clk, &ts);
+        return (uint64_t) ts.tv_sec * 1000000000ULL + (uint64_t) ts.tv_nsec;
+}
+
+struct session *session_find(struct daemon *d, const char *id) {
+        for (struct session *s = d->sessions; s; s = s->next)
+                if (!strcmp(s->id, id))
+                        return s;
+        return NULL;
+}
+
+void session_free(struct session *s) {
+        if (!s)
+                return;
+        sd_event_source_disable_unref(s->step_source);
+        imp_captureset_close(s->cs);
+        imp_plan_free(s->plan);
+        if (s->have_rig)
+                imp_rig_free(&s->rig);
+        json_decref(s->faults);
+        free(s->patterns);
+        free(s);
+}
+
+static void pattern_name(const struct imp_pattern *p, char *buf, size_t size) {
+        static const char *const kinds[] = { "dark", "white", "black", "gray", "phase" };
+        if (p->kind == IMP_PAT_GRAY)
+                snprintf(buf, size, "gray-%c-%d%s", p->axis ? 'y' : 'x', p->bit, p->inverse ? "-inv" : "");
+        else if (p->kind == IMP_PAT_PHASE)
+                snprintf(buf, size, "phase-%c-%g-%d/%d", p->axis ? 'y' : 'x', p->period_px, p->step, p->steps);
+        else
+                snprintf(buf, size, "%s", kinds[p->kind]);
+}
+
+static bool same_pattern(const struct imp_pattern *a, const struct imp_pattern *b) {
+        return a->kind == b->kind && a->axis == b->axis && a->bit == b->bit && a->nbits == b->nbits &&
+               a->inverse == b->inverse && a->period_px == b->period_px && a->step == b->step &&
+               a->steps == b->steps;
+}
+
+/* The distinct projector patterns of the plan, in first-use order: the upload sequence. */
+static int collect_patterns(struct session *s) {
+        free(s->patterns);
+        s->patterns = NULL;
+        s->n_patterns = 0;
+        size_t n = imp_plan_count(s->plan);
+        for (size_t i = 0; i < n; i++) {
+                const struct imp_pattern *p = &imp_plan_frame(s->plan, i)->pattern;
+                if (p->kind == IMP_PAT_NONE)
+                        continue;
+                unsigned k;
+                for (k = 0; k < s->n_patterns; k++)
+                        if (same_pattern(&s->patterns[k], p))
+                                break;
+                if (k < s->n_patterns)
+                        continue;
+                struct imp_pattern *np = realloc(s->patterns, (s->n_patterns + 1) * sizeof *np);
+                if (!np)
+                        return -ENOMEM;
+                s->patterns = np;
+                s->patterns[s->n_patterns++] = *p;
+        }
+        return 0;
+}
+
+static int pattern_index(const struct session *s, const struct imp_pattern *p) {
+        for (unsigned k = 0; k < s->n_patterns; k++)
+                if (same_pattern(&s->patterns[k], p))
+                        return (int) k;
+        return -1;
+}
+
+int plan_check(struct daemon *d, const char *path, struct imp_plan **ret, struct imp_proto_error *perr) {
+        if (!d->have_rig)
+                return imp_proto_error_set(perr, IMP_PROTO_E_BAD_STATE, ENODATA, NULL,
+                                           "the rig has no calibration (rig.json) loaded");
+        struct imp_error e = { 0 };
+        struct imp_plan *p = NULL;
+        int r = imp_plan_load(path, &d->rig, &p, &e);
+        if (r == -ENOENT && access(path, F_OK) < 0)
+                return imp_proto_error_set(perr, IMP_PROTO_E_NOT_FOUND, ENOENT, "args.plan", "%s", e.msg);
+        if (r < 0)
+                return imp_proto_error_set(perr, IMP_PROTO_E_INVALID_PLAN, -r, "args.plan", "%s", e.msg);
+        *ret = p;
+        return 0;
+}
+
+/* ---- events ---------------------------------------------------------------------------- */
+
+static void emit_progress(struct session *s) {
+        double eta_s;
+        size_t remaining = s->frames_total - s->n_frames;
+        size_t done_run = s->n_frames - s->run_started_frames;
+        if (done_run > 0) {
+                double el_s = (double) (now_ns(CLOCK_MONOTONIC) / 1000 - s->run_started_us) / 1e6;
+                eta_s = el_s / (double) done_run * (double) remaining;
+        } else
+                eta_s = s->frames_total ? s->estimate_s * (double) remaining / (double) s->frames_total : 0;
+        const char *st = s->state == SESSION_PAUSED ? "paused" : "running";
+        server_broadcast(s->d, "progress",
+                         json_pack("{s:s, s:I, s:I, s:I, s:I, s:I, s:f, s:s}", "session", s->id,
+                                   "step", (json_int_t) s->n_frames, "steps", (json_int_t) s->frames_total,
+                                   "frames", (json_int_t) s->n_frames,
+                                   "frames_total", (json_int_t) s->frames_total, "bytes",
+                                   (json_int_t) s->bytes, "eta_s", eta_s, "state", st));
+}
+
+static void emit_fault(struct session *s, const char *device, enum imp_proto_errcode code, int err,
+                       bool fatal, const char *msg) {
+        char ts[32];
+        rfc3339_now(ts);
+        json_t *f = json_pack("{s:s?, s:s, s:i, s:s, s:b, s:s, s:I}", "device", device, "code",
+                              imp_proto_error_code_name(code), "errno", err, "message", msg, "fatal", fatal,
+                              "time", ts, "frame", (json_int_t) s->n_frames);
+        if (f)
+                json_array_append(s->faults, f);
+        json_t *ev = json_deep_copy(f);
+        if (ev) {
+                json_object_del(ev, "time");
+                json_object_set_new(ev, "session", json_string(s->id));
+        }
+        json_decref(f);
+        server_broadcast(s->d, "fault", ev);
+        if (device)
+                server_broadcast(s->d, "device", json_pack("{s:s, s:s, s:s}", "device", device, "class",
+                                                          !strcmp(device, "dome") ? "dome" :
+                                                          !strcmp(device, "projector") ? "projector" : "camera",
+                                                          "state", "fault"));
+}
+
+static void save(struct session *s) {
+        struct imp_error e = { 0 };
+        int r = store_session_save(s, &e);
+        if (r < 0)
+                log_error_errno(r, "session %s: saving state: %s", s->id, e.msg);
+        daemon_notify_status(s->d);
+}
+
+/* ---- the loop ---------------------------------------------------------------------------- */
+
+static int step_cb(sd_event_source *src, uint64_t usec, void *userdata);
+
+static int schedule(struct session *s, uint64_t delay_us) {
+        int r;
+        if (!s->step_source) {
+                r = sd_event_add_time_relative(s->d->event, &s->step_source, CLOCK_MONOTONIC, delay_us, 0,
+                                               step_cb, s);
+                if (r >= 0)
+                        r = sd_event_source_set_enabled(s->step_source, SD_EVENT_ONESHOT);
+                return r;
+        }
+        r = sd_event_source_set_time_relative(s->step_source, delay_us);
+        if (r >= 0)
+                r = sd_event_source_set_enabled(s->step_source, SD_EVENT_ONESHOT);
+        return r;
+}
+
+static void stop_stepping(struct session *s) {
+        if (s->step_source)
+                (void) sd_event_source_set_enabled(s->step_source, SD_EVENT_OFF);
+        s->phase = 0;
+        s->attempt = 0;
+}
+
+static void release_rig(struct session *s) {
+        rigcfg_safe_state(s->d->rigcfg);
+        s->shown_pattern = -1;
+        s->current_tile = -1;
+}
+
+static void finish(struct session *s, enum session_state st) {
+        stop_stepping(s);
+        release_rig(s);
+        s->state = st;
+        rfc3339_now(s->ended);
+        imp_captureset_close(s->cs);
+        s->cs = NULL;
+        if (s->d->active == s)
+                s->d->active = NULL;
+        save(s);
+        log_info("session %s: %s, %zu of %zu frames", s->id, session_state_name(st), s->n_frames, s->frames_total);
+        server_broadcast(s->d, "done", json_pack("{s:s, s:s, s:I, s:s}", "session", s->id, "state",
+                                                 session_state_name(st), "frames", (json_int_t) s->n_frames,
+                                                 "path", s->dir));
+        if (st == SESSION_COMPLETED)
+                (void) jobs_enqueue(s->d, s);
+}
+
+static void pause_with_fault(struct session *s, const char *device, enum imp_proto_errcode code, int r,
+                             const char *msg) {
+        stop_stepping(s);
+        release_rig(s);
+        s->state = SESSION_PAUSED;
+        log_error("session %s: frame %zu: %s; pausing", s->id, s->n_frames, msg);
+        emit_fault(s, device, code, r < 0 ? -r : r, false, msg);
+        save(s);
+        emit_progress(s);
+}
+
+static int check_disk(struct session *s, uint64_t need, char *msg, size_t size) {
+        uint64_t free_b = 0;
+        int r = store_free_bytes(s->dir[0] ? s->dir : s->d->state_dir, &free_b);
+        if (r < 0) {
+                snprintf(msg, size, "statvfs %.300s: %s", s->dir, strerror(-r));
+                return r;
+        }
+        if (free_b < need + s->d->min_free_bytes) {
+                snprintf(msg, size, "%.300s: %llu bytes free, %llu needed plus a margin of %llu",
+                         s->dir[0] ? s->dir : s->d->state_dir, (unsigned long long) free_b,
+                         (unsigned long long) need, (unsigned long long) s->d->min_free_bytes);
+                return -ENOSPC;
+        }
+        return 0;
+}
+
+/* Device failure: retry the frame from its set-up, or pause once the attempts are spent. */
+static void step_failed(struct session *s, const char *device, int r, const char *what) {
+        char msg[512];
+        snprintf(msg, sizeof msg, "%s %s: %s: %s", device ? "device" : "store", device ? device : s->dir,
+                 what, strerror(-r));
+        release_rig(s);
+        s->phase = 0;
+        if (++s->attempt < (int) s->d->retries) {
+                log_warning("session %s: frame %zu: %s (attempt %d of %u), retrying", s->id, s->n_frames, msg,
+                            s->attempt, s->d->retries);
+                /* A camera that stopped answering is reopened on the next attempt. */
+                struct dev_camera *cam = device ? rigcfg_camera(s->d->rigcfg, device) : NULL;
+                if (cam && (r == -ETIMEDOUT || r == -EIO)) {
+                        if (cam->started)
+                                (void) imp_camera_stop(cam->cam);
+                        imp_camera_close(cam->cam);
+                        cam->cam = NULL;
+                        cam->started = false;
+                        (void) rigcfg_open_devices(s->d->rigcfg, &s->rig, NULL);
+                }
+                (void) schedule(s, RETRY_DELAY_US * (uint64_t) s->attempt);
+                return;
+        }
+        pause_with_fault(s, device, device ? IMP_PROTO_E_DEVICE : IMP_PROTO_E_IO, r, msg);
+}
+
+static int frame_to_image(const struct imp_frame *f, struct imp_image **ret) {
+        struct imp_image *img = NULL;
+        int r = imp_image_new((int) f->width, (int) f->height, 1, IMP_PIX_U16, &img);
+        if (r < 0)
+                return r;
+        for (unsigned y = 0; y < f->height; y++) {
+                const uint8_t *src = (const uint8_t *) f->data + (size_t) y * f->stride_bytes;
+                uint16_t *dst = imp_image_u16(img, 0, (int) y);
+                if (f->pixel_format == IMP_PIXEL_MONO8)
+                        for (unsigned x = 0; x < f->width; x++)
+                                dst[x] = src[x];
+                else
+                        for (unsigned x = 0; x < f->width; x++)
+                                dst[x] = (uint16_t) (src[2 * x] | src[2 * x + 1] << 8);
+        }
+        *ret = img;
+        return 0;
+}
+
+/* Phase 0: put the rig in the state the frame needs; returns the settle time to wait. */
+static int setup_frame(struct session *s, const struct imp_frame_record *rec, uint64_t *ret_settle_us) {
+        struct rigcfg *rc = s->d->rigcfg;
+        const struct imp_frame_record *prev = s->n_frames > 0 ? imp_plan_frame(s->plan, s->n_frames - 1) : NULL;
+        bool changed = !prev || s->shown_pattern == -2;
+        int r;
+        if (rec->tile != s->current_tile && rc->tile_pitch_um > 0 && rc->dome.dome) {
+                r = imp_dome_move_to(rc->dome.dome, 0, rec->tile * rc->tile_pitch_um, AXIS_MOVE_TIMEOUT_MS);
+                if (r < 0) {
+                        step_failed(s, rc->dome.name, r, "moving to tile");
+                        return r;
+                }
+                changed = true;
+        }
+        s->current_tile = rec->tile;
+        int want = rec->pattern.kind == IMP_PAT_NONE ? -1 : pattern_index(s, &rec->pattern);
+#ifdef IMPASTOD_HAVE_PROJECTOR
+        if (rc->projector.proj && want != s->shown_pattern) {
+                r = want < 0 ? imp_projector_dark(rc->projector.proj)
+                             : imp_projector_show(rc->projector.proj, (unsigned) want);
+                if (r < 0) {
+                        step_failed(s, rc->projector.name, r, want < 0 ? "blanking" : "showing a pattern");
+                        return r;
+                }
+                changed = true;
+        }
+#endif
+        s->shown_pattern = want;
+        if (rc->dome.dome) {
+                r = rec->light >= 0 ? imp_dome_set_light(rc->dome.dome, (unsigned) rec->light,
+                                                          IMP_DOME_LEVEL_FULL_PERMILLE, 0)
+                                    : imp_dome_all_off(rc->dome.dome);
+                if (r < 0) {
+                        step_failed(s, rc->dome.name, r, rec->light >= 0 ? "switching a light on" : "lights off");
+                        return r;
+                }
+        }
+        if (prev && prev->light != rec->light)
+                changed = true;
+        s->t_light_on_ns = now_ns(CLOCK_REALTIME);
+        *ret_settle_us = changed ? (uint64_t) llround(s->rig.settle_us) : 0;
+        return 0;
+}
+
+/* Phase 1: expose, grab, switch off, store. */
+static int expose_frame(struct session *s, const struct imp_frame_record *plan_rec) {
+        struct rigcfg *rc = s->d->rigcfg;
+        struct dev_camera *cam = rigcfg_camera(rc, plan_rec->camera);
+        int r;
+        if (!cam || !cam->cam) {
+                step_failed(s, plan_rec->camera, -ENODEV, "camera not open");
+                return -ENODEV;
+        }
+        struct imp_frame_record rec = *plan_rec;
+        const struct imp_frame *f;
+        if ((r = imp_camera_set_exposure_us(cam->cam, rec.exposure_us)) < 0 ||
+            ((r = imp_camera_set_gain_db(cam->cam, rec.gain_db)) < 0 && r != -EOPNOTSUPP)) {
+                step_failed(s, cam->name, r, "exposure or gain");
+                return r;
+        }
+        rec.t_light_on_ns = (long long) s->t_light_on_ns;
+        rec.t_trigger_ns = (long long) now_ns(CLOCK_REALTIME);
+        if ((r = imp_camera_trigger_software(cam->cam)) < 0) {
+                step_failed(s, cam->name, r, "trigger");
+                return r;
+        }
+        r = imp_camera_grab(cam->cam, (unsigned) (rec.exposure_us / 1000) + GRAB_MARGIN_MS, &f);
+        if (r < 0) {
+                step_failed(s, cam->name, r, "grab");
+                return r;
+        }
+        rec.t_frame_ns = (long long) now_ns(CLOCK_REALTIME);
+        _cleanup_image_ struct imp_image *img = NULL;
+        if ((r = frame_to_image(f, &img)) < 0) {
+                step_failed(s, cam->name, r, "frame buffer");
+                return r;
+        }
+        /* The light stays on through an exposure stack; off before anything else. */
+        const struct imp_frame_record *next = s->n_frames + 1 < s->frames_total ?
+                                              imp_plan_frame(s->plan, s->n_frames + 1) : NULL;
+        if (rc->dome.dome && rec.light >= 0 && (!next || next->light != rec.light) &&
+            (r = imp_dome_all_off(rc->dome.dome)) < 0) {
+                step_failed(s, rc->dome.name, r, "lights off");
+                return r;
+        }
+        struct imp_error e = { 0 };
+        if ((r = imp_captureset_add_frame(s->cs, &rec, img, &e)) < 0) {
+                char msg[1100];
+                snprintf(msg, sizeof msg, "storing frame %lld: %s", rec.seq, e.msg);
+                s->attempt = (int) s->d->retries;     /* storage errors are not retried */
+                release_rig(s);
+                pause_with_fault(s, NULL, IMP_PROTO_E_IO, r, msg);
+                return r;
+        }
+        s->n_frames++;
+        s->bytes += (long long) img->stride * img->height;
+        s->attempt = 0;
+        char pat[64];
+        pattern_name(&rec.pattern, pat, sizeof pat);
+        server_broadcast(s->d, "frame", json_pack("{s:s, s:I, s:s, s:s, s:i, s:f, s:s}", "session", s->id,
+                                                  "step", (json_int_t) rec.seq, "camera", rec.camera,
+                                                  "pattern", pat, "light", rec.light, "exposure_us",
+                                                  rec.exposure_us, "file", rec.file));
+        emit_progress(s);
+        return 0;
+}
+
+static int step_cb(sd_event_source *src, uint64_t usec, void *userdata) {
+        struct session *s = userdata;
+        if (s->state != SESSION_CAPTURING)
+                return 0;
+        if (s->n_frames >= s->frames_total) {
+                finish(s, SESSION_COMPLETED);
+                return 0;
+        }
+        const struct imp_frame_record *rec = imp_plan_frame(s->plan, s->n_frames);
+        if (s->phase == 0) {
+                char msg[512];
+                int r = check_disk(s, store_frame_bytes(&s->rig, rec->camera), msg, sizeof msg);
+                if (r < 0) {
+                        pause_with_fault(s, NULL, IMP_PROTO_E_IO, r, msg);
+                        return 0;
+                }
+                uint64_t settle_us = 0;
+                if (setup_frame(s, rec, &settle_us) < 0)
+                        return 0;
+                s->phase = 1;
+                (void) schedule(s, settle_us);
+                return 0;
+        }
+        s->phase = 0;
+        if (expose_frame(s, rec) < 0)
+                return 0;
+        if (s->n_frames >= s->frames_total)
+                finish(s, SESSION_COMPLETED);
+        else if (s->pause_requested) {
+                s->pause_requested = false;
+                stop_stepping(s);
+                release_rig(s);
+                s->state = SESSION_PAUSED;
+                save(s);
+                emit_progress(s);
+        } else
+                (void) schedule(s, 0);
+        return 0;
+}
+
+/* ---- commands ------------------------------------------------------------------------------ */
+
+static int begin_capture(struct session *s, struct imp_proto_error *perr) {
+        struct daemon *d = s->d;
+        struct imp_error e = { 0 };
+        int r = rigcfg_open_devices(d->rigcfg, &s->rig, &e);
+        if (r < 0)
+                return imp_proto_error_set(perr, IMP_PROTO_E_DEVICE, -r, NULL, "%s", e.msg);
+        if (s->n_patterns > 0) {
+#ifdef IMPASTOD_HAVE_PROJECTOR
+                if (!d->rigcfg->projector.proj)
+                        return imp_proto_error_set(perr, IMP_PROTO_E_INVALID_PLAN, EINVAL, "args.plan",
+                                                   "%s: the plan projects patterns but the rig has no projector",
+                                                   s->plan_path);
+                r = imp_projector_upload(d->rigcfg->projector.proj, s->patterns, s->n_patterns);
+                if (r < 0)
+                        return imp_proto_error_set(perr, IMP_PROTO_E_DEVICE, -r, d->rigcfg->projector.name,
+                                                   "projector %s: uploading %u patterns: %s",
+                                                   d->rigcfg->projector.name, s->n_patterns, strerror(-r));
+#else
+                return imp_proto_error_set(perr, IMP_PROTO_E_INVALID_PLAN, EOPNOTSUPP, "args.plan",
+                                           "%s: the plan projects patterns but this impastod has no projector support",
+                                           s->plan_path);
+#endif
+        }
+        s->shown_pattern = -2;          /* unknown: the first frame sets it */
+        s->current_tile = -1;
+        s->phase = 0;
+        s->attempt = 0;
+        s->pause_requested = false;
+        s->run_started_us = now_ns(CLOCK_MONOTONIC) / 1000;
+        s->run_started_frames = s->n_frames;
+        s->state = SESSION_CAPTURING;
+        s->interrupted = false;
+        d->active = s;
+        save(s);
+        r = schedule(s, 0);
+        if (r < 0)
+                return imp_proto_error_set(perr, IMP_PROTO_E_INTERNAL, -r, NULL, "scheduling the capture: %s",
+                                           strerror(-r));
+        emit_progress(s);
+        return 0;
+}
+
+static void make_id(struct daemon *d, const char *name, char *buf, size_t size) {
+        char ts[32];
+        time_t t = time(NULL);
+        struct tm tm;
+        gmtime_r(&t, &tm);
+        strftime(ts, sizeof ts, "%Y%m%d-%H%M%S", &tm);
+        snprintf(buf, size, "%s-%s", ts, name);
+        for (int k = 2; k < 1000; k++) {
+                char p[PATH_MAX + 200];
+                snprintf(p, sizeof p, "%s/sessions/%s", d->state_dir, buf);
+                if (access(p, F_OK) < 0 && !session_find(d, buf))
+                        return;
+                snprintf(buf, size, "%s-%s-%d", ts, name, k);
+        }
+}
+
+int session_start(struct daemon *d, const char *plan_path, const char *name, struct session **ret,
+                  struct imp_proto_error *perr) {
+        if (d->stopping)
+                return imp_proto_error_set(perr, IMP_PROTO_E_SHUTTING_DOWN, ESHUTDOWN, NULL, "the daemon is stopping");
+        if (d->active)
+                return imp_proto_error_set(perr, IMP_PROTO_E_BUSY, EBUSY, NULL, "session %s holds the rig (%s)",
+                                           d->active->id, session_state_name(d->active->state));
+        struct imp_plan *plan = NULL;
+        int r = plan_check(d, plan_path, &plan, perr);
+        if (r < 0)
+                return r;
+        struct session *s = calloc(1, sizeof *s);
+        if (!s) {
+                imp_plan_free(plan);
+                return imp_proto_error_set(perr, IMP_PROTO_E_INTERNAL, ENOMEM, NULL, "out of memory");
+        }
+        s->d = d;
+        s->plan = plan;
+        s->faults = json_array();
+        s->frames_total = imp_plan_count(plan);
+        snprintf(s->name, sizeof s->name, "%s", name ? name : "session");
+        snprintf(s->plan_path, sizeof s->plan_path, "%s", plan_path);
+        make_id(d, s->name, s->id, sizeof s->id);
+        if ((r = imp_rig_copy(&d->rig, &s->rig)) < 0) {
+                session_free(s);
+                return imp_proto_error_set(perr, IMP_PROTO_E_INTERNAL, -r, NULL, "out of memory");
+        }
+        s->have_rig = true;
+        s->estimate_s = imp_plan_estimate_s(plan, &s->rig);
+        if ((r = collect_patterns(s)) < 0) {
+                session_free(s);
+                return imp_proto_error_set(perr, IMP_PROTO_E_INTERNAL, -r, NULL, "out of memory");
+        }
+        uint64_t need = 0;
+        for (size_t i = 0; i < s->frames_total; i++)
+                need += store_frame_bytes(&s->rig, imp_plan_frame(plan, i)->camera);
+        char msg[512];
+        if ((r = check_disk(s, need, msg, sizeof msg)) < 0) {
+                session_free(s);
+                return imp_proto_error_set(perr, IMP_PROTO_E_IO, -r, NULL, "not enough disk space: %s", msg);
+        }
+        snprintf(s->dir, sizeof s->dir, "%s/sessions/%s", d->state_dir, s->id);
+        s->state = SESSION_PREPARING;
+        rfc3339_now(s->started);
+        struct imp_error e = { 0 };
+        if ((r = imp_captureset_create(s->dir, &s->rig, plan_path, &s->cs, &e)) < 0) {
+                session_free(s);
+                return imp_proto_error_set(perr, IMP_PROTO_E_IO, -r, NULL, "%s", e.msg);
+        }
+        s->next = d->sessions;
+        d->sessions = s;
+        save(s);
+        log_info("session %s: started, plan %s, %zu frames, about %.0f s", s->id, plan_path, s->frames_total,
+                 s->estimate_s);
+        if ((r = begin_capture(s, perr)) < 0) {
+                /* Nothing captured yet: the session fails and keeps its (empty) set. */
+                emit_fault(s, perr->field[0] ? perr->field : NULL, perr->code, -r, true, perr->message);
+                finish(s, SESSION_FAILED);
+                return r;
+        }
+        *ret = s;
+        return 0;
+}
+
+int session_pause(struct session *s, struct imp_proto_error *perr) {
+        if (s->state == SESSION_PAUSED)
+                return imp_proto_error_set(perr, IMP_PROTO_E_BAD_STATE, EALREADY, "args.session",
+                                           "session %s is already paused", s->id);
+        if (s->state != SESSION_CAPTURING)
+                return imp_proto_error_set(perr, IMP_PROTO_E_BAD_STATE, EINVAL, "args.session",
+                                           "session %s is %s", s->id, session_state_name(s->state));
+        /* Steps run to completion inside one callback, so no frame is in flight here. */
+        stop_stepping(s);
+        release_rig(s);
+        s->state = SESSION_PAUSED;
+        save(s);
+        emit_progress(s);
+        return 0;
+}
+
+/* Reopen the set (repairing a torn tail), reload rig and plan from it, check the records
+ * already there against the plan: capture continues at the first missing seq. */
+static int reopen(struct session *s, struct imp_proto_error *perr) {
+        struct imp_error e = { 0 };
+        int r = imp_captureset_open(s->dir, &s->cs, &e);
+        if (r < 0)
+                return imp_proto_error_set(perr, IMP_PROTO_E_IO, -r, NULL, "%s", e.msg);
+        if (!s->have_rig) {
+                if ((r = imp_rig_copy(imp_captureset_rig(s->cs), &s->rig)) < 0)
+                        return imp_proto_error_set(perr, IMP_PROTO_E_INTERNAL, -r, NULL, "out of memory");
+                s->have_rig = true;
+        }
+        if (!s->plan) {
+                char p[PATH_MAX + 16];
+                snprintf(p, sizeof p, "%s/plan.cfg", s->dir);
+                if ((r = imp_plan_load(p, &s->rig, &s->plan, &e)) < 0)
+                        return imp_proto_error_set(perr, IMP_PROTO_E_INVALID_PLAN, -r, NULL, "%s", e.msg);
+                if ((r = collect_patterns(s)) < 0)
+                        return imp_proto_error_set(perr, IMP_PROTO_E_INTERNAL, -r, NULL, "out of memory");
+                s->estimate_s = imp_plan_estimate_s(s->plan, &s->rig);
+        }
+        s->frames_total = imp_plan_count(s->plan);
+        size_t n = imp_captureset_count(s->cs);
+        if (n > s->frames_total)
+                return imp_proto_error_set(perr, IMP_PROTO_E_IO, EBADMSG, NULL,
+                                           "%s: %zu frames stored, the plan has %zu", s->dir, n, s->frames_total);
+        s->bytes = 0;
+        for (size_t i = 0; i < n; i++) {
+                const struct imp_frame_record *a = imp_captureset_record(s->cs, i), *b = imp_plan_frame(s->plan, i);
+                if (a->seq != (long long) i || a->light != b->light || a->exposure_us != b->exposure_us ||
+                    strcmp(a->camera, b->camera) || a->tile != b->tile)
+                        return imp_proto_error_set(perr, IMP_PROTO_E_IO, EBADMSG, NULL,
+                                                   "%s: frame %zu does not match the plan", s->dir, i);
+                s->bytes += (long long) store_frame_bytes(&s->rig, a->camera) - 4096;
+        }
+        s->n_frames = n;
+        return 0;
+}
+
+int session_resume(struct session *s, struct imp_proto_error *perr) {
+        struct daemon *d = s->d;
+        if (d->stopping)
+                return imp_proto_error_set(perr, IMP_PROTO_E_SHUTTING_DOWN, ESHUTDOWN, NULL, "the daemon is stopping");
+        if (s->state == SESSION_CAPTURING || s->state == SESSION_PREPARING)
+                return imp_proto_error_set(perr, IMP_PROTO_E_BAD_STATE, EALREADY, "args.session",
+                                           "session %s is already running", s->id);
+        if (s->state != SESSION_PAUSED)
+                return imp_proto_error_set(perr, IMP_PROTO_E_BAD_STATE, EINVAL, "args.session",
+                                           "session %s is %s", s->id, session_state_name(s->state));
+        if (d->active && d->active != s)
+                return imp_proto_error_set(perr, IMP_PROTO_E_BUSY, EBUSY, NULL, "session %s holds the rig",
+                                           d->active->id);
+        int r;
+        if (!s->cs && (r = reopen(s, perr)) < 0) {
+                imp_captureset_close(s->cs);
+                s->cs = NULL;
+                return r;
+        }
+        char msg[512];
+        uint64_t need = 0;
+        for (size_t i = s->n_frames; i < s->frames_total; i++)
+                need += store_frame_bytes(&s->rig, imp_plan_frame(s->plan, i)->camera);
+        if ((r = check_disk(s, need, msg, sizeof msg)) < 0) {
+                d->active = s;
+                pause_with_fault(s, NULL, IMP_PROTO_E_IO, r, msg);
+                return imp_proto_error_set(perr, IMP_PROTO_E_IO, -r, NULL, "not enough disk space: %s", msg);
+        }
+        d->active = s;
+        if ((r = begin_capture(s, perr)) < 0) {
+                s->state = SESSION_PAUSED;
+                save(s);
+                return r;
+        }
+        log_info("session %s: resumed at frame %zu of %zu", s->id, s->n_frames, s->frames_total);
+        return 0;
+}
+
+int session_abort(struct session *s, struct imp_proto_error *perr) {
+        if (session_state_final(s->state))
+                return imp_proto_error_set(perr, IMP_PROTO_E_BAD_STATE, EINVAL, "args.session",
+                                           "session %s is already %s", s->id, session_state_name(s->state));
+        if (s->d->active && s->d->active != s) {
+                /* An interrupted session not holding the rig: no devices to touch. */
+                s->state = SESSION_ABORTED;
+                rfc3339_now(s->ended);
+                save(s);
+                return 0;
+        }
+        finish(s, SESSION_ABORTED);
+        return 0;
+}
+
+void session_shutdown(struct session *s) {
+        stop_stepping(s);
+        release_rig(s);
+        imp_captureset_close(s->cs);    /* every frame is already durable: nothing to flush */
+        s->cs = NULL;
+}
+
+json_t *session_summary_json(const struct session *s) {
+        return json_pack("{s:s, s:s, s:s, s:s, s:I}", "session", s->id, "name", s->name, "state",
+                         session_state_name(s->state), "started", s->started, "frames", (json_int_t) s->n_frames);
+}
+
+json_t *session_show_json(const struct session *s) {
+        return json_pack("{s:s, s:s, s:s, s:s, s:s, s:s, s:s?, s:I, s:I, s:I, s:b, s:O}", "session", s->id,
+                         "name", s->name, "state", session_state_name(s->state), "plan", s->plan_path, "path",
+                         s->dir, "started", s->started, "ended", s->ended[0] ? s->ended : NULL, "step",
+                         (json_int_t) s->n_frames, "steps", (json_int_t) s->frames_total, "frames",
+                         (json_int_t) s->n_frames, "interrupted", s->interrupted, "faults", s->faults);
+}

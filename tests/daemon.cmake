@@ -1,0 +1,18 @@
+# impastod end to end: the emulated rig in the test process (GigE camera on UDP 127.0.0.1:3956,
+# hence RESOURCE_LOCK gvcp; Modbus dome on TCP 1585x, one port per test), impastod as a child
+# process on a temporary socket and state directory, driven through the shared codec.
+if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WITH_MODBUS)
+  foreach(t session kill hostile)
+    if(NOT EXISTS ${CMAKE_CURRENT_SOURCE_DIR}/unit/test-daemon-${t}.c)
+      continue()
+    endif()
+    if(t STREQUAL "session")
+      set(labels integration)
+    else()
+      set(labels integration fault)
+    endif()
+    impasto_test(test-daemon-${t} LABELS ${labels} LIBS impasto_proto impasto_pipeline impasto_emu TIMEOUT 120)
+    add_dependencies(test-daemon-${t} impastod)
+    set_tests_properties(test-daemon-${t} PROPERTIES RESOURCE_LOCK gvcp)
+  endforeach()
+endif()
