@@ -174,6 +174,20 @@ int imp_compare_appearance(const char *copy_dir, const char *truth_dir,
                 r = imp_error_set(err, -ENOMEM, "compare: out of memory");
                 goto out;
         }
+        /* A mono camera records the Rec. 709 luminance of the radiance (sim/render.h) and the
+         * copy then holds grey ρd (R = G = B everywhere): compare it with the luminance of
+         * the true ρd, not with each colour channel. */
+        bool mono = true;
+        for (int j = 0; j < cny && mono; j++)
+                for (int i = 0; i < cnx; i++) {
+                        double r0 = at(&cd, i, j, 0);
+                        if (isfinite(r0) && (at(&cd, i, j, 1) != r0 || at(&cd, i, j, 2) != r0)) {
+                                mono = false;
+                                break;
+                        }
+                }
+        res.mono = mono;
+        static const double LUMA[3] = { 0.2126, 0.7152, 0.0722 };
         size_t nd = 0, nk = 0;
         for (int j = 0; j < cny; j++)
                 for (int i = 0; i < cnx; i++) {
@@ -192,10 +206,14 @@ int imp_compare_appearance(const char *copy_dir, const char *truth_dir,
                                       at(&tm, x0, y1, 0) >= 0.5 && at(&tm, x1, y1, 0) >= 0.5;
                         if (!canvas)
                                 continue;
+                        double tc3[3], tlum = 0;
                         for (int c = 0; c < 3; c++) {
-                                double t = (at(&td, x0, y0, c) * (1 - ax) + at(&td, x1, y0, c) * ax) * (1 - ay) +
-                                           (at(&td, x0, y1, c) * (1 - ax) + at(&td, x1, y1, c) * ax) * ay;
-                                double v = at(&cd, i, j, c);
+                                tc3[c] = (at(&td, x0, y0, c) * (1 - ax) + at(&td, x1, y0, c) * ax) * (1 - ay) +
+                                         (at(&td, x0, y1, c) * (1 - ax) + at(&td, x1, y1, c) * ax) * ay;
+                                tlum += LUMA[c] * tc3[c];
+                        }
+                        for (int c = 0; c < (mono ? 1 : 3); c++) {
+                                double t = mono ? tlum : tc3[c], v = at(&cd, i, j, c);
                                 if (t >= CA_MIN_RHO_D && isfinite(v))
                                         ed[nd++] = fabs(v - t) / t;
                         }
@@ -239,6 +257,7 @@ out:
 
 void imp_compare_appearance_to_json(const struct imp_compare_appearance *r, json_t *obj) {
         json_object_set_new(obj, "rho_d_rel_err_median", json_real(r->rho_d_rel_err_median));
+        json_object_set_new(obj, "rho_d_mono", json_boolean(r->mono));
         json_object_set_new(obj, "rho_d_rel_err_p90", json_real(r->rho_d_rel_err_p90));
         json_object_set_new(obj, "rho_d_samples", json_integer((json_int_t) r->rho_d_samples));
         json_object_set_new(obj, "lobe_k_rel_err_median", json_real(r->lobe_k_rel_err_median));

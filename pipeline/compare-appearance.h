@@ -18,12 +18,14 @@
  * MATTE, FEW_SAMPLES, HIDDEN, FILLED, MASKED, K_BOUND or LOBE_UNCERTAIN; without the file
  * every texel counts); |k_copy − k_truth| / k_truth, median. */
 #pragma once
+#include <stdbool.h>
 #include <stddef.h>
 #include <jansson.h>
 #include "error.h"
 
 struct imp_compare_appearance {
         double rho_d_rel_err_median;
+        bool mono;                    /* copy is grey (mono camera): ρd compared with luminance */
         double rho_d_rel_err_p90;
         size_t rho_d_samples;         /* (texel, channel) pairs */
         double lobe_k_rel_err_median;
