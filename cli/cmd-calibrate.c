@@ -2,6 +2,12 @@
  *   impasto calibrate procam --captures DIR… --projector WxH --board COLSxROWS --square S
  *                            [--black-threshold N] [--white-threshold N] [--window PX]
  *                            [--json] [--out rig.json] [--mm-per-unit F]
+ *   impasto calibrate procam --sets SET… --board COLSxROWS --square S
+ *                            [--reference SET --board-origin X,Y] [--projector WxH] [...]
+ * With --sets the input is capture sets (`impasto sim render` with config/plans/target.cfg,
+ * or the daemon) and --out writes the full rig: the sets' rig.json with the calibrated
+ * camera and projector; --reference names the set whose board lies on the canvas plane and
+ * so fixes the canvas frame.
  * Projector–camera calibration after Moreno & Taubin (2012), see docs/calibration.md. */
 #include <errno.h>
 #include <math.h>
@@ -9,7 +15,9 @@
 #include <stdlib.h>
 #include <string.h>
 #include "calib.h"
+#include "captureset.h"
 #include "commands.h"
+#include "rig.h"
 #include "log.h"
 #ifdef IMPASTO_HAVE_CV
 #include "cv-calib.h"
@@ -23,7 +31,15 @@ static void usage(FILE *f) {
                    "                                --square SIZE [--black-threshold N (40)]\n"
                    "                                [--white-threshold N (5)] [--window PX (auto)]\n"
                    "                                [--json] [--out RIG.json] [--mm-per-unit F (1)]\n"
+                   "       impasto calibrate procam --sets SET... --board COLSxROWS --square SIZE\n"
+                   "                                [--reference SET --board-origin X,Y] [--projector WxH]\n"
+                   "                                [same options as above]\n"
                    "  DIR holds graycode_00.png ... (Gray-code frames, then white, then black);\n"
+                   "  SET is a capture set with Gray code on both axes with inverses, white and black\n"
+                   "  (config/plans/target.cfg); its rig.json gives the projector size, names, sensor\n"
+                   "  and dome, and --out writes it back with the calibrated camera and projector.\n"
+                   "  --reference: the set whose board lies on the canvas (z = 0) with inner corner\n"
+                   "  (0, 0) at canvas (X, Y) (units of SIZE): it puts the rig in the canvas frame.\n"
                    "  COLSxROWS counts inner corners; SIZE is the square side (output unit).\n");
 }
 
@@ -44,6 +60,21 @@ bad:
         return -EINVAL;
 }
 
+static int parse_xy(const char *opt, const char *s, double v[2]) {
+        char *end;
+        v[0] = strtod(s, &end);
+        if (end == s || *end != ',')
+                goto bad;
+        const char *s2 = end + 1;
+        v[1] = strtod(s2, &end);
+        if (end == s2 || *end || !isfinite(v[0]) || !isfinite(v[1]))
+                goto bad;
+        return 0;
+bad:
+        log_error("%s: expected X,Y (e.g. 6,6.5), got '%s'", opt, s);
+        return -EINVAL;
+}
+
 static int parse_num(const char *opt, const char *s, double min, double *ret) {
         char *end;
         double v = strtod(s, &end);
@@ -56,11 +87,93 @@ static int parse_num(const char *opt, const char *s, double min, double *ret) {
 }
 
 #ifdef IMPASTO_HAVE_CV
+static int report(const struct imp_calib_procam *res, bool json) {
+        for (int i = 0; i < res->n_warnings; i++)
+                log_warning("%s", res->warnings[i]);
+        if (!json) {
+                imp_calib_procam_print(res, stdout);
+                return 0;
+        }
+        json_t *j = imp_calib_procam_to_json(res);
+        if (!j || json_dumpf(j, stdout, JSON_INDENT(2) | JSON_REAL_PRECISION(10)) < 0) {
+                json_decref(j);
+                log_error("calibrate procam: cannot write JSON");
+                return 1;
+        }
+        json_decref(j);
+        fputc('\n', stdout);
+        return 0;
+}
+
+static int run_sets(const char **dirs, int n_dirs, const char *reference, struct imp_calib_procam_opts *o,
+                    bool have_proj, bool json, const char *out, double mm_per_unit) {
+        struct imp_error err = {};
+        if (reference) {
+                o->reference = -1;
+                for (int i = 0; i < n_dirs; i++)
+                        if (!strcmp(dirs[i], reference))
+                                o->reference = i;
+                if (o->reference < 0)
+                        o->reference = n_dirs, dirs[n_dirs++] = reference;
+        }
+        o->orient_board = true;
+        if (!have_proj) {
+                struct imp_captureset *cs = NULL;
+                int r = imp_captureset_open(dirs[0], &cs, &err);
+                if (r < 0) {
+                        log_error("calibrate procam: %s", err.msg);
+                        return EXIT_BADINPUT;
+                }
+                const struct imp_rig *rig = imp_captureset_rig(cs);
+                if (!rig->has_projector) {
+                        imp_captureset_close(cs);
+                        log_error("calibrate procam: %s/rig.json has no projector; give --projector WxH", dirs[0]);
+                        return EXIT_BADINPUT;
+                }
+                o->proj_w = rig->projector.model.width;
+                o->proj_h = rig->projector.model.height;
+                imp_captureset_close(cs);
+        }
+        struct imp_calib_sets *sets = NULL;
+        int r = imp_calib_sets_open(dirs, n_dirs, o->proj_w, o->proj_h, &sets, &err);
+        if (r < 0) {
+                log_error("calibrate procam: %s", err.msg);
+                return r == -ENOMEM ? 1 : EXIT_BADINPUT;
+        }
+        static struct imp_calib_procam res;
+        r = imp_cv_calib_procam_source(dirs, n_dirs, imp_calib_sets_load, sets, o, &res, &err);
+        if (r < 0) {
+                imp_calib_sets_free(sets);
+                log_error("calibrate procam: %s", err.msg);
+                return r == -ENOMEM ? 1 : EXIT_BADINPUT;
+        }
+        int ret = report(&res, json);
+        if (out && !ret) {
+                struct imp_rig rig;
+                r = imp_calib_procam_rig(&res, mm_per_unit, imp_calib_sets_rig(sets, 0), &rig, &err);
+                if (r >= 0) {
+                        r = imp_rig_save(out, &rig, &err);
+                        imp_rig_free(&rig);
+                }
+                if (r < 0) {
+                        log_error("calibrate procam: %s", err.msg);
+                        ret = 1;
+                } else if (!res.have_world) {
+                        log_warning("%s: no --reference, so the world frame is the camera's; "
+                                    "processing needs the canvas frame", out);
+                }
+        }
+        imp_calib_sets_free(sets);
+        return ret;
+}
+
 static int run_procam(int argc, char **argv) {
         struct imp_calib_procam_opts o;
         imp_calib_procam_opts_default(&o);
-        const char *dirs[IMP_CALIB_MAX_CAPTURES];
+        const char *dirs[IMP_CALIB_MAX_CAPTURES + 1];
         int n_dirs = 0;
+        bool sets = false;
+        const char *reference = NULL;
         bool json = false, have_proj = false, have_board = false, have_square = false;
         const char *out = NULL;
         double mm_per_unit = 1, v;
@@ -74,10 +187,15 @@ static int run_procam(int argc, char **argv) {
                         usage(stdout);
                         return 0;
                 }
-                if (!strcmp(a, "--captures")) {
+                if (!strcmp(a, "--captures") || !strcmp(a, "--sets")) {
+                        if (n_dirs && sets != !strcmp(a, "--sets")) {
+                                log_error("--captures and --sets cannot be mixed");
+                                return EXIT_USAGE;
+                        }
+                        sets = !strcmp(a, "--sets");
                         while (i + 1 < argc && strncmp(argv[i + 1], "--", 2)) {
                                 if (n_dirs == IMP_CALIB_MAX_CAPTURES) {
-                                        log_error("--captures: at most %d directories", IMP_CALIB_MAX_CAPTURES);
+                                        log_error("%s: at most %d directories", a, IMP_CALIB_MAX_CAPTURES);
                                         return EXIT_USAGE;
                                 }
                                 dirs[n_dirs++] = argv[++i];
@@ -101,6 +219,10 @@ static int run_procam(int argc, char **argv) {
                         r = parse_num(a, val, 1e-12, &mm_per_unit);
                 else if (!strcmp(a, "--out"))
                         out = val;
+                else if (!strcmp(a, "--reference"))
+                        reference = val;
+                else if (!strcmp(a, "--board-origin"))
+                        r = parse_xy(a, val, o.board_origin);
                 else if (!strcmp(a, "--black-threshold") && !(r = parse_num(a, val, 0, &v)))
                         o.black_threshold = (int) v;
                 else if (!strcmp(a, "--white-threshold") && !(r = parse_num(a, val, 0, &v)))
@@ -115,11 +237,18 @@ static int run_procam(int argc, char **argv) {
                 if (r < 0)
                         return EXIT_USAGE;
         }
-        if (!n_dirs || !have_proj || !have_board || !have_square) {
-                log_error("--captures, --projector, --board and --square are required");
+        if (!n_dirs || (!have_proj && !sets) || !have_board || !have_square) {
+                log_error("--captures (or --sets), --projector (not needed with --sets), --board and "
+                          "--square are required");
                 usage(stderr);
                 return EXIT_USAGE;
         }
+        if (reference && !sets) {
+                log_error("--reference needs --sets");
+                return EXIT_USAGE;
+        }
+        if (sets)
+                return run_sets(dirs, n_dirs, reference, &o, have_proj, json, out, mm_per_unit);
         static struct imp_calib_procam res;
         struct imp_error err = {};
         int r = imp_cv_calib_procam(dirs, n_dirs, &o, &res, &err);

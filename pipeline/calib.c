@@ -2,8 +2,10 @@
  * The numbers come from the OpenCV shim (pipeline/cv/cv-calib.h); nothing here fits. */
 #include <errno.h>
 #include <math.h>
+#include <stdlib.h>
 #include <string.h>
 #include "calib.h"
+#include "captureset.h"
 #include "json-util.h"
 #include "rig.h"
 
@@ -71,14 +73,21 @@ json_t *imp_calib_procam_to_json(const struct imp_calib_procam *r) {
                                    "baseline", baseline, "worst_view_rms_px", s->worst_view_rms_px,
                                    "worst_view", s->worst_view,
                                    "convention", "X_projector = R X_camera + t");
-        return json_pack("{s:s, s:o, s:o, s:o, s:i, s:i, s:i, s:o, s:o}",
-                         "method", "Moreno-Taubin local homographies; OpenCV calibrateCamera, "
-                                   "stereoCalibrate(CALIB_FIX_INTRINSIC)",
-                         "camera", imp_calib_intrinsics_to_json(&r->camera),
-                         "projector", imp_calib_intrinsics_to_json(&r->projector),
-                         "stereo", stereo, "window_px", 2 * r->window_half_px + 1,
-                         "captures_given", r->n_captures, "captures_used", r->n_used,
-                         "captures", caps, "warnings", warn);
+        json_t *j = json_pack("{s:s, s:o, s:o, s:o, s:i, s:i, s:i, s:o, s:o}",
+                              "method", "Moreno-Taubin local homographies; OpenCV calibrateCamera, "
+                                        "stereoCalibrate(CALIB_FIX_INTRINSIC)",
+                              "camera", imp_calib_intrinsics_to_json(&r->camera),
+                              "projector", imp_calib_intrinsics_to_json(&r->projector),
+                              "stereo", stereo, "window_px", 2 * r->window_half_px + 1,
+                              "captures_given", r->n_captures, "captures_used", r->n_used,
+                              "captures", caps, "warnings", warn);
+        if (j && r->have_world)
+                json_object_set_new(j, "world", json_pack("{s:i, s:o, s:o, s:f, s:s}", "reference_capture",
+                                                          r->reference, "rotation", doubles(r->world_R, 9),
+                                                          "translation", doubles(r->world_t, 3),
+                                                          "rms_px", r->world_rms_px, "convention",
+                                                          "X_camera = R X_canvas + t"));
+        return j;
 }
 
 static void print_device(FILE *f, const char *who, const struct imp_calib_intrinsics *in) {
@@ -118,6 +127,14 @@ void imp_calib_procam_print(const struct imp_calib_procam *r, FILE *f) {
                         s->R[3 * i + 2], s->t[i]);
         fprintf(f, "  baseline %.3f (board square units)\n",
                 sqrt(s->t[0] * s->t[0] + s->t[1] * s->t[1] + s->t[2] * s->t[2]));
+        if (r->have_world) {
+                const double *R = r->world_R, *t = r->world_t;
+                double C[3];
+                for (int i = 0; i < 3; i++)
+                        C[i] = -(R[i] * t[0] + R[3 + i] * t[1] + R[6 + i] * t[2]);
+                fprintf(f, "camera on the canvas (reference capture %d, RMS %.4f px): centre (%.3f, %.3f, %.3f)\n",
+                        r->reference, r->world_rms_px, C[0], C[1], C[2]);
+        }
         for (int i = 0; i < r->n_warnings; i++)
                 fprintf(f, "warning: %s\n", r->warnings[i]);
 }
@@ -157,4 +174,206 @@ int imp_calib_procam_save_rig(const struct imp_calib_procam *r, double mm_per_un
         p->gamma = 1;
         p->intensity = 1;
         return imp_rig_save(path, &rig, err);
+}
+
+int imp_calib_procam_rig(const struct imp_calib_procam *r, double mm_per_unit, const struct imp_rig *base,
+                         struct imp_rig *ret, struct imp_error *err) {
+        if (!r || !base || !ret || !(mm_per_unit > 0) || !isfinite(mm_per_unit) || base->n_cameras < 1 ||
+            !base->has_projector)
+                return imp_error_set(err, -EINVAL, "rig output: bad arguments (the base rig needs a "
+                                     "camera and a projector)");
+        struct imp_rig rig;
+        int k = imp_rig_copy(base, &rig);
+        if (k < 0)
+                return imp_error_set(err, k, "rig output: out of memory");
+        rig.n_cameras = 1;
+        struct imp_pinhole *c = &rig.cameras[0].model, *p = &rig.projector.model;
+        pinhole_from(c, &r->camera);
+        pinhole_from(p, &r->projector);
+        static const double I[9] = { 1, 0, 0, 0, 1, 0, 0, 0, 1 };
+        const double *Rc = r->have_world ? r->world_R : I;
+        double tc[3] = { 0, 0, 0 };
+        for (int i = 0; i < 3 && r->have_world; i++)
+                tc[i] = r->world_t[i] * mm_per_unit;
+        memcpy(c->R, Rc, sizeof c->R);
+        memcpy(c->t, tc, sizeof c->t);
+        /* X_proj = Rs (Rc X + tc) + ts */
+        const double *Rs = r->stereo.R;
+        for (int i = 0; i < 3; i++) {
+                for (int j = 0; j < 3; j++) {
+                        double s = 0;
+                        for (int q = 0; q < 3; q++)
+                                s += Rs[3 * i + q] * Rc[3 * q + j];
+                        p->R[3 * i + j] = s;
+                }
+                p->t[i] = Rs[3 * i] * tc[0] + Rs[3 * i + 1] * tc[1] + Rs[3 * i + 2] * tc[2] +
+                          r->stereo.t[i] * mm_per_unit;
+        }
+        *ret = rig;
+        return 0;
+}
+
+/* ---- capture sets as calibration input ---- */
+
+struct calib_set {
+        struct imp_captureset *cs;
+        long frame[2 * 2 * 16 + 2];      /* record index per OpenCV frame index */
+        double black_dn, scale;          /* u8 = (DN − black_dn) · scale */
+};
+
+struct imp_calib_sets {
+        int n, n_pat;
+        struct calib_set *s;
+};
+
+void imp_calib_sets_free(struct imp_calib_sets *s) {
+        if (!s)
+                return;
+        for (int i = 0; i < s->n; i++)
+                imp_captureset_close(s->s[i].cs);
+        free(s->s);
+        free(s);
+}
+
+static int ceil_log2(int v) {
+        int b = 0;
+        while ((1 << b) < v)
+                b++;
+        return b;
+}
+
+/* OpenCV's GrayCodePattern order: columns then rows, bit 0 (most significant) first, each
+ * pattern followed by its inverse. */
+static int opencv_index(const struct imp_pattern *p, int nbits_x) {
+        return (p->axis ? 2 * nbits_x : 0) + 2 * p->bit + (p->inverse ? 1 : 0);
+}
+
+static int cmp_u16(const void *a, const void *b) {
+        uint16_t x = *(const uint16_t *) a, y = *(const uint16_t *) b;
+        return (x > y) - (x < y);
+}
+
+static int map_set(struct calib_set *cs, const char *dir, int nbits[2], int n_pat, struct imp_error *err) {
+        size_t n = imp_captureset_count(cs->cs);
+        const char *cam = NULL;
+        double exposure = -1;
+        for (int i = 0; i < n_pat + 2; i++)
+                cs->frame[i] = -1;
+        for (size_t i = 0; i < n; i++) {
+                const struct imp_frame_record *rec = imp_captureset_record(cs->cs, i);
+                const struct imp_pattern *p = &rec->pattern;
+                int idx;
+                if (p->kind == IMP_PAT_WHITE)
+                        idx = n_pat;
+                else if (p->kind == IMP_PAT_BLACK)
+                        idx = n_pat + 1;
+                else if (p->kind == IMP_PAT_GRAY && p->nbits == nbits[p->axis] && p->bit >= 0 && p->bit < p->nbits)
+                        idx = opencv_index(p, nbits[0]);
+                else
+                        continue;
+                if (!cam) {
+                        cam = rec->camera;
+                        exposure = rec->exposure_us;
+                }
+                if (strcmp(rec->camera, cam) || rec->exposure_us != exposure || cs->frame[idx] >= 0)
+                        continue;   /* first camera, first exposure, first occurrence */
+                cs->frame[idx] = (long) i;
+        }
+        for (int i = 0; i < n_pat + 2; i++)
+                if (cs->frame[i] < 0) {
+                        int nb = nbits[0];
+                        if (i == n_pat || i == n_pat + 1)
+                                return imp_error_set(err, -ENOENT, "capture set %s: no %s frame", dir,
+                                                     i == n_pat ? "white" : "black");
+                        return imp_error_set(err, -ENOENT, "capture set %s: no Gray-code frame for axis %c "
+                                             "bit %d of %d%s (expected Gray code on both axes with "
+                                             "inverses, %d + %d bits, e.g. config/plans/target.cfg)", dir,
+                                             i < 2 * nb ? 'x' : 'y', (i % (2 * nb)) / 2,
+                                             nbits[i < 2 * nb ? 0 : 1], i % 2 ? " (inverse)" : "",
+                                             nbits[0], nbits[1]);
+                }
+        /* Normalisation from the white frame. */
+        const struct imp_rig *rig = imp_captureset_rig(cs->cs);
+        int ci = 0;
+        for (int c = 0; c < rig->n_cameras; c++)
+                if (cam && !strcmp(rig->cameras[c].name, cam))
+                        ci = c;
+        cs->black_dn = rig->n_cameras > 0 ? rig->cameras[ci].sensor.black_level_dn : 0;
+        _cleanup_image_ struct imp_image *w = NULL;
+        int r = imp_captureset_load_frame(cs->cs, (size_t) cs->frame[n_pat], &w, err);
+        if (r < 0)
+                return r;
+        size_t np = (size_t) w->width * w->height;
+        uint16_t *v = malloc(np * sizeof *v);
+        if (!v)
+                return -ENOMEM;
+        for (int y = 0; y < w->height; y++)
+                memcpy(v + (size_t) y * w->width, (const uint8_t *) w->data + (size_t) y * w->stride,
+                       (size_t) w->width * sizeof *v);
+        qsort(v, np, sizeof *v, cmp_u16);
+        double p99 = v[(size_t) (0.99 * (double) (np - 1))];
+        free(v);
+        if (!(p99 > cs->black_dn + 16))
+                return imp_error_set(err, -EDOM, "capture set %s: the white frame is dark (99th percentile "
+                                     "%.0f DN, black level %.0f DN)", dir, p99, cs->black_dn);
+        cs->scale = 200.0 / (p99 - cs->black_dn);   /* headroom: no clipped whites */
+        return 0;
+}
+
+int imp_calib_sets_open(const char *const *dirs, int n, int proj_w, int proj_h,
+                        struct imp_calib_sets **ret, struct imp_error *err) {
+        int nbits[2] = { ceil_log2(proj_w), ceil_log2(proj_h) };
+        if (n < 1 || proj_w < 2 || proj_h < 2 || nbits[0] > 16 || nbits[1] > 16)
+                return imp_error_set(err, -EINVAL, "capture sets: bad arguments");
+        struct imp_calib_sets *s = calloc(1, sizeof *s);
+        if (!s || !(s->s = calloc((size_t) n, sizeof *s->s))) {
+                free(s);
+                return -ENOMEM;
+        }
+        s->n_pat = 2 * (nbits[0] + nbits[1]);
+        for (int i = 0; i < n; i++) {
+                int r = imp_captureset_open(dirs[i], &s->s[i].cs, err);
+                if (r >= 0)
+                        r = map_set(&s->s[i], dirs[i], nbits, s->n_pat, err);
+                if (r < 0) {
+                        s->n = i + 1;
+                        imp_calib_sets_free(s);
+                        return r;
+                }
+                s->n = i + 1;
+        }
+        *ret = s;
+        return 0;
+}
+
+int imp_calib_sets_load(void *user, int capture, int index, struct imp_image **ret, struct imp_error *err) {
+        struct imp_calib_sets *s = user;
+        if (!s || capture < 0 || capture >= s->n || index < 0 || index >= s->n_pat + 2)
+                return imp_error_set(err, -EINVAL, "capture sets: no frame %d of capture %d", index, capture);
+        const struct calib_set *cs = &s->s[capture];
+        _cleanup_image_ struct imp_image *raw = NULL;
+        int r = imp_captureset_load_frame(cs->cs, (size_t) cs->frame[index], &raw, err);
+        if (r < 0)
+                return r;
+        if (raw->type != IMP_PIX_U16 || raw->channels != 1)
+                return imp_error_set(err, -EMEDIUMTYPE, "%s/%s: expected a 1-channel 16-bit frame",
+                                     imp_captureset_dir(cs->cs), imp_captureset_record(cs->cs, (size_t) cs->frame[index])->file);
+        struct imp_image *out = NULL;
+        r = imp_image_new(raw->width, raw->height, 1, IMP_PIX_U8, &out);
+        if (r < 0)
+                return r;
+        for (int y = 0; y < raw->height; y++) {
+                const uint16_t *src = (const uint16_t *) ((const uint8_t *) raw->data + (size_t) y * raw->stride);
+                uint8_t *dst = (uint8_t *) out->data + (size_t) y * out->stride;
+                for (int x = 0; x < raw->width; x++) {
+                        double v = (src[x] - cs->black_dn) * cs->scale;
+                        dst[x] = (uint8_t) IMP_CLAMP(lround(v), 0, 255);
+                }
+        }
+        *ret = out;
+        return 0;
+}
+
+const struct imp_rig *imp_calib_sets_rig(const struct imp_calib_sets *s, int i) {
+        return s && i >= 0 && i < s->n ? imp_captureset_rig(s->s[i].cs) : NULL;
 }

@@ -13,6 +13,7 @@
 extern "C" {
 #endif
 #include "error.h"
+#include "image.h"
 
 /* Intrinsic parameter order everywhere (OpenCV's): fx fy cx cy k1 k2 p1 p2 k3. */
 #define IMP_CALIB_N_INTR        9
@@ -100,16 +101,39 @@ struct imp_calib_procam_opts {
         int white_threshold;                    /* GrayCodePattern white threshold; default 5 */
         int window_half_px;                     /* homography window half side; 0 = upstream's
                                                    ceil(camera width / 180) */
+        /* Label the corners the same way in every view: board z towards the camera (mirrored
+         * orderings flipped) and square (0, 0) — between corners 0, 1, cols, cols + 1 — black
+         * (the 180° ambiguity; needs cols + rows odd). Off: OpenCV's order as found. */
+        bool orient_board;
+        /* World frame from a board lying on the canvas plane: capture `reference` (-1: none,
+         * world = camera frame) shows the board with inner corner (0, 0) at canvas
+         * (board_origin[0], board_origin[1], 0) and its axes along canvas x, y (needs
+         * orient_board). The camera's pose in that frame comes from solvePnP. */
+        int reference;
+        double board_origin[2];                 /* square unit */
 };
 static inline void imp_calib_procam_opts_default(struct imp_calib_procam_opts *o) {
         *o = (struct imp_calib_procam_opts) { .proj_w = 1024, .proj_h = 768, .board_cols = 9,
                 .board_rows = 7, .square = 1.0, .black_threshold = 40, .white_threshold = 5,
-                .window_half_px = 0 };
+                .window_half_px = 0, .reference = -1 };
 }
+
+/* Where the procedure gets its frames: frame `index` of capture `capture` as a u8 grey
+ * image — index < n_pat: the Gray-code frames in OpenCV's GrayCodePattern order, n_pat:
+ * white, n_pat + 1: black. The procedure frees it (imp_image_free). -errno with err
+ * naming the file on failure. */
+typedef int (*imp_calib_frame_loader)(void *user, int capture, int index, struct imp_image **ret,
+                                      struct imp_error *err);
 
 struct imp_calib_procam {
         struct imp_calib_intrinsics camera, projector;
         struct imp_calib_stereo stereo;
+        /* With opts.reference: the camera's pose in the canvas frame, X_cam = R·X_world + t
+         * (t in square units), from the reference view, and that view's RMS residual. */
+        bool have_world;
+        int reference;
+        double world_R[9], world_t[3];
+        double world_rms_px;
         int window_half_px;                     /* the one used */
         int n_captures, n_used;
         struct imp_calib_capture captures[IMP_CALIB_MAX_CAPTURES];
@@ -190,6 +214,31 @@ void imp_calib_procam_print(const struct imp_calib_procam *r, FILE *f);
  * square unit; rig.json expects mm, so pass square_mm_per_unit (1 when squares are in mm). */
 int imp_calib_procam_save_rig(const struct imp_calib_procam *r, double mm_per_unit,
                               const char *path, struct imp_error *err);
+
+struct imp_rig;
+/* The full rig for processing: a copy of `base` (names, sensor model, projector photometry,
+ * dome lights — what this calibration does not measure) with camera 0's and the
+ * projector's intrinsics, distortion and pose replaced by the calibration: camera pose from
+ * the reference view when r->have_world (else world = camera frame), projector pose =
+ * stereo ∘ camera pose. Only camera 0 is kept. */
+int imp_calib_procam_rig(const struct imp_calib_procam *r, double mm_per_unit, const struct imp_rig *base,
+                         struct imp_rig *ret, struct imp_error *err);
+
+/* ---- capture sets as calibration input (pipeline/captureset.h) ---- */
+
+/* Capture sets holding, for one camera, Gray code on both axes with inverses (bits as
+ * OpenCV uses for the projector: ⌈log2 w⌉, ⌈log2 h⌉), white and black, all at the first
+ * exposure found. Frames are picked by their pattern descriptors (any order) and
+ * normalised to 8 bits: (DN − black level) · 255 / (99th percentile of the white frame
+ * − black level), clipped. Caller frees with imp_calib_sets_free(). */
+struct imp_calib_sets;
+int imp_calib_sets_open(const char *const *dirs, int n, int proj_w, int proj_h,
+                        struct imp_calib_sets **ret, struct imp_error *err);
+void imp_calib_sets_free(struct imp_calib_sets *s);
+/* An imp_calib_frame_loader; user is the struct imp_calib_sets. */
+int imp_calib_sets_load(void *user, int capture, int index, struct imp_image **ret, struct imp_error *err);
+/* rig.json of set i (the capture device's description). */
+const struct imp_rig *imp_calib_sets_rig(const struct imp_calib_sets *s, int i);
 
 #ifdef __cplusplus
 }

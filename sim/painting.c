@@ -1,6 +1,6 @@
 /* Procedural painting relief: canvas weave, brush strokes, palette-knife ridges with a
- * steep cliff, craquelure, test steps, heightfields from files; region shapes and value
- * noise for the BRDF map. Deterministic in the layer seeds; no allocation per sample. */
+ * steep cliff, craquelure, test steps, heightfields from files, tilted planes (calibration
+ * targets); region shapes (incl. a printed chessboard) and value noise for the BRDF map. Deterministic in the layer seeds; no allocation per sample. */
 #include <math.h>
 #include <string.h>
 #include "image.h"
@@ -56,8 +56,61 @@ bool imp_shape_contains(const struct imp_shape *sh, double x, double y) {
         }
         case IMP_SHAPE_RECT:
                 return x >= sh->min_mm[0] && x <= sh->max_mm[0] && y >= sh->min_mm[1] && y <= sh->max_mm[1];
+        case IMP_SHAPE_CHECKER: {
+                const struct imp_checker *ck = &sh->checker;
+                double uv[2];
+                imp_checker_board_uv(ck, x, y, uv);
+                double s = ck->square_mm;
+                return uv[0] >= -2 * s && uv[0] <= (ck->cols + 1) * s && uv[1] >= -2 * s &&
+                       uv[1] <= (ck->rows + 1) * s;
+        }
         }
         return false;
+}
+
+/* The plane's orthonormal frame: e1 along x lifted onto the plane, n the normal out of the
+ * paint, e2 = n × e1. */
+static void checker_frame(const struct imp_checker *ck, double e1[3], double e2[3]) {
+        double a = ck->slope[0], b = ck->slope[1];
+        double l1 = sqrt(1 + a * a), ln = sqrt(1 + a * a + b * b);
+        double n[3] = { -a / ln, -b / ln, 1 / ln };
+        e1[0] = 1 / l1; e1[1] = 0; e1[2] = a / l1;
+        e2[0] = n[1] * e1[2] - n[2] * e1[1];
+        e2[1] = n[2] * e1[0] - n[0] * e1[2];
+        e2[2] = n[0] * e1[1] - n[1] * e1[0];
+}
+
+void imp_checker_board_uv(const struct imp_checker *ck, double x, double y, double ret_uv[2]) {
+        double e1[3], e2[3];
+        checker_frame(ck, e1, e2);
+        double dx = x - ck->origin_mm[0], dy = y - ck->origin_mm[1];
+        double d[3] = { dx, dy, ck->slope[0] * dx + ck->slope[1] * dy };
+        double u = d[0] * e1[0] + d[1] * e1[1] + d[2] * e1[2];
+        double v = d[0] * e2[0] + d[1] * e2[1] + d[2] * e2[2];
+        double c = cos(ck->angle_rad), sn = sin(ck->angle_rad);
+        ret_uv[0] = c * u + sn * v;
+        ret_uv[1] = -sn * u + c * v;
+}
+
+/* Length of [0, t] (signed) covered by even-indexed squares [2k·s, (2k+1)·s). */
+static double even_cover(double t, double s) {
+        double k = floor(t / (2 * s));
+        return k * s + IMP_MIN(t - 2 * k * s, s);
+}
+
+/* Parts of [c − h, c + h] ∩ [lo, hi] in even and odd squares, as fractions of 2h. */
+static void cover_1d(double c, double h, double s, double lo, double hi, double *ret_even, double *ret_odd) {
+        double a = IMP_CLAMP(c - h, lo, hi), b = IMP_CLAMP(c + h, lo, hi);
+        double ev = even_cover(b, s) - even_cover(a, s);
+        *ret_even = ev / (2 * h);
+        *ret_odd = (b - a - ev) / (2 * h);
+}
+
+double imp_checker_black_fraction(const struct imp_checker *ck, double u, double v, double box_mm) {
+        double s = ck->square_mm, h = 0.5 * box_mm, ex, ox, ey, oy;
+        cover_1d(u, h, s, -s, ck->cols * s, &ex, &ox);
+        cover_1d(v, h, s, -s, ck->rows * s, &ey, &oy);
+        return IMP_CLAMP(ex * ey + ox * oy, 0.0, 1.0);   /* black where i + j is even */
 }
 
 /* Index bounds of the samples whose world x (or y) lies in [lo, hi], clamped. */
@@ -204,6 +257,11 @@ static int add_file(const struct imp_sim_surface *s, float *h, const struct imp_
         return 0;
 }
 
+static void add_plane(const struct imp_sim_surface *s, float *h, const struct imp_layer *L) {
+        FOR_CANVAS(s, -INFINITY, INFINITY, -INFINITY, INFINITY,
+                   h[k] += (float) (L->slope[0] * x + L->slope[1] * y + L->offset_mm));
+}
+
 int imp_painting_add_layer(const struct imp_sim_surface *surf, float *h, const struct imp_layer *L,
                            struct imp_error *err) {
         switch (L->kind) {
@@ -213,6 +271,7 @@ int imp_painting_add_layer(const struct imp_sim_surface *surf, float *h, const s
         case IMP_LAYER_CRAQUELURE: add_craquelure(surf, h, L); return 0;
         case IMP_LAYER_STEP: add_step(surf, h, L); return 0;
         case IMP_LAYER_FILE: return add_file(surf, h, L, err);
+        case IMP_LAYER_PLANE: add_plane(surf, h, L); return 0;
         case IMP_LAYER_COUNT: break;
         }
         return -EINVAL;

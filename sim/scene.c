@@ -45,6 +45,7 @@ struct imp_scene {
         int n_regions;
         double hmin, hmax, frame_height_mm, frame_width_mm;
         int n_layers;
+        double plane_slope[2], plane_offset_mm;   /* the last plane layer (checker boards lie on it) */
 };
 
 void imp_scene_free(struct imp_scene *s) {
@@ -502,10 +503,11 @@ static int parse_brdf(const struct imp_conf *c, const config_setting_t *g, struc
 
 static int parse_layer(const struct imp_conf *c, const config_setting_t *g, int idx, uint64_t seed,
                        const char *dir, struct imp_layer *L, struct imp_error *err) {
-        static const char *const types[] = { "weave", "strokes", "ridge", "craquelure", "step", "file", NULL };
+        static const char *const types[] = { "weave", "strokes", "ridge", "craquelure", "step", "file",
+                                             "plane", NULL };
         static const char *const known[] = { "type", "amplitude_mm", "period_mm", "width_mm", "length_mm",
                                              "cliff_mm", "start_mm", "end_mm", "at_mm", "axis", "count",
-                                             "seed", "path", NULL };
+                                             "seed", "path", "slope", "offset_mm", NULL };
         int kind = 0;
         TRY(imp_conf_check_known(c, g, known, err));
         TRY(imp_conf_get_enum(c, g, "type", true, types, &kind, err));
@@ -514,7 +516,7 @@ static int parse_layer(const struct imp_conf *c, const config_setting_t *g, int 
         TRY(imp_conf_get_int(c, g, "seed", false, 0, INT64_MAX, &v, err));
         if (config_setting_lookup((config_setting_t *) g, "seed"))
                 L->seed = (uint64_t) v;
-        bool amp_req = kind != IMP_LAYER_FILE;
+        bool amp_req = kind != IMP_LAYER_FILE && kind != IMP_LAYER_PLANE;
         L->amplitude_mm = 1.0;
         TRY(imp_conf_get_double(c, g, "amplitude_mm", amp_req, -20, 20, &L->amplitude_mm, err));
         switch (kind) {
@@ -550,6 +552,14 @@ static int parse_layer(const struct imp_conf *c, const config_setting_t *g, int 
                 TRY(imp_conf_get_enum(c, g, "axis", false, axes, &L->axis, err));
                 break;
         }
+        case IMP_LAYER_PLANE:
+                /* |slope| ≤ 2 (63°): steeper boards are seen too obliquely to be useful */
+                TRY(imp_conf_get_doubles(c, g, "slope", true, 2, L->slope, 2, NULL, err));
+                if (!(fabs(L->slope[0]) <= 2 && fabs(L->slope[1]) <= 2))
+                        return imp_error_set(err, -EINVAL, "%s:%d: %s.slope: expected |dz/dx|, |dz/dy| <= 2",
+                                             imp_conf_path(c), line_of(g), imp_conf_setting_path(g));
+                TRY(imp_conf_get_double(c, g, "offset_mm", false, -1e3, 1e3, &L->offset_mm, err));
+                break;
         case IMP_LAYER_FILE: {
                 const char *p = NULL;
                 TRY(imp_conf_get_string(c, g, "path", true, &p, err));
@@ -566,7 +576,7 @@ static int parse_layer(const struct imp_conf *c, const config_setting_t *g, int 
 
 static int parse_shape(const struct imp_conf *c, const config_setting_t *g, uint64_t seed, struct imp_shape *sh,
                        struct imp_error *err) {
-        static const char *const kinds[] = { "all", "blob", "stripe", "rect", NULL };
+        static const char *const kinds[] = { "all", "blob", "stripe", "rect", "checker", NULL };
         int kind = 0;
         TRY(imp_conf_get_enum(c, g, "shape", false, kinds, &kind, err));
         *sh = (struct imp_shape) { .kind = kind, .seed = seed, .wobble = 0.2 };
@@ -590,6 +600,30 @@ static int parse_shape(const struct imp_conf *c, const config_setting_t *g, uint
                 TRY(imp_conf_get_doubles(c, g, "min_mm", true, 2, sh->min_mm, 2, NULL, err));
                 TRY(imp_conf_get_doubles(c, g, "max_mm", true, 2, sh->max_mm, 2, NULL, err));
                 break;
+        case IMP_SHAPE_CHECKER: {
+                struct imp_checker *ck = &sh->checker;
+                long long cr[2] = { 0, 0 };
+                double crd[2];
+                ck->black = 0.1;
+                TRY(imp_conf_get_double(c, g, "square_mm", true, 1e-3, 1e4, &ck->square_mm, err));
+                TRY(imp_conf_get_doubles(c, g, "corners", true, 2, crd, 2, NULL, err));
+                TRY(imp_conf_get_doubles(c, g, "origin_mm", true, 2, ck->origin_mm, 2, NULL, err));
+                TRY(imp_conf_get_double(c, g, "black", false, 0, 1, &ck->black, err));
+                TRY(imp_conf_get_double(c, g, "filter_mm", false, 0, 100, &ck->filter_mm, err));
+                double ang = 0;
+                TRY(imp_conf_get_double(c, g, "angle_deg", false, -180, 180, &ang, err));
+                ck->angle_rad = ang * M_PI / 180;
+                for (int i = 0; i < 2; i++) {
+                        cr[i] = llround(crd[i]);
+                        if (cr[i] < 2 || cr[i] > 1000 || fabs(crd[i] - (double) cr[i]) > 1e-9)
+                                return imp_error_set(err, -EINVAL, "%s:%d: %s.corners: expected two whole "
+                                                     "numbers of inner corners in 2..1000",
+                                                     imp_conf_path(c), line_of(g), imp_conf_setting_path(g));
+                }
+                ck->cols = (int) cr[0];
+                ck->rows = (int) cr[1];
+                break;
+        }
         }
         return 0;
 }
@@ -684,6 +718,11 @@ static int parse_painting(struct imp_scene *s, const struct imp_conf *c, struct 
                 struct imp_layer L;
                 config_setting_t *lg = config_setting_get_elem(layers, i);
                 TRY(parse_layer(c, lg, i, s->seed, s->dir, &L, err));
+                if (L.kind == IMP_LAYER_PLANE) {
+                        s->plane_slope[0] = L.slope[0];
+                        s->plane_slope[1] = L.slope[1];
+                        s->plane_offset_mm = L.offset_mm;
+                }
                 int r = imp_painting_add_layer(&s->surf, s->height, &L, err);
                 if (r < 0)
                         return imp_error_prefix(err, "%s:%d: painting.layers.[%d]: ", imp_conf_path(c), line_of(lg), i);
@@ -693,7 +732,8 @@ static int parse_painting(struct imp_scene *s, const struct imp_conf *c, struct 
         /* regions, then the varnish over the paint, then the frame's own region last */
         static const char *const rknown[] = { "name", "shape", "centre_mm", "radius_mm", "wobble", "width_mm",
                                               "angle_deg", "min_mm", "max_mm", "rho_d", "rho_s", "lobe", "k",
-                                              "tint_variation", "seed", NULL };
+                                              "tint_variation", "seed", "square_mm", "corners", "origin_mm",
+                                              "black", "filter_mm", NULL };
         config_setting_t *regions = NULL;
         TRY(imp_conf_get_list(c, g, "regions", false, &regions, err));
         int nreg = regions ? config_setting_length(regions) : 0;
@@ -722,6 +762,13 @@ static int parse_painting(struct imp_scene *s, const struct imp_conf *c, struct 
                 long long sd = (long long) (imp_mix64(s->seed + 7 * (uint64_t) i) >> 1);
                 TRY(imp_conf_get_int(c, rg, "seed", false, 0, INT64_MAX, &sd, err));
                 TRY(parse_shape(c, rg, (uint64_t) sd, &shapes[i], err));
+                if (shapes[i].kind == IMP_SHAPE_CHECKER) {
+                        struct imp_checker *ck = &shapes[i].checker;
+                        ck->slope[0] = s->plane_slope[0];
+                        ck->slope[1] = s->plane_slope[1];
+                        ck->offset_mm = s->plane_offset_mm;
+                        ck->filter_mm = IMP_MAX(ck->filter_mm, pitch);
+                }
         }
         config_setting_t *vg = NULL;
         TRY(imp_conf_get_group(c, g, "varnish", false, &vg, err));
@@ -770,6 +817,12 @@ static int parse_painting(struct imp_scene *s, const struct imp_conf *c, struct 
                         s->region[k] = (uint8_t) reg;
                         double tv = s->regions[reg].tint_variation;
                         double t = tv > 0 ? 1 + tv * imp_value_noise(s->seed + 31 * (uint64_t) reg, x, y, 2.0) : 1;
+                        if (reg < nreg && shapes[reg].kind == IMP_SHAPE_CHECKER) {
+                                const struct imp_checker *ck = &shapes[reg].checker;
+                                double uv[2];
+                                imp_checker_board_uv(ck, x, y, uv);
+                                t *= 1 - (1 - ck->black) * imp_checker_black_fraction(ck, uv[0], uv[1], ck->filter_mm);
+                        }
                         s->tint[k] = (float) IMP_MAX(t, 0.0);
                 }
         compute_normals(s);

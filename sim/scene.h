@@ -101,7 +101,7 @@ char *imp_scene_describe(const struct imp_scene *s);
 
 /* A heightfield layer; params in mm. Layers add up in list order over the canvas. */
 enum imp_layer_kind { IMP_LAYER_WEAVE, IMP_LAYER_STROKES, IMP_LAYER_RIDGE, IMP_LAYER_CRAQUELURE,
-                      IMP_LAYER_STEP, IMP_LAYER_FILE, IMP_LAYER_COUNT };
+                      IMP_LAYER_STEP, IMP_LAYER_FILE, IMP_LAYER_PLANE, IMP_LAYER_COUNT };
 struct imp_layer {
         enum imp_layer_kind kind;
         double amplitude_mm;          /* WEAVE, STROKES: peak height; RIDGE: crest height;
@@ -117,6 +117,9 @@ struct imp_layer {
         int count;                    /* STROKES */
         uint64_t seed;
         char path[512];               /* FILE: EXR/PNG/TIFF, first channel, spans the canvas */
+        double slope[2];              /* PLANE: z += slope[0]·x + slope[1]·y + offset_mm (a flat
+                                         board tilted by atan(|slope|) about the axis ⟂ slope) */
+        double offset_mm;             /* PLANE */
 };
 
 /* Adds `layer` to the canvas part of `h` (samples with is_frame 0). -errno on a file
@@ -125,7 +128,34 @@ int imp_painting_add_layer(const struct imp_sim_surface *surf, float *h, const s
                            struct imp_error *err);
 
 /* Region shapes for the BRDF map. */
-enum imp_shape_kind { IMP_SHAPE_ALL, IMP_SHAPE_BLOB, IMP_SHAPE_STRIPE, IMP_SHAPE_RECT };
+enum imp_shape_kind { IMP_SHAPE_ALL, IMP_SHAPE_BLOB, IMP_SHAPE_STRIPE, IMP_SHAPE_RECT, IMP_SHAPE_CHECKER };
+
+/* A printed chessboard (region shape CHECKER). Measured on the surface of the scene's
+ * (last) plane layer — or on z = 0 without one — so that it is a true chessboard in 3D
+ * whatever the tilt. Board frame: origin at inner corner (0, 0), which lies above canvas
+ * point origin_mm; u along the plane's x direction (1, 0, slope x)/‖·‖, v = n × u with n the
+ * plane normal pointing out of the paint, then rotated by angle about n. Inner corner (i, j) is at u = i·square,
+ * v = j·square; square (i, j) = [i, i+1)×[j, j+1) squares is black when i + j is even,
+ * for i in [−1, cols − 1], j in [−1, rows − 1]; a white margin of one square surrounds
+ * the (cols + 1) × (rows + 1) squares, then the region ends. Texels carry the black
+ * fraction of a filter_mm box around them (anti-aliased edges: the renderer samples the
+ * nearest texel), as a ρd multiplier: white 1, black `black`. */
+struct imp_checker {
+        double square_mm;
+        int cols, rows;               /* inner corners */
+        double origin_mm[2];          /* canvas x, y below inner corner (0, 0) */
+        double black;                 /* ink ρd as a fraction of the region's (paper) ρd */
+        double filter_mm;             /* box filter width; ≤ pitch means the pitch */
+        double angle_rad;             /* board rotated by this about n, from u towards v (keeps
+                                         its edges off the texel grid, whose nearest-sample
+                                         steps would otherwise bias whole edges alike) */
+        double slope[2], offset_mm;   /* the plane it is printed on (copied from the layer) */
+};
+/* Board coordinates (u, v) of canvas point (x, y) on the checker's plane, mm. */
+void imp_checker_board_uv(const struct imp_checker *ck, double x_mm, double y_mm, double ret_uv[2]);
+/* Black fraction in [0, 1] of the box of side `box_mm` (board units) around board point
+ * (u, v); 0 outside the squares. */
+double imp_checker_black_fraction(const struct imp_checker *ck, double u, double v, double box_mm);
 struct imp_shape {
         enum imp_shape_kind kind;
         double centre_mm[2];          /* BLOB, STRIPE (a point on the centre line) */
@@ -133,6 +163,7 @@ struct imp_shape {
         double wobble;                /* BLOB: relative radius modulation */
         double width_mm, angle_rad;   /* STRIPE */
         double min_mm[2], max_mm[2];  /* RECT */
+        struct imp_checker checker;   /* CHECKER: contains the board and its margin */
         uint64_t seed;
 };
 bool imp_shape_contains(const struct imp_shape *sh, double x_mm, double y_mm);

@@ -461,6 +461,47 @@ int load_frame(const std::string &dir, int idx, struct imp_image **ret, struct i
         return 0;
 }
 
+/* The directory layout of the real captures: DIR/graycode_NN.png. */
+int dir_loader(void *user, int capture, int index, struct imp_image **ret, struct imp_error *err) {
+        const char *const *dirs = (const char *const *) user;
+        return load_frame(dirs[capture], index, ret, err);
+}
+
+/* Labels the corners consistently (calib.h, orient_board): board x × y must point at the
+ * camera — in image coordinates (y down) the cross product of the x and y directions is
+ * then negative — and the square between corners 0, 1, cols, cols + 1 must be the darker
+ * of it and its right-hand neighbour. */
+void orient_corners(const cv::Mat &white, int cols, int rows, std::vector<double> &c) {
+        auto P = [&](int i, int k) { return c[2 * (size_t) i + k]; };
+        double dx[2] = { P(1, 0) - P(0, 0), P(1, 1) - P(0, 1) };
+        double dy[2] = { P(cols, 0) - P(0, 0), P(cols, 1) - P(0, 1) };
+        if (dx[0] * dy[1] - dx[1] * dy[0] > 0)
+                for (int j = 0; j < rows; j++)
+                        for (int i = 0; i < cols / 2; i++)
+                                for (int k = 0; k < 2; k++)
+                                        std::swap(c[2 * (size_t) (j * cols + i) + k],
+                                                  c[2 * (size_t) (j * cols + cols - 1 - i) + k]);
+        auto quad_mean = [&](int i0) {
+                double x = 0.25 * (P(i0, 0) + P(i0 + 1, 0) + P(i0 + cols, 0) + P(i0 + cols + 1, 0));
+                double y = 0.25 * (P(i0, 1) + P(i0 + 1, 1) + P(i0 + cols, 1) + P(i0 + cols + 1, 1));
+                int xi = (int) std::lround(x), yi = (int) std::lround(y), n = 0;
+                double s = 0;
+                for (int v = yi - 1; v <= yi + 1; v++)
+                        for (int u = xi - 1; u <= xi + 1; u++)
+                                if (u >= 0 && v >= 0 && u < white.cols && v < white.rows) {
+                                        s += white.at<uint8_t>(v, u);
+                                        n++;
+                                }
+                return n ? s / n : 0.0;
+        };
+        if (cols >= 3 && quad_mean(0) > quad_mean(1)) {
+                size_t n = (size_t) cols * rows;
+                for (size_t i = 0; i < n / 2; i++)
+                        for (int k = 0; k < 2; k++)
+                                std::swap(c[2 * i + k], c[2 * (n - 1 - i) + k]);
+        }
+}
+
 struct capture_points {
         std::vector<double> obj;                 /* all corners, 3 per corner */
         std::vector<double> cam;                 /* 2 per corner */
@@ -469,18 +510,38 @@ struct capture_points {
 
 /* One capture: -errno on bad input (missing/unreadable file, size mismatch); 1 when the
  * capture is to be skipped (cap->why says why); 0 when used. */
-int do_capture(const char *dir, const struct imp_calib_procam_opts *o, int n_pat, int *cam_w, int *cam_h,
-               int *half_px, struct imp_calib_capture *cap, capture_points *pts, struct imp_error *err) {
+struct source {
+        imp_calib_frame_loader load;
+        void *user;
+        bool png_dirs;                           /* names are graycode_NN.png directories */
+};
+
+int load_u8(const source &src, int capture, int index, struct imp_image **ret, struct imp_error *err) {
+        int r = src.load(src.user, capture, index, ret, err);
+        if (r < 0)
+                return r;
+        if (!is_u8_gray(*ret)) {
+                imp_image_free(*ret);
+                *ret = nullptr;
+                return imp_error_set(err, -EMEDIUMTYPE, "capture %d frame %d: the loader gave no u8 grey "
+                                     "image", capture, index);
+        }
+        return 0;
+}
+
+int do_capture(const source &src, int idx, const char *dir, const struct imp_calib_procam_opts *o, int n_pat,
+               int *cam_w, int *cam_h, int *half_px, struct imp_calib_capture *cap, capture_points *pts,
+               std::vector<double> *ret_corners, struct imp_error *err) {
         struct stat st;
-        if (stat(dir, &st) < 0 || !S_ISDIR(st.st_mode))
+        if (src.png_dirs && (stat(dir, &st) < 0 || !S_ISDIR(st.st_mode)))
                 return imp_error_set(err, -ENOENT, "capture %s: not a directory (expected "
                                      "graycode_00.png … graycode_%02d.png in it)", dir, n_pat + 1);
         images im;
         im.v.assign((size_t) n_pat + 2, nullptr);
-        int r = load_frame(dir, n_pat, &im.v[n_pat], err);              /* white */
+        int r = load_u8(src, idx, n_pat, &im.v[n_pat], err);           /* white */
         if (r < 0)
                 return r;
-        r = load_frame(dir, n_pat + 1, &im.v[n_pat + 1], err);          /* black */
+        r = load_u8(src, idx, n_pat + 1, &im.v[n_pat + 1], err);       /* black */
         if (r < 0)
                 return r;
         const struct imp_image *white = im.v[n_pat], *black = im.v[n_pat + 1];
@@ -498,17 +559,20 @@ int do_capture(const char *dir, const struct imp_calib_procam_opts *o, int n_pat
         std::vector<double> corners((size_t) 2 * nc);
         struct imp_error cerr = {};
         r = imp_cv_calib_find_corners(white, o->board_cols, o->board_rows, corners.data(), &cerr);
+        char wname[32] = " (white frame)";
+        if (src.png_dirs)
+                snprintf(wname, sizeof wname, "/graycode_%02d.png", n_pat);
         if (r == -ENOENT) {
-                char name[32];
-                snprintf(name, sizeof name, "/graycode_%02d.png", n_pat);
-                copy_str(cap->why, sizeof cap->why, std::string(dir) + name + " (white frame): " + cerr.msg);
+                copy_str(cap->why, sizeof cap->why, std::string(dir) + wname + (src.png_dirs ? " (white frame): " : ": ") + cerr.msg);
                 return 1;
         }
         if (r < 0)
-                return imp_error_set(err, r, "%s/graycode_%02d.png: %s", dir, n_pat, cerr.msg);
+                return imp_error_set(err, r, "%s%s: %s", dir, wname, cerr.msg);
+        if (o->orient_board)
+                orient_corners(wrap(white), o->board_cols, o->board_rows, corners);
         cap->n_corners_cam = nc;
         for (int i = 0; i < n_pat; i++) {
-                r = load_frame(dir, i, &im.v[i], err);
+                r = load_u8(src, idx, i, &im.v[i], err);
                 if (r < 0)
                         return r;
                 if (im.v[i]->width != *cam_w || im.v[i]->height != *cam_h)
@@ -534,6 +598,7 @@ int do_capture(const char *dir, const struct imp_calib_procam_opts *o, int n_pat
                 pts->cam_p.insert(pts->cam_p.end(), { corners[2 * i], corners[2 * i + 1] });
                 pts->proj.insert(pts->proj.end(), { proj[2 * i], proj[2 * i + 1] });
         }
+        *ret_corners = corners;
         if (cap->n_corners_proj < 4) {
                 copy_str(cap->why, sizeof cap->why, "capture " + std::string(dir) + ": only " +
                          std::to_string(cap->n_corners_proj) + " of " + std::to_string(nc) +
@@ -552,20 +617,65 @@ void warn_flags(struct imp_calib_procam *r, const struct imp_calib_intrinsics *i
                 imp_calib_warn(r, "%s", line);
 }
 
-int procam_cpp(const char *const *dirs, int n_dirs, const struct imp_calib_procam_opts *o,
+/* Camera pose in the canvas frame from the reference view (calib.h): solvePnP with the
+ * estimated intrinsics on the board corners shifted by board_origin. */
+int world_pose(const struct imp_calib_procam_opts *o, const std::vector<double> &corners,
+               struct imp_calib_procam *res, struct imp_error *err) {
+        const int nc = o->board_cols * o->board_rows;
+        std::vector<cv::Point3d> obj;
+        std::vector<cv::Point2d> img;
+        for (int i = 0; i < nc; i++) {
+                obj.emplace_back(o->board_origin[0] + o->square * (i % o->board_cols),
+                                 o->board_origin[1] + o->square * (i / o->board_cols), 0.0);
+                img.emplace_back(corners[2 * i], corners[2 * i + 1]);
+        }
+        cv::Mat K = K_of(&res->camera), D = D_of(&res->camera), rv, tv, R;
+        if (!cv::solvePnP(obj, img, K, D, rv, tv, false, cv::SOLVEPNP_ITERATIVE))
+                return imp_error_set(err, -EDOM, "reference view: solvePnP failed");
+        cv::solvePnPRefineLM(obj, img, K, D, rv, tv);
+        cv::Rodrigues(rv, R);
+        R.convertTo(R, CV_64F);
+        tv.convertTo(tv, CV_64F);
+        if (!all_finite(R) || !all_finite(tv))
+                return imp_error_set(err, -EDOM, "reference view: non-finite pose");
+        std::vector<cv::Point2d> proj;
+        cv::projectPoints(obj, rv, tv, K, D, proj);
+        double ss = 0;
+        for (int i = 0; i < nc; i++)
+                ss += (proj[i].x - img[i].x) * (proj[i].x - img[i].x) + (proj[i].y - img[i].y) * (proj[i].y - img[i].y);
+        for (int i = 0; i < 9; i++)
+                res->world_R[i] = R.at<double>(i / 3, i % 3);
+        for (int i = 0; i < 3; i++)
+                res->world_t[i] = tv.at<double>(i);
+        res->world_rms_px = std::sqrt(ss / nc);
+        res->have_world = true;
+        res->reference = o->reference;
+        return 0;
+}
+
+int procam_cpp(const char *const *dirs, int n_dirs, const source &src, const struct imp_calib_procam_opts *o,
                struct imp_calib_procam *ret, struct imp_error *err) {
         int n_pat = imp_cv_graycode_count(o->proj_w, o->proj_h);
         if (n_pat < 0)
                 return imp_error_set(err, -EINVAL, "bad projector size %dx%d", o->proj_w, o->proj_h);
         std::unique_ptr<struct imp_calib_procam> res(new struct imp_calib_procam());
         std::vector<capture_points> pts((size_t) n_dirs);
+        std::vector<double> ref_corners;
         int cam_w = 0, cam_h = 0, half_px = o->window_half_px;
         for (int d = 0; d < n_dirs; d++) {
                 struct imp_calib_capture *cap = &res->captures[d];
                 copy_str(cap->dir, sizeof cap->dir, dirs[d]);
-                int r = do_capture(dirs[d], o, n_pat, &cam_w, &cam_h, &half_px, cap, &pts[d], err);
+                std::vector<double> corners;
+                int r = do_capture(src, d, dirs[d], o, n_pat, &cam_w, &cam_h, &half_px, cap, &pts[d],
+                                   &corners, err);
                 if (r < 0)
                         return r;
+                if (d == o->reference) {
+                        if (r != 0)
+                                return imp_error_set(err, -EDOM, "reference capture %s is not usable: %s",
+                                                     dirs[d], cap->why);
+                        ref_corners = corners;
+                }
                 cap->used = r == 0;
                 if (!cap->used) {
                         imp_calib_warn(res.get(), "%s; capture skipped", cap->why);
@@ -611,13 +721,52 @@ int procam_cpp(const char *const *dirs, int n_dirs, const struct imp_calib_proca
                                 &res->stereo, err);
         if (r < 0)
                 return r;
+        res->reference = -1;
+        if (o->reference >= 0) {
+                r = world_pose(o, ref_corners, res.get(), err);
+                if (r < 0)
+                        return r;
+        }
         warn_flags(res.get(), &res->camera, "camera");
         warn_flags(res.get(), &res->projector, "projector");
         *ret = *res;
         return 0;
 }
 
+int check_opts(const struct imp_calib_procam_opts *opts, int n, struct imp_error *err) {
+        if (opts->board_cols < 2 || opts->board_rows < 2 || !(opts->square > 0) ||
+            !std::isfinite(opts->square) || opts->black_threshold < 0 || opts->white_threshold < 0 ||
+            opts->window_half_px < 0)
+                return imp_error_set(err, -EINVAL, "procam calibration: bad options (board %dx%d, "
+                                     "square %g)", opts->board_cols, opts->board_rows, opts->square);
+        if (opts->reference >= n || (opts->reference >= 0 && !opts->orient_board) ||
+            !std::isfinite(opts->board_origin[0]) || !std::isfinite(opts->board_origin[1]))
+                return imp_error_set(err, -EINVAL, "procam calibration: reference capture %d of %d "
+                                     "(needs orient_board and a finite board origin)", opts->reference, n);
+        return 0;
+}
+
 }  // namespace
+
+extern "C" int imp_cv_calib_procam_source(const char *const *names, int n, imp_calib_frame_loader load,
+                                          void *user, const struct imp_calib_procam_opts *opts,
+                                          struct imp_calib_procam *ret, struct imp_error *err) {
+        if (!names || n < 1 || !load || !opts || !ret)
+                return imp_error_set(err, -EINVAL, "procam calibration: no captures given");
+        if (n > IMP_CALIB_MAX_CAPTURES)
+                return imp_error_set(err, -EINVAL, "procam calibration: %d captures, at most %d",
+                                     n, IMP_CALIB_MAX_CAPTURES);
+        int r = check_opts(opts, n, err);
+        if (r < 0)
+                return r;
+        try {
+                return procam_cpp(names, n, source{ load, user, false }, opts, ret, err);
+        } catch (const std::bad_alloc &) {
+                return imp_error_set(err, -ENOMEM, "procam calibration: out of memory");
+        } catch (const cv::Exception &e) {
+                return imp_error_set(err, -EINVAL, "procam calibration: %s", e.what());
+        }
+}
 
 extern "C" int imp_cv_calib_procam(const char *const *dirs, int n_dirs,
                                    const struct imp_calib_procam_opts *opts, struct imp_calib_procam *ret,
@@ -627,13 +776,11 @@ extern "C" int imp_cv_calib_procam(const char *const *dirs, int n_dirs,
         if (n_dirs > IMP_CALIB_MAX_CAPTURES)
                 return imp_error_set(err, -EINVAL, "procam calibration: %d captures, at most %d",
                                      n_dirs, IMP_CALIB_MAX_CAPTURES);
-        if (opts->board_cols < 2 || opts->board_rows < 2 || !(opts->square > 0) ||
-            !std::isfinite(opts->square) || opts->black_threshold < 0 || opts->white_threshold < 0 ||
-            opts->window_half_px < 0)
-                return imp_error_set(err, -EINVAL, "procam calibration: bad options (board %dx%d, "
-                                     "square %g)", opts->board_cols, opts->board_rows, opts->square);
+        int r = check_opts(opts, n_dirs, err);
+        if (r < 0)
+                return r;
         try {
-                return procam_cpp(dirs, n_dirs, opts, ret, err);
+                return procam_cpp(dirs, n_dirs, source{ dir_loader, (void *) dirs, true }, opts, ret, err);
         } catch (const std::bad_alloc &) {
                 return imp_error_set(err, -ENOMEM, "procam calibration: out of memory");
         } catch (const cv::Exception &e) {

@@ -58,6 +58,15 @@ int imp_cv_calib_stereo(const struct imp_calib_view *views_a, const struct imp_c
 int imp_cv_calib_procam(const char *const *dirs, int n_dirs, const struct imp_calib_procam_opts *opts,
                         struct imp_calib_procam *ret, struct imp_error *err);
 
+/* The same procedure on frames from `load` (calib.h; e.g. imp_calib_sets_load over capture
+ * sets); names[i] names capture i in messages. With opts->orient_board the corners are
+ * labelled consistently (calib.h); with opts->reference >= 0 the camera's pose in the
+ * canvas frame comes from that capture (solvePnP, estimated intrinsics): -EDOM when its
+ * board was not found. */
+int imp_cv_calib_procam_source(const char *const *names, int n, imp_calib_frame_loader load, void *user,
+                               const struct imp_calib_procam_opts *opts, struct imp_calib_procam *ret,
+                               struct imp_error *err);
+
 #ifdef __cplusplus
 }
 #endif
