@@ -259,8 +259,9 @@ static int check_disk(struct session *s, uint64_t need, char *msg, size_t size) 
 /* Device failure: retry the frame from its set-up, or pause once the attempts are spent. */
 static void step_failed(struct session *s, const char *device, int r, const char *what) {
         char msg[512];
-        snprintf(msg, sizeof msg, "%s %s: %s: %s", device ? "device" : "store", device ? device : s->dir,
-                 what, strerror(-r));
+        /* %.300s: a long session path must not push the reason out of the message */
+        snprintf(msg, sizeof msg, "%s %.300s: %s: %s", device ? "device" : "store",
+                 device ? device : s->dir, what, strerror(-r));
         release_rig(s);
         s->phase = 0;
         if (++s->attempt < (int) s->d->retries) {

@@ -190,8 +190,9 @@ int imp_serve_new(const struct imp_scene *scene, const struct imp_serve_config *
                                  used ? "; " : "", rig->cameras[i].name, s->address, i);
                         continue;
                 }
-                char serial[16];         /* GigE Vision: at most 15 characters */
+                char serial[48];         /* GigE Vision: at most 15 characters */
                 snprintf(serial, sizeof serial, "SIM-%s", rig->cameras[i].name);
+                serial[15] = 0;
                 r = imp_emu_gige_new(c->address, serial, s->rig, serve_fill, c, &c->gige);
                 if (r >= 0)
                         r = imp_emu_gige_set_sensor_size(c->gige, (unsigned) rig->cameras[i].model.width,
