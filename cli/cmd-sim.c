@@ -4,8 +4,10 @@
  *   impasto sim info --scene FILE [--plan FILE]
  *       prints the scene summary (and the plan's frame count and capture-time estimate)
  *   impasto sim serve --scene FILE [--address A] [--modbus-port P] [--seed N] [--rig-out FILE]
- *                     [--ready-file FILE] [--fault SPEC]...
- *       serves the scene as devices (sim/serve.h) until SIGTERM/SIGINT, then exits 0 */
+ *                     [--ready-file FILE] [--truth-out DIR] [--fault SPEC]...
+ *       serves the scene as devices (sim/serve.h) until SIGTERM/SIGINT, then exits 0;
+ *       --truth-out writes DIR/truth/ (the ground truth `sim render` writes beside its
+ *       capture set) before the ready file appears */
 #include <fcntl.h>
 #include <getopt.h>
 #include <signal.h>
@@ -32,7 +34,7 @@
 
 struct sim_args {
         const char *scene, *plan, *out;
-        const char *address, *rig_out, *ready_file;
+        const char *address, *rig_out, *ready_file, *truth_out;
         long modbus_port;
         const char *faults[MAX_FAULTS];
         int n_faults;
@@ -45,7 +47,8 @@ static void usage(FILE *f) {
         fprintf(f, "usage: impasto sim render --scene FILE --plan FILE --out DIR [--seed N] [--threads N] [--quiet]\n"
                    "       impasto sim info --scene FILE [--plan FILE]\n"
                    "       impasto sim serve --scene FILE [--address 127.0.0.1] [--modbus-port 15020] [--seed N]\n"
-                   "                         [--rig-out FILE] [--ready-file FILE] [--fault SPEC]...\n"
+                   "                         [--rig-out FILE] [--ready-file FILE] [--truth-out DIR] [--fault SPEC]...\n"
+                   "         --truth-out DIR: write the ground truth into DIR/truth/ (as sim render does)\n"
                    "         SPEC: drop-frame=N, modbus-exception=N[:CODE], modbus-delay=N:MS,\n"
                    "               modbus-disconnect=N, frame-delay=MS, projector-fault=CODE\n");
 }
@@ -57,7 +60,7 @@ static int parse_args(int argc, char **argv, struct sim_args *a) {
                 { "threads", required_argument, NULL, 't' }, { "quiet", no_argument, NULL, 'q' },
                 { "address", required_argument, NULL, 'a' }, { "modbus-port", required_argument, NULL, 'm' },
                 { "rig-out", required_argument, NULL, 'r' }, { "ready-file", required_argument, NULL, 'R' },
-                { "fault", required_argument, NULL, 'f' },
+                { "fault", required_argument, NULL, 'f' },   { "truth-out", required_argument, NULL, 'T' },
                 { "help", no_argument, NULL, 'h' },         { 0 } };
         int c;
         optind = 1;
@@ -86,6 +89,7 @@ static int parse_args(int argc, char **argv, struct sim_args *a) {
                 case 'a': a->address = optarg; break;
                 case 'r': a->rig_out = optarg; break;
                 case 'R': a->ready_file = optarg; break;
+                case 'T': a->truth_out = optarg; break;
                 case 'm':
                         a->modbus_port = strtol(optarg, &end, 10);
                         if (!*optarg || *end || a->modbus_port < 1 || a->modbus_port > 65535) {
@@ -289,6 +293,16 @@ static int cmd_serve(const struct sim_args *a) {
         if (a->rig_out && (r = imp_rig_save(a->rig_out, imp_serve_rig(s), &err)) < 0) {
                 log_error("%s", err.msg[0] ? err.msg : strerror(-r));
                 return 1;
+        }
+        if (a->truth_out) {
+                /* The served frames come from a renderer of this scene (imp_serve_rig is its
+                 * rig); a second renderer of the same scene gives the same truth. */
+                _cleanup_(imp_render_freep) struct imp_render *rd = NULL;
+                if ((r = imp_render_new(scene, &rd, &err)) < 0 ||
+                    (r = imp_sim_write_truth(scene, rd, a->truth_out, &err)) < 0) {
+                        log_error_errno(r, "--truth-out %s: %s", a->truth_out, err.msg[0] ? err.msg : "truth: %m");
+                        return 1;
+                }
         }
         _cleanup_free_ char *text = imp_serve_describe(s);
         fprintf(stderr, "sim serve: %s", text ? text : "serving\n");
