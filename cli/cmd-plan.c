@@ -4,12 +4,16 @@
  *   impasto plan validate PLAN (--rig RIG.json | --scene SCENE.cfg | --daemon) [--json]
  *   impasto plan estimate PLAN (--rig RIG.json | --scene SCENE.cfg | --daemon) [--json]
  * Errors name FILE:LINE: FIELD and exit 3. Offline --json prints the same result object
- * the daemon would send. */
+ * the daemon would send, plus, for a plan with an entry in presets.json beside it (written
+ * by `impasto bench accuracy`, keyed by the plan's file name without .cfg), the measured
+ * "expected_accuracy". */
 #include <getopt.h>
+#include <libgen.h>
 #include <limits.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 #include "client.h"
 #include "commands.h"
 #include "json-util.h"
@@ -65,6 +69,39 @@ static void human_estimate(const json_t *r) {
         if (t >= 60)
                 printf(" (%s)", imp_client_fmt_duration(t, d, sizeof d));
         putchar('\n');
+        const json_t *acc = json_object_get(r, "expected_accuracy");
+        if (acc) {
+                json_t *k = json_object_get(acc, "lobe_k_rel_err_median");
+                printf("expected accuracy  height RMSE %.1f µm, normal error %.1f°, ρd median rel. error %.3f",
+                       imp_client_num(acc, "height_rmse_um"), imp_client_num(acc, "normal_err_deg_mean"),
+                       imp_client_num(acc, "rho_d_rel_err_median"));
+                if (json_is_number(k) && json_number_value(k) >= 0)
+                        printf(", lobe k %.2f", json_number_value(k));
+                printf(" (measured on %s by impasto bench accuracy)\n",
+                       json_string_value(json_object_get(acc, "scene")) ?: "the study scene");
+        }
+}
+
+/* The measured accuracy of a preset: PLAN_DIR/presets.json["NAME"] for PLAN_DIR/NAME.cfg,
+ * or NULL when there is none. */
+static json_t *expected_accuracy(const char *plan_path) {
+        char dir[PATH_MAX], base[PATH_MAX], path[PATH_MAX + 16];
+        snprintf(dir, sizeof dir, "%s", plan_path);
+        snprintf(base, sizeof base, "%s", plan_path);
+        const char *name = basename(base);
+        size_t len = strlen(name);
+        if (len < 5 || strcmp(name + len - 4, ".cfg"))
+                return NULL;
+        if (snprintf(path, sizeof path, "%s/presets.json", dirname(dir)) >= (int) sizeof path)
+                return NULL;
+        struct imp_error err = {};
+        _cleanup_json_ json_t *all = NULL;
+        if (access(path, F_OK) < 0 || imp_json_load(path, &all, &err) < 0)
+                return NULL;
+        char key[PATH_MAX];
+        snprintf(key, sizeof key, "%.*s", (int) (len - 4), name);
+        json_t *e = json_object_get(all, key);
+        return json_is_object(e) ? json_incref(e) : NULL;
 }
 
 static int load_rig(const char *rig_path, const char *scene_path, struct imp_rig *ret) {
@@ -102,6 +139,9 @@ static int offline(const char *plan_path, const char *rig_path, const char *scen
         imp_rig_free(&rig);
         if (!res)
                 return log_error("out of memory"), IMP_EXIT_FAILURE;
+        json_t *acc = estimate ? expected_accuracy(plan_path) : NULL;
+        if (acc)
+                json_object_set_new(res, "expected_accuracy", acc);
         if (json) {
                 _cleanup_free_ char *s = json_dumps(res, JSON_COMPACT | JSON_PRESERVE_ORDER);
                 puts(s ? s : "{}");

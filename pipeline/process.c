@@ -10,6 +10,9 @@
 #include <string.h>
 #include <sys/resource.h>
 #include <time.h>
+#ifdef _OPENMP
+#include <omp.h>
+#endif
 #include "boxes.h"
 #include "btf.h"
 #include "captureset.h"
@@ -187,6 +190,13 @@ static int run_geometry(const struct process_opts *o, const struct imp_capturese
         int r = collect_stacks(cs, "structured-light", cam->name, &stacks, &n_stacks);
         if (r < 0)
                 return imp_error_set(err, r, "out of memory");
+        if (o->opt->sl_gray_only) {   /* Gray-only decoding: the phase frames are not read */
+                size_t k = 0;
+                for (size_t i = 0; i < n_stacks; i++)
+                        if (imp_captureset_record(cs, stacks[i].first)->pattern.kind != IMP_PAT_PHASE)
+                                stacks[k++] = stacks[i];
+                n_stacks = k;
+        }
         if (n_stacks == 0)
                 return imp_error_set(err, -EINVAL, "%s/manifest.jsonl: no structured-light frames "
                                      "for camera %s", o->capture, cam->name);
@@ -233,6 +243,8 @@ static int run_geometry(const struct process_opts *o, const struct imp_capturese
         slp.proj_width = rig->projector.model.width;
         slp.proj_height = rig->projector.model.height;
         slp.black_level = rig->projector.black_level;
+        if (o->opt->threads > 0)
+                slp.threads = o->opt->threads;
         struct imp_sl_frames fr = { pats, (const struct imp_image *const *) imgs, (int) n_stacks };
         r = imp_sl_decode(&fr, &slp, &sl, err);
         if (r < 0) {
@@ -473,6 +485,12 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
         struct imp_btf_fit_params fp;
         imp_btf_sample_params_default(&sp);
         imp_btf_fit_params_default(&fp);
+        if (o->opt->btf_max_iter > 0)
+                fp.max_iter = o->opt->btf_max_iter;
+        if (o->opt->btf_robust_passes >= 0)
+                fp.robust_passes = o->opt->btf_robust_passes;
+        if (o->opt->btf_no_shadow_test)
+                sp.march_step_texels = 0;   /* a zero step casts no ray: nothing is blocked */
         struct imp_btf_stats st = {};
         r = imp_btf_fit_grid(&bh, &cap, &sp, &fp, 64, tex, &st);
         if (r < 0) {
@@ -574,7 +592,7 @@ static int write_copy_json(const struct process_opts *o, const struct geometry_o
 }
 
 void imp_process_options_default(struct imp_process_options *o) {
-        *o = (struct imp_process_options) { .btf = true };
+        *o = (struct imp_process_options) { .btf = true, .btf_robust_passes = -1 };
 }
 
 int imp_process_capture(const char *capture_dir, const char *copy_dir,
@@ -589,6 +607,11 @@ int imp_process_capture(const char *capture_dir, const char *copy_dir,
         if (r < 0)
                 return imp_error_set(err, r, "%s: cannot create the copy directory: %s", copy_dir,
                                      strerror(-r));
+#ifdef _OPENMP
+        int threads_before = omp_get_max_threads();
+        if (opt->threads > 0)
+                omp_set_num_threads(opt->threads);
+#endif
         struct geometry_out g = {};
         r = run_geometry(&o, cs, &g, err);
         if (r >= 0 && opt->btf)
@@ -600,5 +623,8 @@ int imp_process_capture(const char *capture_dir, const char *copy_dir,
         json_decref(g.stages);
         imp_boxes_done(&g.boxes);
         imp_heightfield_done(&g.hf);
+#ifdef _OPENMP
+        omp_set_num_threads(threads_before);
+#endif
         return r;
 }

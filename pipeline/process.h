@@ -13,6 +13,16 @@ struct imp_process_options {
         int holdout_every;            /* > 0: every Nth dome light (sweep positions N−1,
                                          2N−1, …) is left out of the fit and re-rendered
                                          with the fitted copy for validation; 0: none */
+        /* Cost/accuracy knobs (`impasto bench accuracy`); the values that
+         * imp_process_options_default() sets (all 0/false, btf_robust_passes −1) keep the
+         * standard processing. */
+        bool sl_gray_only;            /* decode the Gray code alone, ignoring phase frames */
+        int threads;                  /* OpenMP threads for every stage (the calling
+                                         thread's setting, restored on return); <= 0: as is */
+        int btf_max_iter;             /* LM iterations per pass; <= 0: the fit's default */
+        int btf_robust_passes;        /* Huber reweightings; < 0: the fit's default */
+        bool btf_no_shadow_test;      /* no ray casting on the heightfield: self-shadowed
+                                         and hidden samples are kept */
         /* Progress per stage (may be NULL); called from the calling thread. */
         void (*progress)(void *userdata, const char *stage, size_t done, size_t total);
         void *userdata;
