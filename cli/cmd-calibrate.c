@@ -15,6 +15,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "calib.h"
+#include "calibrate-ext.h"
 #include "captureset.h"
 #include "commands.h"
 #include "rig.h"
@@ -286,6 +287,8 @@ static int run(int argc, char **argv) {
                 usage(argc < 2 ? stderr : stdout);
                 return argc < 2 ? EXIT_USAGE : 0;
         }
+        if (!strcmp(argv[1], "lights")) return imp_calibrate_lights_main(argc - 1, argv + 1);
+        if (!strcmp(argv[1], "radiometric")) return imp_calibrate_radiometric_main(argc - 1, argv + 1);
         if (!strcmp(argv[1], "procam")) {
 #ifdef IMPASTO_HAVE_CV
                 return run_procam(argc - 1, argv + 1);

@@ -1,6 +1,6 @@
 /* Procedural painting relief: canvas weave, brush strokes, palette-knife ridges with a
  * steep cliff, craquelure, test steps, heightfields from files, tilted planes (calibration
- * targets); region shapes (incl. a printed chessboard) and value noise for the BRDF map. Deterministic in the layer seeds; no allocation per sample. */
+ * targets), mirror spheres; region shapes (incl. a printed chessboard) and value noise for the BRDF map. Deterministic in the layer seeds; no allocation per sample. */
 #include <math.h>
 #include <string.h>
 #include "image.h"
@@ -53,6 +53,10 @@ bool imp_shape_contains(const struct imp_shape *sh, double x, double y) {
                 double nxv = -sin(sh->angle_rad), nyv = cos(sh->angle_rad);
                 double d = (x - sh->centre_mm[0]) * nxv + (y - sh->centre_mm[1]) * nyv;
                 return fabs(d) <= 0.5 * sh->width_mm;
+        }
+        case IMP_SHAPE_DISC: {
+                double dx = x - sh->centre_mm[0], dy = y - sh->centre_mm[1];
+                return dx * dx + dy * dy <= sh->radius_mm * sh->radius_mm;
         }
         case IMP_SHAPE_RECT:
                 return x >= sh->min_mm[0] && x <= sh->max_mm[0] && y >= sh->min_mm[1] && y <= sh->max_mm[1];
@@ -262,6 +266,17 @@ static void add_plane(const struct imp_sim_surface *s, float *h, const struct im
                    h[k] += (float) (L->slope[0] * x + L->slope[1] * y + L->offset_mm));
 }
 
+/* Mirror spheres for light calibration: the upper hemisphere only. Its rim meets the
+ * surface vertically, which the sampled heightfield turns into a ramp one sample wide. */
+static void add_sphere(const struct imp_sim_surface *s, float *h, const struct imp_layer *L) {
+        double r = L->radius_mm, cx = L->centre_mm[0], cy = L->centre_mm[1];
+        FOR_CANVAS(s, cx - r, cx + r, cy - r, cy + r, {
+                double d2 = (x - cx) * (x - cx) + (y - cy) * (y - cy);
+                if (d2 < r * r)
+                        h[k] += (float) sqrt(r * r - d2);
+        });
+}
+
 int imp_painting_add_layer(const struct imp_sim_surface *surf, float *h, const struct imp_layer *L,
                            struct imp_error *err) {
         switch (L->kind) {
@@ -272,6 +287,7 @@ int imp_painting_add_layer(const struct imp_sim_surface *surf, float *h, const s
         case IMP_LAYER_STEP: add_step(surf, h, L); return 0;
         case IMP_LAYER_FILE: return add_file(surf, h, L, err);
         case IMP_LAYER_PLANE: add_plane(surf, h, L); return 0;
+        case IMP_LAYER_SPHERE: add_sphere(surf, h, L); return 0;
         case IMP_LAYER_COUNT: break;
         }
         return -EINVAL;

@@ -504,10 +504,11 @@ static int parse_brdf(const struct imp_conf *c, const config_setting_t *g, struc
 static int parse_layer(const struct imp_conf *c, const config_setting_t *g, int idx, uint64_t seed,
                        const char *dir, struct imp_layer *L, struct imp_error *err) {
         static const char *const types[] = { "weave", "strokes", "ridge", "craquelure", "step", "file",
-                                             "plane", NULL };
+                                             "plane", "sphere", NULL };
         static const char *const known[] = { "type", "amplitude_mm", "period_mm", "width_mm", "length_mm",
                                              "cliff_mm", "start_mm", "end_mm", "at_mm", "axis", "count",
-                                             "seed", "path", "slope", "offset_mm", NULL };
+                                             "seed", "path", "slope", "offset_mm", "centre_mm", "radius_mm",
+                                             NULL };
         int kind = 0;
         TRY(imp_conf_check_known(c, g, known, err));
         TRY(imp_conf_get_enum(c, g, "type", true, types, &kind, err));
@@ -516,7 +517,7 @@ static int parse_layer(const struct imp_conf *c, const config_setting_t *g, int 
         TRY(imp_conf_get_int(c, g, "seed", false, 0, INT64_MAX, &v, err));
         if (config_setting_lookup((config_setting_t *) g, "seed"))
                 L->seed = (uint64_t) v;
-        bool amp_req = kind != IMP_LAYER_FILE && kind != IMP_LAYER_PLANE;
+        bool amp_req = kind != IMP_LAYER_FILE && kind != IMP_LAYER_PLANE && kind != IMP_LAYER_SPHERE;
         L->amplitude_mm = 1.0;
         TRY(imp_conf_get_double(c, g, "amplitude_mm", amp_req, -20, 20, &L->amplitude_mm, err));
         switch (kind) {
@@ -560,6 +561,10 @@ static int parse_layer(const struct imp_conf *c, const config_setting_t *g, int 
                                              imp_conf_path(c), line_of(g), imp_conf_setting_path(g));
                 TRY(imp_conf_get_double(c, g, "offset_mm", false, -1e3, 1e3, &L->offset_mm, err));
                 break;
+        case IMP_LAYER_SPHERE:
+                TRY(imp_conf_get_doubles(c, g, "centre_mm", true, 2, L->centre_mm, 2, NULL, err));
+                TRY(imp_conf_get_double(c, g, "radius_mm", true, 1e-2, 1e3, &L->radius_mm, err));
+                break;
         case IMP_LAYER_FILE: {
                 const char *p = NULL;
                 TRY(imp_conf_get_string(c, g, "path", true, &p, err));
@@ -576,7 +581,7 @@ static int parse_layer(const struct imp_conf *c, const config_setting_t *g, int 
 
 static int parse_shape(const struct imp_conf *c, const config_setting_t *g, uint64_t seed, struct imp_shape *sh,
                        struct imp_error *err) {
-        static const char *const kinds[] = { "all", "blob", "stripe", "rect", "checker", NULL };
+        static const char *const kinds[] = { "all", "blob", "stripe", "rect", "checker", "disc", NULL };
         int kind = 0;
         TRY(imp_conf_get_enum(c, g, "shape", false, kinds, &kind, err));
         *sh = (struct imp_shape) { .kind = kind, .seed = seed, .wobble = 0.2 };
@@ -587,6 +592,10 @@ static int parse_shape(const struct imp_conf *c, const config_setting_t *g, uint
                 TRY(imp_conf_get_doubles(c, g, "centre_mm", true, 2, sh->centre_mm, 2, NULL, err));
                 TRY(imp_conf_get_double(c, g, "radius_mm", true, 1e-3, 1e5, &sh->radius_mm, err));
                 TRY(imp_conf_get_double(c, g, "wobble", false, 0, 0.9, &sh->wobble, err));
+                break;
+        case IMP_SHAPE_DISC:
+                TRY(imp_conf_get_doubles(c, g, "centre_mm", true, 2, sh->centre_mm, 2, NULL, err));
+                TRY(imp_conf_get_double(c, g, "radius_mm", true, 1e-3, 1e5, &sh->radius_mm, err));
                 break;
         case IMP_SHAPE_STRIPE: {
                 double ang = 0;

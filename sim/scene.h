@@ -101,7 +101,8 @@ char *imp_scene_describe(const struct imp_scene *s);
 
 /* A heightfield layer; params in mm. Layers add up in list order over the canvas. */
 enum imp_layer_kind { IMP_LAYER_WEAVE, IMP_LAYER_STROKES, IMP_LAYER_RIDGE, IMP_LAYER_CRAQUELURE,
-                      IMP_LAYER_STEP, IMP_LAYER_FILE, IMP_LAYER_PLANE, IMP_LAYER_COUNT };
+                      IMP_LAYER_STEP, IMP_LAYER_FILE, IMP_LAYER_PLANE, IMP_LAYER_SPHERE,
+                      IMP_LAYER_COUNT };
 struct imp_layer {
         enum imp_layer_kind kind;
         double amplitude_mm;          /* WEAVE, STROKES: peak height; RIDGE: crest height;
@@ -120,6 +121,10 @@ struct imp_layer {
         double slope[2];              /* PLANE: z += slope[0]·x + slope[1]·y + offset_mm (a flat
                                          board tilted by atan(|slope|) about the axis ⟂ slope) */
         double offset_mm;             /* PLANE */
+        double centre_mm[2];          /* SPHERE: centre above canvas point (x, y) */
+        double radius_mm;             /* SPHERE: z += √(r² − d²) for d < r, the upper half of
+                                         a sphere whose centre lies on the surface below it
+                                         (a heightfield cannot hold the lower half) */
 };
 
 /* Adds `layer` to the canvas part of `h` (samples with is_frame 0). -errno on a file
@@ -128,7 +133,8 @@ int imp_painting_add_layer(const struct imp_sim_surface *surf, float *h, const s
                            struct imp_error *err);
 
 /* Region shapes for the BRDF map. */
-enum imp_shape_kind { IMP_SHAPE_ALL, IMP_SHAPE_BLOB, IMP_SHAPE_STRIPE, IMP_SHAPE_RECT, IMP_SHAPE_CHECKER };
+enum imp_shape_kind { IMP_SHAPE_ALL, IMP_SHAPE_BLOB, IMP_SHAPE_STRIPE, IMP_SHAPE_RECT, IMP_SHAPE_CHECKER,
+                       IMP_SHAPE_DISC };
 
 /* A printed chessboard (region shape CHECKER). Measured on the surface of the scene's
  * (last) plane layer — or on z = 0 without one — so that it is a true chessboard in 3D
@@ -158,8 +164,8 @@ void imp_checker_board_uv(const struct imp_checker *ck, double x_mm, double y_mm
 double imp_checker_black_fraction(const struct imp_checker *ck, double u, double v, double box_mm);
 struct imp_shape {
         enum imp_shape_kind kind;
-        double centre_mm[2];          /* BLOB, STRIPE (a point on the centre line) */
-        double radius_mm;             /* BLOB */
+        double centre_mm[2];          /* BLOB, STRIPE (a point on the centre line), DISC */
+        double radius_mm;             /* BLOB, DISC (a true circle: d ≤ radius) */
         double wobble;                /* BLOB: relative radius modulation */
         double width_mm, angle_rad;   /* STRIPE */
         double min_mm[2], max_mm[2];  /* RECT */
