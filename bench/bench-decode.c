@@ -1,10 +1,14 @@
 /* Structured-light decoding throughput: the 5 real procam captures (1280×1024, 42 frames
  * each) decoded by impasto (1 thread and all threads) and by OpenCV's GrayCodePattern
  * (shadow mask + getProjPixel per pixel, as its users call it), frames already in memory.
- * Prints Mpix/s (camera pixels per second), the speed ratios and peak RSS.
- * Usage: bench-decode [repeats] [data dir] */
+ * The methods alternate within each repetition (the order flips every repetition) so that
+ * a loaded machine slows both alike; prints medians and ranges of wall time, the thread
+ * CPU time of the single-threaded runs (both decoders then run on the calling thread; CPU
+ * time excludes the time other processes take), per-repetition speed ratios and peak RSS.
+ * Usage: bench-decode [repeats] [data dir] [--impasto-only] */
 #include <stdio.h>
 #include <stdlib.h>
+#include <string.h>
 #include <sys/resource.h>
 #include <time.h>
 #ifdef _OPENMP
@@ -15,10 +19,11 @@
 
 #define NFRAMES 42
 #define NCAP 5
+#define MAX_REPS 64
 
-static double now_s(void) {
+static double clock_s(clockid_t id) {
         struct timespec ts;
-        clock_gettime(CLOCK_MONOTONIC, &ts);
+        clock_gettime(id, &ts);
         return ts.tv_sec + ts.tv_nsec * 1e-9;
 }
 
@@ -28,12 +33,69 @@ static double peak_rss_mib(void) {
         return ru.ru_maxrss / 1024.0;       /* KiB on Linux */
 }
 
+static int cmp_double(const void *a, const void *b) {
+        double x = *(const double *) a, y = *(const double *) b;
+        return (x > y) - (x < y);
+}
+
+/* Median, min and max of v[0..n) (sorts a copy). */
+static void stats(const double *v, int n, double *med, double *lo, double *hi) {
+        double t[MAX_REPS];
+        memcpy(t, v, n * sizeof *t);
+        qsort(t, n, sizeof *t, cmp_double);
+        *med = n % 2 ? t[n / 2] : 0.5 * (t[n / 2 - 1] + t[n / 2]);
+        *lo = t[0];
+        *hi = t[n - 1];
+}
+
+static struct imp_image *img[NCAP][NFRAMES];
+static struct imp_pattern *seq;
+
+/* All captures once; *ret_cpu: thread CPU time. Returns wall time, < 0 on error. */
+static double run_impasto(const struct imp_sl_params *p, size_t *ret_valid, double *ret_cpu) {
+        double t0 = clock_s(CLOCK_MONOTONIC), c0 = clock_s(CLOCK_THREAD_CPUTIME_ID);
+        size_t valid = 0;
+        for (int c = 0; c < NCAP; c++) {
+                struct imp_sl_frames fr = { seq, (const struct imp_image *const *) img[c], NFRAMES };
+                struct imp_sl_result *r = NULL;
+                struct imp_error err = { 0 };
+                if (imp_sl_decode(&fr, p, &r, &err) < 0) {
+                        fprintf(stderr, "%s\n", err.msg);
+                        return -1;
+                }
+                valid += r->n_valid_xy;
+                imp_sl_result_free(r);
+        }
+        *ret_cpu = clock_s(CLOCK_THREAD_CPUTIME_ID) - c0;
+        *ret_valid = valid;
+        return clock_s(CLOCK_MONOTONIC) - t0;
+}
+
+static double run_opencv(int32_t *cx, int32_t *cy, uint8_t *cv, size_t *ret_valid, double *ret_cpu) {
+        double t0 = clock_s(CLOCK_MONOTONIC), c0 = clock_s(CLOCK_THREAD_CPUTIME_ID);
+        size_t valid = 0;
+        for (int c = 0; c < NCAP; c++) {
+                size_t nv = 0;
+                struct imp_error err = { 0 };
+                if (imp_cv_graycode_decode(1024, 768, (const struct imp_image *const *) img[c], 40,
+                                           img[c][40], img[c][41], 40, 5, cx, cy, cv, &nv, &err) < 0) {
+                        fprintf(stderr, "%s\n", err.msg);
+                        return -1;
+                }
+                valid += nv;
+        }
+        *ret_cpu = clock_s(CLOCK_THREAD_CPUTIME_ID) - c0;
+        *ret_valid = valid;
+        return clock_s(CLOCK_MONOTONIC) - t0;
+}
+
 int main(int argc, char **argv) {
-        int repeats = argc > 1 ? atoi(argv[1]) : 3;
+        bool only_imp = argc > 1 && !strcmp(argv[argc - 1], "--impasto-only");
+        if (only_imp)
+                argc--;
+        int repeats = argc > 1 ? atoi(argv[1]) : 5;
         const char *dir = argc > 2 ? argv[2] : IMPASTO_SHARED_DIR "/data/procam-graycode/sample_data";
-        if (repeats < 1)
-                repeats = 1;
-        static struct imp_image *img[NCAP][NFRAMES];
+        repeats = repeats < 1 ? 1 : repeats > MAX_REPS ? MAX_REPS : repeats;
         for (int c = 0; c < NCAP; c++)
                 for (int i = 0; i < NFRAMES; i++) {
                         char path[512];
@@ -49,80 +111,77 @@ int main(int argc, char **argv) {
         fprintf(stderr, "loaded %d captures of %d frames, %dx%d; peak RSS %.1f MiB\n", NCAP,
                 NFRAMES, w, h, peak_rss_mib());
 
-        struct imp_pattern *seq = NULL;
         int nseq = 0;
         if (imp_sl_sequence(1024, 768, 0, NULL, 0, &seq, &nseq) < 0 || nseq != NFRAMES)
                 return 1;
-        struct imp_sl_params p;
-        imp_sl_params_default(&p, IMP_PIX_U8);
-        p.proj_width = 1024;
-        p.proj_height = 768;
-
+        struct imp_sl_params p1, pn;
+        imp_sl_params_default(&p1, IMP_PIX_U8);
+        p1.proj_width = 1024;
+        p1.proj_height = 768;
+        p1.threads = 1;
+        pn = p1;
         int max_threads = 1;
 #ifdef _OPENMP
         max_threads = omp_get_max_threads();
 #endif
-        double t_imp[2] = { 1e30, 1e30 };
-        size_t valid_imp = 0;
-        for (int mode = 0; mode < 2; mode++) {
-                p.threads = mode == 0 ? 1 : max_threads;
-                for (int rep = 0; rep < repeats; rep++) {
-                        double t0 = now_s();
-                        size_t valid = 0;
-                        for (int c = 0; c < NCAP; c++) {
-                                struct imp_sl_frames fr = { seq, (const struct imp_image *const *) img[c], NFRAMES };
-                                struct imp_sl_result *r = NULL;
-                                struct imp_error err = { 0 };
-                                if (imp_sl_decode(&fr, &p, &r, &err) < 0) {
-                                        fprintf(stderr, "%s\n", err.msg);
-                                        return 1;
-                                }
-                                valid += r->n_valid_xy;
-                                imp_sl_result_free(r);
-                        }
-                        double t = now_s() - t0;
-                        if (t < t_imp[mode])
-                                t_imp[mode] = t;
-                        valid_imp = valid;
-                }
-        }
-        double rss_imp = peak_rss_mib();
+        pn.threads = max_threads;
 
-        size_t n = (size_t) w * h, valid_cv = 0;
+        size_t n = (size_t) w * h, valid_imp = 0, valid_cv = 0;
         int32_t *cx = malloc(n * sizeof *cx), *cy = malloc(n * sizeof *cy);
         uint8_t *cv = malloc(n);
         if (!cx || !cy || !cv)
                 return 1;
-        double t_cv = 1e30;
-        int cv_repeats = repeats > 2 ? 2 : repeats;     /* OpenCV's loop is the slow one */
-        for (int rep = 0; rep < cv_repeats; rep++) {
-                double t0 = now_s();
-                size_t valid = 0;
-                for (int c = 0; c < NCAP; c++) {
-                        size_t nv = 0;
-                        struct imp_error err = { 0 };
-                        if (imp_cv_graycode_decode(1024, 768, (const struct imp_image *const *) img[c], 40,
-                                                   img[c][40], img[c][41], 40, 5, cx, cy, cv, &nv, &err) < 0) {
-                                fprintf(stderr, "%s\n", err.msg);
+        double t1[MAX_REPS], tn[MAX_REPS], tc[MAX_REPS], u1[MAX_REPS], uc[MAX_REPS], un;
+        double r1[MAX_REPS], rn[MAX_REPS], ru[MAX_REPS];
+        double rss_imp = 0;
+        for (int rep = 0; rep < repeats; rep++) {
+                for (int step = 0; step < 3; step++) {
+                        int which = rep % 2 ? 2 - step : step;      /* flip the order */
+                        double t;
+                        if (which == 0)
+                                t = t1[rep] = run_impasto(&p1, &valid_imp, &u1[rep]);
+                        else if (which == 1)
+                                t = tn[rep] = run_impasto(&pn, &valid_imp, &un);
+                        else if (!only_imp)
+                                t = tc[rep] = run_opencv(cx, cy, cv, &valid_cv, &uc[rep]);
+                        else
+                                t = tc[rep] = uc[rep] = 1;
+                        if (t < 0)
                                 return 1;
-                        }
-                        valid += nv;
+                        if (which < 2)
+                                rss_imp = peak_rss_mib();
                 }
-                double t = now_s() - t0;
-                if (t < t_cv)
-                        t_cv = t;
-                valid_cv = valid;
+                r1[rep] = tc[rep] / t1[rep];
+                rn[rep] = tc[rep] / tn[rep];
+                ru[rep] = uc[rep] / u1[rep];
         }
 
-        printf("structured-light decode, %d captures × %dx%d × %d frames (u8), best of %d\n",
-               NCAP, w, h, NFRAMES, repeats);
-        printf("  impasto, 1 thread : %8.3f s  %8.1f Mpix/s  (%zu pixels decoded)\n", t_imp[0],
-               mpix / t_imp[0], valid_imp);
-        printf("  impasto, %d threads: %8.3f s  %8.1f Mpix/s\n", max_threads, t_imp[1], mpix / t_imp[1]);
-        printf("  OpenCV getProjPixel: %7.3f s  %8.1f Mpix/s  (%zu pixels decoded)\n", t_cv,
-               mpix / t_cv, valid_cv);
-        printf("  speed ratio impasto/OpenCV: %.1fx (1 thread), %.1fx (%d threads)\n",
-               t_cv / t_imp[0], t_cv / t_imp[1], max_threads);
+        double m, lo, hi;
+        printf("structured-light decode, %d captures × %dx%d × %d frames (u8), %d repetitions, "
+               "methods alternating; median [min – max]\n", NCAP, w, h, NFRAMES, repeats);
+        stats(t1, repeats, &m, &lo, &hi);
+        printf("  impasto, 1 thread  wall %7.3f s [%.3f – %.3f]  %6.1f Mpix/s  (%zu pixels decoded)\n",
+               m, lo, hi, mpix / m, valid_imp);
+        stats(u1, repeats, &m, &lo, &hi);
+        printf("                      CPU %7.3f s [%.3f – %.3f]  %6.1f Mpix/s\n", m, lo, hi, mpix / m);
+        stats(tn, repeats, &m, &lo, &hi);
+        printf("  impasto, %d threads wall %7.3f s [%.3f – %.3f]  %6.1f Mpix/s\n", max_threads, m,
+               lo, hi, mpix / m);
+        if (!only_imp) {
+                stats(tc, repeats, &m, &lo, &hi);
+                printf("  OpenCV getProjPixel wall %7.3f s [%.3f – %.3f]  %6.1f Mpix/s  (%zu pixels decoded)\n",
+                       m, lo, hi, mpix / m, valid_cv);
+                stats(uc, repeats, &m, &lo, &hi);
+                printf("                      CPU %7.3f s [%.3f – %.3f]  %6.1f Mpix/s\n", m, lo, hi,
+                       mpix / m);
+                stats(r1, repeats, &m, &lo, &hi);
+                printf("  speed ratio OpenCV/impasto per repetition: 1 thread wall %.1fx [%.1f – %.1f]",
+                       m, lo, hi);
+                stats(ru, repeats, &m, &lo, &hi);
+                printf(", CPU %.1fx [%.1f – %.1f]", m, lo, hi);
+                stats(rn, repeats, &m, &lo, &hi);
+                printf("; %d threads wall %.1fx [%.1f – %.1f]\n", max_threads, m, lo, hi);
+        }
         printf("  peak RSS: %.1f MiB after impasto, %.1f MiB at the end (frames: %.1f MiB)\n",
                rss_imp, peak_rss_mib(), (double) n * NFRAMES * NCAP / (1 << 20));
         free(cx);

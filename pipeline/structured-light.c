@@ -7,6 +7,7 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 #ifdef _OPENMP
 #include <omp.h>
 #endif
@@ -15,7 +16,8 @@
 #define MAX_BITS 24           /* 16 M projector pixels per axis */
 #define MAX_STEPS 64
 #define MAX_PERIODS 8
-#define GRAY_WEAK_ALLOWED 1   /* undecided Gray bits per axis still accepted (error ≤ 1) */
+#define GRAY_WEAK_ALLOWED 1
+#define RESULT_HUGE_BYTES (2u << 20)  /* x86-64 huge page; result maps at least this big */   /* undecided Gray bits per axis still accepted (error ≤ 1) */
 
 struct phase_group {
         double period_px;
@@ -348,6 +350,7 @@ struct ctx {
         const struct imp_sl_params *p;
         const struct plan *pl;
         float sat, b;
+        int int_path;           /* IMP_PIX_U8 / IMP_PIX_U16: integer Gray path; else -1 */
         struct imp_sl_result *res;
 };
 
@@ -453,6 +456,260 @@ static inline float clamp01(float v) {
         return v > 1.0f ? 1.0f : v > 0.0f ? v : 0.0f;   /* also maps NaN to 0 */
 }
 
+/* ---- integer path: u8 / u16 frames, Gray code ----------------------------------------
+ * Integer samples are exact in float, and each comparison of the float path has an exact
+ * integer twin: p ≤ L_d ⇔ p ≤ ⌊L_d⌋, p̄ ≥ L_g ⇔ p̄ ≥ ⌈L_g⌉, |p − p̄| < t ⇔ |p − p̄| < ⌈t⌉,
+ * min(p, p̄) ≥ s ⇔ min(p, p̄) ≥ ⌈s⌉. So the frames are read as they are (u8 in 16-bit lanes,
+ * u16 in 32-bit lanes), every Gray plane of a block of IBLK pixels is classified while the
+ * block's state stays in L1, the Gray code is accumulated and turned into binary once
+ * (g ^ g>>1 ^ g>>2 …, the running XOR b_k = b_{k−1} ⊕ g_k), and the outputs are
+ * bit-identical to the float path (L_d, L_g keep the float formulas). */
+#define IBLK 256
+
+/* The integer kernels and the combine step below are built without -ftrapping-math: under
+ * it gcc will not if-convert a floating-point operation (or a float → int conversion) that
+ * jump threading has moved onto one arm of a select, and such loops stay scalar. The flag
+ * only concerns floating-point exception flags, which nothing here reads: every value is
+ * the same. Helpers are macros, since functions built with other options are not inlined. */
+/* AVX2 doubles the lanes of the Gray and combine loops; chosen at load time by the CPU
+ * (ifunc), baseline SSE2 otherwise. Not FMA: contraction would change L_d/L_g. */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define CLONES target_clones("avx2", "default")
+#else
+#define CLONES
+#endif
+#define MINF(a, b) ((a) < (b) ? (a) : (b))
+#define MAXF(a, b) ((a) > (b) ? (a) : (b))
+#define CLAMP01(v) MINF((v) > 0.0f ? (v) : 0.0f, 1.0f)   /* = clamp01(), NaN → 0 */
+
+#define DEFINE_GRAY_INT(NAME, ST, LT, UT, LT_MAX)                                             \
+static inline __attribute__((always_inline, optimize("no-trapping-math"))) void NAME##_bit(                                  \
+                const ST *restrict pr, const ST *restrict qr, bool inv, int n,                 \
+                const LT *restrict W, const LT *restrict Bk, const LT *restrict td,            \
+                const LT *restrict tg, const LT *restrict alw, LT minc, LT sat,                \
+                UT *restrict g, LT *restrict wk, LT *restrict cm, LT *restrict hi) {           \
+        SIMD                                                                                   \
+        for (int x = 0; x < n; x++) {                                                          \
+                LT pv = pr[x];                                                                 \
+                LT qv = inv ? (LT) qr[x] : (LT) (W[x] + Bk[x] - pv);                           \
+                LT d = (LT) (pv - qv);                                                         \
+                LT ad = d < 0 ? (LT) -d : d;                                                   \
+                LT lo = pv < qv ? pv : qv, up = pv > qv ? pv : qv;                             \
+                LT cls = alw[x] | ((pv <= td[x]) & (qv >= tg[x])) | ((pv >= tg[x]) & (qv <= td[x])); \
+                g[x] = (UT) ((UT) (g[x] << 1) | (UT) (d > 0));                                 \
+                wk[x] = (LT) (wk[x] + ((ad < minc) | (lo >= sat) | (cls ^ 1)));                \
+                cm[x] = cm[x] < ad ? cm[x] : ad;                                               \
+                hi[x] = hi[x] > up ? hi[x] : up;                                               \
+        }                                                                                      \
+}                                                                                              \
+                                                                                               \
+/* L_d, L_g (the float formulas) and their integer thresholds. Its own function: inlined \
+ * into the block loop, gcc leaves this loop scalar. */                                      \
+static __attribute__((noinline, optimize("no-trapping-math"))) void NAME##_thr(                \
+                int n, const LT *restrict mx, const LT *restrict mn, float k1, float k2,       \
+                float b, LT always, float *restrict ld, float *restrict lg, LT *restrict td,   \
+                LT *restrict tg, LT *restrict alw) {                                           \
+        SIMD                                                                           \
+        for (int x = 0; x < n; x++) {                                                  \
+                float lmax = mx[x], lmin = mn[x];                                      \
+                float d = MAXF(k1 * (lmax - lmin), 0.0f);                              \
+                float e = MAXF(k2 * (lmin - b * lmax), 0.0f);                          \
+                ld[x] = d;                                                             \
+                lg[x] = e;                                                             \
+                /* ⌊L_d⌋, ⌈L_g⌉; both ≥ 0 and finite, and no sample reaches LT_MAX.    \
+                 * (Statement order matters to gcc 12's vectorizer here.) */          \
+                float dc = MINF(d, (float) LT_MAX);                                    \
+                int32_t s = (int32_t) dc;                                              \
+                td[x] = (LT) (s - ((float) s > dc));                                   \
+                float ec = MINF(e, (float) LT_MAX);                                    \
+                int32_t t = (int32_t) ec;                                              \
+                tg[x] = (LT) (t + ((float) t < ec));                                   \
+                alw[x] = (LT) ((d > e) | always);                                      \
+        }                                                                              \
+}                                                                                              \
+                                                                                               \
+static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void NAME(             \
+                const struct ctx *c, int y, float **R, int w) {                                \
+        const struct plan *pl = c->pl;                                                         \
+        const struct imp_image *const *im = c->in->images;                                     \
+        const bool have_w = pl->white >= 0, have_b = pl->black >= 0;                           \
+        const bool noinv = (pl->ax[0].nbits && !pl->ax[0].inverse) ||                          \
+                           (pl->ax[1].nbits && !pl->ax[1].inverse);                            \
+        const LT minc = (LT) int_ceil_clamp((float) c->p->min_bit_contrast, 0, LT_MAX);        \
+        const LT sat = (LT) int_ceil_clamp(c->sat, -LT_MAX, LT_MAX);                           \
+        const float b = c->b, k1 = 1.0f / (1.0f - b), k2 = 2.0f / (1.0f - b * b);              \
+        const LT always = c->p->robust ? 0 : 1;                                                \
+        for (int x0 = 0; x0 < w; x0 += IBLK) {                                                 \
+                const int n = IMP_MIN(IBLK, w - x0);                                           \
+                LT W[IBLK], Bk[IBLK], hi[IBLK], mx[IBLK], mn[IBLK], td[IBLK], tg[IBLK], alw[IBLK]; \
+                LT wk[IBLK], cm[IBLK];                                                         \
+                UT g[IBLK];                                                                    \
+                const ST *wr = have_w ? (const ST *) imp_image_row(im[pl->white], y) + x0 : NULL; \
+                const ST *br = have_b ? (const ST *) imp_image_row(im[pl->black], y) + x0 : NULL; \
+                SIMD                                                                           \
+                for (int x = 0; x < n; x++)                                                    \
+                        W[x] = Bk[x] = 0;                                                      \
+                if (have_w) {                                                                  \
+                        SIMD                                                                   \
+                        for (int x = 0; x < n; x++)                                            \
+                                W[x] = wr[x];                                                  \
+                }                                                                              \
+                if (have_b) {                                                                  \
+                        SIMD                                                                   \
+                        for (int x = 0; x < n; x++)                                            \
+                                Bk[x] = br[x];                                                 \
+                }                                                                              \
+                SIMD                                                                           \
+                for (int x = 0; x < n; x++)                                                    \
+                        hi[x] = W[x];           /* the black frame never counted here */       \
+                const ST *p0 = (const ST *) imp_image_row(im[pl->dg[0]], y) + x0;              \
+                SIMD                                                                           \
+                for (int x = 0; x < n; x++)                                                    \
+                        mx[x] = mn[x] = p0[x];                                                 \
+                for (int i = 1; i < pl->ndg; i++) {                                            \
+                        const ST *pi = (const ST *) imp_image_row(im[pl->dg[i]], y) + x0;      \
+                        SIMD                                                                   \
+                        for (int x = 0; x < n; x++) {                                          \
+                                LT v = pi[x];                                                  \
+                                mx[x] = mx[x] > v ? mx[x] : v;                                 \
+                                mn[x] = mn[x] < v ? mn[x] : v;                                 \
+                        }                                                                      \
+                }                                                                              \
+                if (noinv) {                                                                   \
+                        SIMD                                                                   \
+                        for (int x = 0; x < n; x++) {                                          \
+                                LT a1 = (LT) (W[x] + Bk[x] - mx[x]), a2 = (LT) (W[x] + Bk[x] - mn[x]); \
+                                mx[x] = mx[x] > a2 ? mx[x] : a2;                               \
+                                mn[x] = mn[x] < a1 ? mn[x] : a1;                               \
+                        }                                                                      \
+                }                                                                              \
+                NAME##_thr(n, mx, mn, k1, k2, b, always, R[R_LD] + x0, R[R_LG] + x0, td, tg, alw); \
+                for (int a = 0; a < 2; a++) {                                                  \
+                        const struct axis_plan *ax = &pl->ax[a];                               \
+                        if (!ax->nbits)                                                        \
+                                continue;                                                      \
+                        SIMD                                                                   \
+                        for (int x = 0; x < n; x++) {                                          \
+                                g[x] = 0;                                                      \
+                                wk[x] = 0;                                                     \
+                                cm[x] = LT_MAX;                                                \
+                        }                                                                      \
+                        for (int k = 0; k < ax->nbits; k++) {                                  \
+                                const ST *pr = (const ST *) imp_image_row(im[ax->p[k]], y) + x0; \
+                                if (ax->inverse)                                               \
+                                        NAME##_bit(pr, (const ST *) imp_image_row(im[ax->q[k]], y) + x0, \
+                                                   true, n, W, Bk, td, tg, alw, minc, sat, g, wk, cm, hi); \
+                                else                                                           \
+                                        NAME##_bit(pr, NULL, false, n, W, Bk, td, tg, alw, minc, \
+                                                   sat, g, wk, cm, hi);                        \
+                        }                                                                      \
+                        uint32_t *restrict code = (uint32_t *) R[R_CODE0 + a] + x0;            \
+                        uint32_t *restrict weak = (uint32_t *) R[R_WEAK0 + a] + x0;            \
+                        float *restrict cmin = R[R_CMIN0 + a] + x0;                            \
+                        SIMD                                                                   \
+                        for (int x = 0; x < n; x++) {                                          \
+                                uint32_t v = g[x];                                             \
+                                v ^= v >> 1;                                                   \
+                                v ^= v >> 2;                                                   \
+                                v ^= v >> 4;                                                   \
+                                v ^= v >> 8;                                                   \
+                                v ^= v >> 16;                                                  \
+                                code[x] = v;                                                   \
+                                weak[x] = (uint32_t) wk[x];                                    \
+                                cmin[x] = cm[x];                                               \
+                        }                                                                      \
+                }                                                                              \
+                float *restrict hr = R[R_HI] + x0, *restrict wf = R[R_WHITE] + x0;             \
+                float *restrict bf = R[R_BLACK] + x0;                                          \
+                SIMD                                                                           \
+                for (int x = 0; x < n; x++) {                                                  \
+                        hr[x] = hi[x];                                                         \
+                        wf[x] = W[x];                                                          \
+                        bf[x] = Bk[x];                                                         \
+                }                                                                              \
+        }                                                                                      \
+}
+
+/* ⌈v⌉ clamped to [lo, hi]; v finite or ±∞ (a NaN threshold never compares true: hi). */
+static inline int32_t int_ceil_clamp(float v, int32_t lo, int32_t hi) {
+        if (!(v < (float) hi))
+                return hi;
+        if (!(v > (float) lo))
+                return lo;
+        return (int32_t) ceilf(v);
+}
+
+DEFINE_GRAY_INT(gray_int_u8, uint8_t, int16_t, uint16_t, INT16_MAX)
+DEFINE_GRAY_INT(gray_int_u16, uint16_t, int32_t, uint32_t, (1 << 20))   /* ≫ any W + B − p */
+
+__attribute__((optimize("no-trapping-math"), CLONES))
+static void combine_gray_row(const struct ctx *c, int y, float **R, int w, size_t counts[8]) {
+        const struct plan *pl = c->pl;
+        const struct imp_sl_params *p = c->p;
+        const size_t off = (size_t) y * w;
+        float *restrict ox = c->res->proj_x + off, *restrict oy = c->res->proj_y + off;
+        float *restrict oc = c->res->confidence + off, *restrict od = c->res->direct + off;
+        float *restrict og = c->res->global + off, *restrict om = c->res->modulation + off;
+        uint16_t *restrict of = c->res->flags + off;
+        const float *restrict wr = R[R_WHITE], *restrict br = R[R_BLACK], *restrict hi = R[R_HI];
+        const float *restrict ld = R[R_LD], *restrict lg = R[R_LG];
+        const float *restrict cm0 = R[R_CMIN0], *restrict cm1 = R[R_CMIN1];
+        const uint32_t *restrict cd0 = (const uint32_t *) R[R_CODE0];
+        const uint32_t *restrict cd1 = (const uint32_t *) R[R_CODE1];
+        const uint32_t *restrict wk0 = (const uint32_t *) R[R_WEAK0];
+        const uint32_t *restrict wk1 = (const uint32_t *) R[R_WEAK1];
+        const float thr = (float) p->shadow_threshold, minc_d = (float) p->min_direct;
+        const float b = c->b, sat = c->sat;
+        const uint32_t has_wb = pl->white >= 0 && pl->black >= 0, robust = p->robust;
+        const uint32_t g0 = pl->ax[0].nbits > 0, g1 = pl->ax[1].nbits > 0;
+        const uint32_t ext0 = (uint32_t) pl->ax[0].extent, ext1 = (uint32_t) pl->ax[1].extent;
+        uint32_t nx = 0, ny = 0, nxy = 0, nsh = 0, nsat = 0, nwk = 0;
+#ifdef _OPENMP
+#pragma omp simd reduction(+ : nx, ny, nxy, nsh, nsat, nwk)
+#endif
+        for (int x = 0; x < w; x++) {
+                uint32_t shadow = (has_wb & !(wr[x] - br[x] > thr)) | (robust & !(ld[x] >= minc_d));
+                float span = ld[x] * (1 - b);                   /* = L_max − L_min */
+                uint32_t und0 = g0 & (wk0[x] > GRAY_WEAK_ALLOWED), und1 = g1 & (wk1[x] > GRAY_WEAK_ALLOWED);
+                uint32_t wb0 = g0 & (wk0[x] != 0) & !und0, wb1 = g1 & (wk1[x] != 0) & !und1;
+                uint32_t oor0 = g0 & (cd0[x] >= ext0), oor1 = g1 & (cd1[x] >= ext1);
+                uint32_t ok0 = g0 & ((shadow | und0 | oor0) ^ 1), ok1 = g1 & ((shadow | und1 | oor1) ^ 1);
+                /* span > 0 ? clamp01(cmin / span) : 0, without a branch (a conditional
+                 * division blocks if-conversion): cmin ≥ 0, and cmin / ∞ is 0 (∞/∞ = NaN
+                 * clamps to 0 too). */
+                float sd = span > 0 ? span : INFINITY;
+                float ca0 = (wb0 ? 0.5f : 1.0f) * CLAMP01(cm0[x] / sd);
+                float ca1 = (wb1 ? 0.5f : 1.0f) * CLAMP01(cm1[x] / sd);
+                float conf = 1.0f;
+                conf = ok0 ? MINF(conf, ca0) : conf;
+                conf = ok1 ? MINF(conf, ca1) : conf;
+                uint32_t f = (shadow ? IMP_SL_SHADOW : 0) | (hi[x] >= sat ? IMP_SL_SATURATED : 0) |
+                             ((und0 | und1) ? IMP_SL_UNDECODABLE : 0) |
+                             ((wb0 | wb1) ? IMP_SL_WEAK_BIT : 0) |
+                             ((oor0 | oor1) ? IMP_SL_OUT_OF_RANGE : 0) |
+                             (ok0 ? IMP_SL_VALID_X : 0) | (ok1 ? IMP_SL_VALID_Y : 0);
+                ox[x] = ok0 ? (float) (int32_t) cd0[x] + 0.5f : IMP_SL_INVALID_COORD;
+                oy[x] = ok1 ? (float) (int32_t) cd1[x] + 0.5f : IMP_SL_INVALID_COORD;
+                oc[x] = ok0 | ok1 ? conf : 0.0f;
+                of[x] = (uint16_t) f;
+                od[x] = isfinite(ld[x]) ? ld[x] : 0.0f;
+                og[x] = isfinite(lg[x]) ? lg[x] : 0.0f;
+                om[x] = 0.0f;
+                nx += ok0;
+                ny += ok1;
+                nxy += ok0 & ok1;
+                nsh += shadow;
+                nsat += hi[x] >= sat;
+                nwk += wb0 | wb1;
+        }
+        counts[0] += nx;
+        counts[1] += ny;
+        counts[2] += nxy;
+        counts[3] += nsh;
+        counts[4] += nsat;
+        counts[5] += nwk;
+}
+
 static void decode_row(const struct ctx *c, int y, float **R, size_t counts[8]) {
         const struct plan *pl = c->pl;
         const struct imp_sl_params *p = c->p;
@@ -463,8 +720,16 @@ static void decode_row(const struct ctx *c, int y, float **R, size_t counts[8]) 
         float *restrict ld = R[R_LD], *restrict lg = R[R_LG], *restrict hi = R[R_HI];
         bool have_wb = pl->white >= 0 && pl->black >= 0;
 
-        SIMD
+        if (c->int_path == IMP_PIX_U8) {
+                gray_int_u8(c, y, R, w);
+                goto phase;
+        }
+        if (c->int_path == IMP_PIX_U16) {
+                gray_int_u16(c, y, R, w);
+                goto phase;
+        }
 
+        SIMD
         for (int x = 0; x < w; x++)
                 hi[x] = 0.0f;
         if (pl->white >= 0) {
@@ -525,6 +790,12 @@ static void decode_row(const struct ctx *c, int y, float **R, size_t counts[8]) 
         for (int a = 0; a < 2; a++)
                 if (pl->ax[a].nbits)
                         decode_gray_axis(c, a, y, R, w);
+
+phase:
+        if (!pl->ax[0].nphase && !pl->ax[1].nphase) {
+                combine_gray_row(c, y, R, w, counts);
+                return;
+        }
 
         /* Phase: unwrap each group, coarsest first, against the previous estimate (the Gray
          * centre at first): k = round((ref − u_f)/P) is the period nearest to it, which
@@ -667,8 +938,20 @@ static int result_new(int w, int h, struct imp_sl_result **ret) {
         _cleanup_free_ struct imp_sl_result *r = calloc(1, sizeof *r);
         if (!r)
                 return -ENOMEM;
-        /* 6 float maps + 1 u16 map; floats first keep alignment. */
-        char *blk = malloc(n * (6 * sizeof(float) + sizeof(uint16_t)));
+        /* 6 float maps + 1 u16 map; floats first keep alignment. The block is 26 bytes a
+         * pixel, written once: with 4 KiB pages, faulting it in costs about as much as the
+         * Gray decoding itself, so it asks for transparent huge pages (a hint; ignored
+         * where THP is off). */
+        size_t bytes = n * (6 * sizeof(float) + sizeof(uint16_t));
+        char *blk;
+        if (bytes >= RESULT_HUGE_BYTES) {
+                size_t round = (bytes + RESULT_HUGE_BYTES - 1) & ~(size_t) (RESULT_HUGE_BYTES - 1);
+                blk = aligned_alloc(RESULT_HUGE_BYTES, round);
+                if (blk)
+                        (void) madvise(blk, round, MADV_HUGEPAGE);
+        } else {
+                blk = malloc(bytes);
+        }
         if (!blk)
                 return -ENOMEM;
         float *fl = (float *) blk;
@@ -727,7 +1010,13 @@ int imp_sl_decode(const struct imp_sl_frames *in, const struct imp_sl_params *p,
                 return imp_error_set(err, -ENOMEM, "structured light: out of memory for scratch rows");
 
         struct ctx c = { .in = in, .p = p, .pl = pl, .sat = saturation_level(p, pl->type),
-                         .b = (float) p->black_level, .res = res };
+                         .b = (float) p->black_level, .res = res, .int_path = -1 };
+        /* The integer path needs Gray planes (it computes L_d, L_g from them) and, for
+         * bytes in 16-bit lanes, a Gray code of at most 16 bits. */
+        if (pl->ndg > 0 && pl->type == IMP_PIX_U16)
+                c.int_path = IMP_PIX_U16;
+        if (pl->ndg > 0 && pl->type == IMP_PIX_U8 && pl->ax[0].nbits <= 16 && pl->ax[1].nbits <= 16)
+                c.int_path = IMP_PIX_U8;
         size_t c0 = 0, c1 = 0, c2 = 0, c3 = 0, c4 = 0, c5 = 0, c6 = 0;
         int height = pl->height;
 #pragma omp parallel num_threads(nthreads) reduction(+ : c0, c1, c2, c3, c4, c5, c6)
