@@ -35,6 +35,12 @@ struct dev_camera {
         enum imp_pixel_format format;
         enum dev_state state;
         char detail[256];
+        /* The exposure and gain last written to this camera, so that a frame with the same
+         * settings skips two GenICam round trips. Cleared (valid = false) whenever the camera
+         * may have lost them: a reopen, a failed step, a pause or a fault (session.c). */
+        bool applied_valid;
+        double applied_exposure_us, applied_gain_db;
+        bool gain_unsupported;          /* the camera said -EOPNOTSUPP: not asked again */
 };
 
 struct dev_dome {
@@ -162,19 +168,33 @@ void session_shutdown(struct session *s);
 enum job_state { JOB_QUEUED, JOB_RUNNING, JOB_DONE, JOB_FAILED };
 const char *job_state_name(enum job_state s);
 
+/* The daemon's view of STATE/jobs/<id>.json (docs/jobs.md). The file is the truth: the
+ * daemon writes it only while no worker holds the job (enqueue, retry, an attempt that no
+ * worker accounted for) and otherwise re-reads what the worker wrote. */
 struct job {
         struct job *next;
         struct daemon *d;
         char id[128];
         char session[128];
-        char set_dir[PATH_MAX];
-        char output[PATH_MAX];
+        char set_dir[PATH_MAX];         /* "capture" */
+        char output[PATH_MAX];          /* "copy" */
         enum job_state state;
-        int attempts;
+        int attempts, max_attempts;
         char queued[32], started[32], ended[32];
-        char error[512];
-        pid_t pid;
+        char error[1024];
+        char stage[64];                 /* the worker's current processing stage, "" before */
+        double progress;                /* 0..1 over the whole job */
+        json_t *worker_args;            /* as written into the file (string or null) */
+        pid_t pid;                      /* our worker child, 0 when none */
+        int spawn_attempts;             /* attempts in the file when the child was started */
+        bool claim_seen;                /* the child was seen to claim the job (it accounts for it) */
         sd_event_source *child_source;
+        /* what the last `job` event said, so that re-reads only announce changes */
+        enum job_state ev_state;
+        int ev_attempts;
+        double ev_progress;
+        char ev_stage[64];
+        bool ev_sent;
 };
 
 int jobs_load(struct daemon *d);
@@ -182,7 +202,10 @@ int jobs_enqueue(struct daemon *d, const struct session *s);
 int jobs_retry(struct daemon *d, struct job *j, struct imp_proto_error *perr);
 struct job *jobs_find(struct daemon *d, const char *id);
 json_t *job_json(const struct job *j, bool full);
+/* Spawn mode: start the worker on the oldest queued job when none is running. */
 void jobs_kick(struct daemon *d);
+/* Watch STATE/jobs (inotify, and a slow timer for claims whose worker died). */
+int jobs_watch(struct daemon *d);
 void jobs_free_all(struct daemon *d);
 
 /* ---- server (server.c) ----------------------------------------------------------------- */
@@ -202,6 +225,8 @@ struct daemon {
         const char *state_dir;
         const char *rig_config;
         const char *worker_cmd;
+        const char *worker_args;        /* --worker-args, copied into each job (NULL: none) */
+        bool spawn_workers;             /* false: impasto-worker@ services take the queue */
         bool operators_all;
         bool auto_resume;
         unsigned max_clients;
@@ -223,7 +248,9 @@ struct daemon {
         struct session *sessions;       /* newest first */
         struct session *active;         /* holds the rig: preparing, capturing or paused */
         struct job *jobs;               /* newest first */
-        sd_event_source *job_timer;
+        sd_event_source *job_timer;     /* spawn mode: the next start or retry */
+        sd_event_source *job_watch;     /* inotify on STATE/jobs */
+        sd_event_source *job_poll;      /* periodic re-read of jobs claimed by other workers */
         bool stopping;
 };
 

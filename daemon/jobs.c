@@ -1,16 +1,26 @@
-/* The durable job queue: a completed session becomes jobs/<id>.json (queued → running →
- * done | failed, attempts, error), and the worker (`WORKER process SET --out COPY`) runs as
- * a child of the daemon, one job at a time, retried a bounded number of times. A job found
- * running after a restart is queued again: the worker writes its output from scratch. */
+/* The durable job queue (docs/jobs.md): a completed session becomes STATE/jobs/<id>.json in
+ * the one format impasto-worker reads. By default the daemon runs `WORKER JOBFILE` as a
+ * child, one job at a time; with --no-spawn-workers impasto-worker@ services claim the jobs.
+ * Either way the worker owns the file while it holds the claim (stage, progress, final state,
+ * error); the daemon re-reads it (inotify, the child's exit, a slow timer), announces changes
+ * as `job` events, accounts for attempts no worker accounted for (a worker that could not
+ * start, or died) and retries a bounded number of times. */
 #include <dirent.h>
+#include <fcntl.h>
+#include <math.h>
 #include <signal.h>
 #include <string.h>
+#include <sys/file.h>
+#include <sys/inotify.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include "impastod.h"
 #include "json-util.h"
 #include "log.h"
 
-#define JOB_RETRY_DELAY_US 500000ULL
+#define JOB_RETRY_DELAY_US 500000ULL    /* before attempt n+1 after a failed one: n × this */
+#define JOB_POLL_US 2000000ULL          /* re-read of claims held by workers we did not start */
+#define JOB_ID_MAX 128
 
 static const char *const job_state_names[] = { "queued", "running", "done", "failed" };
 
@@ -20,7 +30,7 @@ const char *job_state_name(enum job_state s) {
 
 static int job_state_from_name(const char *s) {
         for (size_t i = 0; i < ARRAY_SIZE(job_state_names); i++)
-                if (!strcmp(s, job_state_names[i]))
+                if (s && !strcmp(s, job_state_names[i]))
                         return (int) i;
         return -EINVAL;
 }
@@ -32,42 +42,288 @@ struct job *jobs_find(struct daemon *d, const char *id) {
         return NULL;
 }
 
+static json_t *job_error_json(const struct job *j) {
+        if (!j->error[0] || j->state == JOB_DONE)
+                return NULL;
+        return json_pack("{s:s, s:i, s:s}", "code", "internal", "errno", 0, "message", j->error);
+}
+
 json_t *job_json(const struct job *j, bool full) {
-        double progress = j->state == JOB_DONE ? 1.0 : 0.0;
+        const char *stage = j->stage[0] ? j->stage : NULL;
         if (!full)
-                return json_pack("{s:s, s:s, s:s, s:s, s:f, s:i}", "job", j->id, "session", j->session, "state",
-                                 job_state_name(j->state), "queued", j->queued, "progress", progress, "attempts",
-                                 j->attempts);
-        json_t *err = NULL;
-        if (j->error[0])
-                err = json_pack("{s:s, s:i, s:s}", "code", "internal", "errno", 0, "message", j->error);
-        return json_pack("{s:s, s:s, s:s, s:s, s:s?, s:s?, s:s?, s:o?, s:i, s:s, s:f}", "job", j->id, "session",
-                         j->session, "state", job_state_name(j->state), "queued", j->queued, "started",
+                return json_pack("{s:s, s:s, s:s, s:s, s:f, s:s?, s:i}", "job", j->id, "session", j->session, "state",
+                                 job_state_name(j->state), "queued", j->queued, "progress", j->progress, "stage",
+                                 stage, "attempts", j->attempts);
+        return json_pack("{s:s, s:s, s:s, s:s, s:s?, s:s?, s:s?, s:o?, s:i, s:i, s:s, s:f, s:s?, s:O?}", "job", j->id,
+                         "session", j->session, "state", job_state_name(j->state), "queued", j->queued, "started",
                          j->started[0] ? j->started : NULL, "ended", j->ended[0] ? j->ended : NULL, "output",
-                         j->state == JOB_DONE ? j->output : NULL, "error", err, "attempts", j->attempts, "set",
-                         j->set_dir, "progress", progress);
+                         j->state == JOB_DONE ? j->output : NULL, "error", job_error_json(j), "attempts",
+                         j->attempts, "max_attempts", j->max_attempts, "set", j->set_dir, "progress", j->progress,
+                         "stage", stage, "worker_args", j->worker_args);
 }
 
-static void job_save(struct daemon *d, struct job *j) {
+/* ---- the file ----------------------------------------------------------------------------- */
+
+enum job_file { JOB_FILE_QUEUE, JOB_FILE_CLAIM };
+
+static void job_path(const struct job *j, enum job_file which, char *buf, size_t size) {
+        snprintf(buf, size, "%s/jobs/%s.json%s", j->d->state_dir, j->id, which == JOB_FILE_CLAIM ? ".running" : "");
+}
+
+/* The members the daemon owns, in the worker's format (docs/jobs.md). */
+static json_t *job_file_json(const struct job *j) {
+        return json_pack("{s:s, s:s, s:s, s:s, s:i, s:i, s:s?, s:s, s:s, s:s?, s:s?, s:f, s:s?, s:O?}", "id", j->id,
+                         "capture", j->set_dir, "copy", j->output, "state", job_state_name(j->state), "attempts",
+                         j->attempts, "max_attempts", j->max_attempts, "error", j->error[0] ? j->error : NULL,
+                         "session", j->session, "queued", j->queued, "started", j->started[0] ? j->started : NULL,
+                         "ended", j->ended[0] ? j->ended : NULL, "progress", j->progress, "stage",
+                         j->stage[0] ? j->stage : NULL, "worker_args", j->worker_args);
+}
+
+/* Writes j into `which`, keeping members the daemon does not know (a worker's). */
+static int job_write(struct job *j, enum job_file which) {
         char p[PATH_MAX + 200];
-        snprintf(p, sizeof p, "%s/jobs/%s.json", d->state_dir, j->id);
-        _cleanup_json_ json_t *o = job_json(j, true);
+        job_path(j, which, p, sizeof p);
         struct imp_error e = { 0 };
-        int r = o ? imp_json_save_atomic(p, o, &e) : -ENOMEM;
+        _cleanup_json_ json_t *doc = NULL;
+        if (imp_json_load(p, &doc, &e) < 0 || !json_is_object(doc)) {
+                json_decref(doc);
+                doc = json_object();
+        }
+        _cleanup_json_ json_t *mine = job_file_json(j);
+        int r = doc && mine && json_object_update(doc, mine) == 0 ? imp_json_save_atomic(p, doc, &e) : -ENOMEM;
         if (r < 0)
-                log_error_errno(r, "job %s: saving %s: %s", j->id, p, e.msg);
+                log_error_errno(r, "job %s: saving %s: %s", j->id, p, e.msg[0] ? e.msg : "out of memory");
+        return r;
 }
 
-static void job_event(struct daemon *d, struct job *j) {
-        server_broadcast(d, "job", json_pack("{s:s, s:s, s:s, s:f, s:s?}", "job", j->id, "session", j->session,
-                                             "state", job_state_name(j->state), "progress",
-                                             j->state == JOB_DONE ? 1.0 : 0.0, "output",
-                                             j->state == JOB_DONE ? j->output : NULL));
+static void copy_str(char *dst, size_t size, const json_t *o, const char *key) {
+        const char *v = json_string_value(json_object_get(o, key));
+        if (v)
+                snprintf(dst, size, "%s", v);
 }
+
+/* Reads the job's file (the queue name, else the claim) into j. *ret_which says which one;
+ * *ret_legacy is set for a file in the daemon's old format (job/set/output), which the
+ * caller rewrites. -ENOENT when neither exists, -EBADMSG when it is not a job. */
+static int job_read(struct job *j, enum job_file *ret_which, bool *ret_legacy) {
+        char p[PATH_MAX + 200];
+        _cleanup_json_ json_t *o = NULL;
+        struct imp_error e = { 0 };
+        enum job_file which = JOB_FILE_QUEUE;
+        int r = -ENOENT;
+        /* The worker renames queue → claim → queue: try the claim in between. */
+        for (int k = 0; k < 3 && r == -ENOENT; k++) {
+                which = k == 1 ? JOB_FILE_CLAIM : JOB_FILE_QUEUE;
+                job_path(j, which, p, sizeof p);
+                r = imp_json_load(p, &o, &e);
+        }
+        if (r < 0)
+                return r;
+        int st = job_state_from_name(json_string_value(json_object_get(o, "state")));
+        const json_t *capture = json_object_get(o, "capture"), *set = json_object_get(o, "set");
+        if (!json_is_object(o) || st < 0 || !(json_is_string(capture) || json_is_string(set))) {
+                log_warning("%s: not a job file (docs/jobs.md), ignoring", p);
+                return -EBADMSG;
+        }
+        bool legacy = !json_is_string(capture);
+        if (legacy) {
+                copy_str(j->set_dir, sizeof j->set_dir, o, "set");
+                snprintf(j->output, sizeof j->output, "%s/outputs/%s", j->d->state_dir, j->id);
+        } else {
+                copy_str(j->set_dir, sizeof j->set_dir, o, "capture");
+                copy_str(j->output, sizeof j->output, o, "copy");
+        }
+        copy_str(j->session, sizeof j->session, o, "session");
+        copy_str(j->queued, sizeof j->queued, o, "queued");
+        j->started[0] = j->ended[0] = j->stage[0] = j->error[0] = 0;
+        copy_str(j->started, sizeof j->started, o, "started");
+        copy_str(j->ended, sizeof j->ended, o, "ended");
+        copy_str(j->stage, sizeof j->stage, o, "stage");
+        const json_t *err = json_object_get(o, "error");
+        if (json_is_object(err))        /* the old format kept an error object */
+                err = json_object_get(err, "message");
+        if (json_is_string(err))
+                snprintf(j->error, sizeof j->error, "%s", json_string_value(err));
+        json_t *v = json_object_get(o, "attempts");
+        j->attempts = json_is_integer(v) ? (int) json_integer_value(v) : 0;
+        v = json_object_get(o, "max_attempts");
+        if (json_is_integer(v) && json_integer_value(v) >= 1)
+                j->max_attempts = (int) json_integer_value(v);
+        else if (j->max_attempts < 1)
+                j->max_attempts = (int) j->d->job_attempts;
+        v = json_object_get(o, "progress");
+        j->progress = json_is_number(v) ? IMP_CLAMP(json_number_value(v), 0.0, 1.0) : 0.0;
+        v = json_object_get(o, "worker_args");
+        json_decref(j->worker_args);
+        j->worker_args = json_is_string(v) ? json_incref(v) : NULL;
+        j->state = (enum job_state) st;
+        /* A claim is running whatever its file says yet; a running job under the queue name
+         * was left by the old daemon (it ran the worker itself): queued again. */
+        if (which == JOB_FILE_CLAIM)
+                j->state = JOB_RUNNING;
+        else if (j->state == JOB_RUNNING) {
+                j->state = JOB_QUEUED;
+                legacy = true;
+        }
+        *ret_which = which;
+        if (ret_legacy)
+                *ret_legacy = legacy;
+        return 0;
+}
+
+/* The claim lock of docs/jobs.md: flock on <id>.lock, checked not to have been unlinked
+ * meanwhile. -EBUSY when a worker holds it. */
+static int job_lock(const struct job *j, int *ret_fd) {
+        char p[PATH_MAX + 200];
+        snprintf(p, sizeof p, "%s/jobs/%s.lock", j->d->state_dir, j->id);
+        for (;;) {
+                int fd = open(p, O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+                if (fd < 0)
+                        return negative_errno();
+                if (flock(fd, LOCK_EX | LOCK_NB) < 0) {
+                        int r = errno == EWOULDBLOCK ? -EBUSY : negative_errno();
+                        close(fd);
+                        return r;
+                }
+                struct stat a, b;
+                if (fstat(fd, &a) == 0 && stat(p, &b) == 0 && a.st_ino == b.st_ino && a.st_dev == b.st_dev) {
+                        *ret_fd = fd;
+                        return 0;
+                }
+                close(fd);
+        }
+}
+
+static void job_unlock(const struct job *j, int fd) {
+        char p[PATH_MAX + 200];
+        snprintf(p, sizeof p, "%s/jobs/%s.lock", j->d->state_dir, j->id);
+        (void) unlink(p);
+        close(fd);
+}
+
+static void job_set_failed_attempt(struct job *j, const char *why) {
+        snprintf(j->error, sizeof j->error, "%s", why);
+        j->state = j->attempts >= j->max_attempts ? JOB_FAILED : JOB_QUEUED;
+        rfc3339_now(j->ended);
+}
+
+/* An attempt that ended without the worker writing its outcome: a worker that could not
+ * start or refused the file (the queue file untouched), counted here. */
+static void job_account(struct job *j, const char *why) {
+        int fd;
+        if (job_lock(j, &fd) < 0)
+                return;         /* a worker is claiming it: its outcome will be read */
+        j->attempts++;
+        job_set_failed_attempt(j, why);
+        (void) job_write(j, JOB_FILE_QUEUE);
+        job_unlock(j, fd);
+}
+
+/* A claim whose worker died (its lock free): back to the queue name, queued again with its
+ * attempt counted, or failed when the attempts are used up. 1 when recovered, 0 when a worker
+ * holds it, negative errno. */
+static int job_recover(struct job *j, const char *why) {
+        int fd, r = job_lock(j, &fd);
+        if (r < 0)
+                return r == -EBUSY ? 0 : r;
+        char claim[PATH_MAX + 200], queue[PATH_MAX + 200];
+        job_path(j, JOB_FILE_CLAIM, claim, sizeof claim);
+        job_path(j, JOB_FILE_QUEUE, queue, sizeof queue);
+        if (access(claim, F_OK) < 0) {
+                job_unlock(j, fd);
+                return 0;       /* released meanwhile */
+        }
+        job_set_failed_attempt(j, why);
+        r = job_write(j, JOB_FILE_CLAIM);
+        if (r >= 0 && rename(claim, queue) < 0)
+                r = negative_errno();
+        if (r >= 0)
+                (void) imp_fsync_parent_dir(queue);
+        job_unlock(j, fd);
+        if (r < 0)
+                return log_error_errno(r, "job %s: recovering %s: %m", j->id, claim);
+        log_notice("job %s: %s; %s", j->id, why, job_state_name(j->state));
+        return 1;
+}
+
+/* ---- events and scheduling ---------------------------------------------------------------- */
+
+static void job_announce(struct daemon *d, struct job *j) {
+        if (j->ev_sent && j->ev_state == j->state && j->ev_attempts == j->attempts &&
+            fabs(j->ev_progress - j->progress) < 1e-6 && !strcmp(j->ev_stage, j->stage))
+                return;
+        /* The claim counts the attempt our spawn already announced: one line per state. */
+        if (!j->ev_sent || j->ev_state != j->state || (j->state != JOB_RUNNING && j->ev_attempts != j->attempts)) {
+                if (j->state == JOB_DONE)
+                        log_info("job %s: done, output %s", j->id, j->output);
+                else if (j->state == JOB_FAILED || (j->state == JOB_QUEUED && j->error[0] && j->attempts > 0))
+                        log_warning("job %s: %s after attempt %d of %d: %s", j->id, job_state_name(j->state),
+                                    j->attempts, j->max_attempts, j->error);
+                else
+                        log_info("job %s: %s (attempt %d of %d)", j->id, job_state_name(j->state),
+                                 j->attempts + (j->state == JOB_RUNNING && j->pid > 0 &&
+                                                j->attempts == j->spawn_attempts), j->max_attempts);
+        }
+        j->ev_sent = true;
+        j->ev_state = j->state;
+        j->ev_attempts = j->attempts;
+        j->ev_progress = j->progress;
+        snprintf(j->ev_stage, sizeof j->ev_stage, "%s", j->stage);
+        server_broadcast(d, "job",
+                         json_pack("{s:s, s:s, s:s, s:f, s:s?, s:i, s:i, s:s?, s:o?}", "job", j->id, "session",
+                                   j->session, "state", job_state_name(j->state), "progress", j->progress, "stage",
+                                   j->stage[0] ? j->stage : NULL, "attempts", j->attempts, "max_attempts",
+                                   j->max_attempts, "output", j->state == JOB_DONE ? j->output : NULL, "error",
+                                   j->state == JOB_QUEUED || j->state == JOB_RUNNING ? NULL : job_error_json(j)));
+}
+
+static int kick_timer(sd_event_source *src, uint64_t usec, void *userdata) {
+        jobs_kick(userdata);
+        return 0;
+}
+
+static void schedule_kick(struct daemon *d, uint64_t delay_us) {
+        if (!d->spawn_workers || d->stopping)
+                return;
+        sd_event_source_disable_unref(d->job_timer);
+        d->job_timer = NULL;
+        (void) sd_event_add_time_relative(d->event, &d->job_timer, CLOCK_MONOTONIC, delay_us, 0, kick_timer, d);
+}
+
+static bool kick_pending(struct daemon *d) {
+        int enabled = SD_EVENT_OFF;
+        return d->job_timer && sd_event_source_get_enabled(d->job_timer, &enabled) >= 0 && enabled != SD_EVENT_OFF;
+}
+
+/* Re-reads the file of a job we are not running as a child and announces what changed. */
+static void job_refresh(struct daemon *d, struct job *j) {
+        enum job_state before = j->state;
+        enum job_file which;
+        int pid = j->pid;
+        if (job_read(j, &which, NULL) < 0)
+                return;
+        if (pid > 0 && (which == JOB_FILE_CLAIM || j->attempts != j->spawn_attempts))
+                j->claim_seen = true;
+        if (pid > 0 && !j->claim_seen && j->state == JOB_QUEUED)
+                j->state = JOB_RUNNING;         /* our child has not claimed it yet */
+        if (pid == 0 && which == JOB_FILE_CLAIM) {
+                char why[128];
+                snprintf(why, sizeof why, "the worker stopped during attempt %d", j->attempts);
+                (void) job_recover(j, why);
+        }
+        job_announce(d, j);
+        if (pid == 0 && before == JOB_RUNNING && j->state != JOB_RUNNING && !kick_pending(d))
+                schedule_kick(d, 0);
+}
+
+/* ---- spawn mode ------------------------------------------------------------------------- */
 
 static int job_exited(sd_event_source *src, const siginfo_t *si, void *userdata);
 
 static int job_spawn(struct daemon *d, struct job *j) {
+        char file[PATH_MAX + 200];
+        job_path(j, JOB_FILE_QUEUE, file, sizeof file);
         pid_t pid = fork();
         if (pid < 0)
                 return negative_errno();
@@ -75,7 +331,7 @@ static int job_spawn(struct daemon *d, struct job *j) {
                 sigset_t all;
                 sigemptyset(&all);
                 sigprocmask(SIG_SETMASK, &all, NULL);
-                execl(d->worker_cmd, d->worker_cmd, "process", j->set_dir, "--out", j->output, (char *) NULL);
+                execl(d->worker_cmd, d->worker_cmd, file, (char *) NULL);
                 _exit(127);
         }
         j->pid = pid;
@@ -90,37 +346,33 @@ static int job_spawn(struct daemon *d, struct job *j) {
 }
 
 void jobs_kick(struct daemon *d) {
-        if (d->stopping)
+        if (d->stopping || !d->spawn_workers)
                 return;
         struct job *next = NULL;
         for (struct job *j = d->jobs; j; j = j->next) {
-                if (j->state == JOB_RUNNING)
+                if (j->state == JOB_RUNNING || j->pid > 0)
                         return;
                 if (j->state == JOB_QUEUED)
                         next = j;       /* the list is newest first: the last one is the oldest */
         }
         if (!next)
                 return;
-        next->state = JOB_RUNNING;
-        next->attempts++;
-        rfc3339_now(next->started);
-        next->ended[0] = 0;
+        next->spawn_attempts = next->attempts;
+        next->claim_seen = false;
         int r = job_spawn(d, next);
         if (r < 0) {
-                snprintf(next->error, sizeof next->error, "starting %s: %s", d->worker_cmd, strerror(-r));
-                next->state = JOB_FAILED;
-                rfc3339_now(next->ended);
+                char why[PATH_MAX + 64];
+                snprintf(why, sizeof why, "starting %s: %s", d->worker_cmd, strerror(-r));
+                job_account(next, why);
+                job_announce(d, next);
+                if (next->state == JOB_QUEUED)
+                        schedule_kick(d, JOB_RETRY_DELAY_US * (uint64_t) next->attempts);
+                else
+                        schedule_kick(d, 0);
+                return;
         }
-        job_save(d, next);
-        job_event(d, next);
-        log_info("job %s: %s (attempt %d)", next->id, job_state_name(next->state), next->attempts);
-        if (next->state == JOB_FAILED)
-                jobs_kick(d);
-}
-
-static int retry_timer(sd_event_source *src, uint64_t usec, void *userdata) {
-        jobs_kick(userdata);
-        return 0;
+        next->state = JOB_RUNNING;
+        job_announce(d, next);
 }
 
 static int job_exited(sd_event_source *src, const siginfo_t *si, void *userdata) {
@@ -128,39 +380,59 @@ static int job_exited(sd_event_source *src, const siginfo_t *si, void *userdata)
         struct daemon *d = j->d;
         j->child_source = sd_event_source_disable_unref(j->child_source);
         j->pid = 0;
-        rfc3339_now(j->ended);
-        if (si->si_code == CLD_EXITED && si->si_status == 0) {
-                j->state = JOB_DONE;
-                j->error[0] = 0;
-        } else {
-                snprintf(j->error, sizeof j->error, "%.200s process %.200s: %s %d (attempt %d of %u)", d->worker_cmd,
-                         j->set_dir, si->si_code == CLD_EXITED ? "exit status" : "killed by signal",
-                         si->si_status, j->attempts, d->job_attempts);
-                j->state = (unsigned) j->attempts < d->job_attempts ? JOB_QUEUED : JOB_FAILED;
+        char how[64];
+        snprintf(how, sizeof how, "%s %d", si->si_code == CLD_EXITED ? "exit status" : "killed by signal",
+                 si->si_status);
+        enum job_file which;
+        int r = job_read(j, &which, NULL);
+        if (r < 0) {
+                snprintf(j->error, sizeof j->error, "the job file is gone or unreadable after %.200s exited (%s)",
+                         d->worker_cmd, how);
+                j->state = JOB_FAILED;
+        } else if (which == JOB_FILE_CLAIM) {
+                char why[PATH_MAX + 128];
+                snprintf(why, sizeof why, "%.200s stopped during attempt %d (%s)", d->worker_cmd, j->attempts, how);
+                if (job_recover(j, why) <= 0)
+                        j->state = JOB_RUNNING; /* another worker holds the claim */
+        } else if (j->state == JOB_QUEUED && j->attempts == j->spawn_attempts && !j->claim_seen) {
+                /* (once the claim was seen, a queued file is the worker's retry or an
+                 * operator's jobs.retry that came before the child's exit) */
+                char why[PATH_MAX + 256];
+                snprintf(why, sizeof why, "%.200s %.300s/jobs/%s.json: %s without processing the job "
+                         "(attempt %d of %d)", d->worker_cmd, d->state_dir, j->id, how, j->attempts + 1,
+                         j->max_attempts);
+                job_account(j, why);
         }
-        job_save(d, j);
-        job_event(d, j);
-        if (j->state == JOB_DONE)
-                log_info("job %s: done, output %s", j->id, j->output);
+        job_announce(d, j);
+        if (j->state == JOB_QUEUED)
+                schedule_kick(d, JOB_RETRY_DELAY_US * (uint64_t) IMP_MAX(j->attempts, 1));
         else
-                log_warning("job %s: %s%s", j->id, j->error, j->state == JOB_QUEUED ? ", retrying" : "");
-        if (j->state == JOB_QUEUED) {
-                sd_event_source_disable_unref(d->job_timer);
-                d->job_timer = NULL;
-                (void) sd_event_add_time_relative(d->event, &d->job_timer, CLOCK_MONOTONIC,
-                                                  JOB_RETRY_DELAY_US * (uint64_t) j->attempts, 0, retry_timer, d);
-        } else
                 jobs_kick(d);
         return 0;
 }
+
+/* ---- the queue ------------------------------------------------------------------------------- */
 
 static struct job *job_new(struct daemon *d, const char *id) {
         struct job *j = calloc(1, sizeof *j);
         if (!j)
                 return NULL;
         j->d = d;
+        j->max_attempts = (int) d->job_attempts;
         snprintf(j->id, sizeof j->id, "%s", id);
         return j;
+}
+
+static void job_free(struct job *j) {
+        if (!j)
+                return;
+        sd_event_source_disable_unref(j->child_source);
+        json_decref(j->worker_args);
+        free(j);
+}
+
+static json_t *worker_args_json(const struct daemon *d) {
+        return d->worker_args && d->worker_args[0] ? json_string(d->worker_args) : NULL;
 }
 
 int jobs_enqueue(struct daemon *d, const struct session *s) {
@@ -173,29 +445,71 @@ int jobs_enqueue(struct daemon *d, const struct session *s) {
         snprintf(j->set_dir, sizeof j->set_dir, "%s", s->dir);
         snprintf(j->output, sizeof j->output, "%s/outputs/%s", d->state_dir, s->id);
         rfc3339_now(j->queued);
+        j->worker_args = worker_args_json(d);
         j->state = JOB_QUEUED;
         j->next = d->jobs;
         d->jobs = j;
-        job_save(d, j);
-        job_event(d, j);
+        int r = job_write(j, JOB_FILE_QUEUE);
+        job_announce(d, j);
         jobs_kick(d);
-        return 0;
+        return r < 0 ? r : 0;
 }
 
 int jobs_retry(struct daemon *d, struct job *j, struct imp_proto_error *perr) {
         if (j->state != JOB_FAILED)
                 return imp_proto_error_set(perr, IMP_PROTO_E_BAD_STATE, EINVAL, "args.job", "job %s is %s, not failed",
                                            j->id, job_state_name(j->state));
+        /* No lock: workers claim only queued files, and the worker that failed this one may
+         * still hold its lock for a moment after writing the outcome. */
+        /* The error of the last attempt is kept until the job is done; the arguments are the
+         * daemon's current --worker-args, so that a retry after a configuration fix uses it. */
         j->state = JOB_QUEUED;
         j->attempts = 0;
         j->ended[0] = 0;
-        job_save(d, j);
-        job_event(d, j);
+        j->progress = 0;
+        j->stage[0] = 0;
+        json_decref(j->worker_args);
+        j->worker_args = worker_args_json(d);
+        int r = job_write(j, JOB_FILE_QUEUE);
+        if (r < 0)
+                return imp_proto_error_set(perr, IMP_PROTO_E_IO, -r, "args.job", "job %s: writing its file: %s", j->id,
+                                           strerror(-r));
+        job_announce(d, j);
         /* Started from the loop, after the reply that says "queued". */
-        sd_event_source_disable_unref(d->job_timer);
-        d->job_timer = NULL;
-        (void) sd_event_add_time_relative(d->event, &d->job_timer, CLOCK_MONOTONIC, 0, 0, retry_timer, d);
+        schedule_kick(d, 0);
         return 0;
+}
+
+/* One job from its file(s); a claim nobody holds is recovered, the old format rewritten. */
+static struct job *job_load(struct daemon *d, const char *id) {
+        struct job *j = job_new(d, id);
+        if (!j)
+                return NULL;
+        enum job_file which;
+        bool legacy = false;
+        if (job_read(j, &which, &legacy) < 0) {
+                job_free(j);
+                return NULL;
+        }
+        if (which == JOB_FILE_CLAIM) {
+                char why[128];
+                snprintf(why, sizeof why, "the worker stopped during attempt %d", j->attempts);
+                (void) job_recover(j, why);
+        } else if (legacy)
+                (void) job_write(j, JOB_FILE_QUEUE);
+        return j;
+}
+
+/* "<id>.json" or "<id>.json.running" → id; false for anything else (locks, .tmp). */
+static bool job_id_of(const char *name, char id[static JOB_ID_MAX + 1]) {
+        size_t l = strlen(name);
+        size_t n = l > 13 && !strcmp(name + l - 13, ".json.running") ? l - 13 :
+                   l > 5 && !strcmp(name + l - 5, ".json") ? l - 5 : 0;
+        if (n == 0 || n > JOB_ID_MAX || name[0] == '.')
+                return false;
+        memcpy(id, name, n);
+        id[n] = 0;
+        return true;
 }
 
 static int cmp_names(const void *a, const void *b) {
@@ -211,75 +525,96 @@ int jobs_load(struct daemon *d) {
         char **names = NULL;
         size_t n = 0;
         struct dirent *de;
+        char id[JOB_ID_MAX + 1];
         while ((de = readdir(dir))) {
-                size_t l = strlen(de->d_name);
-                if (de->d_name[0] == '.' || l < 6 || strcmp(de->d_name + l - 5, ".json"))
+                if (!job_id_of(de->d_name, id))
                         continue;
                 char **nn = realloc(names, (n + 1) * sizeof *names);
                 if (!nn)
                         break;
                 names = nn;
-                names[n++] = strndup(de->d_name, l - 5);
+                if ((names[n] = strdup(id)))
+                        n++;
         }
         closedir(dir);
-        qsort(names, n, sizeof *names, cmp_names);
+        if (n)
+                qsort(names, n, sizeof *names, cmp_names);
         for (size_t i = 0; i < n; i++) {
-                char p[PATH_MAX + 300];
-                snprintf(p, sizeof p, "%s/%s.json", dirp, names[i] ? names[i] : "");
-                _cleanup_json_ json_t *o = NULL;
-                struct imp_error e = { 0 };
-                const char *session = "", *state = "", *set = "", *queued = "", *started = NULL, *ended = NULL,
-                           *output = NULL;
-                long long attempts = 0;
-                struct job *j = names[i] ? job_new(d, names[i]) : NULL;
-                free(names[i]);
+                struct job *j = i > 0 && !strcmp(names[i], names[i - 1]) ? NULL : job_load(d, names[i]);
                 if (!j)
                         continue;
-                int st;
-                if (imp_json_load(p, &o, &e) < 0 || imp_json_get_string(o, "session", true, &session, p, &e) < 0 ||
-                    imp_json_get_string(o, "state", true, &state, p, &e) < 0 ||
-                    imp_json_get_string(o, "set", true, &set, p, &e) < 0 ||
-                    imp_json_get_string(o, "queued", false, &queued, p, &e) < 0 ||
-                    imp_json_get_string(o, "started", false, &started, p, &e) < 0 ||
-                    imp_json_get_string(o, "ended", false, &ended, p, &e) < 0 ||
-                    imp_json_get_string(o, "output", false, &output, p, &e) < 0 ||
-                    imp_json_get_int(o, "attempts", false, &attempts, p, &e) < 0 ||
-                    (st = job_state_from_name(state)) < 0) {
-                        log_warning("%s: %s, ignoring", p, e.msg[0] ? e.msg : "bad state");
-                        free(j);
-                        continue;
-                }
-                snprintf(j->session, sizeof j->session, "%s", session);
-                snprintf(j->set_dir, sizeof j->set_dir, "%s", set);
-                snprintf(j->queued, sizeof j->queued, "%s", queued);
-                snprintf(j->started, sizeof j->started, "%s", started ? started : "");
-                snprintf(j->ended, sizeof j->ended, "%s", ended ? ended : "");
-                snprintf(j->output, sizeof j->output, "%s/outputs/%s", d->state_dir, j->id);
-                json_t *err = json_object_get(o, "error");
-                const char *msg = NULL;
-                if (json_is_object(err) && imp_json_get_string(err, "message", false, &msg, p, &e) == 0 && msg)
-                        snprintf(j->error, sizeof j->error, "%s", msg);
-                j->attempts = (int) attempts;
-                j->state = (enum job_state) st;
-                if (j->state == JOB_RUNNING)
-                        j->state = JOB_QUEUED;  /* the daemon stopped under it */
-                j->next = d->jobs;
+                j->next = d->jobs;      /* ids start with the time: the list ends newest first */
                 d->jobs = j;
         }
+        for (size_t i = 0; i < n; i++)
+                free(names[i]);
         free(names);
         return 0;
 }
 
+/* ---- watching the queue ---------------------------------------------------------------------- */
+
+static int on_jobs_dir(sd_event_source *src, const struct inotify_event *ev, void *userdata) {
+        struct daemon *d = userdata;
+        if (ev->mask & IN_Q_OVERFLOW) {
+                for (struct job *j = d->jobs; j; j = j->next)
+                        if (j->state == JOB_QUEUED || j->state == JOB_RUNNING)
+                                job_refresh(d, j);
+                return 0;
+        }
+        char id[JOB_ID_MAX + 1];
+        if (ev->len == 0 || !job_id_of(ev->name, id))
+                return 0;
+        struct job *j = jobs_find(d, id);
+        if (j) {
+                job_refresh(d, j);
+                return 0;
+        }
+        /* A job queued by someone else (an operator, another tool): ours to watch and run. */
+        if (!(ev->mask & (IN_MOVED_TO | IN_CLOSE_WRITE)) || !(j = job_load(d, id)))
+                return 0;
+        j->next = d->jobs;
+        d->jobs = j;
+        job_announce(d, j);
+        if (!kick_pending(d))
+                schedule_kick(d, 0);
+        return 0;
+}
+
+/* A worker we did not start may die holding a claim: no file changes then, only its lock
+ * goes; re-read such jobs from time to time. */
+static int on_poll(sd_event_source *src, uint64_t usec, void *userdata) {
+        struct daemon *d = userdata;
+        for (struct job *j = d->jobs; j; j = j->next)
+                if (j->pid == 0 && (j->state == JOB_RUNNING || (!d->spawn_workers && j->state == JOB_QUEUED)))
+                        job_refresh(d, j);
+        (void) sd_event_source_set_time_relative(src, JOB_POLL_US);
+        (void) sd_event_source_set_enabled(src, SD_EVENT_ONESHOT);
+        return 0;
+}
+
+int jobs_watch(struct daemon *d) {
+        char dirp[PATH_MAX];
+        snprintf(dirp, sizeof dirp, "%s/jobs", d->state_dir);
+        int r = sd_event_add_inotify(d->event, &d->job_watch, dirp,
+                                     IN_MOVED_TO | IN_CLOSE_WRITE | IN_MOVED_FROM | IN_DELETE | IN_ONLYDIR,
+                                     on_jobs_dir, d);
+        if (r < 0)
+                log_warning_errno(r, "watching %s: %m; job progress is read every %llu s, ignoring", dirp,
+                                  JOB_POLL_US / 1000000ULL);
+        int k = sd_event_add_time_relative(d->event, &d->job_poll, CLOCK_MONOTONIC, JOB_POLL_US, 0, on_poll, d);
+        return r < 0 ? r : k;
+}
+
 void jobs_free_all(struct daemon *d) {
-        sd_event_source_disable_unref(d->job_timer);
-        d->job_timer = NULL;
+        d->job_timer = sd_event_source_disable_unref(d->job_timer);
+        d->job_watch = sd_event_source_disable_unref(d->job_watch);
+        d->job_poll = sd_event_source_disable_unref(d->job_poll);
         while (d->jobs) {
                 struct job *j = d->jobs;
                 d->jobs = j->next;
-                if (j->pid > 0) {
-                        /* The worker is left to finish; the job is queued again on restart. */
-                        sd_event_source_disable_unref(j->child_source);
-                }
-                free(j);
+                /* A running worker is left to finish: it holds the claim, and the next daemon
+                 * finds the job running (or recovers the claim if the worker died). */
+                job_free(j);
         }
 }

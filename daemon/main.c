@@ -15,7 +15,10 @@ static void help(void) {
                "  --rig PATH             rig config (devices and calibration)\n"
                "  --socket PATH          control socket when not socket-activated (default /run/impasto/control.sock)\n"
                "  --state-dir DIR        sessions and jobs (default /var/lib/impasto)\n"
-               "  --worker-cmd PATH      processing worker, run as PATH process SET --out COPY (default impasto)\n"
+               "  --worker-cmd PATH      processing worker, run as PATH JOBFILE (default /usr/bin/impasto-worker)\n"
+               "  --worker-args \"ARGS\"   processing options stored in each job for the worker:\n"
+               "                         --holdout N, --pitch MM, --cell N, --delta FRACTION, --no-btf\n"
+               "  --no-spawn-workers     leave the queue in STATE/jobs to impasto-worker@ services\n"
                "  --resume               resume sessions interrupted by a stop or crash\n"
                "  --operators-all        every client is an operator (tests)\n"
                "  --max-clients N        connections at a time (default 32)\n"
@@ -53,14 +56,56 @@ static int parse_u64(const char *s, uint64_t *ret) {
         return 0;
 }
 
+/* The worker parses a job's worker_args (cli/worker/worker.c); a typo found here is found
+ * before a capture, not after it. Same grammar: whitespace-separated, --opt VALUE or
+ * --opt=VALUE. */
+static int check_worker_args(const char *args) {
+        static const struct { const char *name; bool value; } known[] = {
+                { "--holdout", true }, { "--pitch", true }, { "--cell", true }, { "--delta", true },
+                { "--no-btf", false },
+        };
+        _cleanup_free_ char *copy = strdup(args);
+        if (!copy) {
+                log_error("out of memory");
+                return -ENOMEM;
+        }
+        char *save = NULL;
+        for (char *w = strtok_r(copy, " \t\n", &save); w; w = strtok_r(NULL, " \t\n", &save)) {
+                char *eq = strchr(w, '=');
+                size_t n = eq ? (size_t) (eq - w) : strlen(w);
+                size_t k;
+                for (k = 0; k < ARRAY_SIZE(known); k++)
+                        if (strlen(known[k].name) == n && !strncmp(w, known[k].name, n))
+                                break;
+                if (k == ARRAY_SIZE(known)) {
+                        log_error("--worker-args: unknown worker option \"%s\" (known: --holdout N, --pitch MM, "
+                                  "--cell N, --delta FRACTION, --no-btf)", w);
+                        return -EINVAL;
+                }
+                const char *v = eq ? eq + 1 : known[k].value ? strtok_r(NULL, " \t\n", &save) : NULL;
+                char *end = NULL;
+                if (known[k].value && (!v || (strtod(v, &end), end == v || *end))) {
+                        log_error("--worker-args: %s expects a number, got \"%s\"", known[k].name, v ? v : "");
+                        return -EINVAL;
+                }
+                if (!known[k].value && eq) {
+                        log_error("--worker-args: %s takes no value", known[k].name);
+                        return -EINVAL;
+                }
+        }
+        return 0;
+}
+
 static int parse_args(int argc, char **argv, struct daemon *d) {
         enum { ARG_SOCKET = 256, ARG_STATE, ARG_WORKER, ARG_RESUME, ARG_OPS, ARG_MAXC, ARG_RETRIES, ARG_JOBS,
-               ARG_MINFREE, ARG_RIG, ARG_DEVTIMEOUT };
+               ARG_MINFREE, ARG_RIG, ARG_DEVTIMEOUT, ARG_WORKER_ARGS, ARG_NO_SPAWN };
         static const struct option opts[] = {
                 { "rig", required_argument, NULL, ARG_RIG },
                 { "socket", required_argument, NULL, ARG_SOCKET },
                 { "state-dir", required_argument, NULL, ARG_STATE },
                 { "worker-cmd", required_argument, NULL, ARG_WORKER },
+                { "worker-args", required_argument, NULL, ARG_WORKER_ARGS },
+                { "no-spawn-workers", no_argument, NULL, ARG_NO_SPAWN },
                 { "resume", no_argument, NULL, ARG_RESUME },
                 { "operators-all", no_argument, NULL, ARG_OPS },
                 { "max-clients", required_argument, NULL, ARG_MAXC },
@@ -80,6 +125,12 @@ static int parse_args(int argc, char **argv, struct daemon *d) {
                 case ARG_SOCKET: d->socket_path = optarg; break;
                 case ARG_STATE: d->state_dir = optarg; break;
                 case ARG_WORKER: d->worker_cmd = optarg; break;
+                case ARG_WORKER_ARGS:
+                        if (check_worker_args(optarg) < 0)
+                                return -EINVAL;
+                        d->worker_args = optarg;
+                        break;
+                case ARG_NO_SPAWN: d->spawn_workers = false; break;
                 case ARG_RESUME: d->auto_resume = true; break;
                 case ARG_OPS: d->operators_all = true; break;
                 case ARG_MAXC:
@@ -157,7 +208,8 @@ int main(int argc, char **argv) {
         struct daemon d = {
                 .socket_path = "/run/impasto/control.sock",
                 .state_dir = "/var/lib/impasto",
-                .worker_cmd = "/usr/bin/impasto",
+                .worker_cmd = "/usr/bin/impasto-worker",
+                .spawn_workers = true,
                 .max_clients = 32,
                 .retries = 3,
                 .job_attempts = 3,
@@ -216,6 +268,12 @@ int main(int argc, char **argv) {
         }
         int ns = store_sessions_load(&d);
         (void) jobs_load(&d);
+        (void) jobs_watch(&d);
+        if (d.spawn_workers)
+                log_info("jobs: %s JOBFILE, one at a time%s%s", d.worker_cmd, d.worker_args ? ", worker_args " : "",
+                         d.worker_args ? d.worker_args : "");
+        else
+                log_info("jobs: queued in %s/jobs for impasto-worker@ services", d.state_dir);
         log_info("impastod %s: rig %s, %d sessions in %s, socket %s", imp_version(), d.rigcfg->name,
                  IMP_MAX(ns, 0), d.state_dir, n == 1 ? "(activated)" : d.socket_path);
         if (d.auto_resume)

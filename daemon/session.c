@@ -1,8 +1,8 @@
 /* Capture sessions: the state machine (idle → preparing → capturing ⇄ paused → completed |
  * aborted | failed) and the capture loop, driven one step at a time from the event loop so
  * that the socket stays responsive. A frame: (tile move) → projector pattern or dark →
- * light → settle (timer) → exposure/gain → trigger → grab → light off when the next frame
- * needs another → capture set → events. Device failures are retried a bounded number of
+ * light → settle (timer) → exposure/gain (when changed) → trigger → grab → light off when
+ * the next frame needs another → capture set → events. Device failures are retried a bounded number of
  * times, then the session pauses with a fault, lights off and projector dark. */
 #include <math.h>
 #include <string.h>
@@ -15,6 +15,9 @@
 #define RETRY_DELAY_US 50000ULL         /* first retry after a failed step; grows linearly */
 #define GRAB_MARGIN_MS 2000U            /* beyond the exposure, before a grab times out */
 #define AXIS_MOVE_TIMEOUT_MS 60000U
+/* Accuracy of the step timer. 0 would mean sd-event's default of 250 ms, within which it
+ * coalesces wake-ups: the settle time of every frame became ~180 ms (issue #7). */
+#define STEP_ACCURACY_US 1ULL
 
 static const char *const state_names[_SESSION_STATE_MAX] = {
         [SESSION_IDLE] = "idle",
@@ -186,8 +189,8 @@ static int step_cb(sd_event_source *src, uint64_t usec, void *userdata);
 static int schedule(struct session *s, uint64_t delay_us) {
         int r;
         if (!s->step_source) {
-                r = sd_event_add_time_relative(s->d->event, &s->step_source, CLOCK_MONOTONIC, delay_us, 0,
-                                               step_cb, s);
+                r = sd_event_add_time_relative(s->d->event, &s->step_source, CLOCK_MONOTONIC, delay_us,
+                                               STEP_ACCURACY_US, step_cb, s);
                 if (r >= 0)
                         r = sd_event_source_set_enabled(s->step_source, SD_EVENT_ONESHOT);
                 return r;
@@ -205,8 +208,11 @@ static void stop_stepping(struct session *s) {
         s->attempt = 0;
 }
 
+static void forget_exposures(struct rigcfg *rc);
+
 static void release_rig(struct session *s) {
         rigcfg_safe_state(s->d->rigcfg);
+        forget_exposures(s->d->rigcfg);
         s->shown_pattern = -1;
         s->current_tile = -1;
 }
@@ -346,6 +352,39 @@ static int setup_frame(struct session *s, const struct imp_frame_record *rec, ui
         return 0;
 }
 
+/* Exposure and gain, written only when they differ from what this camera was last given:
+ * each is a GenICam register round trip, and plans repeat the same values frame after
+ * frame. The cache is cleared by forget_exposures() whenever the camera may have lost them. */
+static int apply_exposure(struct dev_camera *cam, double exposure_us, double gain_db) {
+        int r;
+        if (!cam->applied_valid || cam->applied_exposure_us != exposure_us) {
+                cam->applied_valid = false;
+                if ((r = imp_camera_set_exposure_us(cam->cam, exposure_us)) < 0)
+                        return r;
+                cam->applied_exposure_us = exposure_us;
+        }
+        if (!cam->gain_unsupported && (!cam->applied_valid || cam->applied_gain_db != gain_db)) {
+                cam->applied_valid = false;
+                r = imp_camera_set_gain_db(cam->cam, gain_db);
+                if (r == -EOPNOTSUPP)
+                        cam->gain_unsupported = true;
+                else if (r < 0)
+                        return r;
+        }
+        cam->applied_gain_db = gain_db;
+        cam->applied_valid = true;
+        return 0;
+}
+
+/* Reopened, faulted, paused or stopped cameras may hold other values (a power cycle, another
+ * client, a reset on reconnect): the next frame writes both again. */
+static void forget_exposures(struct rigcfg *rc) {
+        for (int i = 0; i < rc->n_cameras; i++) {
+                rc->cameras[i].applied_valid = false;
+                rc->cameras[i].gain_unsupported = false;
+        }
+}
+
 /* Phase 1: expose, grab, switch off, store. */
 static int expose_frame(struct session *s, const struct imp_frame_record *plan_rec) {
         struct rigcfg *rc = s->d->rigcfg;
@@ -357,8 +396,7 @@ static int expose_frame(struct session *s, const struct imp_frame_record *plan_r
         }
         struct imp_frame_record rec = *plan_rec;
         const struct imp_frame *f;
-        if ((r = imp_camera_set_exposure_us(cam->cam, rec.exposure_us)) < 0 ||
-            ((r = imp_camera_set_gain_db(cam->cam, rec.gain_db)) < 0 && r != -EOPNOTSUPP)) {
+        if ((r = apply_exposure(cam, rec.exposure_us, rec.gain_db)) < 0) {
                 step_failed(s, cam->name, r, "exposure or gain");
                 return r;
         }
@@ -457,6 +495,7 @@ static int begin_capture(struct session *s, struct imp_proto_error *perr) {
         int r = rigcfg_open_devices(d->rigcfg, &s->rig, &e);
         if (r < 0)
                 return imp_proto_error_set(perr, IMP_PROTO_E_DEVICE, -r, NULL, "%s", e.msg);
+        forget_exposures(d->rigcfg);
         if (s->n_patterns > 0) {
 #ifdef IMPASTOD_HAVE_PROJECTOR
                 if (!d->rigcfg->projector.proj)

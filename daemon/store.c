@@ -123,7 +123,8 @@ int store_sessions_load(struct daemon *d) {
                 names[n++] = strdup(de->d_name);
         }
         closedir(dir);
-        qsort(names, n, sizeof *names, cmp_names);
+        if (n > 0)   /* qsort(NULL, 0, …) is undefined behaviour */
+                qsort(names, n, sizeof *names, cmp_names);
         int loaded = 0;
         for (size_t i = 0; i < n; i++) {
                 char sd[PATH_MAX + 300];

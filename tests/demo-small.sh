@@ -1,10 +1,12 @@
 #!/usr/bin/env bash
 # scripts/demo's daemon flow on the small scene: emulated rig (sim serve) → impastod → scan
-# over the socket → the daemon's worker job → compare against the served truth.
+# over the socket → the daemon's job run by impasto-worker (the default worker, with the
+# demo's --worker-args "--holdout 8") → compare against the served truth.
 # Usage: tests/demo-small.sh SOURCE_DIR BUILD_DIR [MODBUS_PORT]
 # Asserts: the session completed; the capture set holds the plan's frame count; the job is
-# done; the copy has heightfield.exr and copy.json; compare reports nan_count 0 and a height
-# RMSE under HEIGHT_RMSE_MAX_UM. Exit 77 (skipped) when impastod or the GigE/Modbus emulator
+# done in the job file format of docs/jobs.md (capture, copy, progress 1); the copy has
+# heightfield.exr and copy.json; compare reports nan_count 0, a height RMSE under
+# HEIGHT_RMSE_MAX_UM and a re-render RMSE (the worker honoured worker_args). Exit 77 (skipped) when impastod or the GigE/Modbus emulator
 # was not built.
 set -euo pipefail
 src=$1
@@ -49,6 +51,12 @@ frames = [f for f in os.listdir(s["capture"] + "/frames") if f.endswith(".tiff")
 check(len(frames) == s["plan_frames"], "frames/ holds %d TIFFs" % len(frames))
 job = json.load(open(out + "/job.json"))
 check(job.get("state") == "done", "job %s is %s" % (job.get("job"), job.get("state")))
+jf = json.load(open(os.path.join(s["capture"], "..", "..", "jobs", s["session"] + ".json")))
+check(jf.get("state") == "done" and jf.get("capture") and jf.get("copy") and jf.get("progress") == 1,
+      "job file in the worker's format (state %s, progress %s)" % (jf.get("state"), jf.get("progress")))
+r = s.get("rerender_rmse")
+check(isinstance(r, (int, float)) and r >= 0 and s.get("rerender_lights", 0) >= 1,
+      "re-render RMSE %s over %s held-out lights (worker_args --holdout 8)" % (r, s.get("rerender_lights")))
 for f in ("heightfield.exr", "copy.json"):
     check(os.path.getsize(os.path.join(s["copy"], f)) > 0, "copy has %s" % f)
 check(s.get("nan_count") == 0, "compare nan_count %s" % s.get("nan_count"))

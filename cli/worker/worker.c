@@ -7,6 +7,10 @@
  *   impasto-worker JOB_FILE                    process that one job
  *   impasto-worker --queue DIR [--once]        process the DIR/<id>.json jobs (--once: one)
  *
+ * While it runs, the worker writes its stage and overall progress into the claimed file
+ * (atomically, on every new stage and at most once a second), which impastod re-reads to
+ * send `job` events. The job's worker_args ("--holdout 8 --no-btf") set processing options.
+ *
  * Exit codes: 0 the job is done (or, with --once, nothing was queued; without --once, the
  * worker was stopped by SIGTERM/SIGINT), 1 the job failed or was put back for a retry,
  * 2 usage, 3 the job file is malformed, not queued, or claimed by another worker,
@@ -16,6 +20,7 @@
 #include <fcntl.h>
 #include <getopt.h>
 #include <limits.h>
+#include <math.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -56,6 +61,14 @@ struct job {
         long long attempts, max_attempts;
         int lock_fd;
 };
+
+static void rfc3339_now(char buf[static 32]) {
+        struct timespec ts;
+        clock_gettime(CLOCK_REALTIME, &ts);
+        struct tm tm;
+        gmtime_r(&ts.tv_sec, &tm);
+        strftime(buf, 32, "%Y-%m-%dT%H:%M:%SZ", &tm);
+}
 
 static void job_done(struct job *j) {
         json_decref(j->doc);
@@ -157,7 +170,15 @@ static int job_write(struct job *j, const char *where, struct imp_error *err) {
 }
 
 static int set_state(struct job *j, const char *state, const char *error) {
-        if (json_object_set_new(j->doc, "state", json_string(state)) < 0 ||
+        char now[32];
+        rfc3339_now(now);
+        bool running = !strcmp(state, "running");
+        if (json_object_set_new(j->doc, running ? "started" : "ended", json_string(now)) < 0 ||
+            (running && json_object_set_new(j->doc, "ended", json_null()) < 0) ||
+            (running && json_object_set_new(j->doc, "progress", json_real(0)) < 0) ||
+            (running && json_object_set_new(j->doc, "stage", json_null()) < 0) ||
+            (!strcmp(state, "done") && json_object_set_new(j->doc, "progress", json_real(1)) < 0) ||
+            json_object_set_new(j->doc, "state", json_string(state)) < 0 ||
             json_object_set_new(j->doc, "attempts", json_integer(j->attempts)) < 0 ||
             json_object_set_new(j->doc, "max_attempts", json_integer(j->max_attempts)) < 0 ||
             json_object_set_new(j->doc, "error", error ? json_string(error) : json_null()) < 0)
@@ -219,10 +240,29 @@ static bool permanent(int r) {
 }
 
 struct progress_state {
-        const char *id;
+        struct job *job;
         char stage[64];
         double last;
+        double fraction;              /* of the whole job, never decreasing */
 };
+
+/* Where each stage of imp_process_capture() lies in the whole job, roughly by its share
+ * of the time on the demo scenes; a stage not listed keeps the fraction where it is. */
+static const struct { const char *stage; double from, to; } stage_spans[] = {
+        { "hdr merge", 0.00, 0.25 },      { "decode", 0.25, 0.35 },      { "triangulate", 0.35, 0.40 },
+        { "heightfield", 0.40, 0.45 },    { "boxes", 0.45, 0.50 },       { "dome hdr merge", 0.50, 0.70 },
+        { "btf fit", 0.70, 0.95 },        { "validation", 0.95, 1.00 },
+};
+
+static double job_fraction(double previous, const char *stage, size_t done, size_t total) {
+        for (size_t i = 0; i < sizeof stage_spans / sizeof stage_spans[0]; i++)
+                if (!strcmp(stage, stage_spans[i].stage)) {
+                        double f = stage_spans[i].from + (stage_spans[i].to - stage_spans[i].from) *
+                                   (total ? (double) done / (double) total : 1.0);
+                        return f > previous ? f : previous;
+                }
+        return previous;
+}
 
 static double now_s(void) {
         struct timespec ts;
@@ -238,8 +278,61 @@ static void on_progress(void *userdata, const char *stage, size_t done, size_t t
                 return;
         snprintf(p->stage, sizeof p->stage, "%s", stage);
         p->last = t;
-        printf("job %s: %s %zu/%zu\n", p->id, stage, done, total);
+        p->fraction = job_fraction(p->fraction, stage, done, total);
+        printf("job %s: %s %zu/%zu\n", p->job->id, stage, done, total);
         fflush(stdout);
+        /* Progress is advice: a failed write does not stop the job. */
+        struct imp_error err = {};
+        if (json_object_set_new(p->job->doc, "stage", json_string(stage)) < 0 ||
+            json_object_set_new(p->job->doc, "progress", json_real(p->fraction)) < 0 ||
+            job_write(p->job, p->job->running, &err) < 0)
+                log_warning("job %s: writing progress: %s, ignoring", p->job->id,
+                            err.msg[0] ? err.msg : "out of memory");
+}
+
+/* worker_args (docs/jobs.md): whitespace-separated options of `impasto process`, --opt VALUE
+ * or --opt=VALUE. */
+static int parse_worker_args(const char *args, struct imp_process_options *o, char *msg, size_t size) {
+        char buf[1024];
+        if (snprintf(buf, sizeof buf, "%s", args) >= (int) sizeof buf) {
+                snprintf(msg, size, "worker_args: longer than %zu bytes", sizeof buf - 1);
+                return -EINVAL;
+        }
+        char *save = NULL;
+        for (char *w = strtok_r(buf, " \t\n", &save); w; w = strtok_r(NULL, " \t\n", &save)) {
+                char *eq = strchr(w, '=');
+                if (eq)
+                        *eq = 0;
+                if (!strcmp(w, "--no-btf") && !eq) {
+                        o->btf = false;
+                        continue;
+                }
+                bool known = !strcmp(w, "--holdout") || !strcmp(w, "--pitch") || !strcmp(w, "--cell") ||
+                             !strcmp(w, "--delta");
+                if (!known) {
+                        snprintf(msg, size, "worker_args: unknown option \"%s\" (known: --holdout N, --pitch MM, "
+                                 "--cell N, --delta FRACTION, --no-btf)", w);
+                        return -EINVAL;
+                }
+                const char *v = eq ? eq + 1 : strtok_r(NULL, " \t\n", &save);
+                char *end = NULL;
+                double x = v ? strtod(v, &end) : 0;
+                bool integer = strcmp(w, "--pitch") && strcmp(w, "--delta");
+                if (!v || end == v || *end || !isfinite(x) || x < 0 || (integer && (x != floor(x) || x > 1000))) {
+                        snprintf(msg, size, "worker_args: %s expects %s, got \"%s\"", w,
+                                 integer ? "an integer 0..1000" : "a number >= 0", v ? v : "");
+                        return -EINVAL;
+                }
+                if (!strcmp(w, "--holdout"))
+                        o->holdout_every = (int) x;
+                else if (!strcmp(w, "--cell"))
+                        o->cell_px = (int) x;
+                else if (!strcmp(w, "--pitch"))
+                        o->pitch_mm = x;
+                else
+                        o->delta_frac = x;
+        }
+        return 0;
 }
 
 /* Runs a claimed job to its next state and releases it. Returns the exit code. */
@@ -248,11 +341,16 @@ static int job_run(struct job *j) {
         fflush(stdout);
         struct imp_process_options o;
         imp_process_options_default(&o);
-        struct progress_state ps = { .id = j->id };
+        struct progress_state ps = { .job = j };
         o.progress = on_progress;
         o.userdata = &ps;
         struct imp_error err = {};
-        int r = imp_process_capture(j->capture, j->copy, &o, &err);
+        const char *args = json_string_value(json_object_get(j->doc, "worker_args"));
+        int r = args ? parse_worker_args(args, &o, err.msg, sizeof err.msg) : 0;
+        if (r == 0 && args && args[0])
+                printf("job %s: worker_args %s\n", j->id, args);
+        if (r == 0)
+                r = imp_process_capture(j->capture, j->copy, &o, &err);
         const char *state = "done";
         char msg[sizeof err.msg];
         msg[0] = 0;

@@ -176,6 +176,10 @@ struct tclient {
         unsigned long long last_seq;
         bool seq_gap;
         char done_state[32], job_state[32];
+        /* job events of a running job that named the worker's stage (progress events) */
+        unsigned n_job_progress;
+        char job_stage[64];
+        double job_progress;
 };
 
 _unused_ static int tc_connect(struct tclient *c, const char *path, unsigned timeout_ms) {
@@ -254,6 +258,13 @@ _unused_ static int tc_read(struct tclient *c, unsigned timeout_ms, struct imp_p
                                 else if (!strcmp(ev, "job")) {
                                         c->n_jobs++;
                                         snprintf(c->job_state, sizeof c->job_state, "%s", st ? st : "");
+                                        const char *stage = json_string_value(json_object_get(ret->root, "stage"));
+                                        if (st && !strcmp(st, "running") && stage) {
+                                                c->n_job_progress++;
+                                                snprintf(c->job_stage, sizeof c->job_stage, "%s", stage);
+                                                c->job_progress = json_number_value(json_object_get(ret->root,
+                                                                                                    "progress"));
+                                        }
                                 }
                         } else if (ret->kind == IMP_PROTO_MSG_BANNER)
                                 c->role = ret->role;

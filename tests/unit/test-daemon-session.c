@@ -1,12 +1,39 @@
 /* impastod end to end on the emulated rig: status, devices, plan.validate/estimate (with the
  * file:line of a bad plan), a dome sweep session with a pause and resume, events to done,
  * the capture set checked frame by frame against the plan and the emulator's pixels, the
- * job hand-off (a worker that succeeds, one that fails and is retried by hand), the disk
+ * job hand-off to impasto-worker (the harness rig has no projector: the sweep's job fails at
+ * once with the worker's error kept, and is retried by hand; a processable set queued into
+ * STATE/jobs is picked up, reports its stages as `job` events and ends done with the
+ * --worker-args honoured), bounded retries of a worker that never claims its job, the disk
  * space check, and SIGTERM leaving the lights off and exiting 0. */
 #include "test-daemon-harness.c"
 
 #define PORT 15851
 #define N_LIGHTS 4
+#define WORKER IMPASTO_BINARY_DIR "/cli/impasto-worker"
+#define IMPASTO IMPASTO_BINARY_DIR "/cli/impasto"
+
+static json_t *job_file(const struct harness *h, const char *id) {
+        char p[1024];
+        snprintf(p, sizeof p, "%s/jobs/%s.json", h->state, id);
+        struct imp_error e = { 0 };
+        json_t *j = NULL;
+        if (imp_json_load(p, &j, &e) < 0)
+                CHECK_MSG(0, "%s", e.msg);
+        return j;
+}
+
+/* A job written into the queue by another tool: the daemon picks it up (inotify). */
+static void queue_job(const struct harness *h, const char *id, const char *capture, const char *copy) {
+        char p[1024], tmp[1100], text[4096];
+        snprintf(p, sizeof p, "%s/jobs/%s.json", h->state, id);
+        snprintf(tmp, sizeof tmp, "%s.tmp", p);
+        snprintf(text, sizeof text, "{\"id\":\"%s\",\"capture\":\"%s\",\"copy\":\"%s\",\"state\":\"queued\","
+                 "\"attempts\":0,\"max_attempts\":2,\"error\":null,\"session\":\"%s\",\"queued\":\"2025-01-01T00:00:00Z\","
+                 "\"worker_args\":\"--holdout 2\"}\n", id, capture, copy, id);
+        h_write(tmp, text);
+        CHECK_MSG(rename(tmp, p) == 0, "rename %s: %s", p, strerror(errno));
+}
 
 int main(void) {
         struct harness h;
@@ -21,7 +48,11 @@ int main(void) {
         h_write(tiny, "dome = { lights = [1]; exposures_us = [1000.0]; };\n");
         const size_t frames = N_LIGHTS * 2 + 2;
 
-        h_start(&h, (const char *const[]) { "--worker-cmd", "/bin/true", "--min-free-bytes", "0", NULL });
+        struct stat wst;
+        if (stat(WORKER, &wst) < 0 || stat(IMPASTO, &wst) < 0)
+                TEST_SKIP("%s or %s not built", WORKER, IMPASTO);
+        h_start(&h, (const char *const[]) { "--worker-cmd", WORKER, "--worker-args", "--holdout 2",
+                                            "--min-free-bytes", "0", NULL });
         struct tclient c;
         CHECK_OK(tc_open(&c, h.socket, true));
         if (c.fd < 0)
@@ -82,7 +113,9 @@ int main(void) {
         CHECK_STR_EQ(c.done_state, "completed");
         CHECK_INT_EQ(c.n_frames, frames);
         CHECK(!c.seq_gap);
-        CHECK_OK(tc_wait_job(&c, "done", 10000));
+        /* Without a projector there is no geometry: the worker fails the job at its first
+         * attempt (a permanent error) and its message is kept. */
+        CHECK_OK(tc_wait_job(&c, "failed", 20000));
 
         r = tc_ok(&c, "session.show", h_arg("session", id));
         CHECK_STR_EQ(json_string_value(json_object_get(r, "state")), "completed");
@@ -94,10 +127,57 @@ int main(void) {
         CHECK_INT_EQ(json_array_size(json_object_get(r, "sessions")), 1);
         json_decref(r);
         r = tc_ok(&c, "jobs.show", h_arg("job", id));
-        CHECK_STR_EQ(json_string_value(json_object_get(r, "state")), "done");
+        CHECK_STR_EQ(json_string_value(json_object_get(r, "state")), "failed");
+        CHECK_INT_EQ(json_integer_value(json_object_get(r, "attempts")), 1);
+        CHECK_STR_CONTAINS(json_string_value(json_object_get(json_object_get(r, "error"), "message")),
+                           "no projector");
         json_decref(r);
-        CHECK_INT_EQ(tc_err(&c, "jobs.retry", h_arg("job", id), NULL, 0), IMP_PROTO_E_BAD_STATE);
+        json_t *jf = job_file(&h, id);          /* the one format: what impasto-worker wrote */
+        CHECK_STR_EQ(json_string_value(json_object_get(jf, "state")), "failed");
+        CHECK_STR_EQ(json_string_value(json_object_get(jf, "capture")), setdir);
+        CHECK_STR_EQ(json_string_value(json_object_get(jf, "session")), id);
+        CHECK_STR_EQ(json_string_value(json_object_get(jf, "worker_args")), "--holdout 2");
+        CHECK_STR_CONTAINS(json_string_value(json_object_get(jf, "error")), "no projector");
+        json_decref(jf);
+        /* retried by hand: queued with attempts reset, the old error kept until it runs */
+        r = tc_ok(&c, "jobs.retry", h_arg("job", id));
+        CHECK_STR_EQ(json_string_value(json_object_get(r, "state")), "queued");
+        json_decref(r);
+        snprintf(c.job_state, sizeof c.job_state, "queued");
+        CHECK_OK(tc_wait_job(&c, "failed", 20000));
+        r = tc_ok(&c, "jobs.show", h_arg("job", id));
+        CHECK_INT_EQ(json_integer_value(json_object_get(r, "attempts")), 1);
+        json_decref(r);
         CHECK_INT_EQ(tc_err(&c, "session.resume", h_arg("session", id), NULL, 0), IMP_PROTO_E_BAD_STATE);
+
+        /* A processable capture set queued by another tool: stages as job events, then done. */
+        char cmd[2048], tinyset[600], tinycopy[600];
+        snprintf(tinyset, sizeof tinyset, "%s/tiny-capture", h.dir);
+        snprintf(tinycopy, sizeof tinycopy, "%s/tiny-copy", h.dir);
+        snprintf(cmd, sizeof cmd, "%s sim render --scene %s/tests/data/worker-tiny.cfg --plan "
+                 "%s/tests/data/worker-tiny-plan.cfg --out %s --quiet --threads 2 >/dev/null", IMPASTO,
+                 IMPASTO_SOURCE_DIR, IMPASTO_SOURCE_DIR, tinyset);
+        CHECK_INT_EQ(system(cmd), 0);
+        unsigned progress_before = c.n_job_progress;
+        queue_job(&h, "tiny-external", tinyset, tinycopy);
+        CHECK_OK(tc_wait_job(&c, "done", 60000));
+        CHECK_MSG(c.n_job_progress > progress_before, "no job event named a stage (%u)", c.n_job_progress);
+        CHECK_MSG(c.job_progress > 0 && c.job_progress <= 1, "stage progress %g", c.job_progress);
+        r = tc_ok(&c, "jobs.show", h_arg("job", "tiny-external"));
+        CHECK_STR_EQ(json_string_value(json_object_get(r, "state")), "done");
+        CHECK_STR_EQ(json_string_value(json_object_get(r, "output")), tinycopy);
+        CHECK_NEAR(json_number_value(json_object_get(r, "progress")), 1.0, 1e-9);
+        json_decref(r);
+        CHECK_INT_EQ(tc_err(&c, "jobs.retry", h_arg("job", "tiny-external"), NULL, 0), IMP_PROTO_E_BAD_STATE);
+        char copyjson[700];
+        snprintf(copyjson, sizeof copyjson, "%s/copy.json", tinycopy);
+        json_t *cj = NULL;
+        struct imp_error ce = { 0 };
+        CHECK_MSG(imp_json_load(copyjson, &cj, &ce) == 0, "%s", ce.msg);
+        /* --worker-args "--holdout 2" reached the worker: light 2 of [0, 2] re-rendered */
+        json_t *val = json_object_get(json_object_get(json_object_get(cj, "stages"), "btf"), "validation");
+        CHECK_INT_EQ(json_integer_value(json_object_get(val, "lights")), 1);
+        json_decref(cj);
         CHECK_INT_EQ(h_verify_set(setdir, plan, true), frames);
         CHECK_INT_EQ(imp_emu_rig_max_lights_on(h.rig), 1);
         CHECK_INT_EQ(imp_emu_rig_lit_light(h.rig), -1);
@@ -131,8 +211,13 @@ int main(void) {
         r = tc_ok(&c, "session.show", h_arg("session", id2));
         CHECK_STR_EQ(json_string_value(json_object_get(r, "state")), "aborted");
         json_decref(r);
-        /* The first session's job survived the restart as done. */
+        /* The jobs survived the restart as they were. */
         r = tc_ok(&c, "jobs.show", h_arg("job", id));
+        CHECK_STR_EQ(json_string_value(json_object_get(r, "state")), "failed");
+        CHECK_STR_CONTAINS(json_string_value(json_object_get(json_object_get(r, "error"), "message")),
+                           "no projector");
+        json_decref(r);
+        r = tc_ok(&c, "jobs.show", h_arg("job", "tiny-external"));
         CHECK_STR_EQ(json_string_value(json_object_get(r, "state")), "done");
         json_decref(r);
         tc_close(&c);
@@ -159,7 +244,7 @@ int main(void) {
         CHECK_STR_EQ(json_string_value(json_object_get(r, "state")), "queued");
         json_decref(r);
         r = tc_ok(&c, "jobs.list", NULL);
-        CHECK_INT_EQ(json_array_size(json_object_get(r, "jobs")), 2);
+        CHECK_INT_EQ(json_array_size(json_object_get(r, "jobs")), 3);
         json_decref(r);
         tc_close(&c);
         h_kill(&h, SIGTERM);

@@ -88,6 +88,42 @@ int main(void) {
         CHECK(!exists(jobs, "good.lock"));
         CHECK_INT_EQ(run(cmd), 0);                             /* done jobs are not run again */
 
+        /* a job as impastod writes it (daemon/jobs.c): absolute paths, its own members, and
+         * worker_args; progress and stage come back in the file */
+        char text[4096];
+        snprintf(text, sizeof text, "{\"id\":\"20250301-101500-s2\",\"capture\":\"%s/capture\",\"copy\":\"%s/copy-d\","
+                 "\"state\":\"queued\",\"attempts\":0,\"max_attempts\":3,\"error\":null,\"session\":\"20250301-101500-s2\","
+                 "\"queued\":\"2025-03-01T10:15:00Z\",\"started\":null,\"ended\":null,\"progress\":0.0,\"stage\":null,"
+                 "\"worker_args\":\"--holdout 2 --cell=10\"}\n", tmp, tmp);
+        write_job(jobs, "20250301-101500-s2.json", text);
+        CHECK_INT_EQ(run(cmd), 0);
+        j = read_job(jobs, "20250301-101500-s2");
+        CHECK_STR_EQ(str(j, "state"), "done");
+        CHECK_NEAR(json_number_value(json_object_get(j, "progress")), 1.0, 1e-9);
+        CHECK_STR_EQ(str(j, "stage"), "validation");            /* the last stage it reported */
+        CHECK(str(j, "started") && str(j, "ended"));
+        CHECK_STR_EQ(str(j, "queued"), "2025-03-01T10:15:00Z");
+        json_decref(j);
+        char cj_path[1024];
+        snprintf(cj_path, sizeof cj_path, "%s/copy-d/copy.json", tmp);
+        json_t *cj = NULL;
+        struct imp_error cerr = {};
+        CHECK_MSG(imp_json_load(cj_path, &cj, &cerr) == 0, "%s", cerr.msg);
+        json_t *stages = json_object_get(cj, "stages");
+        CHECK_INT_EQ(json_integer_value(json_object_get(json_object_get(json_object_get(stages, "btf"), "validation"),
+                                                         "lights")), 1);   /* --holdout 2 of lights [0, 2] */
+        CHECK_INT_EQ(json_integer_value(json_object_get(json_object_get(stages, "boxes"), "cell_px")), 10);
+        json_decref(cj);
+
+        /* worker_args the worker does not know: the job fails at once, saying which */
+        write_job(jobs, "badargs.json", "{\"id\":\"badargs\",\"capture\":\"../capture\",\"copy\":\"../copy5\","
+                  "\"state\":\"queued\",\"attempts\":0,\"max_attempts\":3,\"error\":null,\"worker_args\":\"--holdout x\"}\n");
+        CHECK_INT_EQ(run(cmd), 1);
+        j = read_job(jobs, "badargs");
+        CHECK_STR_EQ(str(j, "state"), "failed");
+        CHECK_STR_CONTAINS(str(j, "error"), "--holdout");
+        json_decref(j);
+
         /* a missing capture set: failed at the first attempt, the error kept */
         write_job(jobs, "missing.json", "{\"id\":\"missing\",\"capture\":\"no-such-set\",\"copy\":\"../copy2\","
                   "\"state\":\"queued\",\"attempts\":0,\"max_attempts\":3,\"error\":null}\n");
