@@ -1,7 +1,9 @@
 /* Throughput of the BTF stage with 64 lights on synthetic data, all cores (OpenMP):
  * (1) the per-texel Lafortune fit alone on precomputed samples of three materials,
  * (2) the tiled driver (sample extraction with shadow/hidden ray casting + fit + fill)
- * on a flat 256×256 heightfield. Prints a table with texels/s and peak RSS. */
+ * on a 256×256 heightfield, nearly flat (pitch 0.25 mm, ±0.2 mm) and rough like paint
+ * (pitch 0.05 mm, ±1 mm: long shadow rays, many shadowed samples). Prints a table with
+ * texels/s and peak RSS. */
 #include <stdio.h>
 #include <stdlib.h>
 #include <sys/resource.h>
@@ -58,18 +60,34 @@ static void bench_fit(const struct imp_rig_light *L, int mat, const char *name) 
                1e6 * t / (TEXELS * reps));
 }
 
-static void bench_grid(const struct imp_rig_light *L) {
+static void bench_grid(const struct imp_rig_light *L, bool rough) {
         enum { G = 256, CAM = 512 };
         float *h = calloc(G * G, sizeof *h), *nrm = calloc(3 * G * G, sizeof *nrm);
         struct imp_image *frames[NL] = { 0 };
         struct imp_btf_texel *tex = malloc(G * G * sizeof *tex);
         if (!h || !nrm || !tex)
                 exit(1);
+        const double pitch = rough ? 0.05 : 0.25;
         for (int i = 0; i < G * G; i++) {
+                int u = i % G, v = i / G;
                 nrm[3 * i + 2] = 1.0f;
                 h[i] = (float) (0.2 * sin(i * 0.05) * cos(i / G * 0.07));   /* mild relief */
+                if (rough)          /* brush ridges, ±1 mm over a few mm */
+                        h[i] = (float) (0.6 * sin(u * 0.045) * cos(v * 0.06) + 0.4 * sin(0.11 * u + 0.07 * v));
         }
-        const double pitch = 0.25;
+        if (rough)                  /* normals from central differences */
+                for (int v = 0; v < G; v++)
+                        for (int u = 0; u < G; u++) {
+                                int ul = u > 0 ? u - 1 : u, ur = u < G - 1 ? u + 1 : u;
+                                int vd = v > 0 ? v - 1 : v, vu = v < G - 1 ? v + 1 : v;
+                                double gx = (h[v * G + ur] - h[v * G + ul]) / ((ur - ul) * pitch);
+                                double gy = (h[vu * G + u] - h[vd * G + u]) / ((vu - vd) * pitch);
+                                double nn = sqrt(gx * gx + gy * gy + 1.0);
+                                float *q = &nrm[3 * (v * G + u)];
+                                q[0] = (float) (-gx / nn);
+                                q[1] = (float) (-gy / nn);
+                                q[2] = (float) (1.0 / nn);
+                        }
         struct imp_btf_heightfield hf = { .width = G, .height = G, .pitch_mm = pitch, .height_mm = h, .normal = nrm,
                 .canvas_to_world = { 1, 0, 0, 30, 0, 1, 0, 10, 0, 0, 1, 0, 0, 0, 0, 1 } };
         struct imp_pinhole cam;
@@ -93,8 +111,8 @@ static void bench_grid(const struct imp_rig_light *L) {
         double t0 = now_s();
         int r = imp_btf_fit_grid(&hf, &cap, &sp, &fp, 64, tex, &st);
         double t = now_s() - t0;
-        printf("| extract + fit + fill (grid)  | %8d | %10.0f | %9.2f |  (r=%d, hidden %ld, shadowed samples %ld)\n",
-               G * G, G * G / t, 1e6 * t / (G * G), r, st.n_hidden, st.n_shadowed);
+        printf("| extract + fit + fill, %-6s | %8d | %10.0f | %9.2f |  (r=%d, hidden %ld, shadowed samples %ld)\n",
+               rough ? "rough" : "flat", G * G, G * G / t, 1e6 * t / (G * G), r, st.n_hidden, st.n_shadowed);
         for (int j = 0; j < NL; j++)
                 imp_image_free(frames[j]);
         free(h);
@@ -117,7 +135,8 @@ int main(void) {
         bench_fit(L, 1, "semi-glossy k=20");
         bench_fit(L, 2, "glossy k=100");
         bench_fit(L, -1, "mixed");
-        bench_grid(L);
+        bench_grid(L, false);
+        bench_grid(L, true);
         printf("\npeak RSS: %.1f MB (of which the %d input frames 512×512 RGB f32: %.1f MB; fit-only "
                "sample arrays %.1f MB)\n", peak_rss_kb() / 1024.0, NL, NL * 512.0 * 512 * 12 / 1048576.0,
                (double) TEXELS * NL * sizeof(struct imp_btf_sample) / 1048576.0);

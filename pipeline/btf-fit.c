@@ -4,6 +4,7 @@
  * gauge, with bounds, a Huber loss scaled by the MAD, a k-grid multi-start, and honest
  * flags when the data cannot determine the lobe. Then hole filling and the tiled driver. */
 #include <errno.h>
+#include <float.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -42,15 +43,17 @@ void imp_btf_fit_params_default(struct imp_btf_fit_params *ret) {
         };
 }
 
-/* Per-texel workspace (on the stack: ~30 kB). W = l_z² · robust weight: residuals are
- * those of V/E, i.e. cos θl · (y − model) with y = V / (E cos θl). */
+/* Per-texel workspace (on the stack: ~40 kB). W = l_z² · robust weight: residuals are
+ * those of V/E, i.e. cos θl · (y − model) with y = V / (E cos θl). Wy = W·y and the sums
+ * that depend on the weights only (sw, sy, syy) are refreshed by set_weights(). */
 struct work {
         int n;
         float ax[IMP_BTF_MAX_SAMPLES], ay[IMP_BTF_MAX_SAMPLES], az[IMP_BTF_MAX_SAMPLES];
         float wl[IMP_BTF_MAX_SAMPLES], om[IMP_BTF_MAX_SAMPLES], W[IMP_BTF_MAX_SAMPLES];
-        float y[3][IMP_BTF_MAX_SAMPLES];
+        float y[3][IMP_BTF_MAX_SAMPLES], Wy[3][IMP_BTF_MAX_SAMPLES];
         float d[IMP_BTF_MAX_SAMPLES], g[IMP_BTF_MAX_SAMPLES], ld[IMP_BTF_MAX_SAMPLES];
-        float tmp[IMP_BTF_MAX_SAMPLES];
+        float tmp[IMP_BTF_MAX_SAMPLES], res[IMP_BTF_MAX_SAMPLES];
+        double sw, sy[3], syy[3];
 };
 
 /* One evaluation of the reduced problem at a lobe. g is normalised by its largest value
@@ -63,6 +66,62 @@ struct eval {
         double sw, sg, sgg;
         double cost;                  /* Σ W Σ_c r² */
 };
+
+/* ---- float exp and log that vectorise ------------------------------------------ */
+
+/* These run inside `omp simd` loops (glibc's expf/logf are calls that block the
+ * vectoriser). Both are the Cephes single-precision polynomials: relative error within
+ * 1 ulp of the correctly rounded value over the ranges used here. Branch-free: both
+ * operations run unconditionally and only values or constants are selected, and the
+ * comparisons are the quiet ones (isgreater): under -ftrapping-math GCC will not
+ * if-convert a floating-point operation or an ordered comparison that may trap. */
+static inline float bits_to_float(uint32_t u) { float f; memcpy(&f, &u, sizeof f); return f; }
+static inline uint32_t float_to_bits(float f) { uint32_t u; memcpy(&u, &f, sizeof u); return u; }
+
+/* e^x for x ≤ 0 (x may be -inf); 0 below -87 (where e^x leaves the normal floats: no denormals, no slow
+ * path). */
+static inline float exp_neg(float x) {
+        const float ln2_hi = 0.693359375f, ln2_lo = -2.12194440e-4f;
+        const float round_magic = 12582912.0f;        /* 1.5·2^23: adds round to nearest */
+        const uint32_t lim = 0xc2ae0000u;             /* bits of -87.0f */
+        uint32_t xb = float_to_bits(x);
+        bool ok = xb <= lim;                          /* x ≥ -87 (x ≤ 0: bits grow with |x|) */
+        float xc = bits_to_float(ok ? xb : lim);
+        float fn = (xc * 1.44269504088896341f + round_magic) - round_magic;
+        float r = xc - fn * ln2_hi - fn * ln2_lo;
+        float p = 1.9875691500e-4f;
+        p = p * r + 1.3981999507e-3f;
+        p = p * r + 8.3334519073e-3f;
+        p = p * r + 4.1665795894e-2f;
+        p = p * r + 1.6666665459e-1f;
+        p = p * r + 5.0000001201e-1f;
+        p = p * r * r + r + 1.0f;
+        uint32_t scale = (uint32_t) ((int32_t) fn + 127) << 23;
+        return p * bits_to_float(ok ? scale : 0u);
+}
+
+/* ln x for finite x ≥ FLT_MIN (callers floor x there). x = 2^e · m with m in
+ * [√2/2, √2), found with integer arithmetic only: subtracting the bits of √2/2 makes the
+ * exponent field count from there (the trick of ARM's optimized-routines logf). */
+static inline float log_pos(float x) {
+        const uint32_t off = 0x3f3504f3u;             /* bits of √2/2 */
+        uint32_t u = float_to_bits(x), tmp = u - off;
+        int32_t e = (int32_t) tmp >> 23;              /* arithmetic shift: floor */
+        float m = bits_to_float(u - (tmp & 0xff800000u));
+        float f = m - 1.0f, z = f * f, fe = (float) e;
+        float p = 7.0376836292e-2f;
+        p = p * f - 1.1514610310e-1f;
+        p = p * f + 1.1676998740e-1f;
+        p = p * f - 1.2420140846e-1f;
+        p = p * f + 1.4249322787e-1f;
+        p = p * f - 1.6668057665e-1f;
+        p = p * f + 2.0000714765e-1f;
+        p = p * f - 2.4999993993e-1f;
+        p = p * f + 3.3333331174e-1f;
+        float r = f * z * p - 2.12194440e-4f * fe;
+        r += -0.5f * z;
+        return f + r + 0.693359375f * fe;
+}
 
 /* ---- the linear part: 2-variable non-negative least squares ---------------------- */
 
@@ -97,92 +156,165 @@ static double nnls2(double sw, double sg, double sgg, double sy, double sgy, dou
         return best;
 }
 
-/* Fills w->d, w->ld, w->g for the lobe and solves the linear part. */
-static void evaluate(struct work *w, double cx, double cy, double k, struct eval *e) {
-        int n = w->n;
-        double ldmax = -HUGE_VAL;
-        for (int i = 0; i < n; i++) {
-                float d = (float) cx * w->ax[i] + (float) cy * w->ay[i] + w->az[i];
-                w->d[i] = d;
-                float ld = d > 0.0f ? logf(d) : -HUGE_VALF;
-                w->ld[i] = ld;
-                if (ld > ldmax)
-                        ldmax = ld;
-        }
-        double sw = 0, sg = 0, sgg = 0, sy[3] = { 0 }, sgy[3] = { 0 }, syy[3] = { 0 };
-        float kf = (float) k, lm = (float) ldmax;
-        for (int i = 0; i < n; i++) {
-                float g = w->d[i] > 0.0f ? expf(kf * (w->ld[i] - lm)) : 0.0f;
-                w->g[i] = g;
-                double W = w->W[i], Wg = W * g;
+/* After a change of W: Wy and the weight-only sums. */
+static void set_weights(struct work *w) {
+        double sw = 0.0, sy[3] = { 0 }, syy[3] = { 0 };
+        for (int i = 0; i < w->n; i++) {
+                double W = w->W[i];
                 sw += W;
-                sg += Wg;
-                sgg += Wg * g;
                 for (int c = 0; c < 3; c++) {
                         double y = w->y[c][i];
+                        w->Wy[c][i] = (float) (W * y);
                         sy[c] += W * y;
-                        sgy[c] += Wg * y;
                         syy[c] += W * y * y;
                 }
         }
-        e->cx = cx;
-        e->cy = cy;
+        w->sw = sw;
+        for (int c = 0; c < 3; c++) {
+                w->sy[c] = sy[c];
+                w->syy[c] = syy[c];
+        }
+}
+
+/* Fills w->d (floored at FLT_MIN) and w->ld (its log; LD_NONE where d ≤ 0) for the
+ * lobe (cx, cy, 1); returns the largest ln d (-HUGE_VAL: no d > 0). Every stored value is
+ * finite, so that samples outside the lobe (g = 0) contribute exact zeros to the
+ * vectorised sums of normal_matrix() instead of 0·∞. */
+#define LD_NONE (-1e30f)
+static double lobe_logs(struct work *w, double cx, double cy) {
+        int n = w->n;
+        float fx = (float) cx, fy = (float) cy, ldmax = LD_NONE;
+        float *restrict d = w->d, *restrict ld = w->ld;
+        const float *restrict ax = w->ax, *restrict ay = w->ay, *restrict az = w->az;
+#pragma omp simd reduction(max : ldmax)
+        for (int i = 0; i < n; i++) {
+                float di = fx * ax[i] + fy * ay[i] + az[i];
+                /* Integer max and masks on the bits: as signed integers, non-negative
+                 * floats order like their values (and no float select, see above). */
+                int32_t db = (int32_t) float_to_bits(di), lo = (int32_t) float_to_bits(FLT_MIN);
+                uint32_t neg = (uint32_t) -(int32_t) (db <= 0);
+                float df = bits_to_float((uint32_t) (db > lo ? db : lo));
+                float l = log_pos(df) + bits_to_float(neg & float_to_bits(LD_NONE));
+                d[i] = df;
+                ld[i] = l;
+                ldmax = isgreater(l, ldmax) ? l : ldmax;
+        }
+        return ldmax > 0.5f * LD_NONE ? ldmax : -HUGE_VAL;
+}
+
+/* Fills w->g for exponent k (the logs of lobe_logs() with their maximum ldmax) and
+ * solves the linear part. */
+static void lobe_solve(struct work *w, double k, double ldmax, struct eval *e) {
+        int n = w->n;
+        double sg = 0, sgg = 0, sgy0 = 0, sgy1 = 0, sgy2 = 0;
+        float kf = (float) k, lm = (float) ldmax;
+        float *restrict g = w->g;
+        const float *restrict ld = w->ld, *restrict W = w->W;
+        const float *restrict wy0 = w->Wy[0], *restrict wy1 = w->Wy[1], *restrict wy2 = w->Wy[2];
+        if (ldmax > -HUGE_VAL) {
+#pragma omp simd reduction(+ : sg, sgg, sgy0, sgy1, sgy2)
+                for (int i = 0; i < n; i++) {
+                        float gi = exp_neg(kf * (ld[i] - lm));     /* ld = -inf → 0 */
+                        g[i] = gi;
+                        float Wg = W[i] * gi;
+                        sg += Wg;
+                        sgg += Wg * gi;
+                        sgy0 += wy0[i] * gi;
+                        sgy1 += wy1[i] * gi;
+                        sgy2 += wy2[i] * gi;
+                }
+        } else {
+                memset(g, 0, n * sizeof *g);
+        }
+        double sgy[3] = { sgy0, sgy1, sgy2 };
         e->k = k;
         e->ldmax = ldmax;
-        e->sw = sw;
+        e->sw = w->sw;
         e->sg = sg;
         e->sgg = sgg;
         e->cost = 0.0;
         for (int c = 0; c < 3; c++) {
-                double cc = nnls2(sw, sg, sgg, sy[c], sgy[c], syy[c], &e->rd[c], &e->rs[c]);
+                double cc = nnls2(w->sw, sg, sgg, w->sy[c], sgy[c], w->syy[c], &e->rd[c], &e->rs[c]);
                 e->cost += fmax(cc, 0.0);
                 e->rd_active[c] = e->rd[c] > 0.0;
         }
 }
 
-/* ---- the lobe: Gauss–Newton matrix of the reduced problem ------------------------ */
-
-/* Derivatives of ln g w.r.t. the lobe parameters, for sample i (g > 0). Scale terms
- * (the derivative of the normalisation) are dropped: they lie in the span of g and are
- * projected out with the linear parameters. */
-static int dlng(const struct work *w, const struct eval *e, bool cxy, int i, double ret[MAXP]) {
-        double q = e->k / w->d[i];
-        if (cxy) {
-                ret[0] = q * (w->ax[i] + w->ay[i]);
-                ret[1] = e->k * (w->ld[i] - e->ldmax);
-                return 2;
-        }
-        ret[0] = q * w->ax[i];
-        ret[1] = q * w->ay[i];
-        ret[2] = e->k * (w->ld[i] - e->ldmax);
-        return 3;
+/* Fills w->d, w->ld, w->g for the lobe and solves the linear part. */
+static void evaluate(struct work *w, double cx, double cy, double k, struct eval *e) {
+        lobe_solve(w, k, lobe_logs(w, cx, cy), e);
+        e->cx = cx;
+        e->cy = cy;
 }
 
+/* ---- the lobe: Gauss–Newton matrix of the reduced problem ------------------------ */
+
 /* H = Jᵀ(I − P)J (variable projection, Kaufman) and b = −½ ∇cost, at the lobe of e (w's
- * d, ld, g must be those of e). Returns the number of parameters. */
+ * d, ld, g must be those of e). Returns the number of parameters. J is the Jacobian of
+ * g w.r.t. (Cx, Cy, log k): g·k·(ax/d, ay/d, ln d − ldmax); scale terms (the derivative
+ * of the normalisation) are dropped: they lie in the span of g and are projected out
+ * with the linear parameters. Under CX_EQ_CY the parameter Cxy moves both: its column is
+ * the sum of the first two. Samples with g = 0 add exact zeros (lobe_logs()). */
 static int normal_matrix(const struct work *w, const struct eval *e, bool cxy, double H[MAXP][MAXP],
                          double b[MAXP]) {
-        double A[MAXP][MAXP] = { { 0 } }, s1[MAXP] = { 0 }, s2[MAXP] = { 0 };
-        int np = cxy ? 2 : 3;
-        memset(b, 0, MAXP * sizeof *b);
+        const double k = e->k, lm = e->ldmax;
+        double c0 = 0.0, css = 0.0;
+        for (int c = 0; c < 3; c++) {
+                c0 += e->rs[c] * e->rd[c];
+                css += e->rs[c] * e->rs[c];
+        }
+        const double r0 = e->rs[0], r1 = e->rs[1], r2 = e->rs[2];
+        double s1x = 0, s1y = 0, s1k = 0, s2x = 0, s2y = 0, s2k = 0, bx = 0, by = 0, bk = 0;
+        double axx = 0, axy = 0, ayy = 0, akx = 0, aky = 0, akk = 0;
+        const float *restrict G = w->g, *restrict D = w->d, *restrict LD = w->ld, *restrict WW = w->W;
+        const float *restrict AX = w->ax, *restrict AY = w->ay;
+        const float *restrict Y0 = w->y[0], *restrict Y1 = w->y[1], *restrict Y2 = w->y[2];
+#pragma omp simd reduction(+ : s1x, s1y, s1k, s2x, s2y, s2k, bx, by, bk, axx, axy, ayy, akx, aky, akk)
         for (int i = 0; i < w->n; i++) {
-                double g = w->g[i];
-                if (!(g > 0.0))
-                        continue;
-                double dg[MAXP], W = w->W[i], R = 0.0;
-                dlng(w, e, cxy, i, dg);
-                for (int j = 0; j < np; j++)
-                        dg[j] *= g;
-                for (int c = 0; c < 3; c++)
-                        R += e->rs[c] * (w->y[c][i] - e->rd[c] - e->rs[c] * g);
-                for (int j = 0; j < np; j++) {
-                        double Wd = W * dg[j];
-                        s1[j] += Wd;
-                        s2[j] += Wd * g;
-                        b[j] += Wd * R;
-                        for (int l = 0; l <= j; l++)
-                                A[j][l] += Wd * dg[l];
-                }
+                double g = G[i], W = WW[i], q = k * g / D[i];
+                double jx = q * AX[i], jy = q * AY[i], jk = k * g * (LD[i] - lm);
+                double R = r0 * Y0[i] + r1 * Y1[i] + r2 * Y2[i] - c0 - css * g;
+                double wx = W * jx, wy = W * jy, wk = W * jk;
+                s1x += wx;
+                s1y += wy;
+                s1k += wk;
+                s2x += wx * g;
+                s2y += wy * g;
+                s2k += wk * g;
+                bx += wx * R;
+                by += wy * R;
+                bk += wk * R;
+                axx += wx * jx;
+                axy += wx * jy;
+                ayy += wy * jy;
+                akx += wk * jx;
+                aky += wk * jy;
+                akk += wk * jk;
+        }
+        double A[MAXP][MAXP] = { { 0 } }, s1[MAXP], s2[MAXP];
+        int np;
+        if (cxy) {
+                np = 2;
+                s1[0] = s1x + s1y;
+                s2[0] = s2x + s2y;
+                b[0] = bx + by;
+                s1[1] = s1k;
+                s2[1] = s2k;
+                b[1] = bk;
+                A[0][0] = axx + 2.0 * axy + ayy;
+                A[1][0] = akx + aky;
+                A[1][1] = akk;
+        } else {
+                np = 3;
+                s1[0] = s1x; s1[1] = s1y; s1[2] = s1k;
+                s2[0] = s2x; s2[1] = s2y; s2[2] = s2k;
+                b[0] = bx; b[1] = by; b[2] = bk;
+                A[0][0] = axx;
+                A[1][0] = axy;
+                A[1][1] = ayy;
+                A[2][0] = akx;
+                A[2][1] = aky;
+                A[2][2] = akk;
         }
         memset(H, 0, sizeof(double) * MAXP * MAXP);
         double det = e->sw * e->sgg - e->sg * e->sg;
@@ -446,18 +578,34 @@ static double sample_residual(const struct work *w, const double rd[3], const do
         return sqrt(w->wl[i] * s / 3.0);
 }
 
-/* Huber weights with σ = 1.4826 · MAD (floored): W = l_z² · min(1, δσ/|r|). */
+/* Squared residuals of all samples into w->res (vectorised; see sample_residual()). */
+static void residuals2(struct work *w, const double rd[3], const double rs[3]) {
+        const float a0 = (float) rd[0], a1 = (float) rd[1], a2 = (float) rd[2];
+        const float b0 = (float) rs[0], b1 = (float) rs[1], b2 = (float) rs[2];
+        const float *restrict G = w->g, *restrict WL = w->wl;
+        const float *restrict Y0 = w->y[0], *restrict Y1 = w->y[1], *restrict Y2 = w->y[2];
+        float *restrict R = w->res;
+#pragma omp simd
+        for (int i = 0; i < w->n; i++) {
+                float r0 = Y0[i] - a0 - b0 * G[i], r1 = Y1[i] - a1 - b1 * G[i], r2 = Y2[i] - a2 - b2 * G[i];
+                R[i] = WL[i] * (r0 * r0 + r1 * r1 + r2 * r2) * (1.0f / 3.0f);
+        }
+}
+
+/* Huber weights with σ = 1.4826 · MAD (floored): W = l_z² · min(1, δσ/|r|). Works on
+ * squared residuals (the median commutes with the square root). */
 static void huber_reweight(struct work *w, const double rd[3], const double rs[3],
                            const struct imp_btf_fit_params *p) {
-        for (int i = 0; i < w->n; i++)
-                w->tmp[i] = (float) sample_residual(w, rd, rs, i);
-        float med = select_kth(w->tmp, w->n, w->n / 2);
-        double sigma = fmax(1.4826 * med, p->sigma_floor), thr = p->huber_delta * sigma;
+        residuals2(w, rd, rs);
+        memcpy(w->tmp, w->res, w->n * sizeof *w->tmp);
+        double med = sqrt(select_kth(w->tmp, w->n, w->n / 2));
+        double sigma = fmax(1.4826 * med, p->sigma_floor), thr = p->huber_delta * sigma, thr2 = thr * thr;
         for (int i = 0; i < w->n; i++) {
-                double r = sample_residual(w, rd, rs, i);
-                w->om[i] = r > thr ? (float) (thr / r) : 1.0f;
+                double r2 = w->res[i];
+                w->om[i] = r2 > thr2 ? (float) (thr / sqrt(r2)) : 1.0f;
                 w->W[i] = w->wl[i] * w->om[i];
         }
+        set_weights(w);
 }
 
 /* ---- the texel -------------------------------------------------------------------- */
@@ -482,6 +630,7 @@ static int load_work(struct work *w, const struct imp_btf_sample *s, int n) {
                 m++;
         }
         w->n = m;
+        set_weights(w);
         return m;
 }
 
@@ -503,14 +652,8 @@ static void fit_matte(struct work *w, const struct imp_btf_fit_params *p, struct
         for (int pass = 0; pass <= p->robust_passes && w->n > 0; pass++) {
                 if (pass > 0)
                         huber_reweight(w, rd, rs, p);
-                double sw = 0.0, sy[3] = { 0 };
-                for (int i = 0; i < w->n; i++) {
-                        sw += w->W[i];
-                        for (int c = 0; c < 3; c++)
-                                sy[c] += w->W[i] * w->y[c][i];
-                }
                 for (int c = 0; c < 3; c++)
-                        rd[c] = sw > 0.0 ? fmax(sy[c] / sw, 0.0) : 0.0;
+                        rd[c] = w->sw > 0.0 ? fmax(w->sy[c] / w->sw, 0.0) : 0.0;
         }
         double ss = 0.0, so = 0.0;
         for (int i = 0; i < w->n; i++) {
@@ -566,9 +709,11 @@ int imp_btf_fit_texel(const struct imp_btf_sample *samples, int n, const struct 
         struct bounds bd = { p->c_max, log(p->k_min), log(p->k_max),
                              p->sigma_floor * p->sigma_floor / (p->c_prior_sigma * p->c_prior_sigma) };
         struct eval e, best = { .cost = HUGE_VAL };
+        double ldmax = lobe_logs(&w, -1.0, -1.0);    /* the same lobe shape for every k */
         for (size_t i = 0; i < ARRAY_SIZE(k_grid); i++) {
                 double k = IMP_CLAMP(k_grid[i], p->k_min, p->k_max);
-                evaluate(&w, -1.0, -1.0, k, &e);
+                lobe_solve(&w, k, ldmax, &e);
+                e.cx = e.cy = -1.0;
                 if (e.cost < best.cost)
                         best = e;
         }
@@ -579,7 +724,7 @@ int imp_btf_fit_texel(const struct imp_btf_sample *samples, int n, const struct 
                 *ret = t;
                 return 0;
         }
-        evaluate(&w, best.cx, best.cy, best.k, &e);
+        lobe_solve(&w, best.k, ldmax, &e);
         bool cxy = !cx_cy_separable(&w, p->cxy_tau);
         double th[MAXP];
         if (cxy) {
@@ -764,11 +909,15 @@ int imp_btf_fit_grid(const struct imp_btf_heightfield *hf, const struct imp_btf_
                 return r;
         dflt = (struct imp_btf_texel) { 0 };
         set_default_lobe(fp, &dflt);
+        _cleanup_(imp_btf_hf_pyramid_freep) struct imp_btf_hf_pyramid *py = NULL;
+        r = imp_btf_hf_pyramid_new(hf, &py);
+        if (r < 0)
+                return r;
 
         for (int y0 = 0; y0 < hf->height; y0 += T)
                 for (int x0 = 0; x0 < hf->width; x0 += T) {
                         int w = IMP_MIN(T, hf->width - x0), h = IMP_MIN(T, hf->height - y0);
-                        r = imp_btf_samples_extract(hf, cap, sp, x0, y0, w, h, buf);
+                        r = imp_btf_samples_extract_pyramid(hf, cap, sp, py, x0, y0, w, h, buf);
                         if (r < 0)
                                 return r;
                         long n_samples = 0, n_shadowed = 0;

@@ -130,9 +130,9 @@ double imp_btf_heightfield_hmax(const struct imp_btf_heightfield *hf) {
         return hmax;
 }
 
-/* Bilinear height at canvas (x, y); false outside the grid. Non-finite → -HUGE_VAL. */
-static bool height_at(const struct imp_btf_heightfield *hf, double x, double y, double *ret) {
-        double fu = x / hf->pitch_mm, fv = y / hf->pitch_mm;
+/* Bilinear height at texel coordinates (fu, fv); false outside the grid. Non-finite →
+ * -HUGE_VAL. */
+static bool height_at_texel(const struct imp_btf_heightfield *hf, double fu, double fv, double *ret) {
         if (!(fu >= 0.0 && fv >= 0.0 && fu <= hf->width - 1 && fv <= hf->height - 1))
                 return false;
         int u = IMP_MIN((int) fu, hf->width - 2), v = IMP_MIN((int) fv, hf->height - 2);
@@ -148,25 +148,160 @@ static bool height_at(const struct imp_btf_heightfield *hf, double x, double y, 
         return true;
 }
 
-bool imp_btf_heightfield_ray(const struct imp_btf_heightfield *hf, const struct imp_btf_sample_params *p,
-                             double hmax_mm, const double o[3], const double d[3], double max_t_mm,
-                             double *ret_t_mm) {
+/* A max pyramid over the cells of the heightfield: cell (u, v) spans texels u..u+1 ×
+ * v..v+1 and holds the largest finite corner height (the bilinear surface over the cell
+ * never exceeds it; -inf when no corner is finite: non-finite heights never occlude);
+ * level L holds the maxima of 2^L × 2^L cells. It lets the ray march skip, exactly, the
+ * sample points that lie above every height of the block they cross. */
+#define PYR_LEVELS_MAX 16
+struct imp_btf_hf_pyramid {
+        const float *height_mm;       /* the heightfield it was built from (identity check) */
+        int width, height;
+        int levels;                   /* 0: no pyramid (grid narrower than 2 texels) */
+        int lw[PYR_LEVELS_MAX], lh[PYR_LEVELS_MAX];
+        float *lvl[PYR_LEVELS_MAX];   /* one allocation, lvl[0] owns it */
+        double hmax;                  /* highest finite height (-HUGE_VAL: none) */
+};
+
+void imp_btf_hf_pyramid_free(struct imp_btf_hf_pyramid *py) {
+        if (!py)
+                return;
+        free(py->lvl[0]);
+        free(py);
+}
+
+static float max4(float a, float b, float c, float d) {
+        float m = a > b ? a : b, n = c > d ? c : d;
+        return m > n ? m : n;
+}
+
+int imp_btf_hf_pyramid_new(const struct imp_btf_heightfield *hf, struct imp_btf_hf_pyramid **ret) {
+        if (!hf || !ret || hf->width <= 0 || hf->height <= 0 || !hf->height_mm)
+                return -EINVAL;
+        struct imp_btf_hf_pyramid *py = calloc(1, sizeof *py);
+        if (!py)
+                return -ENOMEM;
+        py->height_mm = hf->height_mm;
+        py->width = hf->width;
+        py->height = hf->height;
+        if (hf->width < 2 || hf->height < 2) {
+                py->hmax = imp_btf_heightfield_hmax(hf);
+                *ret = py;
+                return 0;
+        }
+        size_t total = 0;
+        int w = hf->width - 1, h = hf->height - 1, n = 0;
+        for (;;) {
+                py->lw[n] = w;
+                py->lh[n] = h;
+                total += (size_t) w * h;
+                n++;
+                if ((w == 1 && h == 1) || n == PYR_LEVELS_MAX)
+                        break;
+                w = (w + 1) / 2;
+                h = (h + 1) / 2;
+        }
+        float *buf = malloc(total * sizeof *buf);
+        if (!buf) {
+                free(py);
+                return -ENOMEM;
+        }
+        py->levels = n;
+        size_t off = 0;
+        for (int L = 0; L < n; off += (size_t) py->lw[L] * py->lh[L], L++)
+                py->lvl[L] = buf + off;
+        const int W = hf->width, cw = py->lw[0];
+#pragma omp parallel for schedule(static)
+        for (int v = 0; v < py->lh[0]; v++)
+                for (int u = 0; u < cw; u++) {
+                        const float *q = hf->height_mm + (size_t) v * W + u;
+                        float c[4] = { q[0], q[1], q[W], q[W + 1] }, m = -HUGE_VALF;
+                        for (int i = 0; i < 4; i++)
+                                if (isfinite(c[i]) && c[i] > m)
+                                        m = c[i];
+                        py->lvl[0][(size_t) v * cw + u] = m;
+                }
+        for (int L = 1; L < n; L++) {
+                const float *src = py->lvl[L - 1];
+                int sw = py->lw[L - 1], sh = py->lh[L - 1];
+                for (int v = 0; v < py->lh[L]; v++)
+                        for (int u = 0; u < py->lw[L]; u++) {
+                                int u0 = 2 * u, v0 = 2 * v, u1 = IMP_MIN(u0 + 1, sw - 1), v1 = IMP_MIN(v0 + 1, sh - 1);
+                                py->lvl[L][(size_t) v * py->lw[L] + u] =
+                                        max4(src[(size_t) v0 * sw + u0], src[(size_t) v0 * sw + u1],
+                                             src[(size_t) v1 * sw + u0], src[(size_t) v1 * sw + u1]);
+                        }
+        }
+        /* The top cell covers the grid: the highest finite height (-inf: none). */
+        py->hmax = py->lvl[n - 1][0];
+        *ret = py;
+        return 0;
+}
+
+/* The ray march of imp_btf_heightfield_ray(); py may be NULL (plain march). Sample point
+ * k sits at t = k·step. With a pyramid, a block of cells is skipped when the lowest point
+ * of the ray inside it is no lower than the block's maximum minus the bias: no sample
+ * point there can be blocked, and leaving the grid or rising above hmax_mm cannot be
+ * undone further along (the grid is convex; z rises monotonically when d[2] ≥ 0, and
+ * with d[2] < 0 the first point already decides it). Hits are thus those of the plain
+ * march. The level walk goes up after a skip and down after a miss. */
+static bool march(const struct imp_btf_heightfield *hf, const struct imp_btf_sample_params *p,
+                  const struct imp_btf_hf_pyramid *py, double hmax_mm, const double o[3], const double d[3],
+                  double max_t_mm, double *ret_t_mm) {
         double step = p->march_step_texels * hf->pitch_mm;
         double bias = p->shadow_bias_texels * hf->pitch_mm;
-        double t_prev = 0.0;
+        double ip = 1.0 / hf->pitch_mm;
         if (!(step > 0.0))
                 return false;
-        for (double t = step; t <= max_t_mm; t += step) {
-                double x = o[0] + t * d[0], y = o[1] + t * d[1], z = o[2] + t * d[2], h;
-                if (z > hmax_mm || !height_at(hf, x, y, &h))
+        int levels = py ? py->levels : 0, L = levels > 0 ? IMP_MIN(levels - 1, 2) : -1;
+        /* Texel-space ray: fu = ou + t·du. */
+        double ou = o[0] * ip, ov = o[1] * ip, du = d[0] * ip, dv = d[1] * ip;
+        double iu = du != 0.0 ? 1.0 / du : HUGE_VAL, iv = dv != 0.0 ? 1.0 / dv : HUGE_VAL;
+        for (long k = 1;; ) {
+                double t = k * step;
+                if (!(t <= max_t_mm))
                         return false;
+                double fu = ou + t * du, fv = ov + t * dv, z = o[2] + t * d[2];
+                if (z > hmax_mm)
+                        return false;
+                if (!(fu >= 0.0 && fv >= 0.0 && fu <= hf->width - 1 && fv <= hf->height - 1))
+                        return false;
+                if (L >= 0) {
+                        int cu = IMP_MIN((int) fu, py->lw[0] - 1), cv = IMP_MIN((int) fv, py->lh[0] - 1);
+                        bool skipped = false;
+                        while (L >= 0) {
+                                int bu = cu >> L, bv = cv >> L;
+                                /* The block's extent in texel coordinates, clipped to the grid. */
+                                int uhi = IMP_MIN((bu + 1) << L, hf->width - 1), vhi = IMP_MIN((bv + 1) << L, hf->height - 1);
+                                double te = max_t_mm, tu = HUGE_VAL, tv = HUGE_VAL;
+                                if (du != 0.0)
+                                        tu = ((du > 0.0 ? uhi : bu << L) - ou) * iu;
+                                if (dv != 0.0)
+                                        tv = ((dv > 0.0 ? vhi : bv << L) - ov) * iv;
+                                te = tu < te ? tu : te;
+                                te = tv < te ? tv : te;
+                                double zmin = d[2] >= 0.0 ? z : o[2] + te * d[2];
+                                if (te >= t && zmin >= (double) py->lvl[L][(size_t) bv * py->lw[L] + bu] - bias) {
+                                        long kn = (long) floor(te / step) + 1;
+                                        k = kn > k ? kn : k + 1;
+                                        L = IMP_MIN(L + 1, levels - 1);
+                                        skipped = true;
+                                        break;
+                                }
+                                L--;
+                        }
+                        if (skipped)
+                                continue;
+                        L = 0;
+                }
+                double h;
+                (void) height_at_texel(hf, fu, fv, &h);
                 if (z < h - bias) {
                         /* Bisection between the last point above and the first below. */
-                        double lo = t_prev, hi = t;
+                        double lo = (k - 1) * step, hi = t;
                         for (int i = 0; i < p->march_refine; i++) {
                                 double m = 0.5 * (lo + hi), hm;
-                                if (height_at(hf, o[0] + m * d[0], o[1] + m * d[1], &hm) &&
-                                    o[2] + m * d[2] < hm - bias)
+                                if (height_at_texel(hf, ou + m * du, ov + m * dv, &hm) && o[2] + m * d[2] < hm - bias)
                                         hi = m;
                                 else
                                         lo = m;
@@ -175,9 +310,14 @@ bool imp_btf_heightfield_ray(const struct imp_btf_heightfield *hf, const struct 
                                 *ret_t_mm = hi;
                         return true;
                 }
-                t_prev = t;
+                k++;
         }
-        return false;
+}
+
+bool imp_btf_heightfield_ray(const struct imp_btf_heightfield *hf, const struct imp_btf_sample_params *p,
+                             double hmax_mm, const double o[3], const double d[3], double max_t_mm,
+                             double *ret_t_mm) {
+        return march(hf, p, NULL, hmax_mm, o, d, max_t_mm, ret_t_mm);
 }
 
 /* ---- frames ------------------------------------------------------------------ */
@@ -242,6 +382,7 @@ struct scene {
         double R[9], t[3];            /* canvas → world */
         double cam_c[3];              /* camera centre, canvas frame */
         double hmax;
+        const struct imp_btf_hf_pyramid *py;  /* levels = 0: plain march */
         double (*light_c)[3];         /* light positions, canvas frame */
         double colour_inv[IMP_BTF_MAX_SAMPLES][3];
 };
@@ -281,7 +422,7 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
         mat_apply(sc->R, sc->t, P, Pw);
         if (!(vloc[2] > 0.0) || !project(cap->camera, Pw, px) || !(px[0] >= 0.0 && px[1] >= 0.0 &&
             px[0] <= cap->camera->width - 1 && px[1] <= cap->camera->height - 1) ||
-            imp_btf_heightfield_ray(hf, p, sc->hmax, P, wv, dist_c, NULL)) {
+            march(hf, p, sc->py, sc->hmax, P, wv, dist_c, NULL)) {
                 *ret_flags = IMP_BTF_HIDDEN;
                 return;
         }
@@ -301,7 +442,7 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
                 double e_cos = imp_btf_light_irradiance(&cap->lights[j], Pw) * lloc[2];
                 if (!(e_cos >= p->min_e_cos))
                         continue;
-                if (imp_btf_heightfield_ray(hf, p, sc->hmax, P, wl, r, NULL)) {
+                if (march(hf, p, sc->py, sc->hmax, P, wl, r, NULL)) {
                         shadowed++;
                         continue;
                 }
@@ -330,10 +471,25 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
 int imp_btf_samples_extract(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
                             const struct imp_btf_sample_params *p, int x0, int y0, int w, int h,
                             struct imp_btf_samples *out) {
+        if (!hf)
+                return -EINVAL;
+        _cleanup_(imp_btf_hf_pyramid_freep) struct imp_btf_hf_pyramid *py = NULL;
+        int r = imp_btf_hf_pyramid_new(hf, &py);
+        if (r < 0)
+                return r;
+        return imp_btf_samples_extract_pyramid(hf, cap, p, py, x0, y0, w, h, out);
+}
+
+int imp_btf_samples_extract_pyramid(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
+                                    const struct imp_btf_sample_params *p, const struct imp_btf_hf_pyramid *py,
+                                    int x0, int y0, int w, int h, struct imp_btf_samples *out) {
         int r = check_capture(hf, cap);
         if (r < 0)
                 return r;
-        if (!p || !out || w <= 0 || h <= 0 || x0 < 0 || y0 < 0 || x0 + w > hf->width || y0 + h > hf->height)
+        if (!p || !out || !py || w <= 0 || h <= 0 || x0 < 0 || y0 < 0 || x0 + w > hf->width ||
+            y0 + h > hf->height)
+                return -EINVAL;
+        if (py->height_mm != hf->height_mm || py->width != hf->width || py->height != hf->height)
                 return -EINVAL;
         if ((long) w * h > out->capacity_texels || cap->n_lights > out->max_per_texel)
                 return -E2BIG;
@@ -347,7 +503,8 @@ int imp_btf_samples_extract(const struct imp_btf_heightfield *hf, const struct i
         double cw[3];
         camera_centre(cap->camera, cw);
         mat_apply_inv(sc->R, sc->t, cw, sc->cam_c);
-        sc->hmax = imp_btf_heightfield_hmax(hf);
+        sc->hmax = py->hmax;
+        sc->py = py->levels > 0 ? py : NULL;
         sc->light_c = light_c;
         for (int j = 0; j < cap->n_lights; j++) {
                 const struct imp_rig_light *L = &cap->lights[j];

@@ -105,6 +105,21 @@ int imp_btf_samples_extract(const struct imp_btf_heightfield *hf, const struct i
                             const struct imp_btf_sample_params *p, int x0, int y0, int w, int h,
                             struct imp_btf_samples *out);
 
+/* A max pyramid of a heightfield's cells, which lets the shadow and visibility rays of
+ * the extraction skip, exactly, the stretches where they pass above every height (same
+ * hits as the plain march). It refers to hf->height_mm: heights must not change while it
+ * is in use. Caller frees with imp_btf_hf_pyramid_free(). -EINVAL, -ENOMEM. */
+struct imp_btf_hf_pyramid;
+int imp_btf_hf_pyramid_new(const struct imp_btf_heightfield *hf, struct imp_btf_hf_pyramid **ret);
+void imp_btf_hf_pyramid_free(struct imp_btf_hf_pyramid *py);
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_btf_hf_pyramid *, imp_btf_hf_pyramid_free);
+
+/* imp_btf_samples_extract() with a pyramid built once for many tiles (the plain call
+ * builds one per call). -EINVAL also when py was built from another heightfield. */
+int imp_btf_samples_extract_pyramid(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
+                                    const struct imp_btf_sample_params *p, const struct imp_btf_hf_pyramid *py,
+                                    int x0, int y0, int w, int h, struct imp_btf_samples *out);
+
 /* Ray against the heightfield in canvas coordinates: origin o (on the surface), unit
  * direction d. Linear search in steps of march_step_texels·pitch, then march_refine
  * bisections (seed §5.2). True when the ray passes below the surface (by more than the

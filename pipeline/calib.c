@@ -31,8 +31,8 @@ static json_t *flags_json(unsigned f) {
 
 json_t *imp_calib_intrinsics_to_json(const struct imp_calib_intrinsics *in) {
         const double *s = in->std;
-        json_t *std = json_pack("{s:f, s:f, s:f, s:f, s:o}", "fx", s[0], "fy", s[1], "cx", s[2],
-                                "cy", s[3], "dist", doubles(s + 4, 5));
+        json_t *std = json_pack("{s:f, s:f, s:f, s:f, s:o, s:b}", "fx", s[0], "fy", s[1], "cx", s[2],
+                                "cy", s[3], "dist", doubles(s + 4, 5), "k3_fixed", in->k3_fixed);
         json_t *cov = doubles(in->cov, IMP_CALIB_N_INTR * IMP_CALIB_N_INTR);
         json_t *unc = json_pack("{s:f, s:f}", "centre_px", in->proj_unc_centre_px,
                                 "corner_px", in->proj_unc_corner_px);
@@ -97,8 +97,8 @@ static void print_device(FILE *f, const char *who, const struct imp_calib_intrin
                 in->std[1]);
         fprintf(f, "  cx %10.3f ± %.3f   cy %10.3f ± %.3f px\n", in->cx, in->std[2], in->cy,
                 in->std[3]);
-        fprintf(f, "  k1 %.5f  k2 %.5f  p1 %.6f  p2 %.6f  k3 %.5f\n", in->dist[0], in->dist[1],
-                in->dist[2], in->dist[3], in->dist[4]);
+        fprintf(f, "  k1 %.5f  k2 %.5f  p1 %.6f  p2 %.6f  k3 %.5f%s\n", in->dist[0], in->dist[1],
+                in->dist[2], in->dist[3], in->dist[4], in->k3_fixed ? " (held fixed)" : "");
         fprintf(f, "  largest board tilt %.1f°\n", in->max_tilt_deg);
         fprintf(f, "  RMS %.4f px, worst %.4f px (view %d, point %d)\n", in->rms_px, in->worst_px,
                 in->worst_view, in->worst_point);

@@ -24,7 +24,19 @@ struct view_px {
         float p[3], n[3], t[3];      /* hit point, unit normal, tangent (world) */
         float vloc[3];               /* direction to the camera in the local frame (t, n×t, n) */
         float vig;                   /* cos⁴ vignetting factor; 1 without the effect */
-        uint32_t texel;              /* nearest sample index, MISS when the ray misses */
+        uint32_t texel;              /* lower-left sample (i0, j0) of the hit, MISS when the ray misses */
+        float tw[2];                 /* bilinear weights of samples i0 + 1, j0 + 1 (0 at the edge) */
+        uint8_t tdi, tdj;            /* 1 when sample i0 + 1 / j0 + 1 exists */
+};
+
+/* The BRDF at a hit point: the bilinear blend of the four surrounding samples' BRDFs. Samples
+ * of one region differ only in ρd (the tint), so they blend into one Lafortune lobe with the
+ * weighted ρd; only where regions meet is the result a mixture of up to four lobes. */
+struct brdf_mix {
+        int n;
+        float w[4];
+        struct imp_lafortune b[4];
+        float rho_d[3];              /* Σ w ρd, for the ambient and indirect terms */
 };
 
 struct proj_px {
@@ -301,8 +313,14 @@ static void build_view(struct imp_render *r, int ci) {
                                 v->t[c] = (float) t[c];
                                 v->vloc[c] = (float) vl[c];
                         }
-                        int ti = (int) IMP_CLAMP(lround(fx), 0, s->nx - 1), tj = (int) IMP_CLAMP(lround(fy), 0, s->ny - 1);
-                        v->texel = (uint32_t) ((size_t) tj * s->nx + ti);
+                        /* BRDF/albedo: bilinear in the samples around the hit (sample i sits at
+                         * origin + i · pitch), not the nearest one, which would snap edges to the
+                         * sample grid. */
+                        v->texel = (uint32_t) ((size_t) j0 * s->nx + i0);
+                        v->tdi = (uint8_t) (i1 > i0);
+                        v->tdj = (uint8_t) (j1 > j0);
+                        v->tw[0] = v->tdi ? (float) IMP_CLAMP(ax, 0.0, 1.0) : 0.0f;
+                        v->tw[1] = v->tdj ? (float) IMP_CLAMP(ay, 0.0, 1.0) : 0.0f;
                 }
         r->cnt.distortion_evals += dist_evals;
 }
@@ -419,16 +437,62 @@ int imp_render_view_point(const struct imp_render *r, int cam, int x, int y, dou
 }
 
 /* ---- shading ---- */
-static inline void texel_brdf(const struct imp_render *r, uint32_t texel, struct imp_lafortune *b) {
-        *b = r->brdf[r->region[texel]];
-        float tint = r->tint[texel];
+static inline void texel_brdf(const struct imp_render *r, const struct view_px *v, struct brdf_mix *m) {
+        size_t nx = (size_t) r->surf->nx, k0 = v->texel;
+        size_t k[4] = { k0, k0 + v->tdi, k0 + v->tdj * nx, k0 + v->tdj * nx + v->tdi };
+        float ax = v->tw[0], ay = v->tw[1];
+        float w[4] = { (1 - ax) * (1 - ay), ax * (1 - ay), (1 - ax) * ay, ax * ay };
+        uint8_t reg = r->region[k[0]];
+        float t0 = r->tint[k[0]];
+        bool one = true, flat = true;
+        for (int q = 1; q < 4; q++) {
+                one = one && r->region[k[q]] == reg;
+                flat = flat && r->tint[k[q]] == t0;
+        }
+        if (one) {              /* one region: one lobe, ρd scaled by the interpolated tint */
+                float tint = t0;
+                if (!flat)
+                        tint = (r->tint[k[0]] * (1 - ax) + r->tint[k[1]] * ax) * (1 - ay) +
+                               (r->tint[k[2]] * (1 - ax) + r->tint[k[3]] * ax) * ay;
+                m->n = 1;
+                m->w[0] = 1;
+                m->b[0] = r->brdf[reg];
+                for (int c = 0; c < 3; c++)
+                        m->rho_d[c] = m->b[0].rho_d[c] *= tint;
+                return;
+        }
+        uint8_t regs[4];
+        float wt[4];            /* Σ w · tint per region */
+        m->n = 0;
+        for (int q = 0; q < 4; q++) {
+                if (!(w[q] > 0))
+                        continue;
+                int e = 0;
+                while (e < m->n && regs[e] != r->region[k[q]])
+                        e++;
+                if (e == m->n) {
+                        regs[e] = r->region[k[q]];
+                        m->w[e] = 0;
+                        wt[e] = 0;
+                        m->n++;
+                }
+                m->w[e] += w[q];
+                wt[e] += w[q] * r->tint[k[q]];
+        }
         for (int c = 0; c < 3; c++)
-                b->rho_d[c] *= tint;
+                m->rho_d[c] = 0;
+        for (int e = 0; e < m->n; e++) {
+                m->b[e] = r->brdf[regs[e]];
+                for (int c = 0; c < 3; c++) {
+                        m->b[e].rho_d[c] *= wt[e] / m->w[e];
+                        m->rho_d[c] += m->w[e] * m->b[e].rho_d[c];
+                }
+        }
 }
 
 /* V = E · cos θl · f(v, l) per channel for light from world point `src` with irradiance
  * E (before colour); returns false when the light is below the surface. */
-static inline bool shade_point(const struct view_px *v, const struct imp_lafortune *b, const double src[3],
+static inline bool shade_point(const struct view_px *v, const struct brdf_mix *b, const double src[3],
                                double *ret_dist, double ret_l[3], double ret_f[3], double *ret_cos) {
         double l[3] = { src[0] - v->p[0], src[1] - v->p[1], src[2] - v->p[2] };
         double d = sqrt(l[0] * l[0] + l[1] * l[1] + l[2] * l[2]);
@@ -441,8 +505,11 @@ static inline bool shade_point(const struct view_px *v, const struct imp_lafortu
         double bb[3] = { n[1] * t[2] - n[2] * t[1], n[2] * t[0] - n[0] * t[2], n[0] * t[1] - n[1] * t[0] };
         double ll[3], vl[3] = { v->vloc[0], v->vloc[1], v->vloc[2] };
         imp_to_local(t, bb, n, l, ll);
-        for (int c = 0; c < 3; c++)
-                ret_f[c] = imp_lafortune_eval(b, c, vl, ll);
+        for (int c = 0; c < 3; c++) {
+                ret_f[c] = b->n == 1 ? imp_lafortune_eval(&b->b[0], c, vl, ll) : 0;
+                for (int e = 0; b->n > 1 && e < b->n; e++)
+                        ret_f[c] += b->w[e] * imp_lafortune_eval(&b->b[e], c, vl, ll);
+        }
         *ret_dist = d;
         *ret_cos = cosl;
         memcpy(ret_l, l, sizeof l);
@@ -477,8 +544,8 @@ static int build_projector_map(struct imp_render *r, int ci) {
                                 continue;
                         pp->x[0] = (float) uv[0];
                         pp->x[1] = (float) uv[1];
-                        struct imp_lafortune b;
-                        texel_brdf(r, v->texel, &b);
+                        struct brdf_mix b;
+                        texel_brdf(r, v, &b);
                         double d, l[3], f[3], cosl;
                         if (!shade_point(v, &b, Cp, &d, l, f, &cosl))
                                 continue;
@@ -675,8 +742,8 @@ static int compute_radiance(struct imp_render *r, const struct imp_frame_record 
                                 if (v->texel == MISS)
                                         continue;
                                 double V[3] = { 0, 0, 0 };
-                                struct imp_lafortune b;
-                                texel_brdf(r, v->texel, &b);
+                                struct brdf_mix b;
+                                texel_brdf(r, v, &b);
                                 if (use_light) {
                                         double d, l[3], f[3], cosl;
                                         bool lit = shade_point(v, &b, L->pos_mm, &d, l, f, &cosl);

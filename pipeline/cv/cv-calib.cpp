@@ -59,15 +59,16 @@ std::vector<cv::Point2f> img_points(const struct imp_calib_view &v) {
         return p;
 }
 
-/* Covariance of all parameters [fx fy cx cy k1 k2 p1 p2 k3 | r0 t0 | r1 t1 …] as
- * σ² (JᵀJ)⁻¹, J from projectPoints' analytic derivatives at the solution. Columns are
- * scaled to unit norm before the (pseudo-)inverse; returns true when JᵀJ was rank
+/* Covariance of the estimated parameters [fx fy cx cy k1 k2 p1 p2 (k3) | r0 t0 | r1 t1 …]
+ * as σ² (JᵀJ)⁻¹, J from projectPoints' analytic derivatives at the solution; n_intr is 8
+ * when k3 was held fixed (its column is left out, its row and column of cov are 0). Columns
+ * are scaled to unit norm before the (pseudo-)inverse; returns true when JᵀJ was rank
  * deficient and eigenvalues had to be floored. Also fills rms, worst residual, σ. */
 bool covariance(const std::vector<std::vector<cv::Point3f>> &obj,
                 const std::vector<std::vector<cv::Point2f>> &img, const cv::Mat &K, const cv::Mat &D,
-                const std::vector<cv::Mat> &rv, const std::vector<cv::Mat> &tv,
+                const std::vector<cv::Mat> &rv, const std::vector<cv::Mat> &tv, int n_intr,
                 struct imp_calib_intrinsics *out) {
-        const int M = (int) obj.size(), P = IMP_CALIB_N_INTR + 6 * M;
+        const int M = (int) obj.size(), P = n_intr + 6 * M;
         int N = 0;
         for (const auto &o : obj)
                 N += (int) o.size();
@@ -90,10 +91,10 @@ bool covariance(const std::vector<std::vector<cv::Point3f>> &obj,
                         for (int k = 0; k < 2; k++) {
                                 const double *jr = jac.ptr<double>((int) (2 * i + k));
                                 double *Jr = J.ptr<double>(row + (int) (2 * i + k));
-                                for (int c = 0; c < IMP_CALIB_N_INTR; c++)
-                                        Jr[c] = jr[6 + c];          /* f(2) c(2) dist(5) */
+                                for (int c = 0; c < n_intr; c++)
+                                        Jr[c] = jr[6 + c];          /* f(2) c(2) dist(4 or 5) */
                                 for (int c = 0; c < 6; c++)
-                                        Jr[IMP_CALIB_N_INTR + 6 * v + c] = jr[c];   /* r(3) t(3) */
+                                        Jr[n_intr + 6 * v + c] = jr[c];   /* r(3) t(3) */
                         }
                 }
                 row += 2 * (int) proj.size();
@@ -133,7 +134,9 @@ bool covariance(const std::vector<std::vector<cv::Point3f>> &obj,
         for (int a = 0; a < IMP_CALIB_N_INTR; a++)
                 for (int b = 0; b < IMP_CALIB_N_INTR; b++)
                         out->cov[a * IMP_CALIB_N_INTR + b] =
-                                sigma2 * cov.at<double>(a, b) * scale.at<double>(a) * scale.at<double>(b);
+                                a < n_intr && b < n_intr ? sigma2 * cov.at<double>(a, b) *
+                                                                   scale.at<double>(a) * scale.at<double>(b)
+                                                         : 0.0;
         return deficient;
 }
 
@@ -155,7 +158,7 @@ double projection_uncertainty(const cv::Mat &K, const cv::Mat &D, const double *
 }
 
 int intrinsics_cpp(const struct imp_calib_view *views, int n_views, int width, int height,
-                   struct imp_calib_intrinsics *ret, double *ret_rvecs, double *ret_tvecs,
+                   unsigned fit, struct imp_calib_intrinsics *ret, double *ret_rvecs, double *ret_tvecs,
                    struct imp_error *err) {
         std::vector<std::vector<cv::Point3f>> obj;
         std::vector<std::vector<cv::Point2f>> img;
@@ -166,9 +169,10 @@ int intrinsics_cpp(const struct imp_calib_view *views, int n_views, int width, i
         cv::Mat K, D, stdI, stdE, perView;
         std::vector<cv::Mat> rv, tv;
         double rms;
+        const bool fix_k3 = fit & IMP_CALIB_FIT_FIX_K3;
         try {
                 rms = cv::calibrateCamera(obj, img, cv::Size(width, height), K, D, rv, tv, stdI, stdE,
-                                          perView, 0,
+                                          perView, fix_k3 ? cv::CALIB_FIX_K3 : 0,
                                           cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS,
                                                            100, DBL_EPSILON));
         } catch (const cv::Exception &e) {
@@ -198,7 +202,8 @@ int intrinsics_cpp(const struct imp_calib_view *views, int n_views, int width, i
         for (int i = 0; i < 5; i++)
                 r.dist[i] = D.at<double>(0, i);
         r.n_views = n_views;
-        if (covariance(obj, img, K, D, rv, tv, &r))
+        r.k3_fixed = fix_k3;
+        if (covariance(obj, img, K, D, rv, tv, fix_k3 ? IMP_CALIB_N_INTR - 1 : IMP_CALIB_N_INTR, &r))
                 r.flags |= IMP_CALIB_RANK_DEFICIENT;
         /* OpenCV's own std (same σ² and J up to scaling); ours where it is not finite. */
         stdI.convertTo(stdI, CV_64F);
@@ -207,7 +212,7 @@ int intrinsics_cpp(const struct imp_calib_view *views, int n_views, int width, i
                 double mine = std::sqrt(std::max(r.cov[i * IMP_CALIB_N_INTR + i], 0.0));
                 if (!std::isfinite(s) || (r.flags & IMP_CALIB_RANK_DEFICIENT))
                         s = mine;
-                r.std[i] = s;
+                r.std[i] = fix_k3 && i == IMP_CALIB_N_INTR - 1 ? 0.0 : s;   /* fixed: not estimated */
         }
         /* Tilt of each board: angle between its normal (R's third column) and the axis. */
         for (int v = 0; v < n_views; v++) {
@@ -353,6 +358,12 @@ extern "C" int imp_cv_calib_points_to_projector(int proj_w, int proj_h, const st
 extern "C" int imp_cv_calib_intrinsics(const struct imp_calib_view *views, int n_views, int width,
                                        int height, struct imp_calib_intrinsics *ret, double *ret_rvecs,
                                        double *ret_tvecs, struct imp_error *err) {
+        return imp_cv_calib_intrinsics_fit(views, n_views, width, height, 0, ret, ret_rvecs, ret_tvecs, err);
+}
+
+extern "C" int imp_cv_calib_intrinsics_fit(const struct imp_calib_view *views, int n_views, int width,
+                                           int height, unsigned fit, struct imp_calib_intrinsics *ret,
+                                           double *ret_rvecs, double *ret_tvecs, struct imp_error *err) {
         if (!views || n_views < 1 || width < 1 || height < 1 || !ret)
                 return imp_error_set(err, -EINVAL, "calibration: bad arguments");
         for (int v = 0; v < n_views; v++) {
@@ -369,7 +380,7 @@ extern "C" int imp_cv_calib_intrinsics(const struct imp_calib_view *views, int n
                                                      "%d is not finite", v, i / 2);
         }
         try {
-                return intrinsics_cpp(views, n_views, width, height, ret, ret_rvecs, ret_tvecs, err);
+                return intrinsics_cpp(views, n_views, width, height, fit, ret, ret_rvecs, ret_tvecs, err);
         } catch (const std::bad_alloc &) {
                 return imp_error_set(err, -ENOMEM, "calibration: out of memory");
         } catch (const cv::Exception &e) {
@@ -653,6 +664,23 @@ int world_pose(const struct imp_calib_procam_opts *o, const std::vector<double> 
         return 0;
 }
 
+/* Intrinsics of one device with opts.k3 (calib.h): k3 held at 0 first; with
+ * IMP_CALIB_K3_AUTO refitted with k3 when that estimate's diagonal field of view reaches
+ * IMP_CALIB_K3_MIN_FOV_DEG. */
+int device_intrinsics(const std::vector<struct imp_calib_view> &v, int w, int h, int k3_mode,
+                      struct imp_calib_intrinsics *ret, struct imp_error *err) {
+        int r = imp_cv_calib_intrinsics_fit(v.data(), (int) v.size(), w, h,
+                                            k3_mode == IMP_CALIB_K3_FIT ? 0u : (unsigned) IMP_CALIB_FIT_FIX_K3,
+                                            ret, nullptr, nullptr, err);
+        if (r < 0 || k3_mode != IMP_CALIB_K3_AUTO)
+                return r;
+        double hx = 0.5 * w / ret->fx, hy = 0.5 * h / ret->fy;
+        double fov = 2 * std::atan(std::sqrt(hx * hx + hy * hy)) * 180 / M_PI;
+        if (!(fov >= IMP_CALIB_K3_MIN_FOV_DEG))
+                return 0;
+        return imp_cv_calib_intrinsics_fit(v.data(), (int) v.size(), w, h, 0u, ret, nullptr, nullptr, err);
+}
+
 int procam_cpp(const char *const *dirs, int n_dirs, const source &src, const struct imp_calib_procam_opts *o,
                struct imp_calib_procam *ret, struct imp_error *err) {
         int n_pat = imp_cv_graycode_count(o->proj_w, o->proj_h);
@@ -709,12 +737,10 @@ int procam_cpp(const char *const *dirs, int n_dirs, const source &src, const str
                 vp.push_back({ (int) p.proj.size() / 2, p.obj_p.data(), p.proj.data() });
                 vcp.push_back({ (int) p.cam_p.size() / 2, p.obj_p.data(), p.cam_p.data() });
         }
-        int r = imp_cv_calib_intrinsics(vc.data(), (int) vc.size(), cam_w, cam_h, &res->camera,
-                                        nullptr, nullptr, err);
+        int r = device_intrinsics(vc, cam_w, cam_h, o->k3, &res->camera, err);
         if (r < 0)
                 return imp_error_prefix(err, "camera: ");
-        r = imp_cv_calib_intrinsics(vp.data(), (int) vp.size(), o->proj_w, o->proj_h, &res->projector,
-                                    nullptr, nullptr, err);
+        r = device_intrinsics(vp, o->proj_w, o->proj_h, o->k3, &res->projector, err);
         if (r < 0)
                 return imp_error_prefix(err, "projector: ");
         r = imp_cv_calib_stereo(vcp.data(), vp.data(), (int) vp.size(), &res->camera, &res->projector,

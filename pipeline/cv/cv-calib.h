@@ -34,7 +34,7 @@ int imp_cv_calib_points_to_projector(int proj_w, int proj_h, const struct imp_im
                                      int n, double *ret_proj, uint8_t *ret_ok, int *ret_n_decoded,
                                      struct imp_error *err);
 
-/* cv::calibrateCamera (5 distortion terms, default flags) on planar views, then the
+/* cv::calibrateCamera (5 distortion terms, default flags: k3 estimated) on planar views, then the
  * first-order covariance and projection uncertainty (see calib.h), then
  * imp_calib_intrinsics_assess(). ret_rvecs / ret_tvecs (3·n_views each) may be NULL.
  * -EDOM with a message when the data do not determine a finite result (OpenCV gave
@@ -42,6 +42,11 @@ int imp_cv_calib_points_to_projector(int proj_w, int proj_h, const struct imp_im
 int imp_cv_calib_intrinsics(const struct imp_calib_view *views, int n_views, int width, int height,
                             struct imp_calib_intrinsics *ret, double *ret_rvecs, double *ret_tvecs,
                             struct imp_error *err);
+/* The same with IMP_CALIB_FIT_* flags (calib.h): IMP_CALIB_FIT_FIX_K3 holds k3 at 0
+ * (CALIB_FIX_K3) and leaves it out of the covariance (ret->k3_fixed; std and cov of k3 0). */
+int imp_cv_calib_intrinsics_fit(const struct imp_calib_view *views, int n_views, int width, int height,
+                                unsigned fit, struct imp_calib_intrinsics *ret, double *ret_rvecs,
+                                double *ret_tvecs, struct imp_error *err);
 
 /* cv::stereoCalibrate with CALIB_FIX_INTRINSIC: views_a / views_b share object points
  * (views_a[i].obj is used; the n of both must agree). */

@@ -1,38 +1,43 @@
 /* Calibration of the simulated demo rig from simulated targets (issue #8): renders the
- * chessboard scenes config/scenes/target-{0..7}.cfg with config/plans/target.cfg, runs
+ * chessboard scenes config/scenes/target-{0..13}.cfg with config/plans/target.cfg, runs
  * `impasto calibrate procam --sets … --reference target-0 --out rig.json`, and compares
  * the result with the simulator's truth (truth/rig.json of a set). Tolerances are stated
  * below with the figures measured when they were set (docs/calibration.md, "Simulated rig").
- * About 3 minutes on 2 cores (rendering is most of it): labelled slow. */
+ * About 6 minutes on 2 cores (rendering is most of it): labelled slow. */
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
+#include "calib.h"
+#include "cv-calib.h"
+#include "cv-graycode.h"
 #include "json-util.h"
 #include "rig.h"
 #include "test.h"
 
 #define IMPASTO IMPASTO_BINARY_DIR "/cli/impasto"
-#define N_TARGETS 8
 
-/* Measured when these were set (noise on, 8 targets, OpenCV 4.6): camera fx, fy −0.035 %,
- * cx +0.52 px, cy −0.32 px, RMS 0.208 px (the flat reference view alone: 0.036 px);
- * projector fx, fy −0.12 %, cx, cy +12.7 px (traded against the stereo rotation, 0.25°),
- * RMS 0.156 px; stereo |Δt| 0.60 mm; camera centre on the canvas 0.55 mm off.
- * Issue #8 asks for 0.1 % on f (met) and 0.5 px on the principal point (NOT met: the limits
- * below record what the method gives today, with about 2× room, so that a regression shows;
- * tighten them when the tilted views' 0.2 px residual is understood — docs/calibration.md). */
+/* Measured when these were set (noise on, 14 targets, bilinear BRDF lookup in the renderer,
+ * k3 held at 0, OpenCV 4.6): camera fx, fy +0.021 %, cx −1.04 px (σ 5.8), cy +0.72 px (σ 3.3),
+ * RMS 0.070 px; projector fx, fy −0.026 %, −0.022 %, cx +5.6 px (σ 8.4), cy +7.7 px (σ 4.7),
+ * RMS 0.093 px; stereo |Δt| 0.30 mm, ΔR 0.14°; camera centre on the canvas 0.054 mm, axis
+ * 0.020°; found − true corners ≤ 0.096 px RMS per target (worst corner 0.19 px).
+ * Issue #8 asks for 0.1 % on f (met, both devices) and 0.5 px on the principal point: NOT
+ * met and not determinable here — a 13° field of view leaves σ(cx, cy) at 3–8 px, so the
+ * limits below record what the method gives with about 2× room (docs/calibration.md). */
+#define N_TARGETS 14
 #define CAM_F_REL_TOL      1e-3        /* issue #8: 0.1 % */
-#define CAM_PP_TOL_PX      2.0
-#define CAM_RMS_MAX_PX     0.3
-#define PROJ_F_REL_TOL     3e-3
-#define PROJ_PP_TOL_PX     25.0
-#define PROJ_RMS_MAX_PX    0.3
-#define STEREO_T_TOL_MM    1.5         /* |t_est − t_true|, baseline ≈ 114 mm */
-#define STEREO_R_TOL_DEG   0.5
-#define CAM_CENTRE_TOL_MM  1.5         /* camera centre on the canvas, from the reference view */
-#define CAM_AXIS_TOL_DEG   0.3
+#define CAM_PP_TOL_PX      2.5
+#define CAM_RMS_MAX_PX     0.12
+#define PROJ_F_REL_TOL     1e-3        /* issue #8: 0.1 % */
+#define PROJ_PP_TOL_PX     15.0
+#define PROJ_RMS_MAX_PX    0.15
+#define STEREO_T_TOL_MM    0.75        /* |t_est − t_true|, baseline ≈ 114 mm */
+#define STEREO_R_TOL_DEG   0.3
+#define CAM_CENTRE_TOL_MM  0.2         /* camera centre on the canvas, from the reference view */
+#define CAM_AXIS_TOL_DEG   0.1
+#define CORNER_RMS_MAX_PX  0.15        /* found vs true corners, each target */
 
 static int run(const char *cmd) {
         fprintf(stderr, "$ %s\n", cmd);
@@ -78,6 +83,82 @@ static void check_intrinsics(const char *who, const struct imp_pinhole *e, const
         CHECK_NEAR(e->cy, t->cy, pp_px);
 }
 
+/* Corner bias (issue #8): chessboard corners found on set `dir`'s white frame against the
+ * true corners — the board of `cfg` (its plane, origin, turn; sim/painting.c's
+ * checker frame) projected through the set's truth/rig.json. Each found corner is matched
+ * to the nearest true one. Prints mean and RMS of found − true; returns the RMS (px), or
+ * NAN when the board or the scene's numbers were not found. */
+static double corner_bias(const char *cfg, const char *dir) {
+        char text[16384], path[1100];
+        FILE *f = fopen(cfg, "r");
+        if (!f)
+                return NAN;
+        size_t n = fread(text, 1, sizeof text - 1, f);
+        fclose(f);
+        text[n] = 0;
+        double a, b, c, ox, oy, ang, sq;
+        int cols, rows;
+        const char *p1 = strstr(text, "slope = ["), *p2 = strstr(text, "square_mm = "),
+                   *p3 = strstr(text, "origin_mm = [");
+        if (!p1 || !p2 || !p3 || sscanf(p1, "slope = [%lf, %lf]; offset_mm = %lf", &a, &b, &c) != 3 ||
+            sscanf(p2, "square_mm = %lf; corners = [%d, %d]", &sq, &cols, &rows) != 3 ||
+            sscanf(p3, "origin_mm = [%lf, %lf]; angle_deg = %lf", &ox, &oy, &ang) != 3 || cols * rows > 1024)
+                return NAN;
+        struct imp_error err = { 0 };
+        struct imp_rig truth = { 0 };
+        if (snprintf(path, sizeof path, "%s/truth/rig.json", dir) >= (int) sizeof path ||
+            imp_rig_load(path, &truth, &err) < 0)
+                return NAN;
+        /* checker_frame(): e1 along x lifted onto the plane, n out of it, e2 = n × e1. */
+        double l1 = sqrt(1 + a * a), ln = sqrt(1 + a * a + b * b);
+        double nn[3] = { -a / ln, -b / ln, 1 / ln }, e1[3] = { 1 / l1, 0, a / l1 }, e2[3] = {
+                nn[1] * e1[2] - nn[2] * e1[1], nn[2] * e1[0] - nn[0] * e1[2], nn[0] * e1[1] - nn[1] * e1[0] };
+        double P0[3] = { ox, oy, a * ox + b * oy + c }, cs = cos(ang * M_PI / 180), sn = sin(ang * M_PI / 180);
+        static double tru[2 * 1024], det[2 * 1024];
+        for (int k = 0; k < cols * rows; k++) {
+                double U = sq * (k % cols), V = sq * (k / cols), u = cs * U - sn * V, v = sn * U + cs * V, X[3];
+                for (int q = 0; q < 3; q++)
+                        X[q] = P0[q] + u * e1[q] + v * e2[q];
+                imp_pinhole_project(&truth.cameras[0].model, X, tru + 2 * k);
+        }
+        int pw = truth.projector.model.width, ph = truth.projector.model.height;
+        imp_rig_free(&truth);
+        struct imp_calib_sets *sets = NULL;
+        struct imp_image *white = NULL;
+        const char *dirs[1] = { dir };
+        if (imp_calib_sets_open(dirs, 1, pw, ph, &sets, &err) < 0)
+                return NAN;
+        int r = imp_calib_sets_load(sets, 0, imp_cv_graycode_count(pw, ph), &white, &err);
+        imp_calib_sets_free(sets);
+        if (r < 0)
+                return NAN;
+        r = imp_cv_calib_find_corners(white, cols, rows, det, &err);
+        imp_image_free(white);
+        if (r < 0)
+                return NAN;
+        double sx = 0, sy = 0, ss = 0, worst = 0;
+        int m = cols * rows;
+        for (int k = 0; k < m; k++) {
+                int best = 0;
+                double bd = INFINITY;
+                for (int t = 0; t < m; t++) {
+                        double d = hypot(det[2 * k] - tru[2 * t], det[2 * k + 1] - tru[2 * t + 1]);
+                        if (d < bd) {
+                                bd = d;
+                                best = t;
+                        }
+                }
+                sx += det[2 * k] - tru[2 * best];
+                sy += det[2 * k + 1] - tru[2 * best + 1];
+                ss += bd * bd;
+                worst = fmax(worst, bd);
+        }
+        double rms = sqrt(ss / m), mx = sx / m, my = sy / m;
+        fprintf(stderr, "corners %s: found − true: mean (%+.4f, %+.4f) px, RMS %.4f px (%.4f about the "
+                "mean), worst %.4f px\n", dir, mx, my, rms, sqrt(fmax(ss / m - mx * mx - my * my, 0)), worst);
+        return rms;
+}
+
 int main(void) {
         struct stat st;
         if (stat(IMPASTO, &st) < 0)
@@ -89,6 +170,11 @@ int main(void) {
                          "%s/config/plans/target.cfg --out %s/t%d --threads 2 --quiet", IMPASTO,
                          IMPASTO_SOURCE_DIR, i, IMPASTO_SOURCE_DIR, tmp, i);
                 CHECK_INT_EQ(run(cmd), 0);
+                char cfg[1024], dir[1024];
+                snprintf(cfg, sizeof cfg, "%s/config/scenes/target-%d.cfg", IMPASTO_SOURCE_DIR, i);
+                snprintf(dir, sizeof dir, "%s/t%d", tmp, i);
+                double rms = corner_bias(cfg, dir);
+                CHECK_LE(rms, CORNER_RMS_MAX_PX);
                 if (i > 0)   /* target-0 (flat) goes in as the reference */
                         snprintf(sets + strlen(sets), sizeof sets - strlen(sets), " %s/t%d", tmp, i);
         }
