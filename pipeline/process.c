@@ -333,7 +333,11 @@ static int validate_holdout(const struct imp_btf_heightfield *bh, const struct i
                             json_t **ret) {
         enum { TILE = 64 };
         _cleanup_btf_samples_ struct imp_btf_samples *smp = NULL;
+        _cleanup_(imp_btf_hf_pyramid_freep) struct imp_btf_hf_pyramid *py = NULL;
         int r = imp_btf_samples_new(TILE * TILE, 1, &smp);
+        if (r < 0)
+                return r;
+        r = imp_btf_hf_pyramid_new(bh, &py);   /* once, not per tile and light */
         if (r < 0)
                 return r;
         struct imp_btf_sample_params sp;
@@ -349,7 +353,7 @@ static int validate_holdout(const struct imp_btf_heightfield *bh, const struct i
                 for (int y0 = 0; y0 < bh->height; y0 += TILE)
                         for (int x0 = 0; x0 < bh->width; x0 += TILE) {
                                 int w = IMP_MIN(TILE, bh->width - x0), h = IMP_MIN(TILE, bh->height - y0);
-                                r = imp_btf_samples_extract(bh, &cap, &sp, x0, y0, w, h, smp);
+                                r = imp_btf_samples_extract_pyramid(bh, &cap, &sp, py, x0, y0, w, h, smp);
                                 if (r < 0)
                                         goto fail;
                                 for (int k = 0; k < w * h; k++) {
