@@ -10,8 +10,12 @@
 
 #define HF_DEFAULT_GRADIENT_REL   0.25
 #define HF_DEFAULT_GRADIENT_FLOOR 1e-3
-#define HF_DEFAULT_ERODE_PX       3
+#define HF_DEFAULT_ERODE_PX       1
 #define HF_DEFAULT_MAX_EDGE       4.0
+#define HF_DEFAULT_SLOPE_MAX      3.0
+#define HF_DEFAULT_STEP_MIN       0.1
+#define HF_DEFAULT_NORMAL_RADIUS  0
+#define HF_MAX_NORMAL_RADIUS      64
 #define HF_MAX_TEXELS             ((size_t) 1 << 28)
 #define HF_PLANE_WEAK_RATIO       0.99
 
@@ -21,6 +25,9 @@ void imp_heightfield_options_default(struct imp_heightfield_options *opt) {
                 .gradient_floor_mm = HF_DEFAULT_GRADIENT_FLOOR,
                 .erode_px = HF_DEFAULT_ERODE_PX,
                 .max_edge_factor = HF_DEFAULT_MAX_EDGE,
+                .slope_max = HF_DEFAULT_SLOPE_MAX,
+                .step_min_mm = HF_DEFAULT_STEP_MIN,
+                .normal_radius = HF_DEFAULT_NORMAL_RADIUS,
         };
 }
 
@@ -198,8 +205,33 @@ static void sobel(const float *h, const uint8_t *valid, int w, int hh, float *g)
                 }
 }
 
-/* 4-connected fill from seed over pixels with g <= T. */
-static int seed_fill(const float *g, int w, int h, size_t seed, float T, uint8_t *mask) {
+/* What stops the seed fill besides the Sobel threshold: a near-vertical step between two
+ * neighbouring range points (first-PCA height h1 with normal n1). */
+struct fill_barrier {
+        const float *xyz, *h1;
+        double n1[3];
+        double slope_max, step_min;   /* slope_max <= 0: no slope barrier */
+};
+
+static bool fill_crossable(const struct fill_barrier *b, size_t i, size_t j) {
+        if (!(b->slope_max > 0))
+                return true;
+        double dh = fabs((double) b->h1[j] - b->h1[i]);
+        if (dh <= b->step_min)
+                return true;
+        double d2 = 0;
+        for (int q = 0; q < 3; q++) {
+                double d = (double) b->xyz[3 * j + q] - b->xyz[3 * i + q];
+                d2 += d * d;
+        }
+        double plane2 = fmax(d2 - dh * dh, 0.0);
+        return dh <= b->slope_max * sqrt(plane2);
+}
+
+/* 4-connected fill from seed over pixels with g <= T (g is +inf on invalid pixels, so
+ * they stop it), not across barrier steps. */
+static int seed_fill(const float *g, int w, int h, size_t seed, float T, const struct fill_barrier *b,
+                     uint8_t *mask) {
         size_t N = (size_t) w * h, top = 0;
         _cleanup_free_ uint32_t *stack = malloc(N * sizeof(uint32_t));
         if (!stack)
@@ -216,12 +248,48 @@ static int seed_fill(const float *g, int w, int h, size_t seed, float T, uint8_t
                         if (xx < 0 || yy < 0 || xx >= w || yy >= h)
                                 continue;
                         size_t j = (size_t) yy * w + xx;
-                        if (!mask[j] && g[j] <= T) {
+                        if (!mask[j] && g[j] <= T && fill_crossable(b, i, j)) {
                                 mask[j] = 1;
                                 stack[top++] = (uint32_t) j;
                         }
                 }
         }
+        return 0;
+}
+
+/* Sets the pixels outside mask that are not 8-connected to the image border (holes
+ * enclosed by the mask) in ret_filled (a copy of mask otherwise). */
+static int fill_holes(const uint8_t *mask, int w, int h, uint8_t *ret_filled) {
+        size_t N = (size_t) w * h, top = 0;
+        _cleanup_free_ uint32_t *stack = malloc(N * sizeof(uint32_t));
+        _cleanup_free_ uint8_t *outside = calloc(N, 1);
+        if (!stack || !outside)
+                return -ENOMEM;
+        for (int y = 0; y < h; y++)
+                for (int x = 0; x < w; x++) {
+                        size_t i = (size_t) y * w + x;
+                        if ((x == 0 || y == 0 || x == w - 1 || y == h - 1) && !mask[i] && !outside[i]) {
+                                outside[i] = 1;
+                                stack[top++] = (uint32_t) i;
+                        }
+                }
+        while (top > 0) {
+                size_t i = stack[--top];
+                int x = (int) (i % w), y = (int) (i / w);
+                for (int dy = -1; dy <= 1; dy++)
+                        for (int dx = -1; dx <= 1; dx++) {
+                                int xx = x + dx, yy = y + dy;
+                                if (xx < 0 || yy < 0 || xx >= w || yy >= h)
+                                        continue;
+                                size_t j = (size_t) yy * w + xx;
+                                if (!mask[j] && !outside[j]) {
+                                        outside[j] = 1;
+                                        stack[top++] = (uint32_t) j;
+                                }
+                        }
+        }
+        for (size_t i = 0; i < N; i++)
+                ret_filled[i] = mask[i] || !outside[i];
         return 0;
 }
 
@@ -365,6 +433,63 @@ static void raster_tri(const struct hf_ctx *c, size_t a, size_t b, size_t d, str
                 }
 }
 
+/* Replaces the texel normals by the normal of the least-squares plane h = a + b·u + c·v
+ * through the masked texels of the (2r+1)² window. Texels whose window does not determine
+ * a plane (fewer than 3 texels, or all on a line) keep the interpolated vertex normal. */
+static int plane_normals(struct imp_heightfield *hf, int rad) {
+        int nx = hf->nx, ny = hf->ny;
+        size_t n_tex = (size_t) nx * ny;
+        _cleanup_free_ float *onx = malloc(n_tex * sizeof(float)), *ony = malloc(n_tex * sizeof(float));
+        if (!onx || !ony)
+                return -ENOMEM;
+        memcpy(onx, hf->nx_, n_tex * sizeof(float));
+        memcpy(ony, hf->ny_, n_tex * sizeof(float));
+        double p = hf->pitch_mm;
+        #pragma omp parallel for schedule(dynamic, 16)
+        for (int j = 0; j < ny; j++)
+                for (int i = 0; i < nx; i++) {
+                        size_t t = (size_t) j * nx + i;
+                        if (!hf->mask[t])
+                                continue;
+                        /* Moments about the window centre in texel units. */
+                        double S = 0, Su = 0, Sv = 0, Suu = 0, Svv = 0, Suv = 0, Sh = 0, Suh = 0, Svh = 0;
+                        double h0 = hf->height_mm[t];
+                        for (int dv = -rad; dv <= rad; dv++) {
+                                int jj = j + dv;
+                                if (jj < 0 || jj >= ny)
+                                        continue;
+                                for (int du = -rad; du <= rad; du++) {
+                                        int ii = i + du;
+                                        if (ii < 0 || ii >= nx)
+                                                continue;
+                                        size_t q = (size_t) jj * nx + ii;
+                                        if (!hf->mask[q])
+                                                continue;
+                                        double hh = hf->height_mm[q] - h0;
+                                        S += 1, Su += du, Sv += dv, Suu += du * du, Svv += dv * dv, Suv += du * dv;
+                                        Sh += hh, Suh += du * hh, Svh += dv * hh;
+                                }
+                        }
+                        if (S < 3)
+                                continue;
+                        /* Centre the moments, solve the 2×2 normal equations for b, c. */
+                        double cuu = Suu - Su * Su / S, cvv = Svv - Sv * Sv / S, cuv = Suv - Su * Sv / S;
+                        double cuh = Suh - Su * Sh / S, cvh = Svh - Sv * Sh / S;
+                        double det = cuu * cvv - cuv * cuv;
+                        if (!(det > 1e-9 * (cuu * cvv + 1e-300)) || !(det > 0))
+                                continue;
+                        double b = (cvv * cuh - cuv * cvh) / det / p, c = (cuu * cvh - cuv * cuh) / det / p;
+                        double n[3] = { -b, -c, 1 };
+                        if (!normalize3(n))
+                                continue;
+                        onx[t] = (float) n[0];
+                        ony[t] = (float) n[1];
+                }
+        memcpy(hf->nx_, onx, n_tex * sizeof(float));
+        memcpy(hf->ny_, ony, n_tex * sizeof(float));
+        return 0;
+}
+
 int imp_heightfield_from_range(const struct imp_range_image *range,
                                const struct imp_heightfield_options *opt, struct imp_heightfield *ret) {
         struct imp_heightfield_options defaults;
@@ -374,7 +499,9 @@ int imp_heightfield_from_range(const struct imp_range_image *range,
                 imp_heightfield_options_default(&defaults);
                 opt = &defaults;
         }
-        if (opt->erode_px < 0 || !(opt->gradient_rel > 0) || !(opt->max_edge_factor > 0))
+        if (opt->erode_px < 0 || !(opt->gradient_rel > 0) || !(opt->max_edge_factor > 0) ||
+            opt->normal_radius < 0 || opt->normal_radius > HF_MAX_NORMAL_RADIUS || isnan(opt->slope_max) ||
+            !(opt->step_min_mm >= 0))
                 return -EINVAL;
         int w = range->width, h = range->height, r;
         size_t N = (size_t) w * h;
@@ -419,8 +546,24 @@ int imp_heightfield_from_range(const struct imp_range_image *range,
                         return -ENODATA;
                 if (seed != centre)
                         hf.flags |= IMP_HF_SEED_MOVED;
-                if ((r = seed_fill(g, w, h, seed, T, canvas)) < 0 || (r = erode(canvas, w, h, opt->erode_px)) < 0)
+                struct fill_barrier b = { .xyz = range->xyz, .h1 = h1, .n1 = { n1[0], n1[1], n1[2] },
+                                          .slope_max = opt->slope_max, .step_min = opt->step_min_mm };
+                if ((r = seed_fill(g, w, h, seed, T, &b, canvas)) < 0)
                         return r;
+                if (opt->keep_holes) {
+                        if ((r = erode(canvas, w, h, opt->erode_px)) < 0)
+                                return r;
+                } else {
+                        /* Erode the hole-filled mask, then keep only filled pixels: holes
+                         * do not grow, the outer rim shrinks by erode_px. */
+                        _cleanup_free_ uint8_t *solid = malloc(N);
+                        if (!solid)
+                                return -ENOMEM;
+                        if ((r = fill_holes(canvas, w, h, solid)) < 0 || (r = erode(solid, w, h, opt->erode_px)) < 0)
+                                return r;
+                        for (size_t i = 0; i < N; i++)
+                                canvas[i] = canvas[i] && solid[i];
+                }
         }
 
         /* Canvas frame from the canvas points. */
@@ -530,6 +673,10 @@ int imp_heightfield_from_range(const struct imp_range_image *range,
                             edge_ok(&c, b, d))
                                 raster_tri(&c, b, e, d, &hf, umin, vmin);
                 }
+        if (opt->normal_radius > 0 && (r = plane_normals(&hf, opt->normal_radius)) < 0) {
+                imp_heightfield_done(&hf);
+                return r;
+        }
         for (size_t t = 0; t < n_tex; t++)
                 hf.n_mask_texels += hf.mask[t];
         if (hf.n_mask_texels == 0) {

@@ -26,13 +26,32 @@ struct imp_heightfield_options {
         double gradient_rel;
         double gradient_floor_mm;     /* threshold never below this (noise-free flat data);
                                          default 1e-3 mm per pixel */
-        int erode_px;                 /* erosion of the filled mask (8-neighbour steps); default 3 */
+        int erode_px;                 /* erosion of the filled mask (8-neighbour steps); default 1 */
         double pitch_mm;              /* grid pitch; <= 0: median distance between horizontally
                                          neighbouring canvas points (camera footprint) */
         double max_edge_factor;       /* mesh triangles with an edge longer than this × the
                                          footprint are not rasterised (holes stay holes);
                                          default 4 */
         bool skip_extraction;         /* keep every valid point (no seed fill / erosion) */
+        /* Additions for issue #4 (docs/geometry.md has the measured trade-offs). */
+        double slope_max;             /* the fill does not cross between 4-neighbours whose
+                                         first-PCA height differs by more than step_min_mm
+                                         and by more than slope_max × their in-plane
+                                         distance: a frame wall seen obliquely spreads over
+                                         many pixels (small Sobel value) but is near-vertical
+                                         in the world. <= 0: off. Default 3 */
+        double step_min_mm;           /* see slope_max; default 0.1 mm */
+        bool keep_holes;              /* false (default): holes enclosed by the filled mask
+                                         (shadow gaps behind steep relief) are filled before
+                                         the erosion, so erosion eats only the outer rim; the
+                                         holes themselves stay holes in the heightfield */
+        int normal_radius;            /* 0: vertex normals from the 8-neighbourhood triangles
+                                         of the range mesh (the seed's method); r > 0: normal
+                                         of the least-squares plane through the heightfield
+                                         texels of the (2r+1)² window (mask only), which
+                                         averages height noise at the cost of detail finer
+                                         than the window. Default 0: on the demo scene every
+                                         r > 0 measured worse (docs/geometry.md) */
 };
 void imp_heightfield_options_default(struct imp_heightfield_options *opt);
 
