@@ -125,14 +125,14 @@ int main(void) {
         double expect = (expo + imp_plan_count(p) * (readout + settle) + changes * settle) * 1e-6;
         CHECK_NEAR(imp_plan_estimate_s(p, rig), expect, 1e-9);
 
-        /* the demo plan against the demo scene: 2 × (2 + 2 × 10 × 2 + 2 × 2 × 4) + 48 × 2 */
+        /* the demo plan against the demo scene: 2 × (2 + 2 × 10 × 2 + 2 × 2 × 4) + 56 × 2 (56 dome lights: rings of 16, 16, 16, 8) */
         _cleanup_(imp_scene_freep) struct imp_scene *demo = NULL;
         _cleanup_(imp_plan_freep) struct imp_plan *dp = NULL;
         CHECK_OK(imp_scene_load(IMPASTO_SOURCE_DIR "/config/scenes/demo.cfg", &demo, &err));
         if (demo) {
                 CHECK_OK(imp_plan_load(IMPASTO_SOURCE_DIR "/config/plans/demo.cfg", imp_scene_rig(demo), &dp, &err));
-                CHECK_INT_EQ(dp ? imp_plan_count(dp) : 0, 2 * (2 + 2 * 10 * 2 + 2 * 2 * 4) + 48 * 2);
-                CHECK_INT_EQ(imp_scene_rig(demo)->n_lights, 48);
+                CHECK_INT_EQ(dp ? imp_plan_count(dp) : 0, 2 * (2 + 2 * 10 * 2 + 2 * 2 * 4) + 56 * 2);
+                CHECK_INT_EQ(imp_scene_rig(demo)->n_lights, 56);
                 CHECK_LE(imp_scene_max_height_mm(demo), 5.0 + 1e-6);   /* the frame is the highest */
                 _cleanup_(imp_scene_freep) struct imp_scene *fw = NULL;
                 _cleanup_(imp_plan_freep) struct imp_plan *qp = NULL;
