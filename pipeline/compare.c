@@ -4,6 +4,7 @@
 #include "compare.h"
 #include "image.h"
 #include "json-util.h"
+#include "rig.h"
 
 #define CMP_FIXED_POINT_ITER 4
 #define CMP_MIN_NORMAL_Z     0.1   /* copy normal this close to the world x–y plane: skip */
@@ -57,6 +58,46 @@ static int channel(char **names, const char *name, const char *path, struct imp_
         if (c < 0)
                 return imp_error_set(err, -EBADMSG, "%s/heightfield.exr: channel \"%s\" missing", path, name);
         return c;
+}
+
+/* Observable truth canvas: per truth sample, 1 when camera 0 of the true rig sees it (the
+ * depth its pixel sees is this sample's height) and the projector lights it there. Returns
+ * NULL (no error) when the truth has no rig.json or correspondence map. */
+#define CMP_SEEN_DEPTH_TOL_MM 0.05
+static uint8_t *observable_mask(const char *truth_dir, const struct truth *t) {
+        char path[4096];
+        struct imp_rig rig = {};
+        snprintf(path, sizeof path, "%s/rig.json", truth_dir);
+        if (imp_rig_load(path, &rig, NULL) < 0)
+                return NULL;
+        uint8_t *obs = NULL;
+        struct imp_image *corr = NULL;
+        char **names = NULL;
+        if (rig.n_cameras < 1)
+                goto out;
+        snprintf(path, sizeof path, "%s/correspondence-%s.exr", truth_dir, rig.cameras[0].name);
+        if (imp_exr_read(path, &corr, &names, NULL) < 0)
+                goto out;
+        int cv = imp_image_channel_index(names, "valid"), cd = imp_image_channel_index(names, "depth_mm");
+        if (cv < 0 || cd < 0 || !(obs = calloc((size_t) t->nx * t->ny, 1)))
+                goto out;
+        for (int j = 0; j < t->ny; j++)
+                for (int i = 0; i < t->nx; i++) {
+                        double h = truth_at(t, i, j, t->c_h);
+                        double X[3] = { t->origin[0] + i * t->pitch, t->origin[1] + j * t->pitch, h }, px[2];
+                        if (!imp_pinhole_project(&rig.cameras[0].model, X, px))
+                                continue;
+                        long u = lround(px[0]), v = lround(px[1]);
+                        if (u < 0 || v < 0 || u >= corr->width || v >= corr->height)
+                                continue;
+                        const float *c = imp_image_f32(corr, (int) u, (int) v);
+                        obs[(size_t) j * t->nx + i] = c[cv] >= 0.5 && fabs(c[cd] - h) <= CMP_SEEN_DEPTH_TOL_MM;
+                }
+out:
+        imp_strv_free(names);
+        imp_image_free(corr);
+        imp_rig_free(&rig);
+        return obs;
 }
 
 int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_compare_result *ret,
@@ -162,7 +203,8 @@ int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_com
                 }
         res.n_compared = n;
 
-        size_t inter = 0, uni = 0;
+        _cleanup_free_ uint8_t *obs = observable_mask(truth_dir, &t);
+        size_t inter = 0, uni = 0, inter_o = 0, uni_o = 0;
         for (int j = 0; j < t.ny; j++)
                 for (int i = 0; i < t.nx; i++) {
                         bool a = truth_at(&t, i, j, t.c_m) >= 0.5;
@@ -175,8 +217,14 @@ int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_com
                                  cj < cimg->height && *(imp_image_f32(cimg, (int) ci, (int) cj) + cm) >= 0.5;
                         inter += a && b;
                         uni += a || b;
+                        if (obs) {
+                                bool ao = a && obs[(size_t) j * t.nx + i];
+                                inter_o += ao && b;
+                                uni_o += ao || b;
+                        }
                 }
         res.mask_iou = uni ? (double) inter / uni : 0;
+        res.mask_iou_observable = !obs ? -1 : uni_o ? (double) inter_o / uni_o : 0;
 
         if (n == 0)
                 return imp_error_set(err, -ENODATA, "compare %s vs %s: no copy texel over the truth canvas",
@@ -198,12 +246,13 @@ int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_com
 }
 
 json_t *imp_compare_result_to_json(const struct imp_compare_result *r) {
-        return json_pack("{s:f,s:f,s:f,s:f,s:f,s:I,s:I}",
+        return json_pack("{s:f,s:f,s:f,s:f,s:f,s:f,s:I,s:I}",
                          "height_rmse_um", r->height_rmse_um,
                          "height_offset_mm", r->height_offset_mm,
                          "height_max_abs_um", r->height_max_abs_um,
                          "normal_err_deg_mean", r->normal_err_deg_mean,
                          "mask_iou", r->mask_iou,
+                         "mask_iou_observable", r->mask_iou_observable,
                          "nan_count", (json_int_t) r->nan_count,
                          "n_compared", (json_int_t) r->n_compared);
 }

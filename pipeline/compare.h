@@ -24,6 +24,11 @@ struct imp_compare_result {
         double height_max_abs_um;     /* after offset */
         double normal_err_deg_mean;
         double mask_iou;
+        /* IoU over the canvas the rig can measure: truth canvas samples that the projector
+         * lights and the camera sees (truth/correspondence-CAM.exr valid, and the seen depth
+         * is this sample's), against the copy mask. −1 when the truth has no
+         * correspondence map. The gap to mask_iou is canvas no single shot can measure. */
+        double mask_iou_observable;
         size_t nan_count;             /* non-finite samples over all copy EXR channels */
         size_t n_compared;            /* texels in the height/normal figures */
 };

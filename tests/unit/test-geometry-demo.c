@@ -162,18 +162,23 @@ int main(int argc, char **argv) {
                 double rmse = json_real_value(json_object_get(c, "height_rmse_um"));
                 double nerr = json_real_value(json_object_get(c, "normal_err_deg_mean"));
                 double iou = json_real_value(json_object_get(c, "mask_iou"));
+                double iou_obs = json_real_value(json_object_get(c, "mask_iou_observable"));
                 long long nan = json_integer_value(json_object_get(c, "nan_count"));
                 long long n = json_integer_value(json_object_get(c, "n_compared"));
                 fprintf(stderr, "%s: height rmse %.2f um, normal error %.2f deg, mask IoU %.4f, NaN %lld, compared %lld\n",
                         demo ? "demo" : "small", rmse, nerr, iou, nan, n);
                 fprintf(stderr, "ACCEPTANCE height rmse <= 9 um: %s\n", rmse <= 9 ? "met" : "NOT MET");
                 fprintf(stderr, "ACCEPTANCE normal error <= 2 deg: %s\n", nerr <= 2 ? "met" : "NOT MET");
-                fprintf(stderr, "ACCEPTANCE mask IoU >= 0.99: %s\n", iou >= 0.99 ? "met" : "NOT MET");
+                fprintf(stderr, "ACCEPTANCE mask IoU >= 0.99: %s (%.4f; over the measurable canvas %.4f)\n",
+                        iou >= 0.99 ? "met" : "NOT MET", iou, iou_obs);
                 CHECK_LE(rmse, 9.0);
                 CHECK_INT_EQ(nan, 0);
                 CHECK_GE(n, demo ? 800000 : 40000);
                 /* Floors measured today (docs/geometry.md), to catch regressions. */
                 CHECK_GE(iou, demo ? 0.96 : 0.90);
+                /* Over the canvas one shot can measure (the frame's projector shadow
+                 * excluded), the extraction itself must hold the issue's 0.99 on the demo. */
+                CHECK_GE(iou_obs, demo ? 0.99 : 0.95);
                 CHECK_LE(nerr, demo ? 9.5 : 8.0);
                 json_decref(c);
         }
