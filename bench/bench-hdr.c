@@ -22,12 +22,21 @@
  * (minimising the same relative error) for OpenCV's results, whose units are arbitrary
  * except with the true response. impasto's results are not rescaled (scale shown).
  *
- * Each method runs in its own forked child (peak RSS per method, getrusage after resetting
- * the high-water mark through /proc/self/clear_refs), with 1 and 2 threads
- * (omp_set_num_threads for impasto, cv::setNumThreads for OpenCV); one warm-up run, then
- * the median of the timed repetitions (wall clock, CLOCK_MONOTONIC).
+ * Accuracy and peak memory: each method once in its own forked child (peak RSS per method,
+ * getrusage after resetting the high-water mark through /proc/self/clear_refs).
+ * Speed: all methods in ONE forked child, side by side, with 1 and 2 threads
+ * (omp_set_num_threads for impasto, cv::setNumThreads for OpenCV): one warm-up run each,
+ * then `repetitions` rounds, each running every method once in a rotating order, so that a
+ * load change on the shared machine hits all methods alike. Per method: median and range
+ * of the wall time (CLOCK_MONOTONIC), median CPU time of the calling thread
+ * (CLOCK_THREAD_CPUTIME_ID) and of the process (CLOCK_PROCESS_CPUTIME_ID: all threads,
+ * including the worker pools' spin-waiting), and the median over rounds of the paired ratio
+ * t_OpenCV,true / t_method (wall and process CPU). Twice: with glibc's default malloc, whose
+ * freed large blocks go back to the kernel so every call faults its temporaries in again,
+ * and with M_MMAP_THRESHOLD/M_TRIM_THRESHOLD raised so that they are reused (compute only).
  * Usage: bench-hdr [repetitions (default 7)] [side ...] (default 1024 2048). */
 #include <errno.h>
+#include <malloc.h>
 #include <math.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -85,11 +94,12 @@ struct outcome {                                    /* child → parent through 
         char cv_framework[32];
 };
 
-static double now_ms(void) {
+static double clock_ms(clockid_t id) {
         struct timespec ts;
-        clock_gettime(CLOCK_MONOTONIC, &ts);
+        clock_gettime(id, &ts);
         return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
 }
+static double now_ms(void) { return clock_ms(CLOCK_MONOTONIC); }
 
 /* xoshiro256** seeded by splitmix64. */
 struct rng { uint64_t s[4]; };
@@ -365,6 +375,145 @@ static int run_forked(const struct stack *st, enum method m, int threads, int re
         return 0;
 }
 
+static bool read_full(int fd, void *buf, size_t len) {
+        uint8_t *p = buf;
+        while (len > 0) {
+                ssize_t rd = read(fd, p, len);
+                if (rd <= 0)
+                        return false;
+                p += rd;
+                len -= (size_t) rd;
+        }
+        return true;
+}
+
+#define MAX_REPS 64
+struct timing {                                     /* child → parent through a pipe */
+        int ok;
+        char err[256];
+        double wall[N_METHODS][MAX_REPS], thr[N_METHODS][MAX_REPS], proc[N_METHODS][MAX_REPS];
+};
+
+/* Runs in the child: every method once per round, rotating the order. */
+static void run_interleaved(const struct stack *st, int threads, int reps, bool warm_malloc, struct timing *t) {
+        struct imp_error err = {};
+        if (warm_malloc) {       /* freed blocks stay mapped: no page faults on re-allocation */
+                mallopt(M_MMAP_THRESHOLD, 1 << 30);
+                mallopt(M_TRIM_THRESHOLD, 1 << 30);
+        }
+        double exp_s[N_EXP];
+        float lut[N_METHODS][IMP_CV_HDR_LUT];
+        struct imp_hdr_exposure ex[N_METHODS][N_EXP];
+        set_threads(threads);
+        for (int i = 0; i < N_EXP; i++) {
+                exp_s[i] = exposure_us[i] * 1e-6;
+                ex[M_IMP12][i] = (struct imp_hdr_exposure) { .frame = st->f12[i], .exposure_us = exposure_us[i] };
+                ex[M_IMP8][i] = (struct imp_hdr_exposure) { .frame = st->f8u16[i], .exposure_us = exposure_us[i] };
+        }
+        true_response8(lut[M_CV_TRUE]);
+        for (int d = 0; d < IMP_CV_HDR_LUT; d++)      /* OpenCV's default, explicit (see run_method) */
+                lut[M_CV_DEFAULT][d] = (float) (d ? d : 1);
+        if (imp_cv_hdr_calibrate_debevec((const struct imp_image *const *) st->f8, exp_s, N_EXP, 0, 0, false,
+                                         lut[M_CV_CALIB], &err) < 0) {
+                snprintf(t->err, sizeof t->err, "CalibrateDebevec: %.200s", err.msg);
+                return;
+        }
+        struct imp_image *cv_out = NULL;
+        if (imp_image_new(st->w, st->h, 1, IMP_PIX_F32, &cv_out) < 0) {
+                snprintf(t->err, sizeof t->err, "out of memory");
+                return;
+        }
+        struct imp_hdr_result res = {};
+        for (int round = -1; round < reps; round++)      /* round -1: warm-up, untimed */
+                for (int k = 0; k < N_METHODS; k++) {
+                        int m = (round < 0 ? k : round + k) % N_METHODS;
+                        imp_hdr_result_done(&res);
+                        double w0 = now_ms(), c0 = clock_ms(CLOCK_THREAD_CPUTIME_ID),
+                               p0 = clock_ms(CLOCK_PROCESS_CPUTIME_ID);
+                        int r = m <= M_IMP8 ?
+                                imp_hdr_merge(ex[m], N_EXP, m == M_IMP12 ? &sensor12 : &sensor8, NULL, &res) :
+                                imp_cv_hdr_merge_debevec((const struct imp_image *const *) st->f8, exp_s, N_EXP,
+                                                         lut[m], cv_out, &err);
+                        double w1 = now_ms(), c1 = clock_ms(CLOCK_THREAD_CPUTIME_ID),
+                               p1 = clock_ms(CLOCK_PROCESS_CPUTIME_ID);
+                        if (r < 0) {
+                                snprintf(t->err, sizeof t->err, "%s: %.200s", method_name[m],
+                                         m <= M_IMP8 ? strerror(-r) : err.msg);
+                                goto out;
+                        }
+                        if (round >= 0) {
+                                t->wall[m][round] = w1 - w0;
+                                t->thr[m][round] = c1 - c0;
+                                t->proc[m][round] = p1 - p0;
+                        }
+                }
+        t->ok = 1;
+out:
+        imp_hdr_result_done(&res);
+        imp_image_free(cv_out);
+}
+
+static void time_forked(const struct stack *st, int threads, int reps, bool warm_malloc, struct timing *t) {
+        int fd[2];
+        *t = (struct timing) {};
+        if (pipe(fd) < 0) {
+                snprintf(t->err, sizeof t->err, "pipe: %s", strerror(errno));
+                return;
+        }
+        fflush(stdout);
+        pid_t pid = fork();
+        if (pid < 0) {
+                snprintf(t->err, sizeof t->err, "fork: %s", strerror(errno));
+                close(fd[0]);
+                close(fd[1]);
+                return;
+        }
+        if (pid == 0) {
+                close(fd[0]);
+                static struct timing c;
+                run_interleaved(st, threads, reps, warm_malloc, &c);
+                ssize_t wr = write(fd[1], &c, sizeof c);
+                _exit(wr == (ssize_t) sizeof c ? 0 : 1);
+        }
+        close(fd[1]);
+        bool got = read_full(fd[0], t, sizeof *t);
+        close(fd[0]);
+        int status;
+        waitpid(pid, &status, 0);
+        if (!got) {
+                snprintf(t->err, sizeof t->err, "child failed (status %d)", status);
+                t->ok = 0;
+        }
+}
+
+static double median_of(const double *x, int n, double *ret_min, double *ret_max) {
+        double tmp[MAX_REPS];
+        memcpy(tmp, x, n * sizeof *x);
+        qsort(tmp, n, sizeof *tmp, cmp_double);
+        if (ret_min)
+                *ret_min = tmp[0];
+        if (ret_max)
+                *ret_max = tmp[n - 1];
+        return n % 2 ? tmp[n / 2] : 0.5 * (tmp[n / 2 - 1] + tmp[n / 2]);
+}
+
+static void print_timing(const struct timing *t, int reps, double mpix) {
+        printf("%-32s %8s %17s %8s %8s %7s %15s %9s\n", "method", "wall ms", "[min - max]", "thr CPU", "proc CPU",
+               "Mpix/s", "speedup wall", "spd CPU");
+        for (int m = 0; m < N_METHODS; m++) {
+                double lo, hi, rw[MAX_REPS], rc[MAX_REPS], rlo, rhi;
+                double wm = median_of(t->wall[m], reps, &lo, &hi);
+                for (int k = 0; k < reps; k++) {
+                        rw[k] = t->wall[M_CV_TRUE][k] / t->wall[m][k];
+                        rc[k] = t->proc[M_CV_TRUE][k] / t->proc[m][k];
+                }
+                double sw = median_of(rw, reps, &rlo, &rhi);
+                printf("%-32s %8.2f [%6.2f - %6.2f] %8.2f %8.2f %7.1f %5.2fx [%.2f-%.2f] %8.2fx\n", method_name[m], wm,
+                       lo, hi, median_of(t->thr[m], reps, NULL, NULL), median_of(t->proc[m], reps, NULL, NULL),
+                       mpix / (wm * 1e-3), sw, rlo, rhi, median_of(rc, reps, NULL, NULL));
+        }
+}
+
 /* OpenCV 4.6 and 16-bit input: expect a refusal (run in a child: OpenCV prints nothing
  * but keep the parent free of OpenCV's thread pool before forking). */
 static void probe_u16(const struct stack *st) {
@@ -406,7 +555,7 @@ static void probe_u16(const struct stack *st) {
 
 int main(int argc, char **argv) {
         int reps = argc > 1 ? atoi(argv[1]) : 7;
-        if (reps < 1 || reps > 64) {
+        if (reps < 1 || reps > MAX_REPS) {
                 fprintf(stderr, "usage: bench-hdr [repetitions 1..64] [side ...]\n");
                 return 2;
         }
@@ -440,39 +589,49 @@ int main(int argc, char **argv) {
                         probe_u16(&st);
                         probed = true;
                 }
-                for (int threads = 1; threads <= 2; threads++) {
-                        struct outcome o[N_METHODS];
-                        for (int m = 0; m < N_METHODS; m++)
-                                run_forked(&st, m, threads, reps, &o[m]);
-                        if (threads == 1 && si == 0)
-                                printf("OpenCV parallel framework: %s, cv::getNumThreads() default %d\n",
-                                       o[M_CV_TRUE].cv_framework, o[M_CV_TRUE].cv_threads_default);
-                        printf("\n-- %d thread%s --\n", threads, threads > 1 ? "s" : "");
-                        printf("%-32s %8s %8s %8s %7s %7s %8s %8s | rel RMS by decade (bright..dark) | %8s %8s\n",
-                               "method", "ms", "min ms", "Mpix/s", "speedup", "scale", "relRMS", "relBias",
-                               "peakRSS", "+work");
-                        double ref = o[M_CV_TRUE].ok ? o[M_CV_TRUE].ms_median : NAN;
-                        for (int m = 0; m < N_METHODS; m++) {
-                                if (!o[m].ok) {
-                                        printf("%-32s failed: %s\n", method_name[m], o[m].err);
-                                        continue;
-                                }
-                                printf("%-32s %8.2f %8.2f %8.1f %6.2fx %7.4f %8.5f %+8.5f | %8.5f %8.5f %8.5f | %6.0fMiB %5.0fMiB",
-                                       method_name[m], o[m].ms_median, o[m].ms_min, mpix / (o[m].ms_median * 1e-3),
-                                       ref / o[m].ms_median, o[m].scale, o[m].rel_rms, o[m].rel_bias,
-                                       o[m].bin_rms[0], o[m].bin_rms[1], o[m].bin_rms[2],
-                                       o[m].peak_rss_mib, o[m].peak_rss_mib - o[m].base_rss_mib);
-                                if (m == M_CV_CALIB)
-                                        printf("  (+ CalibrateDebevec %.1f ms)", o[m].calib_ms);
-                                if (o[m].n_bad)
-                                        printf("  (%ld non-finite)", o[m].n_bad);
-                                printf("\n");
+                struct outcome o[N_METHODS];
+                for (int m = 0; m < N_METHODS; m++)
+                        run_forked(&st, m, 1, 1, &o[m]);
+                if (si == 0)
+                        printf("OpenCV parallel framework: %s, cv::getNumThreads() default %d\n",
+                               o[M_CV_TRUE].cv_framework, o[M_CV_TRUE].cv_threads_default);
+                printf("\n-- accuracy and memory (1 thread, one run after a warm-up, own child each) --\n");
+                printf("%-32s %7s %8s %8s | rel RMS by decade (bright..dark) | %8s %8s\n",
+                       "method", "scale", "relRMS", "relBias", "peakRSS", "+work");
+                for (int m = 0; m < N_METHODS; m++) {
+                        if (!o[m].ok) {
+                                printf("%-32s failed: %s\n", method_name[m], o[m].err);
+                                continue;
                         }
+                        printf("%-32s %7.4f %8.5f %+8.5f | %8.5f %8.5f %8.5f | %6.0fMiB %5.0fMiB",
+                               method_name[m], o[m].scale, o[m].rel_rms, o[m].rel_bias,
+                               o[m].bin_rms[0], o[m].bin_rms[1], o[m].bin_rms[2],
+                               o[m].peak_rss_mib, o[m].peak_rss_mib - o[m].base_rss_mib);
+                        if (m == M_CV_CALIB)
+                                printf("  (+ CalibrateDebevec %.1f ms)", o[m].calib_ms);
+                        if (o[m].n_bad)
+                                printf("  (%ld non-finite)", o[m].n_bad);
+                        printf("\n");
+                }
+                for (int k = 0; k < 4; k++) {
+                        static struct timing t;
+                        int threads = 1 + (k & 1);
+                        bool warm = k >= 2;
+                        time_forked(&st, threads, reps, warm, &t);
+                        printf("\n-- speed, %d thread%s, %s: %d interleaved rounds, ms --\n", threads,
+                               threads > 1 ? "s" : "", warm ? "malloc keeps freed memory mapped" : "default malloc", reps);
+                        if (!t.ok) {
+                                printf("failed: %s\n", t.err);
+                                continue;
+                        }
+                        print_timing(&t, reps, mpix);
                 }
                 stack_free(&st);
         }
-        printf("\nspeedup: median time of OpenCV MergeDebevec (true response, same thread count) / this "
-               "method's. scale: least-squares scale (applied to OpenCV rows only). +work: peak RSS "
-               "minus the RSS at the start of the method's child (frames and scene inherited).\n");
+        printf("\nspeedup: median over rounds of t(OpenCV MergeDebevec, true response) / t(method) in the same "
+               "round (wall; 'spd CPU': process CPU time). thr CPU: CPU time of the calling thread; proc CPU: "
+               "all threads of the process. 'malloc keeps freed memory mapped': M_MMAP_THRESHOLD and "
+               "M_TRIM_THRESHOLD 1 GiB, so repeated calls reuse pages instead of faulting fresh ones in. scale: least-squares scale (applied to OpenCV rows only). +work: "
+               "peak RSS minus the RSS at the start of the method's child (frames and scene inherited).\n");
         return 0;
 }

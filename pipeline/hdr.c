@@ -1,8 +1,13 @@
 /* HDR merge (see hdr.h): per pixel, two passes over the exposure stack. Pass 1 excludes
  * samples by their measured DN and weights by the measured signal; pass 2 re-selects and
  * re-weights with the noise predicted from the pass-1 estimate, because weights computed
- * from the noisy sample itself favour low draws and bias the mean downwards. */
+ * from the noisy sample itself favour low draws and bias the mean downwards.
+ * Two implementations of the same estimator: without a per-pixel dark frame everything
+ * pass 1 needs is a function of the DN alone, so it comes from one table per exposure
+ * (float, vectorised, see merge_span); with a dark frame, the scalar double merge_one. */
+#include <float.h>
 #include <math.h>
+#include <stdlib.h>
 #include <string.h>
 #include "hdr.h"
 
@@ -170,6 +175,183 @@ static void demosaic(const struct imp_image *v1, const struct imp_image *var1, c
                 }
 }
 
+/* Table-driven path (no dark frame: the offset is black_level_dn everywhere).
+ * Units: x = electrons the shortest exposure would collect at flat 1, x = V·f / a_ref, with
+ * a_i = 1/(quantum_scale · t_i), a_ref the largest a_i and r_i = a_i / a_ref <= 1. Sample i
+ * estimates x by e_meas·r_i with inverse variance 1/(var_e·r_i²). The flat factor f scales
+ * every weight by f² and every estimate by 1/f, so it cancels out of the weighted mean and
+ * is applied once per pixel: V = x·a_ref/f, var(V) = a_ref²/(f²·Σw). Pass 2's prediction
+ * e_pred = x0/r_i does not depend on f either: its exclusions are thresholds on x0 and its
+ * weight is 1/(x0·r_i + c_i·r_i²), c_i the signal-independent variance. Float sums of at
+ * most HDR_MAX_STACK positive terms: relative error ~1e-6, far inside the estimator's
+ * noise. */
+#define HDR_SPAN 256    /* samples merged together: their sums (9 KiB) stay in L1 */
+
+struct hdr_fast_exp {
+        const float *w1;           /* [2^bits] pass-1 weight, 0 when excluded */
+        const float *x;            /* [2^bits] estimate e_meas·r (0 if non-finite) */
+        float r, b;                /* pass-2 weight 1/(x0·r + b) */
+        float x_sat, x_lo;         /* pass 2 keeps x_lo <= x0 < x_sat */
+        float sat_lb;              /* V·f lower bound from a saturated sample (>= 0) */
+        uint32_t sat_dn, clip_dn;  /* raw >= sat_dn: saturated; raw >= clip_dn: clipped */
+};
+
+struct hdr_fast {
+        struct hdr_fast_exp e[HDR_MAX_STACK];
+        size_t n;
+        uint32_t max_dn;
+        float a_ref, a_ref2;
+        float dark_lim;            /* detection limit of the longest exposure, V·f */
+};
+
+static uint32_t dn_threshold(double dn) {   /* smallest integer DN >= dn */
+        return (uint32_t) fmin(fmax(ceil(dn), 0.0), 65536.0);
+}
+
+/* Fills fx and its tables (2 · n · 2^bits floats, caller-allocated). */
+static void fast_build(const struct hdr_ctx *cx, float *tab, struct hdr_fast *fx) {
+        const struct imp_sensor *s = cx->s;
+        size_t n_dn = (size_t) cx->max_dn + 1;
+        double off = s->black_level_dn, read2 = s->read_noise_e * s->read_noise_e;
+        double a_ref = 0, a_min = INFINITY;
+        for (size_t i = 0; i < cx->n; i++) {
+                double a = 1.0 / (s->quantum_scale * cx->e[i].t_s);
+                a_ref = fmax(a_ref, a);
+                a_min = fmin(a_min, a);
+        }
+        *fx = (struct hdr_fast) {
+                .n = cx->n, .max_dn = (uint32_t) cx->max_dn,
+                .a_ref = (float) a_ref, .a_ref2 = (float) (a_ref * a_ref),
+                .dark_lim = (float) (cx->k_read_e * a_min),
+        };
+        for (size_t i = 0; i < cx->n; i++) {
+                const struct hdr_exp *e = &cx->e[i];
+                double a = 1.0 / (s->quantum_scale * e->t_s), r = a / a_ref;
+                double clip = fmin(cx->max_dn, off + e->fw_dn);
+                double sat = clip - (cx->margin_dn >= 0 ? cx->margin_dn : cx->margin_frac * (clip - off));
+                double c = e->dark_e + read2 + e->g * e->g / 12.0;
+                double e_sat = (sat - off) * e->g - e->dark_e;
+                float *w1 = tab + 2 * i * n_dn, *x = w1 + n_dn;
+                for (size_t d = 0; d < n_dn; d++) {
+                        double lin = cx->o->response ? cx->o->response[d] : (double) d;
+                        double em = (lin - off) * e->g - e->dark_e;
+                        bool finite = isfinite(em);
+                        w1[d] = finite && d < sat && em >= cx->k_read_e ? (float) (1.0 / ((em + c) * r * r)) : 0.0f;
+                        x[d] = finite ? (float) (em * r) : 0.0f;
+                }
+                fx->e[i] = (struct hdr_fast_exp) {
+                        .w1 = w1, .x = x, .r = (float) r, .b = (float) (c * r * r),
+                        .x_sat = (float) (e_sat * r), .x_lo = (float) (cx->k_read_e * r),
+                        .sat_lb = (float) fmax(e_sat * a, 0.0),
+                        .sat_dn = dn_threshold(sat), .clip_dn = dn_threshold(clip - 0.5),
+                };
+        }
+}
+
+/* Merges m <= HDR_SPAN samples; raw[i] points at exposure i's first sample, flat (NULL:
+ * 1) at the flat field's. Branch-free so that it vectorises (float compares need
+ * no-trapping-math with gcc 12; the table reads become gathers with AVX2). */
+__attribute__((target_clones("avx2", "default"),
+               optimize("tree-vectorize", "vect-cost-model=dynamic", "no-trapping-math")))
+static void merge_span(const struct hdr_fast *fx, const uint16_t *const *raw, const float *flat, size_t m,
+                       float *ret_v, float *ret_var, uint8_t *ret_flag) {
+        float sw[HDR_SPAN], sx[HDR_SPAN], lb[HDR_SPAN], x0[HDR_SPAN], sw2[HDR_SPAN], sx2[HDR_SPAN], fl[HDR_SPAN];
+        int32_t sat[HDR_SPAN];
+        uint32_t max_dn = fx->max_dn;
+
+        for (size_t j = 0; j < m; j++) {
+                sw[j] = sx[j] = lb[j] = sw2[j] = sx2[j] = 0;
+                sat[j] = 0;
+        }
+        for (size_t i = 0; i < fx->n; i++) {
+                const struct hdr_fast_exp *e = &fx->e[i];
+                const uint16_t *p = raw[i];
+                const float *w1 = e->w1, *xt = e->x;
+                uint32_t sat_dn = e->sat_dn;
+                float sat_lb = e->sat_lb;
+                for (size_t j = 0; j < m; j++) {
+                        uint32_t d = p[j] < max_dn ? p[j] : max_dn;
+                        float w = w1[d];
+                        sw[j] += w;
+                        sx[j] += w * xt[d];
+                        int32_t s = p[j] >= sat_dn;
+                        float l = s ? sat_lb : 0.0f;
+                        sat[j] |= s;
+                        lb[j] = l > lb[j] ? l : lb[j];
+                }
+        }
+        for (size_t j = 0; j < m; j++)
+                x0[j] = sw[j] > 0 ? sx[j] / sw[j] : 0.0f;
+        /* Pass 2. x0 = 0 (nothing usable) is below every x_lo, so such pixels stay out. */
+        for (size_t i = 0; i < fx->n; i++) {
+                const struct hdr_fast_exp *e = &fx->e[i];
+                const uint16_t *p = raw[i];
+                const float *xt = e->x;
+                uint32_t clip_dn = e->clip_dn;
+                float r = e->r, b = e->b, x_sat = e->x_sat, x_lo = e->x_lo;
+                for (size_t j = 0; j < m; j++) {
+                        uint32_t d = p[j] < max_dn ? p[j] : max_dn;
+                        float xx = x0[j];
+                        float q = 1.0f / (xx * r + b);     /* > 0: x0 >= 0, b > 0 */
+                        bool ok = p[j] < clip_dn && xx < x_sat && xx >= x_lo;
+                        q = ok ? q : 0.0f;
+                        sw2[j] += q;
+                        sx2[j] += q * xt[d];
+                }
+        }
+        if (flat)
+                for (size_t j = 0; j < m; j++)
+                        fl[j] = flat[j] > 0 && flat[j] <= FLT_MAX ? 1.0f / flat[j] : 1.0f;
+        else
+                for (size_t j = 0; j < m; j++)
+                        fl[j] = 1.0f;
+        float a_ref = fx->a_ref, a_ref2 = fx->a_ref2, dark_lim = fx->dark_lim;
+        for (size_t j = 0; j < m; j++) {
+                float inv_f = fl[j];
+                bool ok1 = sw[j] > 0, ok2 = sw2[j] > 0;
+                float x = ok2 ? sx2[j] / sw2[j] : x0[j];
+                float s = ok2 ? sw2[j] : ok1 ? sw[j] : 1.0f;
+                float v = x * a_ref * inv_f, var = a_ref2 * inv_f * inv_f / s;
+                float v_sat = lb[j] * inv_f, v_dark = dark_lim * inv_f;
+                ret_v[j] = ok1 ? v : sat[j] ? v_sat : 0.0f;
+                ret_var[j] = ok1 ? var : sat[j] ? v_sat * v_sat : v_dark * v_dark;
+                ret_flag[j] = ok1 ? 0 : sat[j] ? IMP_HDR_SATURATED : IMP_HDR_DARK;
+        }
+}
+
+static int merge_fast(const struct hdr_ctx *cx, struct imp_image *v, struct imp_image *var, struct imp_image *fl,
+                      size_t *ret_sat, size_t *ret_dark) {
+        size_t n_dn = (size_t) cx->max_dn + 1;
+        _cleanup_free_ float *tab = malloc(2 * cx->n * n_dn * sizeof(float));
+        if (!tab)
+                return -ENOMEM;
+        struct hdr_fast fx;
+        fast_build(cx, tab, &fx);
+        const struct imp_image *flat = cx->o->flat;
+        int h = v->height;
+        size_t ns = (size_t) v->width * v->channels, n_sat = 0, n_dark = 0;
+        #pragma omp parallel for schedule(static) reduction(+:n_sat,n_dark)
+        for (int y = 0; y < h; y++) {
+                const uint16_t *raw[HDR_MAX_STACK];
+                const float *flat_row = flat ? imp_image_row(flat, y) : NULL;
+                float *pv = imp_image_row(v, y), *pvar = imp_image_row(var, y);
+                uint8_t *pf = imp_image_row(fl, y);
+                for (size_t j0 = 0; j0 < ns; j0 += HDR_SPAN) {
+                        size_t m = ns - j0 < HDR_SPAN ? ns - j0 : HDR_SPAN;
+                        for (size_t i = 0; i < cx->n; i++)
+                                raw[i] = (const uint16_t *) imp_image_row(cx->e[i].frame, y) + j0;
+                        merge_span(&fx, raw, flat_row ? flat_row + j0 : NULL, m, pv + j0, pvar + j0, pf + j0);
+                        for (size_t j = j0; j < j0 + m; j++) {
+                                n_sat += pf[j] == IMP_HDR_SATURATED;
+                                n_dark += pf[j] == IMP_HDR_DARK;
+                        }
+                }
+        }
+        *ret_sat = n_sat;
+        *ret_dark = n_dark;
+        return 0;
+}
+
 static bool same_layout(const struct imp_image *a, const struct imp_image *b) {
         return a->width == b->width && a->height == b->height && a->channels == b->channels;
 }
@@ -227,16 +409,21 @@ int imp_hdr_merge(const struct imp_hdr_exposure *stack, size_t n, const struct i
             (r = imp_image_new(w, h, C, IMP_PIX_U8, &fl)) < 0)
                 return r;
         size_t n_sat = 0, n_dark = 0;
-        #pragma omp parallel for schedule(static) reduction(+:n_sat,n_dark)
-        for (int y = 0; y < h; y++)
-                for (int x = 0; x < w; x++)
-                        for (int c = 0; c < C; c++) {
-                                uint8_t *pf = imp_image_u8(fl, x, y) + c;
-                                merge_one(&cx, x, y, c, imp_image_f32(v, x, y) + c,
-                                          imp_image_f32(var, x, y) + c, pf);
-                                n_sat += (*pf & IMP_HDR_SATURATED) != 0;
-                                n_dark += (*pf & IMP_HDR_DARK) != 0;
-                        }
+        if (!opt->dark) {
+                if ((r = merge_fast(&cx, v, var, fl, &n_sat, &n_dark)) < 0)
+                        return r;
+        } else {
+                #pragma omp parallel for schedule(static) reduction(+:n_sat,n_dark)
+                for (int y = 0; y < h; y++)
+                        for (int x = 0; x < w; x++)
+                                for (int c = 0; c < C; c++) {
+                                        uint8_t *pf = imp_image_u8(fl, x, y) + c;
+                                        merge_one(&cx, x, y, c, imp_image_f32(v, x, y) + c,
+                                                  imp_image_f32(var, x, y) + c, pf);
+                                        n_sat += (*pf & IMP_HDR_SATURATED) != 0;
+                                        n_dark += (*pf & IMP_HDR_DARK) != 0;
+                                }
+        }
 
         if (bayer) {
                 _cleanup_image_ struct imp_image *v3 = NULL, *var3 = NULL, *fl3 = NULL;
