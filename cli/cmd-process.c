@@ -23,8 +23,11 @@ static void progress_bar(void *userdata, const char *stage, size_t done, size_t 
 static void usage(FILE *f) {
         fprintf(f, "usage: impasto process CAPTURE_DIR --out COPY_DIR [--pitch MM] [--cell N]\n"
                    "                       [--delta FRACTION] [--no-btf] [--holdout N] [--quiet]\n"
+                   "                       [--no-photometric-normals]\n"
                    "  --holdout N   leave every Nth dome light out of the fit and report the\n"
-                   "                re-render error on those lights in copy.json\n");
+                   "                re-render error on those lights in copy.json\n"
+                   "  --no-photometric-normals  keep the geometric (structured-light) normals\n"
+                   "                instead of refining them from the dome sweep\n");
 }
 
 static int run(int argc, char **argv) {
@@ -37,6 +40,7 @@ static int run(int argc, char **argv) {
                 { "out", required_argument, NULL, 'o' }, { "pitch", required_argument, NULL, 'p' },
                 { "cell", required_argument, NULL, 'n' }, { "delta", required_argument, NULL, 'd' },
                 { "no-btf", no_argument, NULL, 'B' },
+                { "no-photometric-normals", no_argument, NULL, 'P' },
                 { "holdout", required_argument, NULL, 'H' }, { "quiet", no_argument, NULL, 'q' },
                 { "help", no_argument, NULL, 'h' }, {}
         };
@@ -48,6 +52,7 @@ static int run(int argc, char **argv) {
                 case 'n': o.cell_px = atoi(optarg); break;
                 case 'd': o.delta_frac = atof(optarg); break;
                 case 'B': o.btf = false; break;
+                case 'P': o.photometric_normals = false; break;
                 case 'H': {
                         char *end;
                         long v = strtol(optarg, &end, 10);

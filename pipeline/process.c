@@ -20,6 +20,7 @@
 #include "hdr.h"
 #include "heightfield.h"
 #include "json-util.h"
+#include "photometric.h"
 #include "process.h"
 #include "structured-light.h"
 #include "triangulate.h"
@@ -391,7 +392,7 @@ fail:
 
 /* The dome sweep → per-texel Lafortune BRDF (seed 000 §4.4). */
 static int run_appearance(const struct process_opts *o, const struct imp_captureset *cs,
-                          const struct geometry_out *g, json_t *stages, struct imp_error *err) {
+                          struct geometry_out *g, json_t *stages, struct imp_error *err) {
         const struct imp_rig *rig = imp_captureset_rig(cs);
         const struct imp_rig_camera *cam = &rig->cameras[0];
         _cleanup_free_ struct stack *stacks = NULL;
@@ -405,8 +406,9 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
                 n_stacks = IMP_BTF_MAX_SAMPLES;
 
         double t0 = now_s();
-        const struct imp_heightfield *hf = &g->hf;
+        struct imp_heightfield *hf = &g->hf;
         size_t nt = (size_t) hf->nx * hf->ny;
+        float *pn_normal = NULL;
         struct imp_image **frames = calloc(n_stacks, sizeof *frames);
         struct imp_image **valid = calloc(n_stacks, sizeof *valid);
         struct imp_rig_light *lights = calloc(n_stacks, sizeof *lights);
@@ -495,6 +497,43 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
                 fp.robust_passes = o->opt->btf_robust_passes;
         if (o->opt->btf_no_shadow_test)
                 sp.march_step_texels = 0;   /* a zero step casts no ray: nothing is blocked */
+        if (o->opt->photometric_normals && n_used >= 8) {
+                /* Photometric normals (issue #4): replace the geometric normals before the fit,
+                 * so its local frames, the validation and heightfield.exr use them. */
+                double t_pn0 = now_s();
+                struct imp_photometric_params pp;
+                struct imp_photometric_stats ps = {};
+                imp_photometric_params_default(&pp);
+                pn_normal = malloc(nt * 3 * sizeof *pn_normal);
+                if (!pn_normal) {
+                        r = imp_error_set(err, -ENOMEM, "out of memory");
+                        goto out;
+                }
+                r = imp_photometric_normals(&bh, &cap, &sp, &pp, pn_normal, NULL, &ps);
+                if (r < 0) {
+                        imp_error_set(err, r, "%s: photometric normals failed: %s", o->capture, strerror(-r));
+                        goto out;
+                }
+                memcpy(normal, pn_normal, nt * 3 * sizeof *normal);
+                for (size_t i = 0; i < nt; i++)
+                        if (!hf->mask || hf->mask[i]) {
+                                hf->nx_[i] = normal[3 * i];
+                                hf->ny_[i] = normal[3 * i + 1];
+                        }
+                r = imp_heightfield_save(hf, o->out, err);
+                if (r < 0)
+                        goto out;
+                json_object_set_new(stages, "photometric", json_pack(
+                        "{s:i,s:I,s:I,s:I,s:I,s:I,s:f,s:f,s:f,s:f,s:f,s:f}",
+                        "lights", (int) n_used, "refined", (json_int_t) ps.n_refined,
+                        "kept_few_samples", (json_int_t) ps.n_few, "kept_ill_conditioned", (json_int_t) ps.n_ill,
+                        "kept_dark", (json_int_t) ps.n_dark, "kept_disagree", (json_int_t) ps.n_disagree,
+                        "max_dev_deg", pp.max_dev_deg,
+                        "dev_deg_mean", ps.dev_deg_mean, "dev_deg_median", ps.dev_deg_median,
+                        "sigma_deg_median", ps.sigma_deg_median, "rms_median", ps.rms_median,
+                        "seconds", now_s() - t_pn0));
+                progress(o, "photometric normals", 1, 1);
+        }
         struct imp_btf_stats st = {};
         r = imp_btf_fit_grid(&bh, &cap, &sp, &fp, 64, tex, &st);
         if (r < 0) {
@@ -572,6 +611,7 @@ out:
         free(valid);
         free(lights);
         free(normal);
+        free(pn_normal);
         free(tex);
         return r;
 }
@@ -596,7 +636,7 @@ static int write_copy_json(const struct process_opts *o, const struct geometry_o
 }
 
 void imp_process_options_default(struct imp_process_options *o) {
-        *o = (struct imp_process_options) { .btf = true, .btf_robust_passes = -1 };
+        *o = (struct imp_process_options) { .btf = true, .btf_robust_passes = -1, .photometric_normals = true };
 }
 
 int imp_process_capture(const char *capture_dir, const char *copy_dir,

@@ -23,6 +23,11 @@ struct imp_process_options {
         int btf_robust_passes;        /* Huber reweightings; < 0: the fit's default */
         bool btf_no_shadow_test;      /* no ray casting on the heightfield: self-shadowed
                                          and hidden samples are kept */
+        bool photometric_normals;     /* refine the heightfield normals by photometric
+                                         stereo on the dome sweep (pipeline/photometric.h)
+                                         when it has >= 8 fitted lights; the BTF fit and
+                                         heightfield.exr's nx, ny use the refined normals.
+                                         Default true; false: the geometric normals */
         /* Progress per stage (may be NULL); called from the calling thread. */
         void (*progress)(void *userdata, const char *stage, size_t done, size_t total);
         void *userdata;
@@ -31,6 +36,9 @@ struct imp_process_options {
 void imp_process_options_default(struct imp_process_options *o);
 /* Writes COPY_DIR/{heightfield.exr, boxes.json, rho_d.exr, rho_s.exr, lobe.exr,
  * fit-flags.exr (channel "flags": enum imp_btf_flag per texel), copy.json, previews/}.
+ * With photometric_normals (and >= 8 dome lights in the fit), heightfield.exr's nx, ny are
+ * the photometric normals and copy.json stages.photometric = {lights, refined, kept_*,
+ * dev_deg_mean, dev_deg_median, sigma_deg_median, rms_median, seconds}.
  * With holdout_every > 0, copy.json stages.btf.validation = {lights, texels, rmse,
  * rmse_per_light[]}: the held-out frames against the copy shaded per texel
  * (V = E·cos θl·f(v, l)), over mask texels the camera sees that are lit, not

@@ -1,0 +1,78 @@
+/* Photometric normal refinement from the dome sweep (issue #4): per texel, Lambertian
+ * photometric stereo on the near-field samples of imp_btf_samples_extract(),
+ *
+ *     V / E = g · l,   g = ρd · n   (3 unknowns, linear least squares),
+ *
+ * with l the light direction and E the irradiance at normal incidence at the texel (both
+ * from the sample), the samples near the mirror direction and those predicted to be in
+ * attached shadow left out, and Huber reweighting (IRLS). n = g/|g| replaces (or, with
+ * geo_sigma_deg > 0, is fused with) the geometric normal; where the data cannot
+ * determine it (too few samples, ill-conditioned lighting, black paint, or a normal that
+ * disagrees with the geometry by more than max_dev_deg) the geometric normal is kept and
+ * the texel is flagged. Parameterisation, bounds, initial guess and stopping rule:
+ * docs/geometry.md "Photometric normals". Library code: no logging; errors are negative
+ * errno. */
+#pragma once
+#include <stdint.h>
+#include "btf.h"
+
+enum imp_pn_flag {
+        IMP_PN_FEW_SAMPLES = 1 << 0,  /* fewer than min_samples usable samples */
+        IMP_PN_ILL_COND    = 1 << 1,  /* light directions span too little (cond > max_cond) */
+        IMP_PN_DARK        = 1 << 2,  /* |g| below min_albedo: no shading signal */
+        IMP_PN_DISAGREES   = 1 << 3,  /* photometric and geometric normals > max_dev_deg apart */
+        IMP_PN_MASKED      = 1 << 4,  /* outside the mask or hidden: no samples at all */
+};
+#define IMP_PN_KEPT (IMP_PN_FEW_SAMPLES | IMP_PN_ILL_COND | IMP_PN_DARK | IMP_PN_DISAGREES | IMP_PN_MASKED)
+
+struct imp_photometric_params {
+        int min_samples;              /* fewer usable samples → FEW_SAMPLES (6) */
+        double spec_cone_deg;         /* leave out samples whose l is within this of the
+                                         mirror direction of v about the current normal (40) */
+        double min_cos;               /* leave out samples with n·l below this for the
+                                         current normal: attached shadow (0.05) */
+        double max_cond;              /* condition number of Σ w l lᵀ above this → ILL_COND (100) */
+        double min_albedo;            /* |g| below this → DARK (0.01) */
+        double max_dev_deg;           /* photometric vs geometric normal bound (25) */
+        int passes;                   /* solves: 1 least-squares + Huber reweightings (5) */
+        double huber_delta;           /* Huber threshold in robust σ (1.345) */
+        double sigma_floor;           /* lower bound of the robust σ of V/E (0.002) */
+        double tol_deg;               /* stop when the normal moves less than this (0.01) */
+        double geo_sigma_deg;         /* > 0: fuse n = normalise(n_p/σp² + n_g/σg²) with this
+                                         σ of the geometric normal; <= 0: replace (0) */
+};
+void imp_photometric_params_default(struct imp_photometric_params *ret);
+
+/* The result of one texel. n is in the local frame of the samples (z = the normal the
+ * samples were extracted with); when a KEPT flag is set, n = (0, 0, 1). All finite. */
+struct imp_pn_texel {
+        float n[3];
+        float albedo;                 /* |g|: the Lambertian albedo (mean of the channels) */
+        float dev_deg;                /* angle between the photometric and the sample normal */
+        float sigma_deg;              /* 1σ angular uncertainty from the residuals (180 if unknown) */
+        float rms;                    /* weighted RMS residual of V/E */
+        float cond;                   /* condition number of the normal matrix (≤ 1e12) */
+        uint16_t n_used;              /* samples in the last solve */
+        uint16_t flags;               /* enum imp_pn_flag */
+};
+
+/* One texel from n samples (0 ≤ n ≤ IMP_BTF_MAX_SAMPLES; non-finite samples, e_cos ≤ 0 or
+ * l[2] ≤ 0 are ignored). Thread-safe, allocates nothing; always fills *ret with finite
+ * values. -E2BIG when n is too large, -EINVAL on bad params. */
+int imp_photometric_texel(const struct imp_btf_sample *samples, int n, const struct imp_photometric_params *p,
+                          struct imp_pn_texel *ret);
+
+struct imp_photometric_stats {
+        long n_texels, n_refined, n_few, n_ill, n_dark, n_disagree, n_masked;
+        double dev_deg_mean, dev_deg_median;   /* over refined texels */
+        double sigma_deg_median, rms_median;   /* over refined texels */
+};
+
+/* The whole grid: tile by tile, extract the samples (shadow rays on the heightfield) and
+ * refine each texel (OpenMP). ret_normal: 3 floats per texel, canvas frame, unit; filled
+ * with the refined normal where refined and hf->normal elsewhere (may not alias
+ * hf->normal). ret_flags (may be NULL): enum imp_pn_flag per texel. ret_stats may be
+ * NULL. Errors as imp_btf_samples_extract(), -ENOMEM. */
+int imp_photometric_normals(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
+                            const struct imp_btf_sample_params *sp, const struct imp_photometric_params *p,
+                            float *ret_normal, uint16_t *ret_flags, struct imp_photometric_stats *ret_stats);
