@@ -9,9 +9,14 @@
 
 #define GV_FRAME_RETENTION_US 500000
 
+/* GigE Vision bootstrap register "Version", readable on every GVCP device: a probe. */
+#define GVBS_VERSION 0x0000
+
 struct cam_arv {
         ArvCamera *cam;
         ArvStream *stream;
+        char address[128];
+        bool gone;              /* a grab found it unplugged: talk to it no more */
         char error[256];
 };
 
@@ -52,6 +57,7 @@ static int cam_open(const char *address, unsigned timeout_ms, void **ret_state) 
                 return -ENOMEM;
         GError *err = NULL;
         /* Aravis has its own GVCP timeouts and retries; timeout_ms is not applied here. */
+        snprintf(c->address, sizeof c->address, "%s", address);
         c->cam = arv_camera_new(address, &err);
         if (!c->cam) {
                 int r = take_error(NULL, &err);
@@ -67,8 +73,11 @@ static int cam_stop(void *state) {
         GError *err = NULL;
         if (!c->stream)
                 return 0;
-        arv_camera_stop_acquisition(c->cam, &err);
-        int r = take_error(c, &err);
+        int r = 0;
+        if (!c->gone) { /* an unplugged camera would only time out again, seconds later */
+                arv_camera_stop_acquisition(c->cam, &err);
+                r = take_error(c, &err);
+        }
         g_clear_object(&c->stream);     /* joins the receiving thread, frees the buffers */
         return r;
 }
@@ -186,6 +195,8 @@ static int cam_start(void *state, const struct imp_camera_acq *acq) {
         int r;
         if (c->stream)
                 return -EBUSY;
+        if (c->gone)
+                return -ENODEV;         /* reopen it once it is back */
         arv_camera_set_acquisition_mode(c->cam, ARV_ACQUISITION_MODE_CONTINUOUS, &err);
         if ((r = take_error(c, &err)) < 0)
                 return r;
@@ -242,6 +253,24 @@ static void stream_counters(ArvStream *s, struct imp_frame_meta *m) {
         }
 }
 
+/* No frame within the timeout: a slow or untriggered camera (-ETIMEDOUT), or one that is
+ * gone. One control read tells them apart; an unplugged camera does not answer it within
+ * Aravis' GVCP timeout and retries, and is -ENODEV. Neither Aravis' stream nor its
+ * heartbeat says so sooner: the stream only sees no packets. */
+static int grab_timed_out(struct cam_arv *c, unsigned timeout_ms) {
+        GError *err = NULL;
+        guint32 v = 0;
+        if (arv_device_read_register(arv_camera_get_device(c->cam), GVBS_VERSION, &v, &err)) {
+                snprintf(c->error, sizeof c->error, "camera %s: no frame within %u ms", c->address, timeout_ms);
+                return -ETIMEDOUT;
+        }
+        snprintf(c->error, sizeof c->error, "camera %s: no frame within %u ms and no answer to a control read (%s): unplugged?",
+                 c->address, timeout_ms, err ? err->message : "no detail");
+        g_clear_error(&err);
+        c->gone = true;
+        return -ENODEV;
+}
+
 static int cam_grab(void *state, unsigned timeout_ms, void *dst, size_t dst_size,
                     struct imp_frame *ret) {
         struct cam_arv *c = state;
@@ -256,7 +285,7 @@ static int cam_grab(void *state, unsigned timeout_ms, void *dst, size_t dst_size
                 gint64 left_us = deadline_us - g_get_monotonic_time();
                 b = left_us > 0 ? arv_stream_timeout_pop_buffer(c->stream, (guint64) left_us) : NULL;
                 if (!b)
-                        return -ETIMEDOUT;
+                        return grab_timed_out(c, timeout_ms);
                 status = arv_buffer_get_status(b);
                 if (status != ARV_BUFFER_STATUS_CLEARED)
                         break;
@@ -296,6 +325,11 @@ static int cam_grab(void *state, unsigned timeout_ms, void *dst, size_t dst_size
         return r;
 }
 
+static const char *cam_last_error(void *state) {
+        struct cam_arv *c = state;
+        return c->error;
+}
+
 const struct imp_camera_ops imp_camera_aravis_ops = {
         .name = "aravis",
         .open = cam_open,                       /* address, IP or Aravis device id */
@@ -308,5 +342,7 @@ const struct imp_camera_ops imp_camera_aravis_ops = {
         .start = cam_start,                     /* continuous or software-triggered, pool pushed */
         .stop = cam_stop,                       /* AcquisitionStop, stream released */
         .trigger_software = cam_trigger_software, /* TriggerSoftware command */
-        .grab = cam_grab,                       /* arv_stream_timeout_pop_buffer, copy, push back */
+        .grab = cam_grab,                       /* arv_stream_timeout_pop_buffer, copy, push back;
+                                                 * no frame and no control answer: -ENODEV */
+        .last_error = cam_last_error,           /* names the camera's address */
 };

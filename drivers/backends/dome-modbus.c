@@ -1,13 +1,10 @@
-/* Dome backend "modbus": the LED driver and actuator controller over Modbus TCP with
- * libmodbus, register map in docs/dome-registers.md. impasto's own retry policy: a response
- * timeout per request, bounded retries with backoff, reconnect after any transport error. */
-#include <modbus.h>
+/* Dome backend "modbus": the LED driver and actuator controller over Modbus TCP or RTU
+ * with libmodbus, register map in docs/dome-registers.md, through the shared link of
+ * modbus-link.h (response timeout per request, bounded retries, reconnect after errors). */
 #include <stdio.h>
 #include <stdlib.h>
-#include <string.h>
-#include <unistd.h>
-#include "address.h"
 #include "dome.h"
+#include "modbus-link.h"
 
 #define DOME_REG_MAGIC          0x0000  /* RO, DOME_MAGIC */
 #define DOME_REG_VERSION        0x0001  /* RO, map version */
@@ -31,120 +28,34 @@
 #define AXIS_CMD_STOP           3
 #define AXIS_CMD_CLEAR_FAULT    4
 
-#define DEFAULT_TIMEOUT_MS      200
-#define DEFAULT_RETRIES         3       /* attempts in all */
-#define BACKOFF_FIRST_MS        10
-#define BACKOFF_MAX_MS          200
-
 struct dome_mb {
-        modbus_t *ctx;
-        bool connected;
-        unsigned timeout_ms, retries;
+        struct mb_link link;
         unsigned n_lights, n_axes;
-        char host[192];
-        char error[384];
 };
 
-static int mb_connect(struct dome_mb *m) {
-        if (m->connected)
-                return 0;
-        if (modbus_connect(m->ctx) < 0)
-                return negative_errno();
-        m->connected = true;
-        return 0;
-}
-
-static void mb_disconnect(struct dome_mb *m) {
-        if (m->connected)
-                modbus_close(m->ctx);
-        m->connected = false;
-}
-
-static bool is_exception(int e) {
-        return e >= EMBXILFUN && e <= EMBXGTAR;
-}
-
-/* One register transfer under the retry policy. write: n registers from src at addr;
- * read: n registers into dst. */
 static int mb_xfer(struct dome_mb *m, bool write, int addr, int n, uint16_t *regs) {
-        unsigned backoff_ms = BACKOFF_FIRST_MS;
-        int r = -EIO;
-        for (unsigned attempt = 0; attempt < m->retries; attempt++) {
-                if (attempt > 0) {
-                        usleep(backoff_ms * 1000u);
-                        backoff_ms = IMP_MIN(backoff_ms * 2, BACKOFF_MAX_MS);
-                }
-                r = mb_connect(m);
-                if (r < 0) {
-                        snprintf(m->error, sizeof m->error, "connect %s (attempt %u of %u): %s",
-                                 m->host, attempt + 1, m->retries, modbus_strerror(-r));
-                        continue;
-                }
-                int rc = write ? (n == 1 ? modbus_write_register(m->ctx, addr, regs[0])
-                                         : modbus_write_registers(m->ctx, addr, n, regs))
-                               : modbus_read_registers(m->ctx, addr, n, regs);
-                if (rc == (write && n == 1 ? 1 : n))
-                        return 0;
-                int e = rc < 0 ? errno : EMBBADDATA;
-                snprintf(m->error, sizeof m->error, "%s %d register%s at 0x%04x (attempt %u of %u): %s%s",
-                         write ? "write" : "read", n, n == 1 ? "" : "s", (unsigned) addr, attempt + 1,
-                         m->retries, modbus_strerror(e), is_exception(e) ? " (Modbus exception)" : "");
-                if (is_exception(e) && e != EMBXSBUSY)
-                        return -EIO;            /* the controller said no: asking again will not help */
-                /* Transport trouble: a fresh connection also drops any late answer. */
-                mb_disconnect(m);
-                r = e == ETIMEDOUT ? -ETIMEDOUT : e == ECONNRESET || e == EPIPE ? -ECONNRESET :
-                    is_exception(e) ? -EBUSY : -EIO;
-        }
-        return r;
+        return mb_link_xfer(&m->link, write, addr, n, regs);
 }
 
 static int mb_write1(struct dome_mb *m, int addr, uint16_t v) {
-        return mb_xfer(m, true, addr, 1, &v);
+        return mb_link_write1(&m->link, addr, v);
 }
 
 static void dome_mb_close(void *state) {
         struct dome_mb *m = state;
         if (!m)
                 return;
-        if (m->ctx) {
-                mb_disconnect(m);
-                modbus_free(m->ctx);
-        }
+        mb_link_close(&m->link);
         free(m);
 }
 
 static int dome_mb_open(const char *address, unsigned timeout_ms, void **ret_state) {
-        char main_part[160];
-        int r = address_main(address, main_part, sizeof main_part);
-        if (r < 0)
-                return r;
-        char *colon = strrchr(main_part, ':');
-        if (!colon)
-                return -EINVAL;
-        *colon = 0;
-        char *end;
-        long port = strtol(colon + 1, &end, 10);
-        if (*end || port <= 0 || port > 65535)
-                return -EINVAL;
         struct dome_mb *m = calloc(1, sizeof *m);
         if (!m)
                 return -ENOMEM;
-        m->timeout_ms = timeout_ms ? timeout_ms : DEFAULT_TIMEOUT_MS;
-        m->retries = DEFAULT_RETRIES;
-        unsigned unit = 1;
-        if ((r = address_option_uint(address, "timeout_ms", 1, 60000, &m->timeout_ms)) < 0 ||
-            (r = address_option_uint(address, "retries", 1, 20, &m->retries)) < 0 ||
-            (r = address_option_uint(address, "unit", 0, 247, &unit)) < 0)
+        int r = mb_link_init(&m->link, address, timeout_ms);
+        if (r < 0)
                 goto fail;
-        snprintf(m->host, sizeof m->host, "%s:%ld", main_part, port);
-        r = -ENOMEM;
-        m->ctx = modbus_new_tcp(main_part, (int) port);
-        if (!m->ctx)
-                goto fail;
-        modbus_set_slave(m->ctx, (int) unit);
-        modbus_set_error_recovery(m->ctx, MODBUS_ERROR_RECOVERY_NONE);   /* ours is bounded */
-        modbus_set_response_timeout(m->ctx, m->timeout_ms / 1000, (m->timeout_ms % 1000) * 1000);
         uint16_t id[4];
         r = mb_xfer(m, false, DOME_REG_MAGIC, 4, id);
         if (r < 0)
@@ -164,7 +75,7 @@ fail:
 
 static int dome_mb_get_info(void *state, struct imp_dome_info *ret) {
         struct dome_mb *m = state;
-        snprintf(ret->model, sizeof ret->model, "modbus dome v%d at %.40s", DOME_MAP_VERSION, m->host);
+        snprintf(ret->model, sizeof ret->model, "modbus dome v%d at %.40s", DOME_MAP_VERSION, m->link.host);
         ret->n_lights = m->n_lights;
         ret->n_axes = m->n_axes;
         ret->dimmable = true;
@@ -238,13 +149,13 @@ static int dome_mb_get_axis_status(void *state, unsigned axis, struct imp_axis_s
 
 static const char *dome_mb_last_error(void *state) {
         struct dome_mb *m = state;
-        return m->error;
+        return m->link.error;
 }
 
 const struct imp_dome_ops imp_dome_modbus_ops = {
         .name = "modbus",
-        .open = dome_mb_open,                   /* "host:port[;timeout_ms=][;retries=][;unit=]" */
-        .close = dome_mb_close,                 /* closes the TCP connection */
+        .open = dome_mb_open,                   /* "host:port" or "rtu:device", options: modbus-link.h */
+        .close = dome_mb_close,                 /* closes the connection or serial port */
         .get_info = dome_mb_get_info,           /* counts read from the controller at open */
         .set_light = dome_mb_set_light,         /* one holding register per light */
         .all_off = dome_mb_all_off,             /* global command register, one request */

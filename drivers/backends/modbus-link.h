@@ -1,6 +1,8 @@
-/* A Modbus TCP link with impasto's client policy (docs/dome-registers.md, "Client policy"):
- * address "HOST:PORT[;timeout_ms=N][;retries=N][;unit=N]", a response timeout per request,
- * bounded retries with doubling backoff and a fresh connection after any transport error,
+/* A Modbus link, TCP or RTU, with impasto's client policy (docs/dome-registers.md, "Client
+ * policy"): address "HOST:PORT[;options]" or "rtu:DEVICE[;baud=N][;parity=N|E|O]
+ * [;data_bits=N][;stop_bits=N][;options]", options timeout_ms, retries and unit (alias
+ * slave); a response timeout per request, bounded retries with doubling backoff and a fresh
+ * connection (RTU: the port reopened and its input flushed) after any transport error,
  * exceptions not retried (except 0x06 server busy). Shared by the Modbus backends. */
 #pragma once
 #include <modbus.h>
@@ -11,12 +13,16 @@
 #define MB_LINK_DEFAULT_RETRIES 3               /* attempts in all */
 #define MB_LINK_MAX_WRITE 120                   /* registers per write request we send */
 #define MB_LINK_MAX_READ 120
+#define MB_LINK_RTU_PREFIX "rtu:"
+#define MB_LINK_RTU_DEFAULT_BAUD 19200          /* the Modbus serial line defaults: 19200 8E1 */
+#define MB_LINK_RTU_DEFAULT_PARITY 'E'
 
 struct mb_link {
         modbus_t *ctx;
         bool connected;
+        bool rtu;                               /* serial line: flush after every (re)open */
         unsigned timeout_ms, retries;
-        char host[192];
+        char host[192];                         /* "HOST:PORT" or "rtu:DEVICE", for messages */
         char error[384];
 };
 

@@ -1,5 +1,5 @@
 /* GigE Vision camera emulator: Aravis' ArvGvFakeCamera serving GVCP/GVSP on a loopback
- * address, its pixels from an impasto fill callback that sees the emulated rig (which
+ * address (and unplugged and plugged back in on demand), its pixels from an impasto fill callback that sees the emulated rig (which
  * lights are on, which pattern is projected) and the exposure, gain and format set by
  * the client. Aravis issue #955: inside the callback the buffer's size reads as 0, so the
  * size is computed from the image geometry and the data pointer written directly. */
@@ -7,6 +7,7 @@
 #include <arv.h>
 #include <netinet/in.h>
 #include <stdatomic.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/socket.h>
@@ -16,7 +17,9 @@
 #define GVCP_PORT 3956
 
 struct imp_emu_gige {
-        ArvGvFakeCamera *gv;
+        ArvGvFakeCamera *gv;            /* NULL while unplugged */
+        char address[64], serial[64];
+        unsigned sensor_width, sensor_height;   /* 0: the fake camera's own */
         struct imp_emu_rig *rig;
         imp_emu_fill_fn fill;
         void *userdata;
@@ -60,6 +63,33 @@ bool imp_emu_gige_port_free(const char *address) {
         return ok;
 }
 
+static int set_sensor_size(ArvGvFakeCamera *gv, unsigned width, unsigned height) {
+        ArvFakeCamera *fc = arv_gv_fake_camera_get_fake_camera(gv);
+        if (!arv_fake_camera_write_register(fc, ARV_FAKE_CAMERA_REGISTER_SENSOR_WIDTH, width) ||
+            !arv_fake_camera_write_register(fc, ARV_FAKE_CAMERA_REGISTER_SENSOR_HEIGHT, height) ||
+            !arv_fake_camera_write_register(fc, ARV_FAKE_CAMERA_REGISTER_X_OFFSET, 0) ||
+            !arv_fake_camera_write_register(fc, ARV_FAKE_CAMERA_REGISTER_Y_OFFSET, 0) ||
+            !arv_fake_camera_write_register(fc, ARV_FAKE_CAMERA_REGISTER_WIDTH, width) ||
+            !arv_fake_camera_write_register(fc, ARV_FAKE_CAMERA_REGISTER_HEIGHT, height))
+                return -EIO;
+        return 0;
+}
+
+/* A fresh fake camera on the address: power-on state, as a camera plugged in again. */
+static int plug(struct imp_emu_gige *g) {
+        g->gv = arv_gv_fake_camera_new(g->address, g->serial);
+        if (!g->gv || !arv_gv_fake_camera_is_running(g->gv)) {
+                g_clear_object(&g->gv);
+                return -EADDRNOTAVAIL;
+        }
+        arv_fake_camera_set_fill_pattern(arv_gv_fake_camera_get_fake_camera(g->gv), fill_pattern, g);
+        if (g->sensor_width && set_sensor_size(g->gv, g->sensor_width, g->sensor_height) < 0) {
+                g_clear_object(&g->gv);
+                return -EIO;
+        }
+        return 0;
+}
+
 int imp_emu_gige_new(const char *address, const char *serial, struct imp_emu_rig *rig,
                      imp_emu_fill_fn fill, void *userdata, struct imp_emu_gige **ret_gige) {
         if (!ret_gige)
@@ -75,14 +105,34 @@ int imp_emu_gige_new(const char *address, const char *serial, struct imp_emu_rig
         g->fill = fill ? fill : imp_emu_fill_default;
         g->userdata = userdata;
         atomic_init(&g->frames, 0);
-        g->gv = arv_gv_fake_camera_new(address, serial ? serial : "IMPASTO-EMU");
-        if (!g->gv || !arv_gv_fake_camera_is_running(g->gv)) {
+        snprintf(g->address, sizeof g->address, "%s", address);
+        snprintf(g->serial, sizeof g->serial, "%s", serial ? serial : "IMPASTO-EMU");
+        int r = plug(g);
+        if (r < 0) {
                 imp_emu_gige_free(g);
-                return -EADDRNOTAVAIL;
+                return r;
         }
-        arv_fake_camera_set_fill_pattern(arv_gv_fake_camera_get_fake_camera(g->gv), fill_pattern, g);
         *ret_gige = g;
         return 0;
+}
+
+int imp_emu_gige_unplug(struct imp_emu_gige *g) {
+        if (!g)
+                return -EINVAL;
+        if (!g->gv)
+                return -EALREADY;
+        g_clear_object(&g->gv);         /* joins its thread, closes the GVCP and GVSP sockets */
+        return 0;
+}
+
+int imp_emu_gige_replug(struct imp_emu_gige *g) {
+        if (!g)
+                return -EINVAL;
+        if (g->gv)
+                return -EALREADY;
+        if (!imp_emu_gige_port_free(g->address))
+                return -EADDRINUSE;
+        return plug(g);
 }
 
 void imp_emu_gige_free(struct imp_emu_gige *g) {
@@ -96,14 +146,13 @@ void imp_emu_gige_free(struct imp_emu_gige *g) {
 int imp_emu_gige_set_sensor_size(struct imp_emu_gige *g, unsigned width, unsigned height) {
         if (!g || width == 0 || height == 0 || width > 16384 || height > 16384)
                 return -EINVAL;
-        ArvFakeCamera *fc = arv_gv_fake_camera_get_fake_camera(g->gv);
-        if (!arv_fake_camera_write_register(fc, ARV_FAKE_CAMERA_REGISTER_SENSOR_WIDTH, width) ||
-            !arv_fake_camera_write_register(fc, ARV_FAKE_CAMERA_REGISTER_SENSOR_HEIGHT, height) ||
-            !arv_fake_camera_write_register(fc, ARV_FAKE_CAMERA_REGISTER_X_OFFSET, 0) ||
-            !arv_fake_camera_write_register(fc, ARV_FAKE_CAMERA_REGISTER_Y_OFFSET, 0) ||
-            !arv_fake_camera_write_register(fc, ARV_FAKE_CAMERA_REGISTER_WIDTH, width) ||
-            !arv_fake_camera_write_register(fc, ARV_FAKE_CAMERA_REGISTER_HEIGHT, height))
-                return -EIO;
+        if (!g->gv)
+                return -ENODEV;
+        int r = set_sensor_size(g->gv, width, height);
+        if (r < 0)
+                return r;
+        g->sensor_width = width;        /* kept for a replug */
+        g->sensor_height = height;
         return 0;
 }
 

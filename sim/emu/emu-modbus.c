@@ -1,14 +1,19 @@
-/* Dome controller emulator: a libmodbus TCP server thread on loopback implementing
- * docs/dome-registers.md (written from the document, independently of the driver), with
- * actuators that take real time to move and faults injected on demand: an exception for
- * the Nth request, answers delayed past the client's timeout, a dropped connection. */
+/* Dome controller emulator: a libmodbus server thread, TCP on loopback or RTU on a
+ * pseudo-terminal, implementing docs/dome-registers.md (written from the document,
+ * independently of the driver), with actuators that take real time to move and faults
+ * injected on demand: an exception for the Nth request, answers delayed past the client's
+ * timeout, a dropped connection. */
+#define _GNU_SOURCE             /* ptsname_r */
 #include <arpa/inet.h>
+#include <fcntl.h>
 #include <modbus.h>
+#include <stdio.h>
 #include <pthread.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/select.h>
 #include <sys/socket.h>
+#include <termios.h>
 #include <time.h>
 #include <unistd.h>
 #include "emu.h"
@@ -85,6 +90,9 @@ struct imp_emu_modbus {
         modbus_t *ctx;
         modbus_mapping_t *map;
         int listen_fd;
+        int pty_master;                 /* RTU: the server's end of the line */
+        int pty_hold;                   /* RTU: keeps the slave open between client opens */
+        char pty_path[64];
         int wake[2];
         int clients[MAX_CLIENTS];
         pthread_t thread;
@@ -329,6 +337,8 @@ static void apply_write_locked(struct imp_emu_modbus *e, unsigned addr, unsigned
 }
 
 static void drop_client(struct imp_emu_modbus *e, int slot) {
+        if (slot < 0)
+                return;         /* RTU: a serial line cannot be dropped, the answer just never comes */
         close(e->clients[slot]);
         e->clients[slot] = -1;
 }
@@ -374,6 +384,17 @@ static void serve_request(struct imp_emu_modbus *e, int slot, const uint8_t *q, 
         pthread_mutex_unlock(&e->lock);
 }
 
+/* One RTU frame from the line. libmodbus filters frames for other units (length 0) and
+ * checks the CRC; a bad frame is flushed, as a real controller resynchronises on silence. */
+static void serve_rtu(struct imp_emu_modbus *e, uint8_t *q) {
+        modbus_set_socket(e->ctx, e->pty_master);
+        int len = modbus_receive(e->ctx, q);
+        if (len > 0)
+                serve_request(e, -1, q, len);
+        else if (len < 0)
+                (void) modbus_flush(e->ctx);
+}
+
 static void *server_thread(void *arg) {
         struct imp_emu_modbus *e = arg;
         uint8_t q[MODBUS_TCP_MAX_ADU_LENGTH];
@@ -381,8 +402,15 @@ static void *server_thread(void *arg) {
                 fd_set rfds;
                 FD_ZERO(&rfds);
                 FD_SET(e->wake[0], &rfds);
-                FD_SET(e->listen_fd, &rfds);
-                int maxfd = IMP_MAX(e->wake[0], e->listen_fd);
+                int maxfd = e->wake[0];
+                if (e->listen_fd >= 0) {
+                        FD_SET(e->listen_fd, &rfds);
+                        maxfd = IMP_MAX(maxfd, e->listen_fd);
+                }
+                if (e->pty_master >= 0) {
+                        FD_SET(e->pty_master, &rfds);
+                        maxfd = IMP_MAX(maxfd, e->pty_master);
+                }
                 for (int i = 0; i < MAX_CLIENTS; i++)
                         if (e->clients[i] >= 0) {
                                 FD_SET(e->clients[i], &rfds);
@@ -396,7 +424,9 @@ static void *server_thread(void *arg) {
                         continue;
                 if (FD_ISSET(e->wake[0], &rfds))
                         break;
-                if (FD_ISSET(e->listen_fd, &rfds)) {
+                if (e->pty_master >= 0 && FD_ISSET(e->pty_master, &rfds))
+                        serve_rtu(e, q);
+                if (e->listen_fd >= 0 && FD_ISSET(e->listen_fd, &rfds)) {
                         int fd = accept(e->listen_fd, NULL, NULL);
                         int slot = -1;
                         for (int i = 0; i < MAX_CLIENTS && fd >= 0; i++)
@@ -427,9 +457,31 @@ static void *server_thread(void *arg) {
         return NULL;
 }
 
+/* A pseudo-terminal pair in raw mode: the server keeps the master, clients open the slave
+ * by path. The emulator holds the slave open too, so that a client closing it (to reopen
+ * after an error) does not hang up the line (the master would read EIO) nor reset its
+ * settings; it never reads from that descriptor. */
+static int open_pty(struct imp_emu_modbus *e) {
+        e->pty_master = posix_openpt(O_RDWR | O_NOCTTY | O_CLOEXEC);
+        if (e->pty_master < 0 || grantpt(e->pty_master) < 0 || unlockpt(e->pty_master) < 0)
+                return negative_errno();
+        if (ptsname_r(e->pty_master, e->pty_path, sizeof e->pty_path) != 0)
+                return -ENAMETOOLONG;
+        e->pty_hold = open(e->pty_path, O_RDWR | O_NOCTTY | O_CLOEXEC);
+        if (e->pty_hold < 0)
+                return negative_errno();
+        struct termios t;
+        if (tcgetattr(e->pty_hold, &t) < 0)
+                return negative_errno();
+        cfmakeraw(&t);          /* no echo of answers back into the server, no CR/LF games */
+        if (tcsetattr(e->pty_hold, TCSANOW, &t) < 0)
+                return negative_errno();
+        return 0;
+}
+
 int imp_emu_modbus_new(const struct imp_emu_modbus_config *cfg, struct imp_emu_rig *rig,
                        struct imp_emu_modbus **ret_emu) {
-        if (!cfg || !ret_emu || cfg->port == 0)
+        if (!cfg || !ret_emu || (cfg->port == 0 && !cfg->rtu) || cfg->rtu_unit > 247)
                 return -EINVAL;
         struct imp_emu_modbus *e = calloc(1, sizeof *e);
         if (!e)
@@ -451,8 +503,10 @@ int imp_emu_modbus_new(const struct imp_emu_modbus_config *cfg, struct imp_emu_r
                 e->cfg.projector_height = 768;
         if (!e->cfg.max_patterns)
                 e->cfg.max_patterns = PROJ_MAX_PATTERNS;
+        if (!e->cfg.rtu_unit)
+                e->cfg.rtu_unit = 1;
         e->rig = rig;
-        e->listen_fd = e->wake[0] = e->wake[1] = -1;
+        e->listen_fd = e->pty_master = e->pty_hold = e->wake[0] = e->wake[1] = -1;
         for (int i = 0; i < MAX_CLIENTS; i++)
                 e->clients[i] = -1;
         pthread_mutex_init(&e->lock, NULL);
@@ -462,7 +516,17 @@ int imp_emu_modbus_new(const struct imp_emu_modbus_config *cfg, struct imp_emu_r
             e->cfg.projector_height > 65535)
                 goto fail;
         r = -ENOMEM;
-        e->ctx = modbus_new_tcp(e->cfg.address, e->cfg.port);
+        if (e->cfg.rtu) {
+                if ((r = open_pty(e)) < 0)
+                        goto fail;
+                r = -ENOMEM;
+                /* The device path and line settings only matter to modbus_connect(), which
+                 * the server never calls: it reads and writes the pty master directly. */
+                e->ctx = modbus_new_rtu(e->pty_path, 19200, 'E', 8, 1);
+                if (e->ctx)
+                        modbus_set_slave(e->ctx, (int) e->cfg.rtu_unit);
+        } else
+                e->ctx = modbus_new_tcp(e->cfg.address, e->cfg.port);
         e->map = modbus_mapping_new(0, 0, N_REGISTERS, 0);
         if (!e->ctx || !e->map)
                 goto fail;
@@ -481,8 +545,9 @@ int imp_emu_modbus_new(const struct imp_emu_modbus_config *cfg, struct imp_emu_r
         t[REG_PROJ_HEIGHT] = (uint16_t) e->cfg.projector_height;
         t[REG_PROJ_SHOW] = t[REG_PROJ_SHOWN] = PROJ_DARK;
         update_locked(e);
-        e->listen_fd = modbus_tcp_listen(e->ctx, 8);
-        if (e->listen_fd < 0) {
+        if (!e->cfg.rtu)
+                e->listen_fd = modbus_tcp_listen(e->ctx, 8);
+        if (!e->cfg.rtu && e->listen_fd < 0) {
                 r = errno == EADDRINUSE ? -EADDRINUSE : negative_errno();
                 goto fail;
         }
@@ -513,6 +578,10 @@ void imp_emu_modbus_free(struct imp_emu_modbus *e) {
                         close(e->clients[i]);
         if (e->listen_fd >= 0)
                 close(e->listen_fd);
+        if (e->pty_hold >= 0)
+                close(e->pty_hold);
+        if (e->pty_master >= 0)
+                close(e->pty_master);
         if (e->wake[0] >= 0) {
                 close(e->wake[0]);
                 close(e->wake[1]);
@@ -525,6 +594,10 @@ void imp_emu_modbus_free(struct imp_emu_modbus *e) {
         }
         pthread_mutex_destroy(&e->lock);
         free(e);
+}
+
+const char *imp_emu_modbus_rtu_device(const struct imp_emu_modbus *e) {
+        return e && e->cfg.rtu ? e->pty_path : NULL;
 }
 
 void imp_emu_modbus_fail_nth(struct imp_emu_modbus *e, unsigned nth, uint8_t exception_code) {

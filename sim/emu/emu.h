@@ -81,6 +81,13 @@ uint64_t imp_emu_gige_frames_filled(struct imp_emu_gige *gige);
 /* Sensor and default image size (the fake camera's own default is 2048 × 2048, 512 × 512
  * read out). Call before a client connects. -EINVAL for 0 or more than 16384. */
 int imp_emu_gige_set_sensor_size(struct imp_emu_gige *gige, unsigned width, unsigned height);
+/* Unplug: the fake camera is destroyed, nothing answers GVCP and no GVSP packet is sent;
+ * the frame counter and the fill stay. -EALREADY when unplugged already. */
+int imp_emu_gige_unplug(struct imp_emu_gige *gige);
+/* Plug back in: a new fake camera on the same address with the same serial (and sensor
+ * size), in its power-on state: no controlling client, no stream, defaults for every
+ * setting. -EALREADY when plugged, -EADDRINUSE when another camera took the port meanwhile. */
+int imp_emu_gige_replug(struct imp_emu_gige *gige);
 /* True if UDP port 3956 on address can be bound now (no other GVCP device there). */
 bool imp_emu_gige_port_free(const char *address);
 
@@ -88,7 +95,11 @@ bool imp_emu_gige_port_free(const char *address);
 
 struct imp_emu_modbus_config {
         const char *address;            /* default "127.0.0.1" */
-        uint16_t port;                  /* required, use a high port */
+        uint16_t port;                  /* required for TCP, use a high port */
+        /* Serve Modbus RTU on a pseudo-terminal instead of TCP (address and port unused):
+         * clients open imp_emu_modbus_rtu_device() as their serial port. */
+        bool rtu;
+        unsigned rtu_unit;              /* RTU unit (slave) id answered, 1..247, default 1 */
         unsigned n_lights;              /* default 16 */
         unsigned n_axes;                /* default 2 */
         unsigned speed_mm_per_s;        /* default 50 */
@@ -106,7 +117,10 @@ int imp_emu_modbus_new(const struct imp_emu_modbus_config *cfg, struct imp_emu_r
                        struct imp_emu_modbus **ret_emu);
 void imp_emu_modbus_free(struct imp_emu_modbus *emu);
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_emu_modbus *, imp_emu_modbus_free);
-/* Fault injection; nth = 1 is the next request. */
+/* The pseudo-terminal an RTU client opens ("/dev/pts/N"), NULL for a TCP emulator. */
+const char *imp_emu_modbus_rtu_device(const struct imp_emu_modbus *emu);
+/* Fault injection; nth = 1 is the next request. Over RTU a "dropped connection" is a
+ * request swallowed without an answer (the line stays up). */
 void imp_emu_modbus_fail_nth(struct imp_emu_modbus *emu, unsigned nth, uint8_t exception_code);
 void imp_emu_modbus_delay(struct imp_emu_modbus *emu, unsigned n_requests, unsigned delay_ms);
 void imp_emu_modbus_drop_nth(struct imp_emu_modbus *emu, unsigned nth);
