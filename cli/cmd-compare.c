@@ -63,7 +63,7 @@ static int run(int argc, char **argv) {
         }
         printf("height rmse        %8.2f µm   (offset %.4f mm removed, max |err| %.1f µm)\n",
                res.height_rmse_um, res.height_offset_mm, res.height_max_abs_um);
-        printf("normal error mean  %8.3f °\n", res.normal_err_deg_mean);
+        printf("normal error mean  %8.3f °   (%.3f ° against truth band-limited to the copy pitch)\n", res.normal_err_deg_mean, res.normal_err_deg_mean_bandlimited);
         printf("canvas mask IoU    %8.4f   (%.4f over the canvas the rig can measure)\n", res.mask_iou, res.mask_iou_observable);
         printf("NaN/Inf samples    %8zu\n", res.nan_count);
         printf("texels compared    %8zu\n", res.n_compared);

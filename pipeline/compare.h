@@ -23,6 +23,11 @@ struct imp_compare_result {
         double height_offset_mm;      /* median (copy − truth) removed */
         double height_max_abs_um;     /* after offset */
         double normal_err_deg_mean;
+        /* The same against truth normals band-limited to the copy's sampling: the truth
+         * canvas heights smoothed by a Gaussian of σ = one copy pitch (canvas samples
+         * only), then central differences. A copy sampled at pitch p cannot hold slopes
+         * of detail finer than ~2p (the demo's 0.2 mm bristle grooves, for instance). */
+        double normal_err_deg_mean_bandlimited;
         double mask_iou;
         /* IoU over the canvas the rig can measure: truth canvas samples that the projector
          * lights and the camera sees (truth/correspondence-CAM.exr valid, and the seen depth
