@@ -208,21 +208,6 @@ static char *path_in(const char *dir, const char *rel) {
         return asprintf(&p, "%s/%s", dir, rel) < 0 ? NULL : p;
 }
 
-static int write_all(int fd, const void *data, size_t size) {
-        const char *p = data;
-        while (size > 0) {
-                ssize_t k = write(fd, p, size);
-                if (k < 0) {
-                        if (errno == EINTR)
-                                continue;
-                        return negative_errno();
-                }
-                p += k;
-                size -= (size_t) k;
-        }
-        return 0;
-}
-
 /* CRC-32 (zlib) and size of a whole file; fsyncs it too when `sync`. */
 static int file_crc(const char *path, bool sync, uint32_t *ret_crc, long long *ret_bytes) {
         _cleanup_close_ int fd = open(path, O_RDONLY | O_CLOEXEC);
@@ -741,7 +726,7 @@ int imp_captureset_add_frame(struct imp_captureset *cs, struct imp_frame_record 
         if (len + 1 > MANIFEST_LINE_MAX_BYTES)
                 return imp_error_set(err, -E2BIG, "%s: manifest line too long", cs->dir);
         line[len] = '\n';   /* over the NUL: one write() of the whole line */
-        ret = write_all(cs->manifest_fd, line, len + 1);
+        ret = imp_write_all(cs->manifest_fd, line, len + 1);
         line[len] = 0;
         if (ret == 0 && fsync(cs->manifest_fd) < 0)
                 ret = negative_errno();

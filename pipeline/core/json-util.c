@@ -139,7 +139,7 @@ int imp_json_save_atomic(const char *path, const json_t *j, struct imp_error *er
         return imp_file_write_atomic(path, buf, n + 1, err);
 }
 
-static int write_all(int fd, const void *data, size_t size) {
+int imp_write_all(int fd, const void *data, size_t size) {
         const char *p = data;
         while (size > 0) {
                 ssize_t k = write(fd, p, size);
@@ -181,7 +181,7 @@ int imp_file_write_atomic(const char *path, const void *data, size_t size, struc
                 return imp_error_set(err, r, "%s: %s", tmp, strerror(-r));
         }
         const char *step = "write";
-        int r = write_all(fd, data, size);
+        int r = imp_write_all(fd, data, size);
         if (r == 0 && fsync(fd) < 0) {
                 step = "fsync";
                 r = negative_errno();

@@ -30,6 +30,8 @@ int imp_json_load(const char *path, json_t **ret, struct imp_error *err);
 int imp_json_save_atomic(const char *path, const json_t *j, struct imp_error *err);
 /* Write bytes crash-safely in the same way (used for frames and other files). */
 int imp_file_write_atomic(const char *path, const void *data, size_t size, struct imp_error *err);
+/* write(2) until all of data is written, retrying on EINTR; negative errno. */
+int imp_write_all(int fd, const void *data, size_t size);
 /* mkdir -p */
 int imp_mkdir_p(const char *path, int mode);
 /* fsync an existing file by path (e.g. one written by another library). */
