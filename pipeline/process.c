@@ -509,6 +509,7 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
                         r = imp_error_set(err, -ENOMEM, "out of memory");
                         goto out;
                 }
+                progress(o, "photometric normals", 0, 1);
                 r = imp_photometric_normals(&bh, &cap, &sp, &pp, pn_normal, NULL, &ps);
                 if (r < 0) {
                         imp_error_set(err, r, "%s: photometric normals failed: %s", o->capture, strerror(-r));
@@ -535,6 +536,7 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
                 progress(o, "photometric normals", 1, 1);
         }
         struct imp_btf_stats st = {};
+        progress(o, "btf fit", 0, 1);
         r = imp_btf_fit_grid(&bh, &cap, &sp, &fp, 64, tex, &st);
         if (r < 0) {
                 imp_error_set(err, r, "%s: BTF fit failed: %s", o->capture, strerror(-r));
@@ -544,6 +546,7 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
         double t_fit = now_s();
 
         if (n_held > 0) {
+                progress(o, "validation", 0, 1);
                 r = validate_holdout(&bh, &cam->model, ho_lights, ho_frames, ho_valid, (int) n_held, tex,
                                      &validation);
                 if (r < 0) {
