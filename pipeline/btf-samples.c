@@ -97,28 +97,6 @@ static void mat_apply_inv(const double R[9], const double t[3], const double x[3
                 ret[i] = R[i] * y[0] + R[3 + i] * y[1] + R[6 + i] * y[2];
 }
 
-/* The OpenCV pinhole with Brown–Conrady distortion (the model of imp_pinhole_project()
- * in rig.h), local so that this stage does not depend on the calibration module. */
-static bool project(const struct imp_pinhole *m, const double X[3], double px[2]) {
-        double Y[3];
-        mat_apply(m->R, m->t, X, Y);
-        if (!(Y[2] > 0.0))
-                return false;
-        double x = Y[0] / Y[2], y = Y[1] / Y[2];
-        double r2 = x * x + y * y;
-        double radial = 1.0 + r2 * (m->k1 + r2 * (m->k2 + r2 * m->k3));
-        double xd = x * radial + 2.0 * m->p1 * x * y + m->p2 * (r2 + 2.0 * x * x);
-        double yd = y * radial + m->p1 * (r2 + 2.0 * y * y) + 2.0 * m->p2 * x * y;
-        px[0] = m->fx * xd + m->cx;
-        px[1] = m->fy * yd + m->cy;
-        return true;
-}
-
-static void camera_centre(const struct imp_pinhole *m, double C[3]) {
-        for (int i = 0; i < 3; i++)
-                C[i] = -(m->R[i] * m->t[0] + m->R[3 + i] * m->t[1] + m->R[6 + i] * m->t[2]);
-}
-
 /* ---- ray casting on the heightfield (canvas frame) ------------------------------- */
 
 double imp_btf_heightfield_hmax(const struct imp_btf_heightfield *hf) {
@@ -420,7 +398,7 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
                 wv[i] /= dist_c;
         imp_to_local(tb, bb, n, wv, vloc);
         mat_apply(sc->R, sc->t, P, Pw);
-        if (!(vloc[2] > 0.0) || !project(cap->camera, Pw, px) || !(px[0] >= 0.0 && px[1] >= 0.0 &&
+        if (!(vloc[2] > 0.0) || !imp_pinhole_project(cap->camera, Pw, px) || !(px[0] >= 0.0 && px[1] >= 0.0 &&
             px[0] <= cap->camera->width - 1 && px[1] <= cap->camera->height - 1) ||
             march(hf, p, sc->py, sc->hmax, P, wv, dist_c, NULL)) {
                 *ret_flags = IMP_BTF_HIDDEN;
@@ -501,7 +479,7 @@ int imp_btf_samples_extract_pyramid(const struct imp_btf_heightfield *hf, const 
         if (!rigid_parts(hf->canvas_to_world, sc->R, sc->t))
                 return -EINVAL;
         double cw[3];
-        camera_centre(cap->camera, cw);
+        imp_pinhole_centre(cap->camera, cw);
         mat_apply_inv(sc->R, sc->t, cw, sc->cam_c);
         sc->hmax = py->hmax;
         sc->py = py->levels > 0 ? py : NULL;
