@@ -1,6 +1,7 @@
 /* The client side of the control protocol: one connection to impastod, requests with ids,
  * replies matched by id, events handed to the caller; plus the small output helpers the
  * daemon commands (status, devices, scan, jobs, plan --daemon) share. */
+#include <getopt.h>
 #include <errno.h>
 #include <math.h>
 #include <poll.h>
@@ -327,4 +328,26 @@ const char *imp_client_fmt_duration(double s, char *buf, size_t size) {
         else
                 snprintf(buf, size, "%d h %02d min", (int) s / 3600, ((int) s % 3600) / 60);
         return buf;
+}
+
+int imp_client_main_simple(int argc, char **argv, const char *cmd, void (*human)(const json_t *result)) {
+        struct imp_client_opts o = {};
+        static const struct option opts[] = {
+                { "json", no_argument, NULL, 'j' }, { "socket", required_argument, NULL, 'S' },
+                { "help", no_argument, NULL, 'h' }, {} };
+        int c;
+        while ((c = getopt_long(argc, argv, "h", opts, NULL)) >= 0)
+                switch (c) {
+                case 'j': o.json = true; break;
+                case 'S': o.socket = optarg; break;
+                case 'h': printf("usage: impasto %s [--json] [--socket PATH]\n", cmd); return 0;
+                default:
+                        fprintf(stderr, "usage: impasto %s [--json] [--socket PATH]\n", cmd);
+                        return IMP_EXIT_USAGE;
+                }
+        if (optind != argc) {
+                fprintf(stderr, "usage: impasto %s [--json] [--socket PATH]\n", cmd);
+                return IMP_EXIT_USAGE;
+        }
+        return imp_client_simple(&o, cmd, NULL, human);
 }

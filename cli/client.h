@@ -72,6 +72,11 @@ int imp_client_report_error(const char *cmd, const struct imp_proto_message *rep
 int imp_client_simple(const struct imp_client_opts *o, const char *cmd, json_t *args,
                       void (*human)(const json_t *result));
 
+/* The whole of a command that takes no arguments but --json and --socket PATH: parses
+ * argv, prints "usage: impasto CMD [--json] [--socket PATH]" on --help or misuse, and
+ * runs imp_client_simple(). Returns the exit code. */
+int imp_client_main_simple(int argc, char **argv, const char *cmd, void (*human)(const json_t *result));
+
 /* Result members for human output: "" / 0 / NAN when absent or of another type. */
 const char *imp_client_str(const json_t *obj, const char *key);
 long long imp_client_int(const json_t *obj, const char *key);

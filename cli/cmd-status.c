@@ -1,13 +1,8 @@
 /* `impasto status [--json] [--socket PATH]`: the daemon, the rig, the session in progress
  * and the job queue at a glance (the `status` command of proto/PROTOCOL.md). */
-#include <getopt.h>
 #include <stdio.h>
 #include "client.h"
 #include "commands.h"
-
-static void usage(FILE *f) {
-        fprintf(f, "usage: impasto status [--json] [--socket PATH]\n");
-}
 
 static void human(const json_t *r) {
         const json_t *d = json_object_get(r, "daemon"), *rig = json_object_get(r, "rig");
@@ -29,23 +24,7 @@ static void human(const json_t *r) {
 }
 
 static int run(int argc, char **argv) {
-        struct imp_client_opts o = {};
-        static const struct option opts[] = {
-                { "json", no_argument, NULL, 'j' }, { "socket", required_argument, NULL, 'S' },
-                { "help", no_argument, NULL, 'h' }, {} };
-        int c;
-        while ((c = getopt_long(argc, argv, "h", opts, NULL)) >= 0)
-                switch (c) {
-                case 'j': o.json = true; break;
-                case 'S': o.socket = optarg; break;
-                case 'h': usage(stdout); return 0;
-                default: usage(stderr); return IMP_EXIT_USAGE;
-                }
-        if (optind != argc) {
-                usage(stderr);
-                return IMP_EXIT_USAGE;
-        }
-        return imp_client_simple(&o, "status", NULL, human);
+        return imp_client_main_simple(argc, argv, "status", human);
 }
 
 const struct imp_command imp_cmd_status = {
