@@ -17,17 +17,27 @@
 #define MAX_STEPS 64
 #define MAX_PERIODS 8
 #define GRAY_WEAK_ALLOWED 1
-#define RESULT_HUGE_BYTES (2u << 20)  /* x86-64 huge page; result maps at least this big */   /* undecided Gray bits per axis still accepted (error ≤ 1) */
+#define RESULT_HUGE_BYTES (2u << 20)  /* x86-64 huge page; result maps at least this big */
+#define CORR_N 512            /* phase-response correction table: samples per period */
+#define RESP_HARMONICS 32     /* harmonics of the gamma-distorted sinusoid modelled */
+#define RESP_MIN_SLOPE 0.2    /* response slope below this: not inverted (noise × 5) */
+#define PHASE_STAT_MIN 64     /* pixels needed to judge an axis's phase against its Gray code */
 
 struct phase_group {
         double period_px;
         int steps;
         int idx[MAX_STEPS];   /* frame index of each step */
         float cosd[MAX_STEPS], sind[MAX_STEPS];
+        bool corr_on;         /* corr[] applies: measured phase φ̂ → φ̂ + corr(φ̂) */
+        float corr[CORR_N + 1];   /* at φ̂ = 2π i / CORR_N (radians); corr[CORR_N] = corr[0] */
 };
 
 struct axis_plan {
-        int nbits;                          /* 0: no Gray code on this axis */
+        int nbits;                          /* Gray planes decoded; 0: no Gray code */
+        int shift;                          /* finest planes of the code not projected:
+                                               the code counts stripes of 2^shift px */
+        float quantum;                      /* 2^shift, projector px per code */
+        int ncodes;                         /* codes inside the projector */
         int p[MAX_BITS], q[MAX_BITS];       /* frame of bit k (0 = MSB) and of its inverse */
         bool inverse;                       /* q[] valid; else p̄ = white + black − p */
         int nphase;                         /* phase groups, coarsest period first */
@@ -187,6 +197,68 @@ static int add_phase(struct axis_plan *ax, const struct imp_pattern *pt, int i, 
         return 0;
 }
 
+/* Phase response of an N-step group under projector gamma γ. The projector emits
+ * g(θ) = ((1 + cos θ)/2)^γ (its black level and the global light add constants, which the
+ * N-step sums cancel), with cosine harmonics c_k; the projector's pixels (a box of 1 px)
+ * and its blur (Gaussian σ) scale harmonic k of a period P by sinc(k/P)·exp(−2π²σ²k²/P²).
+ * The decoder's Z = Σ_s I_s e^{−iδ_s} keeps only harmonics k ≡ ±1 (mod N):
+ *     Z(φ) = (N/2) Σ_k c_k m_k ([k ≡ 1] e^{ikφ} + [k ≡ −1] e^{−ikφ}),   φ̂ = arg Z(φ),
+ * so φ̂ = H(φ) is a known function of the true phase alone, whatever the pixel's albedo or
+ * global light. H is tabulated, checked to be increasing with slope ≥ RESP_MIN_SLOPE
+ * (a steeper distortion could not be inverted without amplifying noise past that), and
+ * inverted into corr(φ̂) = H⁻¹(φ̂) − φ̂. Returns false (no correction) when H is linear or
+ * not invertible so. */
+static bool build_response(struct phase_group *g, double gamma, double sigma_px) {
+        enum { M = 1024, J = 4096 };
+        double ck[RESP_HARMONICS + 1] = { 0 };
+        for (int m = 0; m < M; m++) {
+                double th = 2 * M_PI * m / M, v = pow(0.5 + 0.5 * cos(th), gamma);
+                for (int k = 1; k <= RESP_HARMONICS; k++)
+                        ck[k] += 2.0 / M * v * cos(k * th);
+        }
+        double wk[RESP_HARMONICS + 1];          /* c_k m_k of the harmonics kept, else 0 */
+        int dir[RESP_HARMONICS + 1];            /* +1: e^{ikφ} (k ≡ 1), −1: e^{−ikφ} (k ≡ −1) */
+        bool distorted = false;
+        for (int k = 1; k <= RESP_HARMONICS; k++) {
+                double f = k / g->period_px, box = sin(M_PI * f) / (M_PI * f);
+                double m = box * exp(-2 * M_PI * M_PI * sigma_px * sigma_px * f * f);
+                int r = k % g->steps;
+                dir[k] = r == 1 ? 1 : r == g->steps - 1 ? -1 : 0;
+                wk[k] = dir[k] ? ck[k] * m : 0;
+                distorted |= k > 1 && fabs(wk[k]) > 1e-6 * fabs(wk[1]);
+        }
+        if (!distorted || !(wk[1] > 0))
+                return false;
+        _cleanup_free_ double *hat = malloc((J + 1) * sizeof *hat);
+        if (!hat)
+                return false;
+        for (int j = 0; j < J; j++) {
+                double phi = 2 * M_PI * j / J, re = 0, im = 0;
+                for (int k = 1; k <= RESP_HARMONICS; k++) {
+                        re += wk[k] * cos(k * phi);
+                        im += dir[k] * wk[k] * sin(k * phi);
+                }
+                double e = remainder(atan2(im, re) - phi, 2 * M_PI);
+                hat[j] = phi + e;                               /* H(φ_j), continuous */
+                if (j && !(hat[j] - hat[j - 1] >= RESP_MIN_SLOPE * 2 * M_PI / J))
+                        return false;
+        }
+        hat[J] = hat[0] + 2 * M_PI;
+        if (!(hat[J] - hat[J - 1] >= RESP_MIN_SLOPE * 2 * M_PI / J))
+                return false;
+        for (int i = 0, j = 0; i <= CORR_N; i++) {
+                double psi = 2 * M_PI * i / CORR_N;
+                if (psi < hat[0])
+                        psi += 2 * M_PI;
+                while (j < J - 1 && hat[j + 1] <= psi)
+                        j++;
+                double phi = 2 * M_PI * (j + (psi - hat[j]) / (hat[j + 1] - hat[j])) / J;
+                g->corr[i] = (float) remainder(phi - psi, 2 * M_PI);
+        }
+        g->corr[CORR_N] = g->corr[0];
+        return true;
+}
+
 static int build_plan(const struct imp_sl_frames *in, const struct imp_sl_params *p,
                       struct plan *pl, struct imp_error *err) {
         int r = check_images(in, pl, err);
@@ -240,11 +312,24 @@ static int build_plan(const struct imp_sl_frames *in, const struct imp_sl_params
         bool any = false;
         for (int a = 0; a < 2; a++) {
                 struct axis_plan *ax = &pl->ax[a];
+                /* The finest planes may be left out when phase frames resolve the stripes. */
+                int full = ax->nbits, m = 0;
+                while (m < full && (ax->p[m] >= 0 || ax->q[m] >= 0))
+                        m++;
+                for (int k = m; k < full; k++)
+                        if (ax->p[k] >= 0 || ax->q[k] >= 0 || !ax->nphase)
+                                return imp_error_set(err, -EINVAL, "structured light: axis %d: Gray "
+                                                     "bit %d of %d missing%s", a, m, full,
+                                                     ax->nphase ? "" : " (only phase frames can "
+                                                     "stand in for the finest planes)");
+                ax->nbits = m;
+                ax->shift = full - m;
+                ax->quantum = (float) (1 << ax->shift);
                 int nq = 0;
                 for (int k = 0; k < ax->nbits; k++) {
                         if (ax->p[k] < 0)
                                 return imp_error_set(err, -EINVAL, "structured light: axis %d: Gray "
-                                                     "bit %d of %d missing", a, k, ax->nbits);
+                                                     "bit %d of %d missing", a, k, full);
                         nq += ax->q[k] >= 0;
                 }
                 if (nq && nq != ax->nbits)
@@ -255,11 +340,20 @@ static int build_plan(const struct imp_sl_frames *in, const struct imp_sl_params
                         return imp_error_set(err, -EINVAL, "structured light: axis %d: Gray planes "
                                              "without inverses need white and black frames", a);
                 int want = a == 0 ? p->proj_width : p->proj_height;
-                ax->extent = want > 0 ? want : ax->nbits ? 1 << ax->nbits : 0;
-                if (ax->nbits && want > 0 && imp_sl_gray_bits(want) > ax->nbits)
+                ax->extent = want > 0 ? want : full ? 1 << full : 0;
+                ax->ncodes = (ax->extent + (1 << ax->shift) - 1) >> ax->shift;
+                if (full && want > 0 && imp_sl_gray_bits(want) > full)
                         return imp_error_set(err, -EINVAL, "structured light: axis %d: %d Gray bits "
-                                             "cannot code %d projector pixels", a, ax->nbits, want);
+                                             "cannot code %d projector pixels", a, full, want);
                 qsort(ax->ph, ax->nphase, sizeof ax->ph[0], cmp_period_desc);
+                /* Nearest-period unwrapping against a stripe centre is off by up to half a
+                 * stripe: a stripe of at most half the coarsest period leaves a quarter
+                 * period for the phase's own error. */
+                if (ax->shift && !(ax->ph[0].period_px >= 2 * ax->quantum))
+                        return imp_error_set(err, -EINVAL, "structured light: axis %d: Gray code "
+                                             "without its %d finest planes (stripes of %g px) needs a "
+                                             "phase period ≥ %g px, got %g", a, ax->shift,
+                                             ax->quantum, 2 * ax->quantum, ax->ph[0].period_px);
                 for (int j = 0; j < ax->nphase; j++) {
                         struct phase_group *g = &ax->ph[j];
                         for (int s = 0; s < g->steps; s++) {
@@ -270,6 +364,9 @@ static int build_plan(const struct imp_sl_frames *in, const struct imp_sl_params
                                 g->cosd[s] = (float) cos(2 * M_PI * s / g->steps);
                                 g->sind[s] = (float) sin(2 * M_PI * s / g->steps);
                         }
+                        g->corr_on = p->projector_gamma > 0 && p->projector_gamma != 1 &&
+                                     build_response(g, p->projector_gamma,
+                                                    fmax(p->projector_defocus_px, 0));
                 }
                 if (ax->nphase && !ax->nbits) {
                         if (ax->extent <= 0)
@@ -351,6 +448,7 @@ struct ctx {
         const struct plan *pl;
         float sat, b;
         int int_path;           /* IMP_PIX_U8 / IMP_PIX_U16: integer Gray path; else -1 */
+        unsigned rejected;      /* bit a: axis a's phase was rejected (IMP_SL_PHASE_REJECTED) */
         struct imp_sl_result *res;
 };
 
@@ -418,6 +516,20 @@ static void decode_gray_axis(const struct ctx *c, int a, int y, float **R, int w
         }
 }
 
+/* Undoes the projector's phase response (build_response) on wrapped positions u_f ∈ [0, P). */
+static void correct_response(const struct phase_group *g, float *restrict uf, int w) {
+        const float P = (float) g->period_px, to_i = CORR_N / P, to_u = P / (float) (2 * M_PI);
+        const float *restrict corr = g->corr;
+        for (int x = 0; x < w; x++) {
+                float t = uf[x] * to_i;
+                int i = (int) t;
+                i = i < 0 ? 0 : i > CORR_N - 1 ? CORR_N - 1 : i;
+                float u = uf[x] + to_u * (corr[i] + (t - (float) i) * (corr[i + 1] - corr[i]));
+                u = u < 0 ? u + P : u >= P ? u - P : u;
+                uf[x] = u >= 0 && u < P ? u : 0.0f;             /* NaN-safe, stays in [0, P) */
+        }
+}
+
 /* One N-step group: φ = atan2(−Σ I_i sin δ_i, Σ I_i cos δ_i), B = (2/N)·|Σ I_i e^{iδ_i}|,
  * for I_i = A + B cos(φ + δ_i), δ_i = 2π i / N. Position in the period u_f = P φ / 2π. */
 static void phase_group_row(const struct ctx *c, const struct phase_group *g, int y, float **R,
@@ -450,6 +562,8 @@ static void phase_group_row(const struct ctx *c, const struct phase_group *g, in
                 S[x] = uf;                                      /* reuse: wrapped position */
                 C[x] = B;                                       /* reuse: modulation */
         }
+        if (g->corr_on)
+                correct_response(g, S, w);
 }
 
 static inline float clamp01(float v) {
@@ -662,7 +776,9 @@ static void combine_gray_row(const struct ctx *c, int y, float **R, int w, size_
         const float b = c->b, sat = c->sat;
         const uint32_t has_wb = pl->white >= 0 && pl->black >= 0, robust = p->robust;
         const uint32_t g0 = pl->ax[0].nbits > 0, g1 = pl->ax[1].nbits > 0;
-        const uint32_t ext0 = (uint32_t) pl->ax[0].extent, ext1 = (uint32_t) pl->ax[1].extent;
+        const uint32_t ext0 = (uint32_t) pl->ax[0].ncodes, ext1 = (uint32_t) pl->ax[1].ncodes;
+        const float q0 = pl->ax[0].quantum, q1 = pl->ax[1].quantum;
+        const uint32_t rej0 = c->rejected & 1, rej1 = (c->rejected >> 1) & 1;
         uint32_t nx = 0, ny = 0, nxy = 0, nsh = 0, nsat = 0, nwk = 0;
 #ifdef _OPENMP
 #pragma omp simd reduction(+ : nx, ny, nxy, nsh, nsat, nwk)
@@ -687,9 +803,10 @@ static void combine_gray_row(const struct ctx *c, int y, float **R, int w, size_
                              ((und0 | und1) ? IMP_SL_UNDECODABLE : 0) |
                              ((wb0 | wb1) ? IMP_SL_WEAK_BIT : 0) |
                              ((oor0 | oor1) ? IMP_SL_OUT_OF_RANGE : 0) |
-                             (ok0 ? IMP_SL_VALID_X : 0) | (ok1 ? IMP_SL_VALID_Y : 0);
-                ox[x] = ok0 ? (float) (int32_t) cd0[x] + 0.5f : IMP_SL_INVALID_COORD;
-                oy[x] = ok1 ? (float) (int32_t) cd1[x] + 0.5f : IMP_SL_INVALID_COORD;
+                             (ok0 ? IMP_SL_VALID_X : 0) | (ok1 ? IMP_SL_VALID_Y : 0) |
+                             ((ok0 & rej0) | (ok1 & rej1) ? IMP_SL_PHASE_REJECTED : 0);
+                ox[x] = ok0 ? ((float) (int32_t) cd0[x] + 0.5f) * q0 : IMP_SL_INVALID_COORD;
+                oy[x] = ok1 ? ((float) (int32_t) cd1[x] + 0.5f) * q1 : IMP_SL_INVALID_COORD;
                 oc[x] = ok0 | ok1 ? conf : 0.0f;
                 of[x] = (uint16_t) f;
                 od[x] = isfinite(ld[x]) ? ld[x] : 0.0f;
@@ -708,6 +825,32 @@ static void combine_gray_row(const struct ctx *c, int y, float **R, int w, size_
         counts[3] += nsh;
         counts[4] += nsat;
         counts[5] += nwk;
+}
+
+/* The phase's disagreement with the Gray code on one row: Σ (u/q − (code + ½))² (q the
+ * code's quantum) and its count per axis, over pixels refined by phase whose Gray bits
+ * were all decided. */
+static void phase_stats_row(const struct ctx *c, int y, float **R, double st[4]) {
+        const struct imp_sl_result *res = c->res;
+        const size_t off = (size_t) y * res->width;
+        for (int a = 0; a < 2; a++) {
+                const struct axis_plan *ax = &c->pl->ax[a];
+                if (!ax->nbits || !ax->nphase)
+                        continue;
+                const uint32_t *code = (const uint32_t *) R[R_CODE0 + a];
+                const uint32_t *weak = (const uint32_t *) R[R_WEAK0 + a];
+                const float *pos = (a == 0 ? res->proj_x : res->proj_y) + off;
+                const uint16_t need = a == 0 ? IMP_SL_SUBPIXEL_X : IMP_SL_SUBPIXEL_Y;
+                double s2 = 0, n = 0;
+                for (int x = 0; x < res->width; x++)
+                        if ((res->flags[off + x] & need) && !weak[x]) {
+                                double d = pos[x] / ax->quantum - ((double) code[x] + 0.5);
+                                s2 += d * d;
+                                n++;
+                        }
+                st[2 * a] += s2;
+                st[2 * a + 1] += n;
+        }
 }
 
 static void decode_row(const struct ctx *c, int y, float **R, size_t counts[8]) {
@@ -807,7 +950,7 @@ phase:
                 const uint32_t *code = (const uint32_t *) R[R_CODE0 + a];
                 SIMD
                 for (int x = 0; x < w; x++) {
-                        pos[x] = ax->nbits ? (float) code[x] + 0.5f : 0.0f;
+                        pos[x] = ax->nbits ? ((float) code[x] + 0.5f) * ax->quantum : 0.0f;
                         mod[x] = INFINITY;
                         pst[x] = 0;
                 }
@@ -817,7 +960,7 @@ phase:
                         float P = (float) g->period_px;
                         /* Later levels: the coarser phase is trusted to a quarter period
                          * of this one (nearest-k alone guarantees half a period). */
-                        float tol = j == 0 ? (float) p->max_disagreement_px
+                        float tol = j == 0 ? (float) p->max_disagreement_px + (ax->quantum - 1) / 2
                                            : maxf((float) p->max_disagreement_px, P / 4);
                         bool absolute = j == 0 && !ax->nbits;   /* period covers the projector */
                         const float *uf = R[R_S], *B = R[R_C], *ph_hi = R[R_Q];
@@ -874,7 +1017,7 @@ phase:
                                         f |= IMP_SL_WEAK_BIT;
                                         ca = 0.5f;
                                 }
-                                if (code >= (uint32_t) ax->extent) {
+                                if (code >= (uint32_t) ax->ncodes) {
                                         f |= IMP_SL_OUT_OF_RANGE;
                                         ok = false;
                                 }
@@ -888,7 +1031,8 @@ phase:
                                         f |= IMP_SL_LOW_MODULATION;
                                         if (!ax->nbits)
                                                 ok = false;
-                                        pos = ax->nbits ? (float) ((uint32_t *) R[R_CODE0 + a])[x] + 0.5f : 0;
+                                        pos = ax->nbits ? ((float) ((uint32_t *) R[R_CODE0 + a])[x] + 0.5f) *
+                                                                  ax->quantum : 0;
                                 } else if (st & 2) {
                                         f |= IMP_SL_DISAGREE;
                                         ok = false;
@@ -900,6 +1044,8 @@ phase:
                         }
                         if (ok && !isfinite(pos))
                                 ok = false;
+                        if (ok && (c->rejected >> a & 1))
+                                f |= IMP_SL_PHASE_REJECTED;
                         if (ok) {
                                 f |= a == 0 ? IMP_SL_VALID_X : IMP_SL_VALID_Y;
                                 out[a] = pos;
@@ -974,6 +1120,47 @@ static float saturation_level(const struct imp_sl_params *p, enum imp_pixel_type
         return t == IMP_PIX_U8 ? 255.0f : t == IMP_PIX_U16 ? 65535.0f : INFINITY;
 }
 
+/* Decodes every row into c->res (maps and counts); st (or NULL): phase_stats_row sums. */
+static void decode_pass(const struct ctx *c, int nthreads, float *scratch, size_t wpad,
+                        double st[4]) {
+        size_t c0 = 0, c1 = 0, c2 = 0, c3 = 0, c4 = 0, c5 = 0, c6 = 0;
+        double s0 = 0, s1 = 0, s2 = 0, s3 = 0;
+        int height = c->pl->height;
+#pragma omp parallel num_threads(nthreads) reduction(+ : c0, c1, c2, c3, c4, c5, c6, s0, s1, s2, s3)
+        {
+                int t = 0;
+#ifdef _OPENMP
+                t = omp_get_thread_num();
+#endif
+                float *R[R_NROWS];
+                for (int i = 0; i < R_NROWS; i++)
+                        R[i] = scratch + ((size_t) t * R_NROWS + i) * wpad;
+#pragma omp for schedule(dynamic, 8)
+                for (int y = 0; y < height; y++) {
+                        size_t cnt[8] = { 0 };
+                        decode_row(c, y, R, cnt);
+                        c0 += cnt[0]; c1 += cnt[1]; c2 += cnt[2]; c3 += cnt[3];
+                        c4 += cnt[4]; c5 += cnt[5]; c6 += cnt[6];
+                        if (st) {
+                                double row[4] = { 0 };
+                                phase_stats_row(c, y, R, row);
+                                s0 += row[0]; s1 += row[1]; s2 += row[2]; s3 += row[3];
+                        }
+                }
+        }
+        struct imp_sl_result *res = c->res;
+        res->n_valid_x = c0;
+        res->n_valid_y = c1;
+        res->n_valid_xy = c2;
+        res->n_shadow = c3;
+        res->n_saturated = c4;
+        res->n_weak = c5;
+        res->n_disagree = c6;
+        if (st) {
+                st[0] = s0; st[1] = s1; st[2] = s2; st[3] = s3;
+        }
+}
+
 int imp_sl_decode(const struct imp_sl_frames *in, const struct imp_sl_params *p,
                   struct imp_sl_result **ret, struct imp_error *err) {
         if (!p || !ret)
@@ -1017,32 +1204,35 @@ int imp_sl_decode(const struct imp_sl_frames *in, const struct imp_sl_params *p,
                 c.int_path = IMP_PIX_U16;
         if (pl->ndg > 0 && pl->type == IMP_PIX_U8 && pl->ax[0].nbits <= 16 && pl->ax[1].nbits <= 16)
                 c.int_path = IMP_PIX_U8;
-        size_t c0 = 0, c1 = 0, c2 = 0, c3 = 0, c4 = 0, c5 = 0, c6 = 0;
-        int height = pl->height;
-#pragma omp parallel num_threads(nthreads) reduction(+ : c0, c1, c2, c3, c4, c5, c6)
-        {
-                int t = 0;
-#ifdef _OPENMP
-                t = omp_get_thread_num();
-#endif
-                float *R[R_NROWS];
-                for (int i = 0; i < R_NROWS; i++)
-                        R[i] = scratch + ((size_t) t * R_NROWS + i) * wpad;
-#pragma omp for schedule(dynamic, 8)
-                for (int y = 0; y < height; y++) {
-                        size_t cnt[8] = { 0 };
-                        decode_row(&c, y, R, cnt);
-                        c0 += cnt[0]; c1 += cnt[1]; c2 += cnt[2]; c3 += cnt[3];
-                        c4 += cnt[4]; c5 += cnt[5]; c6 += cnt[6];
-                }
+        double st[4] = { 0 };
+        decode_pass(&c, nthreads, scratch, wpad, st);
+
+        /* The phase against the Gray code: on a pixel decoded without a weak bit, the true
+         * position lies uniformly in its code's pixel, so the mean (u − centre)² is the
+         * phase's error variance plus 1/12 px² (the centre's own). A phase error larger
+         * than the Gray centre's makes the phase useless: e.g. 3 steps under gamma 2.2
+         * without the response correction (0.48 vs 0.29 px RMS, test-sl-decode). */
+        unsigned reject = 0;
+        for (int a = 0; a < 2; a++) {
+                res->phase_err_px[a] = -1.0f;
+                res->phase_rejected[a] = false;
+                if (st[2 * a + 1] < PHASE_STAT_MIN)
+                        continue;
+                double var = st[2 * a] / st[2 * a + 1] - 1.0 / 12;     /* in quanta² */
+                res->phase_err_px[a] = (float) (sqrt(fmax(var, 0)) * pl->ax[a].quantum);
+                if (var > 1.0 / 12 && !p->keep_phase)
+                        reject |= 1u << a;
         }
-        res->n_valid_x = c0;
-        res->n_valid_y = c1;
-        res->n_valid_xy = c2;
-        res->n_shadow = c3;
-        res->n_saturated = c4;
-        res->n_weak = c5;
-        res->n_disagree = c6;
+        if (reject) {
+                /* Decode again with the rejected axes' phase left out. */
+                for (int a = 0; a < 2; a++)
+                        if (reject >> a & 1) {
+                                pl->ax[a].nphase = 0;
+                                res->phase_rejected[a] = true;
+                        }
+                c.rejected = reject;
+                decode_pass(&c, nthreads, scratch, wpad, NULL);
+        }
         *ret = TAKE_PTR(res);
         return 0;
 }

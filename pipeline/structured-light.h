@@ -31,6 +31,9 @@ enum {
                                             than max_disagreement_px: axis invalid */
         IMP_SL_SUBPIXEL_X     = 1 << 9,  /* proj_x refined by phase */
         IMP_SL_SUBPIXEL_Y     = 1 << 10, /* proj_y refined by phase */
+        IMP_SL_PHASE_REJECTED = 1 << 11, /* the axis's phase disagreed with its Gray code
+                                            more than the Gray code's own quantisation
+                                            (imp_sl_result.phase_rejected): Gray centre */
 };
 
 /* Value written to proj_x / proj_y where the axis is not valid (finite, out of range). */
@@ -51,6 +54,16 @@ struct imp_sl_params {
         double min_modulation;        /* phase amplitude B below it: phase not used */
         double max_disagreement_px;   /* |phase − Gray centre| allowed (projector px) */
         int dg_planes;                /* finest Gray planes per axis used for L_d/L_g */
+        /* Phase response: a projector with gamma γ turns the sinusoid into one with
+         * harmonics, which N steps alias onto the fundamental (harmonic N−1 and N+1: for
+         * N = 3 the 2nd, ≈ 0.28 rad at γ = 2.2). With γ known (radiometric calibration)
+         * the decoder inverts that response; 0 or 1: taken as linear. */
+        double projector_gamma;
+        double projector_defocus_px;  /* Gaussian σ of the projector's blur, projector px,
+                                         for the phase response (0: sharp) */
+        bool keep_phase;              /* false (default): an axis whose phase disagrees with
+                                         its Gray code more than the code's quantisation
+                                         falls back to the Gray centre; true: keep it */
         bool robust;                  /* Xu & Aliaga classification; false: sign only */
         int threads;                  /* OpenMP threads; 0: OpenMP default */
 };
@@ -78,6 +91,13 @@ struct imp_sl_result {
         float *modulation;            /* phase amplitude B (min over axes), 0 without phase */
         size_t n_valid_x, n_valid_y, n_valid_xy;
         size_t n_shadow, n_saturated, n_weak, n_disagree;
+        /* Per axis (x, y), for axes with Gray code and phase: the phase's error RMS in
+         * projector pixels estimated from its disagreement with the Gray code,
+         * √(mean (u − Gray centre)² − q²/12) with q the Gray code's quantum, over pixels
+         * with every Gray bit decided; −1 where not measured. phase_rejected: that error
+         * exceeded the Gray code's own (q/√12), so the axis holds Gray centres instead. */
+        float phase_err_px[2];
+        bool phase_rejected[2];
 };
 
 /* Decodes one view. *ret is allocated here; caller frees with imp_sl_result_free().
