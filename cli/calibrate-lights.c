@@ -18,13 +18,18 @@
 #define EXIT_USAGE 2
 #define EXIT_BADINPUT 3
 #define MAX_SPHERES 16
+#define MAX_SETS 8
+#define MAX_RAYS (MAX_SETS * MAX_SPHERES)
 #define CROP_MARGIN 1.3               /* crop half-size in sphere image radii */
 #define CROP_PAD_PX 6
+#define DETECT_RADIUS_LO 0.6          /* detection: image radii accepted, × the expected one */
+#define DETECT_RADIUS_HI 1.6
 #define PATCH_PX 16                   /* intensity: patches of this size … */
 #define PATCH_STEP_PX 48              /* … on a grid of this step */
 #define DISC_MARGIN_MM 1.0            /* canvas excluded around a sphere's footprint */
 #define SHADOW_MARGIN_MM 0.5          /* extra radius when testing a sphere's shadow */
 #define LIT_FRACTION 0.5              /* target pixels must exceed this × the 90th percentile */
+#define SAT_MARGIN_SIGMA 4.0          /* saturation: clip level less this many read-noise σ */
 
 struct sphere_spec {
         double x, y, r, z;            /* centre (x, y, z) mm, radius mm */
@@ -34,29 +39,49 @@ struct crop {
         int x0, y0, w, h;
 };
 
+struct set_spec {
+        const char *dir;
+        double plane_z_mm;            /* the board's height in this capture */
+};
+
 struct lights_args {
-        const char *set, *rig, *lp, *out, *camera;
+        const char *rig, *lp, *out, *camera, *import_lp;
+        struct set_spec sets[MAX_SETS];
+        int n_sets;
         struct sphere_spec spheres[MAX_SPHERES];
-        int n_spheres;
-        double plane_z_mm;
+        int n_spheres;                /* given positions (one set); 0 → detect */
+        double sphere_radius_mm;      /* detection: the spheres' radius */
+        double sphere_cut_mm;         /* the board cuts the spheres this far above their centres; NAN: balls */
+        double plane_z_mm;            /* default board height of a --set without @Z */
         double white[4];              /* x0, y0, x1, y1 on the canvas; x1 < x0 → none */
         double dome[4];               /* centre x, y, z and radius mm; radius 0 → not given */
         bool json, lp_near_field;
 };
 
 static void usage_lights(FILE *f) {
-        fprintf(f, "usage: impasto calibrate lights --set DIR --spheres \"X,Y,R[,Z];...\" [--camera NAME]\n"
+        fprintf(f, "usage: impasto calibrate lights --set DIR[@Z] [--set DIR[@Z]...] (--sphere-radius R | --spheres\n"
+                   "                                \"X,Y,R[,Z];...\") [--sphere-cut H | --hemispheres] [--camera NAME]\n"
                    "                                [--rig RIG.json] [--plane-z MM (0)] [--white X0,Y0,X1,Y1]\n"
-                   "                                [--dome CX,CY,CZ,R] [--lp OUT.lp] [--lp-near-field] [--json]\n"
-                   "                                [--out RIG.json]\n"
-                   "  --spheres: centre (X, Y) on the canvas, radius R, centre height Z (default R: a ball\n"
-                   "             resting on the canvas; 0 for the simulator's hemispheres), mm\n"
+                   "                                [--dome CX,CY,CZ,R]"
+                   "                                [--lp OUT.lp] [--lp-near-field] [--json] [--out RIG.json]\n"
+                   "       impasto calibrate lights --import-lp IN.lp [--rig RIG.json | --set DIR] [--dome CX,CY,CZ,R]\n"
+                   "                                --out RIG.json\n"
+                   "  --set:     a capture of mirror spheres on a white board, one frame per light (more\n"
+                   "             exposures per light: the longest unsaturated highlight is used); @Z the\n"
+                   "             board's height in mm (default --plane-z). Several sets (the spheres moved\n"
+                   "             or the board raised) pool their rays per light.\n"
+                   "  --sphere-radius: detect the spheres in each set (radius R mm, balls resting on the board)\n"
+                   "  --sphere-cut H: the board cuts the spheres H mm above their centres (0: half balls, as\n"
+                   "             --hemispheres; 0 < H < R: spherical caps, convex mirrors); default: balls\n"
+                   "  --spheres: positions instead of detection (one set): centre (X, Y), radius R,\n"
+                   "             centre height Z (default R), mm\n"
                    "  --rig:     camera model and sensor from this file instead of the set's rig.json\n"
-                   "  --white:   canvas rectangle (mm) of the white target for the intensities\n"
+                   "  --white:   canvas rectangle (mm) of the white target for the intensities (first set)\n"
                    "             (default: every lit canvas pixel off the spheres and their shadows)\n"
-                   "  --dome:    the dome's centre and radius (mm): each light is put where its direction\n"
-                   "             from the centre meets the dome, since spheres a few cm apart fix the\n"
-                   "             direction of a light 0.5 m away well but its range poorly\n");
+                   "  --dome:    the dome's centre and radius (mm): each light is also put where its\n"
+                   "             direction from the centre meets the dome (constrained estimate)\n"
+                   "  --import-lp: write the positions of an RTI .lp file into a copy of the rig (standard\n"
+                   "             files are directions: put at --dome's radius from its centre)\n");
 }
 
 static void usage_radiometric(FILE *f) {
@@ -65,6 +90,7 @@ static void usage_radiometric(FILE *f) {
                    "  the set: pairs of equal frames (same exposure, gain, light, pattern) at rising\n"
                    "  exposures, and dark frames (those at the shortest dark exposure are used)\n");
 }
+
 
 static int parse_list(const char *opt, const char *s, double *v, int min_n, int max_n, int *ret_n) {
         int n = 0;
@@ -88,6 +114,7 @@ static int parse_list(const char *opt, const char *s, double *v, int min_n, int 
         *ret_n = n;
         return 0;
 }
+
 
 static int parse_spheres(const char *s, struct lights_args *a) {
         char buf[1024];
@@ -115,6 +142,30 @@ static int parse_spheres(const char *s, struct lights_args *a) {
                 log_error("--spheres: no sphere given");
                 return -EINVAL;
         }
+        return 0;
+}
+
+/* DIR or DIR@Z. */
+static int parse_set(const char *s, struct lights_args *a) {
+        if (a->n_sets == MAX_SETS) {
+                log_error("--set: at most %d", MAX_SETS);
+                return -EINVAL;
+        }
+        struct set_spec *sp = &a->sets[a->n_sets];
+        const char *at = strrchr(s, '@');
+        sp->plane_z_mm = NAN;
+        if (at) {
+                char *end;
+                sp->plane_z_mm = strtod(at + 1, &end);
+                if (end == at + 1 || *end || !isfinite(sp->plane_z_mm)) {
+                        log_error("--set %s: expected DIR or DIR@Z (Z the board height in mm)", s);
+                        return -EINVAL;
+                }
+                if (!(sp->dir = strndup(s, (size_t) (at - s))))
+                        return -ENOMEM;
+        } else if (!(sp->dir = strdup(s)))
+                return -ENOMEM;
+        a->n_sets++;
         return 0;
 }
 
@@ -163,17 +214,40 @@ static int mean_dark(const struct imp_captureset *cs, const char *cam, double ex
 
 /* ---- lights ---- */
 
+
+/* ---- lights ---- */
+
+/* One dome light's frames in a capture: the longest exposure (silhouettes, intensity) and
+ * the others, longest first (highlights: the longest unsaturated one is used). */
+#define MAX_EXPOSURES 8
 struct light_frame {
-        size_t index;                 /* record */
-        int light;                    /* rig light index */
+        int light;                    /* index into the first set's rig lights */
+        int n;
+        size_t index[MAX_EXPOSURES];  /* records, exposure descending */
 };
 
-static bool sphere_shadows(const struct sphere_spec *sp, const double p[3], const double L[3]) {
-        double d[3] = { L[0] - p[0], L[1] - p[1], L[2] - p[2] }, c[3] = { sp->x - p[0], sp->y - p[1], sp->z - p[2] };
+/* One --set: its frames, dark, camera and spheres. */
+struct capture {
+        const char *dir;
+        double plane_z_mm;
+        struct imp_captureset *cs;
+        const struct imp_rig_camera *cam;
+        struct light_frame *lf;
+        int n_lf;
+        struct imp_image *dark;       /* mean dark (f32) or NULL */
+        double sat;                   /* clip level of a dark-subtracted pixel, DN */
+        int n_spheres;
+        struct crop crops[MAX_SPHERES];
+        struct imp_sphere sph[MAX_SPHERES];
+};
+
+static bool sphere_shadows(const struct imp_sphere *sp, const double p[3], const double L[3]) {
+        const double *C = sp->centre_mm;
+        double d[3] = { L[0] - p[0], L[1] - p[1], L[2] - p[2] }, c[3] = { C[0] - p[0], C[1] - p[1], C[2] - p[2] };
         double dd = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
         double t = IMP_CLAMP((c[0] * d[0] + c[1] * d[1] + c[2] * d[2]) / dd, 0.0, 1.0);
         double e[3] = { c[0] - t * d[0], c[1] - t * d[1], c[2] - t * d[2] };
-        double rr = sp->r + SHADOW_MARGIN_MM;
+        double rr = sp->radius_mm + SHADOW_MARGIN_MM;
         return e[0] * e[0] + e[1] * e[1] + e[2] * e[2] < rr * rr;
 }
 
@@ -185,9 +259,9 @@ static int cmp_float(const void *a, const void *b) {
 /* The radiometric values of a frame on the white target's pixels, NAN elsewhere: off the
  * spheres, out of their shadows from light position L, inside --white (if given), and lit
  * (> LIT_FRACTION × the 90th percentile, which drops pixels off the target). */
-static int white_values(const struct imp_image *f, const struct imp_image *dark, const struct imp_rig_camera *cam,
-                        const struct lights_args *a, const double L[3], double exposure_us, double gain_db,
-                        struct imp_image **ret) {
+static int white_values(const struct imp_image *f, const struct capture *cp, const struct lights_args *a,
+                        const double L[3], double exposure_us, double gain_db, struct imp_image **ret) {
+        const struct imp_rig_camera *cam = cp->cam;
         _cleanup_image_ struct imp_image *v = NULL;
         int r = imp_image_new(f->width, f->height, 1, IMP_PIX_F32, &v);
         if (r < 0)
@@ -199,8 +273,8 @@ static int white_values(const struct imp_image *f, const struct imp_image *dark,
         for (int y = 0; y < f->height; y++)
                 for (int x = 0; x < f->width; x++) {
                         double dn = imp_image_get(f, x, y, 0);
-                        if (dark)
-                                dn += cam->sensor.black_level_dn - *imp_image_f32(dark, x, y);
+                        if (cp->dark)
+                                dn += cam->sensor.black_level_dn - *imp_image_f32(cp->dark, x, y);
                         float val = (float) imp_radiometric_dn_to_value(&cam->sensor, exposure_us, gain_db, dn);
                         *imp_image_f32(v, x, y) = val;
                         sorted[m++] = val;
@@ -212,15 +286,16 @@ static int white_values(const struct imp_image *f, const struct imp_image *dark,
                         float *val = imp_image_f32(v, x, y);
                         double px[2] = { x, y }, O[3], d[3];
                         imp_pinhole_ray_world(&cam->model, px, O, d);
-                        double t = fabs(d[2]) > 1e-12 ? (a->plane_z_mm - O[2]) / d[2] : -1;
-                        double p[3] = { O[0] + t * d[0], O[1] + t * d[1], a->plane_z_mm };
+                        double t = fabs(d[2]) > 1e-12 ? (cp->plane_z_mm - O[2]) / d[2] : -1;
+                        double p[3] = { O[0] + t * d[0], O[1] + t * d[1], cp->plane_z_mm };
                         bool ok = *val > lit && t > 0;
                         if (ok && a->white[2] > a->white[0])
                                 ok = p[0] >= a->white[0] && p[0] <= a->white[2] && p[1] >= a->white[1] &&
                                      p[1] <= a->white[3];
-                        for (int s = 0; ok && s < a->n_spheres; s++) {
-                                const struct sphere_spec *sp = &a->spheres[s];
-                                ok = hypot(p[0] - sp->x, p[1] - sp->y) > sp->r + DISC_MARGIN_MM && !sphere_shadows(sp, p, L);
+                        for (int s = 0; ok && s < cp->n_spheres; s++) {
+                                const struct imp_sphere *sp = &cp->sph[s];
+                                ok = hypot(p[0] - sp->centre_mm[0], p[1] - sp->centre_mm[1]) > sp->radius_mm + DISC_MARGIN_MM &&
+                                     !sphere_shadows(sp, p, L);
                         }
                         if (!ok)
                                 *val = NAN;
@@ -267,18 +342,6 @@ static int light_intensity(const struct imp_image *v, const struct imp_rig_camer
         return 0;
 }
 
-/* The image window that holds sphere s with a margin, clipped to the frame. */
-static struct crop sphere_crop(const struct imp_pinhole *m, const struct sphere_spec *sp) {
-        double C[3] = { sp->x, sp->y, sp->z }, px[2] = { -1, -1 }, cam_c[3];
-        imp_pinhole_project(m, C, px);
-        imp_pinhole_centre(m, cam_c);
-        double dist = sqrt((C[0] - cam_c[0]) * (C[0] - cam_c[0]) + (C[1] - cam_c[1]) * (C[1] - cam_c[1]) +
-                           (C[2] - cam_c[2]) * (C[2] - cam_c[2]));
-        double half = CROP_MARGIN * sp->r * m->fx / dist + CROP_PAD_PX;
-        int x0 = (int) IMP_MAX(0.0, floor(px[0] - half)), y0 = (int) IMP_MAX(0.0, floor(px[1] - half));
-        int x1 = (int) IMP_MIN((double) m->width, ceil(px[0] + half)), y1 = (int) IMP_MIN((double) m->height, ceil(px[1] + half));
-        return (struct crop) { x0, y0, IMP_MAX(0, x1 - x0), IMP_MAX(0, y1 - y0) };
-}
 
 /* Dark-subtracted DN of a crop, f32. */
 static int crop_dn(const struct imp_image *f, const struct imp_image *dark, double black, const struct crop *c,
@@ -293,27 +356,329 @@ static int crop_dn(const struct imp_image *f, const struct imp_image *dark, doub
         return 0;
 }
 
+
+/* The image window around an image circle with a margin, clipped to the frame. */
+static struct crop circle_crop(const struct imp_pinhole *m, const double c[2], double rho) {
+        double half = CROP_MARGIN * rho + CROP_PAD_PX;
+        int x0 = (int) IMP_MAX(0.0, floor(c[0] - half)), y0 = (int) IMP_MAX(0.0, floor(c[1] - half));
+        int x1 = (int) IMP_MIN((double) m->width, ceil(c[0] + half)), y1 = (int) IMP_MIN((double) m->height, ceil(c[1] + half));
+        return (struct crop) { x0, y0, IMP_MAX(0, x1 - x0), IMP_MAX(0, y1 - y0) };
+}
+
+/* Apparent radius (px) of a sphere of radius r whose centre is at height z under the camera. */
+static double image_radius(const struct imp_pinhole *m, double r, double z) {
+        double cc[3];
+        imp_pinhole_centre(m, cc);
+        return r * m->fx / IMP_MAX(fabs(cc[2] - z), r);
+}
+
+/* The crop that holds a given sphere. */
+static struct crop sphere_crop(const struct imp_pinhole *m, const struct sphere_spec *sp) {
+        double C[3] = { sp->x, sp->y, sp->z }, px[2] = { -1, -1 }, cam_c[3];
+        imp_pinhole_project(m, C, px);
+        imp_pinhole_centre(m, cam_c);
+        double dist = sqrt((C[0] - cam_c[0]) * (C[0] - cam_c[0]) + (C[1] - cam_c[1]) * (C[1] - cam_c[1]) +
+                           (C[2] - cam_c[2]) * (C[2] - cam_c[2]));
+        return circle_crop(m, px, sp->r * m->fx / dist);
+}
+
+static void capture_free(struct capture *cp) {
+        imp_captureset_close(cp->cs);
+        imp_image_free(cp->dark);
+        free(cp->lf);
+        *cp = (struct capture) { 0 };
+}
+
+static int rig_light_index(const struct imp_rig *rig, int id) {
+        for (int k = 0; k < rig->n_lights; k++)
+                if (rig->lights[k].id == id)
+                        return k;
+        return -1;
+}
+
+/* Opens a set: camera, the dome-light frames (grouped per light, exposure descending; lights
+ * indexed in `lights_rig`), mean dark, clip level. */
+static int capture_open(struct capture *cp, const struct set_spec *spec, const struct lights_args *a,
+                        const struct imp_rig *file_rig, const struct imp_rig *lights_rig) {
+        struct imp_error err = {};
+        *cp = (struct capture) { .dir = spec->dir, .plane_z_mm = isfinite(spec->plane_z_mm) ? spec->plane_z_mm : a->plane_z_mm };
+        int r = imp_captureset_open(spec->dir, &cp->cs, &err);
+        if (r < 0)
+                return log_error("calibrate lights: %s", err.msg), r;
+        const struct imp_rig *set_rig = imp_captureset_rig(cp->cs);
+        if (!lights_rig)
+                lights_rig = set_rig;
+        const struct imp_rig *cam_rig = file_rig ? file_rig : set_rig;
+        int ci = camera_index(cam_rig, a->camera);
+        if (ci < 0)
+                return log_error("calibrate lights: no camera '%s' in the rig of %s", a->camera ? a->camera : "(any)",
+                                 spec->dir), -ENOENT;
+        cp->cam = &cam_rig->cameras[ci];
+        size_t nrec = imp_captureset_count(cp->cs);
+        if (!(cp->lf = calloc(nrec + 1, sizeof *cp->lf)))
+                return -ENOMEM;
+        for (size_t i = 0; i < nrec; i++) {
+                const struct imp_frame_record *rec = imp_captureset_record(cp->cs, i);
+                if (rec->light < 0 || strcmp(rec->camera, cp->cam->name) || rec->pattern.kind != IMP_PAT_NONE)
+                        continue;
+                int li = rig_light_index(lights_rig, rec->light), k = 0;
+                if (li < 0)
+                        continue;
+                while (k < cp->n_lf && cp->lf[k].light != li)
+                        k++;
+                struct light_frame *L = &cp->lf[k];
+                if (k == cp->n_lf)
+                        *L = (struct light_frame) { .light = li }, cp->n_lf++;
+                if (L->n == MAX_EXPOSURES)
+                        continue;
+                int j = L->n++;   /* insert keeping exposure descending */
+                while (j > 0 && imp_captureset_record(cp->cs, L->index[j - 1])->exposure_us < rec->exposure_us) {
+                        L->index[j] = L->index[j - 1];
+                        j--;
+                }
+                L->index[j] = i;
+        }
+        if (!cp->n_lf)
+                return log_error("calibrate lights: %s has no dome frames of camera %s", spec->dir, cp->cam->name), -ENOENT;
+        r = mean_dark(cp->cs, cp->cam->name, -1, &cp->dark, &err);
+        if (r < 0)
+                return log_error("calibrate lights: %s", err.msg), r;
+        if (r == 0)
+                log_warning("%s: no dark frames, using the black level %.1f DN", spec->dir, cp->cam->sensor.black_level_dn);
+        const struct imp_sensor *sn = &cp->cam->sensor;
+        double gain = sn->gain_e_per_dn > 0 ? sn->gain_e_per_dn : 1;
+        double clip = ldexp(1.0, sn->bits) - 1 - sn->black_level_dn;
+        if (sn->full_well_e > 0)
+                clip = IMP_MIN(clip, sn->full_well_e / gain);
+        cp->sat = clip - SAT_MARGIN_SIGMA * IMP_MAX(sn->read_noise_e / gain, 1.0);
+        return 0;
+}
+
+/* Per-pixel maximum of the dark-subtracted longest-exposure frames of every light: the
+ * white board is lit in some frame everywhere (so no cast shadow touches an outline), the
+ * mirror bodies stay dark but for their highlights, which lie well inside the rims. */
+static int max_image(const struct capture *cp, struct imp_image **ret, struct imp_error *err) {
+        const struct imp_pinhole *m = &cp->cam->model;
+        struct crop all = { 0, 0, m->width, m->height };
+        _cleanup_image_ struct imp_image *mx = NULL;
+        int r = 0;
+        for (int i = 0; i < cp->n_lf && r >= 0; i++) {
+                _cleanup_image_ struct imp_image *f = NULL, *c = NULL;
+                r = imp_captureset_load_frame(cp->cs, cp->lf[i].index[0], &f, err);
+                if (r >= 0 && (f->width != m->width || f->height != m->height))
+                        r = imp_error_set(err, -EINVAL, "%s: frames are %dx%d, the camera model %dx%d", cp->dir, f->width,
+                                          f->height, m->width, m->height);
+                if (r >= 0)
+                        r = crop_dn(f, cp->dark, cp->cam->sensor.black_level_dn, &all, &c);
+                if (r < 0)
+                        break;
+                if (!mx) {
+                        mx = TAKE_PTR(c);
+                        continue;
+                }
+                for (int y = 0; y < c->height; y++)
+                        for (int x = 0; x < c->width; x++)
+                                *imp_image_f32(mx, x, y) = IMP_MAX(*imp_image_f32(mx, x, y), *imp_image_f32(c, x, y));
+        }
+        if (r >= 0)
+                *ret = TAKE_PTR(mx);
+        return r;
+}
+
+static int crop_image(const struct imp_image *img, const struct crop *c, struct imp_image **ret) {
+        int r = imp_image_new(c->w, c->h, 1, IMP_PIX_F32, ret);
+        for (int y = 0; r >= 0 && y < c->h; y++)
+                for (int x = 0; x < c->w; x++)
+                        *imp_image_f32(*ret, x, y) = *imp_image_f32(img, c->x0 + x, c->y0 + y);
+        return r;
+}
+
+/* Spheres of a capture: given (--spheres) or detected in the max image; then each centre
+ * from its silhouette. A detected sphere whose fit fails is dropped with a warning. */
+static int capture_spheres(struct capture *cp, const struct lights_args *a) {
+        struct imp_error err = {};
+        const struct imp_pinhole *m = &cp->cam->model;
+        _cleanup_image_ struct imp_image *mx = NULL;
+        int r = max_image(cp, &mx, &err);
+        if (r < 0)
+                return log_error("calibrate lights: %s", err.msg), r;
+        double radius[MAX_SPHERES], cz[MAX_SPHERES];
+        int n = 0;
+        if (a->n_spheres) {
+                for (int s = 0; s < a->n_spheres; s++) {
+                        cp->crops[s] = sphere_crop(m, &a->spheres[s]);
+                        radius[s] = a->spheres[s].r;
+                        cz[s] = a->spheres[s].z;
+                        if (cp->crops[s].w < 16 || cp->crops[s].h < 16)
+                                return log_error("calibrate lights: sphere %d at (%g, %g) is not in the view of %s", s,
+                                                 a->spheres[s].x, a->spheres[s].y, cp->cam->name), -EDOM;
+                }
+                n = a->n_spheres;
+        } else {
+                struct imp_sphere_circle circ[MAX_SPHERES];
+                double r = a->sphere_radius_mm, cut = a->sphere_cut_mm;
+                double rz = cp->plane_z_mm + (isfinite(cut) ? -cut : r);
+                double rho = isfinite(cut) ? image_radius(m, sqrt(r * r - cut * cut), cp->plane_z_mm) : image_radius(m, r, rz);
+                struct imp_frame_view v = { mx, 0, 0 };
+                int found = imp_lights_sphere_detect(&v, DETECT_RADIUS_LO * rho, DETECT_RADIUS_HI * rho, circ, MAX_SPHERES);
+                if (found < 0)
+                        return log_error_errno(found, "calibrate lights: %s: sphere detection failed", cp->dir), found;
+                if (found > MAX_SPHERES)
+                        log_warning("%s: %d spheres found, using the first %d", cp->dir, found, MAX_SPHERES);
+                n = IMP_MIN(found, MAX_SPHERES);
+                for (int s = 0; s < n; s++) {
+                        cp->crops[s] = circle_crop(m, circ[s].centre_px, circ[s].radius_px);
+                        radius[s] = a->sphere_radius_mm;
+                        cz[s] = rz;
+                        log_info("%s: sphere %d at (%.2f, %.2f) px, radius %.2f px (expected %.1f), edge rms %.3f px, %d "
+                                 "edges", cp->dir, s, circ[s].centre_px[0], circ[s].centre_px[1], circ[s].radius_px, rho,
+                                 circ[s].rms_px, circ[s].n_edge);
+                }
+        }
+        int kept = 0;
+        for (int s = 0; s < n; s++) {
+                _cleanup_image_ struct imp_image *c = NULL;
+                if ((r = crop_image(mx, &cp->crops[s], &c)) < 0)
+                        return r;
+                struct imp_frame_view v = { c, cp->crops[s].x0, cp->crops[s].y0 };
+                r = imp_lights_sphere_fit(m, &v, radius[s], cz[s], a->sphere_cut_mm, &cp->sph[kept], &err);
+                if (r < 0 && a->n_spheres)
+                        return log_error("calibrate lights: %s: sphere %d at (%g, %g): %s", cp->dir, s, a->spheres[s].x,
+                                         a->spheres[s].y, err.msg), r;
+                if (r < 0) {
+                        log_warning("%s: sphere %d: %s, ignoring it", cp->dir, s, err.msg);
+                        continue;
+                }
+                cp->crops[kept++] = cp->crops[s];
+        }
+        cp->n_spheres = kept;
+        if (!kept)
+                return log_error("calibrate lights: %s: no mirror sphere found (expected radius %g mm)", cp->dir,
+                                 a->n_spheres ? a->spheres[0].r : a->sphere_radius_mm), -ENOENT;
+        return 0;
+}
+
+/* Rays and highlight counts of one light. */
 struct light_result {
         int id;
-        bool have_pos, have_intensity;
-        struct imp_light_estimate est;
+        bool have_pos, have_intensity, have_dome;
+        struct imp_light_estimate est;    /* free least squares */
+        struct imp_light_estimate dome;   /* moved onto the dome (--dome), covariance projected */
         struct imp_light_intensity li;
         int n_highlights, n_saturated;
+        double o[MAX_RAYS][3], d[MAX_RAYS][3], sg[MAX_RAYS];
 };
+
+/* The highlight of one light on one sphere: from the longest exposure whose highlight is
+ * not saturated; when every exposure saturates, the shortest one's (flagged, σ inflated). */
+static int sphere_highlight(const struct capture *cp, struct imp_image *const *frames, int n_frames, int s,
+                            struct imp_highlight *ret) {
+        int r = -ENOENT;
+        for (int e = 0; e < n_frames; e++) {
+                _cleanup_image_ struct imp_image *c = NULL;
+                int q = crop_dn(frames[e], cp->dark, cp->cam->sensor.black_level_dn, &cp->crops[s], &c);
+                if (q < 0)
+                        return q;
+                struct imp_frame_view v = { c, cp->crops[s].x0, cp->crops[s].y0 };
+                struct imp_highlight h;
+                if (imp_lights_highlight(&v, &cp->sph[s], cp->sat, &h) < 0)
+                        continue;
+                *ret = h;
+                r = 0;
+                if (!h.saturated)
+                        break;
+        }
+        return r;
+}
+
+/* Adds the reflected rays of every sphere of a capture for light frame lf to lr. */
+static int capture_rays(const struct capture *cp, const struct light_frame *lf, struct light_result *lr,
+                        struct imp_error *err) {
+        struct imp_image *frames[MAX_EXPOSURES] = { 0 };
+        int r = 0;
+        for (int e = 0; e < lf->n && r >= 0; e++)
+                r = imp_captureset_load_frame(cp->cs, lf->index[e], &frames[e], err);
+        for (int s = 0; s < cp->n_spheres && r >= 0 && lr->n_highlights < MAX_RAYS; s++) {
+                struct imp_highlight h;
+                int n = lr->n_highlights, q = sphere_highlight(cp, frames, lf->n, s, &h);
+                if (q == -ENOENT)
+                        continue;   /* this sphere does not reflect the light to the camera */
+                if (q < 0) {
+                        r = q;
+                        break;
+                }
+                if (imp_lights_reflect(&cp->cam->model, &cp->sph[s], h.px, h.sigma_px, lr->o[n], lr->d[n], &lr->sg[n]) < 0)
+                        continue;
+                lr->n_saturated += h.saturated;
+                lr->n_highlights++;
+        }
+        for (int e = 0; e < lf->n; e++)
+                imp_image_free(frames[e]);
+        return r;
+}
+
+/* The position on the dome (its centre and radius in dome[4]) along the direction of est
+ * from the centre, with the covariance mapped by that projection's Jacobian
+ * (R/|X − c|)(I − n nᵀ): the range is the dome's, only the direction is uncertain. */
+static void onto_dome(const double dome[4], const struct imp_light_estimate *est, struct imp_light_estimate *ret) {
+        *ret = *est;
+        double d[3] = { est->pos_mm[0] - dome[0], est->pos_mm[1] - dome[1], est->pos_mm[2] - dome[2] };
+        double len = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+        if (!(len > 0))
+                return;
+        double J[9], JC[9], C2[9], s = dome[3] / len;
+        for (int k = 0; k < 3; k++)
+                ret->pos_mm[k] = dome[k] + d[k] * s;
+        for (int i = 0; i < 3; i++)
+                for (int j = 0; j < 3; j++)
+                        J[i * 3 + j] = s * ((i == j) - d[i] * d[j] / (len * len));
+        for (int i = 0; i < 3; i++)
+                for (int j = 0; j < 3; j++) {
+                        JC[i * 3 + j] = 0;
+                        for (int k = 0; k < 3; k++)
+                                JC[i * 3 + j] += J[i * 3 + k] * est->cov_mm2[k * 3 + j];
+                }
+        for (int i = 0; i < 3; i++)
+                for (int j = 0; j < 3; j++) {
+                        C2[i * 3 + j] = 0;
+                        for (int k = 0; k < 3; k++)
+                                C2[i * 3 + j] += JC[i * 3 + k] * J[j * 3 + k];
+                }
+        memcpy(ret->cov_mm2, C2, sizeof C2);
+        /* λmax of a covariance with one zero eigenvalue: λ1 + λ2 = trace, λ1 λ2 = the sum of
+         * the principal 2×2 minors */
+        double tr = C2[0] + C2[4] + C2[8], det2 = 0;
+        for (int i = 0; i < 3; i++) {
+                int a = (i + 1) % 3, b = (i + 2) % 3;
+                det2 += C2[a * 3 + a] * C2[b * 3 + b] - C2[a * 3 + b] * C2[b * 3 + a];
+        }
+        double disc = IMP_MAX(tr * tr / 4 - det2, 0.0);
+        ret->sigma_mm = sqrt(IMP_MAX(tr / 2 + sqrt(disc), 0.0));
+}
+
+static json_t *estimate_json(const struct imp_light_estimate *e) {
+        const double *c = e->cov_mm2;
+        return json_pack("{s:[f, f, f], s:f, s:[f, f, f, f, f, f, f, f, f]}", "pos_mm", e->pos_mm[0], e->pos_mm[1],
+                         e->pos_mm[2], "sigma_mm", e->sigma_mm, "cov_mm2", c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7],
+                         c[8]);
+}
 
 static json_t *light_json(const struct light_result *lr) {
         json_t *j = json_pack("{s:i, s:b, s:i, s:i}", "id", lr->id, "located", lr->have_pos, "highlights",
                               lr->n_highlights, "saturated_highlights", lr->n_saturated);
         if (lr->have_pos) {
                 const struct imp_light_estimate *e = &lr->est;
-                json_object_set_new(j, "pos_mm", json_pack("[f, f, f]", e->pos_mm[0], e->pos_mm[1], e->pos_mm[2]));
-                json_object_set_new(j, "sigma_mm", json_real(e->sigma_mm));
+                json_t *je = estimate_json(e);
+                json_object_update(j, je);
+                json_decref(je);
                 json_object_set_new(j, "rms_mm", json_real(e->rms_mm));
                 json_object_set_new(j, "cond", json_real(e->cond));
                 json_object_set_new(j, "flags", json_pack("{s:b, s:b, s:b, s:b}",
                         "ill_conditioned", !!(e->flags & IMP_LIGHT_ILL_CONDITIONED),
                         "few_rays", !!(e->flags & IMP_LIGHT_FEW_RAYS),
                         "saturated", !!(e->flags & IMP_LIGHT_SATURATED), "behind", !!(e->flags & IMP_LIGHT_BEHIND)));
+                if (lr->have_dome)
+                        json_object_set_new(j, "dome", estimate_json(&lr->dome));
         }
         if (lr->have_intensity) {
                 json_object_set_new(j, "intensity", json_real(lr->li.intensity));
@@ -322,68 +687,6 @@ static json_t *light_json(const struct light_result *lr) {
                 json_object_set_new(j, "intensity_pixels", json_integer(lr->li.n_pixels));
         }
         return j;
-}
-
-/* Sphere silhouettes from the per-pixel maximum over the light frames: the white canvas is
- * lit in some frame everywhere (so no shadow touches the outline), the mirror body stays
- * dark, and highlights lie well inside the rim. */
-static int fit_spheres(const struct imp_captureset *cs, const struct light_frame *lf, int n_lf,
-                       const struct imp_image *dark, const struct imp_rig_camera *cam, const struct lights_args *a,
-                       const struct crop *crops, struct imp_sphere *sph, struct imp_error *err) {
-        struct imp_image *mx[MAX_SPHERES] = { 0 };
-        int r = 0;
-        for (int s = 0; s < a->n_spheres && r >= 0; s++)
-                r = imp_image_new(crops[s].w, crops[s].h, 1, IMP_PIX_F32, &mx[s]);
-        for (int i = 0; i < n_lf && r >= 0; i++) {
-                _cleanup_image_ struct imp_image *f = NULL;
-                r = imp_captureset_load_frame(cs, lf[i].index, &f, err);
-                for (int s = 0; s < a->n_spheres && r >= 0; s++) {
-                        _cleanup_image_ struct imp_image *c = NULL;
-                        r = crop_dn(f, dark, cam->sensor.black_level_dn, &crops[s], &c);
-                        for (int y = 0; r >= 0 && y < c->height; y++)
-                                for (int x = 0; x < c->width; x++)
-                                        *imp_image_f32(mx[s], x, y) = IMP_MAX(*imp_image_f32(mx[s], x, y), *imp_image_f32(c, x, y));
-                }
-        }
-        for (int s = 0; s < a->n_spheres && r >= 0; s++) {
-                struct imp_frame_view v = { mx[s], crops[s].x0, crops[s].y0 };
-                r = imp_lights_sphere_fit(&cam->model, &v, a->spheres[s].r, a->spheres[s].z - a->spheres[s].r, &sph[s], err);
-                if (r < 0)
-                        imp_error_prefix(err, "sphere %d at (%g, %g): ", s, a->spheres[s].x, a->spheres[s].y);
-        }
-        for (int s = 0; s < a->n_spheres; s++)
-                imp_image_free(mx[s]);
-        return r;
-}
-
-static int locate_light(const struct imp_image *f, const struct imp_image *dark, const struct imp_rig_camera *cam,
-                        const struct lights_args *a, const struct crop *crops, const struct imp_sphere *sph,
-                        struct light_result *lr) {
-        double o[MAX_SPHERES][3], d[MAX_SPHERES][3], sg[MAX_SPHERES];
-        double sat = ldexp(1.0, cam->sensor.bits) - 1 - cam->sensor.black_level_dn;
-        int n = 0;
-        for (int s = 0; s < a->n_spheres; s++) {
-                _cleanup_image_ struct imp_image *c = NULL;
-                int r = crop_dn(f, dark, cam->sensor.black_level_dn, &crops[s], &c);
-                if (r < 0)
-                        return r;
-                struct imp_frame_view v = { c, crops[s].x0, crops[s].y0 };
-                struct imp_highlight h;
-                if (imp_lights_highlight(&v, &sph[s], sat, &h) < 0)
-                        continue;   /* this sphere does not reflect the light to the camera */
-                if (imp_lights_reflect(&cam->model, &sph[s], h.px, h.sigma_px, o[n], d[n], &sg[n]) < 0)
-                        continue;
-                lr->n_saturated += h.saturated;
-                n++;
-        }
-        lr->n_highlights = n;
-        if (n == 0)
-                return 0;
-        int r = imp_lights_triangulate(n, (const double (*)[3]) o, (const double (*)[3]) d, sg, NULL, &lr->est);
-        if (r < 0)
-                return r;
-        lr->have_pos = true;
-        return 0;
 }
 
 static int lp_centre(const struct imp_rig_camera *cam, double plane_z, double ret[3]) {
@@ -398,19 +701,18 @@ static int lp_centre(const struct imp_rig_camera *cam, double plane_z, double re
         return 0;
 }
 
-static int write_outputs(const struct lights_args *a, const struct imp_rig *set_rig, const struct imp_rig_camera *cam,
-                         const struct light_result *res, const struct light_frame *lf, int n_lf,
-                         const struct imp_captureset *cs) {
+static int write_outputs(const struct lights_args *a, const struct imp_rig *set_rig, const struct capture *cp,
+                         const struct light_result *res) {
         struct imp_error err = {};
         struct imp_rig rig;
         if (imp_rig_copy(set_rig, &rig) < 0) {
                 log_error("calibrate lights: out of memory");
                 return 1;
         }
-        for (int i = 0; i < n_lf; i++) {
-                struct imp_rig_light *L = &rig.lights[lf[i].light];
+        for (int i = 0; i < set_rig->n_lights; i++) {
+                struct imp_rig_light *L = &rig.lights[i];
                 if (res[i].have_pos)
-                        memcpy(L->pos_mm, res[i].est.pos_mm, sizeof L->pos_mm);
+                        memcpy(L->pos_mm, res[i].have_dome ? res[i].dome.pos_mm : res[i].est.pos_mm, sizeof L->pos_mm);
                 if (res[i].have_intensity) {
                         L->intensity = res[i].li.intensity;
                         memcpy(L->colour, res[i].li.colour, sizeof L->colour);
@@ -422,20 +724,22 @@ static int write_outputs(const struct lights_args *a, const struct imp_rig *set_
                 ret = 1;
         }
         if (a->lp) {
-                _cleanup_free_ struct imp_rig_light *L = calloc((size_t) n_lf, sizeof *L);
-                _cleanup_free_ const char **names = calloc((size_t) n_lf, sizeof *names);
+                _cleanup_free_ struct imp_rig_light *L = calloc((size_t) cp->n_lf + 1, sizeof *L);
+                _cleanup_free_ const char **names = calloc((size_t) cp->n_lf + 1, sizeof *names);
                 double centre[3];
-                if (!L || !names)
+                if (!L || !names) {
+                        imp_rig_free(&rig);
                         return log_error("calibrate lights: out of memory"), 1;
-                for (int i = 0; i < n_lf; i++) {
-                        L[i] = rig.lights[lf[i].light];
-                        const char *file = imp_captureset_record(cs, lf[i].index)->file;
+                }
+                for (int i = 0; i < cp->n_lf; i++) {
+                        L[i] = rig.lights[cp->lf[i].light];
+                        const char *file = imp_captureset_record(cp->cs, cp->lf[i].index[0])->file;
                         const char *slash = strrchr(file, '/');
                         names[i] = slash ? slash + 1 : file;
                 }
-                r = lp_centre(cam, a->plane_z_mm, centre);
+                r = lp_centre(cp->cam, cp->plane_z_mm, centre);
                 if (r >= 0)
-                        r = imp_lights_lp_write(a->lp, n_lf, L, names, centre, a->lp_near_field, &err);
+                        r = imp_lights_lp_write(a->lp, cp->n_lf, L, names, centre, a->lp_near_field, &err);
                 if (r < 0) {
                         log_error_errno(r, "calibrate lights: %s", err.msg[0] ? err.msg : "--lp: %m");
                         ret = 1;
@@ -445,17 +749,21 @@ static int write_outputs(const struct lights_args *a, const struct imp_rig *set_
         return ret;
 }
 
-static void report_lights(const struct lights_args *a, const struct imp_sphere *sph, const struct light_result *res,
-                          int n_lf) {
+static void report_lights(const struct lights_args *a, const struct capture *caps, int n_caps,
+                          const struct light_result *res, int n) {
         if (a->json) {
                 json_t *j = json_object(), *js = json_array(), *jl = json_array();
-                for (int s = 0; s < a->n_spheres; s++)
-                        json_array_append_new(js, json_pack("{s:[f, f, f], s:f, s:[f, f], s:f, s:f, s:i}",
-                                "centre_mm", sph[s].centre_mm[0], sph[s].centre_mm[1], sph[s].centre_mm[2],
-                                "radius_mm", sph[s].radius_mm, "image_centre_px", sph[s].image_centre_px[0],
-                                sph[s].image_centre_px[1], "image_radius_px", sph[s].image_radius_px,
-                                "edge_rms_px", sph[s].rms_px, "edge_points", sph[s].n_edge));
-                for (int i = 0; i < n_lf; i++)
+                for (int c = 0; c < n_caps; c++)
+                        for (int s = 0; s < caps[c].n_spheres; s++) {
+                                const struct imp_sphere *sp = &caps[c].sph[s];
+                                json_array_append_new(js, json_pack("{s:s, s:[f, f, f], s:f, s:f, s:[f, f], s:f, s:f, s:i}",
+                                        "set", caps[c].dir, "centre_mm", sp->centre_mm[0], sp->centre_mm[1], sp->centre_mm[2],
+                                        "centre_sigma_mm", sp->centre_sigma_mm, "radius_mm", sp->radius_mm,
+                                        "image_centre_px", sp->image_centre_px[0], sp->image_centre_px[1],
+                                        "image_radius_px", sp->image_radius_px, "edge_rms_px", sp->rms_px,
+                                        "edge_points", sp->n_edge));
+                        }
+                for (int i = 0; i < n; i++)
                         json_array_append_new(jl, light_json(&res[i]));
                 json_object_set_new(j, "spheres", js);
                 json_object_set_new(j, "lights", jl);
@@ -464,18 +772,24 @@ static void report_lights(const struct lights_args *a, const struct imp_sphere *
                 json_decref(j);
                 return;
         }
-        for (int s = 0; s < a->n_spheres; s++)
-                printf("sphere %d: centre (%.4f, %.4f, %.4f) mm, image (%.2f, %.2f) px r %.2f px, edge rms %.3f px\n", s,
-                       sph[s].centre_mm[0], sph[s].centre_mm[1], sph[s].centre_mm[2], sph[s].image_centre_px[0],
-                       sph[s].image_centre_px[1], sph[s].image_radius_px, sph[s].rms_px);
-        for (int i = 0; i < n_lf; i++) {
+        for (int c = 0; c < n_caps; c++)
+                for (int s = 0; s < caps[c].n_spheres; s++) {
+                        const struct imp_sphere *sp = &caps[c].sph[s];
+                        printf("%s sphere %d: centre (%.4f, %.4f, %.4f) mm ± %.4f, image (%.2f, %.2f) px r %.2f px, edge "
+                               "rms %.3f px\n", caps[c].dir, s, sp->centre_mm[0], sp->centre_mm[1], sp->centre_mm[2],
+                               sp->centre_sigma_mm, sp->image_centre_px[0], sp->image_centre_px[1], sp->image_radius_px,
+                               sp->rms_px);
+                }
+        for (int i = 0; i < n; i++) {
                 const struct light_result *lr = &res[i];
                 printf("light %3d:", lr->id);
-                if (lr->have_pos)
-                        printf(" (%8.2f, %8.2f, %8.2f) mm ± %.2f, %d rays%s", lr->est.pos_mm[0], lr->est.pos_mm[1],
-                               lr->est.pos_mm[2], lr->est.sigma_mm, lr->est.n_rays,
-                               lr->est.flags & IMP_LIGHT_ILL_CONDITIONED ? " ILL-CONDITIONED" : "");
-                else
+                if (lr->have_pos) {
+                        const struct imp_light_estimate *e = lr->have_dome ? &lr->dome : &lr->est;
+                        printf(" (%8.2f, %8.2f, %8.2f) mm ± %.2f%s, %d rays%s%s", e->pos_mm[0], e->pos_mm[1], e->pos_mm[2],
+                               e->sigma_mm, lr->have_dome ? " on the dome" : "", lr->est.n_rays,
+                               lr->est.flags & IMP_LIGHT_ILL_CONDITIONED ? " ILL-CONDITIONED" : "",
+                               lr->n_saturated ? " (saturated highlights)" : "");
+                } else
                         printf(" not located (no highlight)");
                 if (lr->have_intensity)
                         printf(", intensity %.5f ± %.2f %%", lr->li.intensity, 100 * lr->li.rel_sigma);
@@ -483,142 +797,159 @@ static void report_lights(const struct lights_args *a, const struct imp_sphere *
         }
 }
 
-/* Keeps the direction of `pos` from the dome centre, sets its range to the dome radius. */
-static void onto_dome(const double dome[4], double pos[3]) {
-        double d[3] = { pos[0] - dome[0], pos[1] - dome[1], pos[2] - dome[2] };
-        double len = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-        if (!(len > 0))
-                return;
-        for (int k = 0; k < 3; k++)
-                pos[k] = dome[k] + d[k] * dome[3] / len;
-}
-
 static int run_lights(const struct lights_args *a) {
         struct imp_error err = {};
-        _cleanup_(imp_captureset_closep) struct imp_captureset *cs = NULL;
-        int r = imp_captureset_open(a->set, &cs, &err);
-        if (r < 0)
-                return log_error("calibrate lights: %s", err.msg), EXIT_BADINPUT;
         struct imp_rig file_rig = {};
-        const struct imp_rig *set_rig = imp_captureset_rig(cs);
-        if (a->rig) {
-                if ((r = imp_rig_load(a->rig, &file_rig, &err)) < 0)
-                        return log_error("calibrate lights: %s", err.msg), EXIT_BADINPUT;
-        }
-        const struct imp_rig *cam_rig = a->rig ? &file_rig : set_rig;
-        int ci = camera_index(cam_rig, a->camera);
-        int ret = EXIT_BADINPUT;
-        struct light_frame *lf = NULL;
+        if (a->rig && imp_rig_load(a->rig, &file_rig, &err) < 0)
+                return log_error("calibrate lights: %s", err.msg), EXIT_BADINPUT;
+        static struct capture caps[MAX_SETS];
+        int ret = EXIT_BADINPUT, n_caps = 0, r;
         struct light_result *res = NULL;
-        struct imp_image *dark = NULL;
-        if (ci < 0) {
-                log_error("calibrate lights: no camera '%s' in the rig", a->camera ? a->camera : "(any)");
-                goto out_rig;
-        }
-        const struct imp_rig_camera *cam = &cam_rig->cameras[ci];
-        /* the first frame of each dome light seen by this camera */
-        lf = calloc(imp_captureset_count(cs) + 1, sizeof *lf);
-        res = calloc(imp_captureset_count(cs) + 1, sizeof *res);
-        if (!lf || !res) {
+        const struct imp_rig *rig0 = NULL;
+        for (int c = 0; c < a->n_sets; c++, n_caps++)
+                if (capture_open(&caps[c], &a->sets[c], a, a->rig ? &file_rig : NULL, rig0) < 0 ||
+                    capture_spheres(&caps[c], a) < 0)
+                        goto out;
+                else if (!rig0)
+                        rig0 = imp_captureset_rig(caps[0].cs);
+        int n = rig0->n_lights;
+        if (!(res = calloc((size_t) n + 1, sizeof *res))) {
                 ret = 1;
-                goto out_rig;
+                goto out;
         }
-        int n_lf = 0;
-        for (size_t i = 0; i < imp_captureset_count(cs); i++) {
-                const struct imp_frame_record *rec = imp_captureset_record(cs, i);
-                if (rec->light < 0 || strcmp(rec->camera, cam->name) || rec->pattern.kind != IMP_PAT_NONE)
+        for (int i = 0; i < n; i++)
+                res[i].id = rig0->lights[i].id;
+        /* rays of every light from every capture, pooled */
+        for (int c = 0; c < n_caps; c++)
+                for (int i = 0; i < caps[c].n_lf; i++) {
+                        struct light_result *lr = &res[caps[c].lf[i].light];
+                        if ((r = capture_rays(&caps[c], &caps[c].lf[i], lr, &err)) < 0) {
+                                log_error("calibrate lights: light %d: %s", lr->id, err.msg[0] ? err.msg : strerror(-r));
+                                ret = 1;
+                                goto out;
+                        }
+                }
+        int n_ill = 0, n_sat = 0;
+        for (int i = 0; i < n; i++) {
+                struct light_result *lr = &res[i];
+                if (!lr->n_highlights)
                         continue;
-                int li = -1;
-                for (int k = 0; k < set_rig->n_lights; k++)
-                        if (set_rig->lights[k].id == rec->light)
-                                li = k;
-                bool seen = false;
-                for (int k = 0; k < n_lf; k++)
-                        seen |= lf[k].light == li;
-                if (li >= 0 && !seen)
-                        lf[n_lf++] = (struct light_frame) { i, li };
-        }
-        if (!n_lf) {
-                log_error("calibrate lights: %s has no dome frames of camera %s", a->set, cam->name);
-                goto out_rig;
-        }
-        r = mean_dark(cs, cam->name, -1, &dark, &err);
-        if (r < 0) {
-                log_error("calibrate lights: %s", err.msg);
-                goto out_rig;
-        }
-        if (r == 0)
-                log_warning("%s: no dark frames, using the black level %.1f DN", a->set, cam->sensor.black_level_dn);
-        struct crop crops[MAX_SPHERES];
-        struct imp_sphere sph[MAX_SPHERES];
-        for (int s = 0; s < a->n_spheres; s++) {
-                crops[s] = sphere_crop(&cam->model, &a->spheres[s]);
-                if (crops[s].w < 16 || crops[s].h < 16) {
-                        log_error("calibrate lights: sphere %d at (%g, %g) is not in the view of %s", s, a->spheres[s].x,
-                                  a->spheres[s].y, cam->name);
-                        goto out_rig;
+                if ((r = imp_lights_triangulate(lr->n_highlights, (const double (*)[3]) lr->o, (const double (*)[3]) lr->d,
+                                                lr->sg, NULL, &lr->est)) < 0) {
+                        log_error_errno(r, "calibrate lights: light %d: triangulation failed", lr->id);
+                        ret = 1;
+                        goto out;
+                }
+                lr->have_pos = true;
+                if (lr->n_saturated)
+                        lr->est.flags |= IMP_LIGHT_SATURATED, n_sat++;
+                if (lr->est.flags & IMP_LIGHT_ILL_CONDITIONED) {
+                        n_ill++;
+                        log_warning("light %d: rays nearly parallel (cond %.3g, %d rays): its range is not determined "
+                                    "(σ %.0f mm)%s", lr->id, lr->est.cond, lr->n_highlights, lr->est.sigma_mm,
+                                    a->dome[3] > 0 ? ", the dome radius fixes it" : "; spread the spheres or add --dome");
+                }
+                if (a->dome[3] > 0) {
+                        onto_dome(a->dome, &lr->est, &lr->dome);
+                        lr->have_dome = true;
                 }
         }
-        r = fit_spheres(cs, lf, n_lf, dark, cam, a, crops, sph, &err);
-        if (r < 0) {
-                log_error("calibrate lights: %s", err.msg);
-                goto out_rig;
-        }
-        for (int i = 0; i < n_lf; i++) {
-                const struct imp_frame_record *rec = imp_captureset_record(cs, lf[i].index);
-                const struct imp_rig_light *nominal = &set_rig->lights[lf[i].light];
+        if (n_sat)
+                log_warning("%d lights used saturated highlights (centroid of the clipped blob, σ ≥ 0.25 px); add a "
+                            "shorter exposure to the plan", n_sat);
+        /* intensity and colour from the first capture's white board */
+        const struct capture *c0 = &caps[0];
+        for (int i = 0; i < c0->n_lf; i++) {
+                const struct imp_frame_record *rec = imp_captureset_record(c0->cs, c0->lf[i].index[0]);
+                struct light_result *lr = &res[c0->lf[i].light];
+                const struct imp_rig_light *nominal = &rig0->lights[c0->lf[i].light];
+                if (!lr->have_pos) {
+                        log_warning("light %d: no highlight on any sphere, keeping the nominal position, ignoring", lr->id);
+                        continue;
+                }
+                const double *pos = lr->have_dome ? lr->dome.pos_mm : lr->est.pos_mm;
                 _cleanup_image_ struct imp_image *f = NULL, *v = NULL;
-                res[i].id = nominal->id;
-                r = imp_captureset_load_frame(cs, lf[i].index, &f, &err);
+                r = imp_captureset_load_frame(c0->cs, c0->lf[i].index[0], &f, &err);
                 if (r >= 0)
-                        r = locate_light(f, dark, cam, a, crops, sph, &res[i]);
-                if (r < 0) {
-                        log_error("calibrate lights: light %d: %s", nominal->id, err.msg[0] ? err.msg : strerror(-r));
-                        ret = 1;
-                        goto out_rig;
-                }
-                if (res[i].have_pos && a->dome[3] > 0)
-                        onto_dome(a->dome, res[i].est.pos_mm);
-                if (!res[i].have_pos) {
-                        log_warning("light %d: no highlight on any sphere, keeping the nominal position, ignoring",
-                                    nominal->id);
-                        continue;
-                }
-                r = white_values(f, dark, cam, a, res[i].est.pos_mm, rec->exposure_us, rec->gain_db, &v);
+                        r = white_values(f, c0, a, pos, rec->exposure_us, rec->gain_db, &v);
                 if (r >= 0)
-                        r = light_intensity(v, cam, a->plane_z_mm, nominal, res[i].est.pos_mm, &res[i].li);
+                        r = light_intensity(v, c0->cam, c0->plane_z_mm, nominal, pos, &lr->li);
                 if (r == -ENOENT)
-                        log_warning("light %d: no white target pixel, intensity not measured, ignoring", nominal->id);
+                        log_warning("light %d: no white target pixel, intensity not measured, ignoring", lr->id);
                 else if (r < 0) {
+                        log_error_errno(r, "calibrate lights: light %d: %s", lr->id, err.msg[0] ? err.msg : "intensity");
                         ret = 1;
-                        goto out_rig;
+                        goto out;
                 }
-                res[i].have_intensity = r >= 0;
+                lr->have_intensity = r >= 0;
         }
-        report_lights(a, sph, res, n_lf);
-        ret = write_outputs(a, set_rig, cam, res, lf, n_lf, cs);
-out_rig:
-        imp_image_free(dark);
-        free(lf);
+        if (n_ill)
+                log_warning("%d of %d lights ill-conditioned", n_ill, n);
+        report_lights(a, caps, n_caps, res, n);
+        ret = write_outputs(a, rig0, c0, res);
+out:
+        for (int c = 0; c < n_caps + (n_caps < a->n_sets); c++)
+                capture_free(&caps[c]);
         free(res);
         if (a->rig)
                 imp_rig_free(&file_rig);
         return ret;
 }
 
-int imp_calibrate_lights_main(int argc, char **argv) {
-        struct lights_args a = { .white = { 0, 0, -1, -1 } };
+/* --import-lp: an RTI light-position file into a copy of a rig, lights in file order. */
+static int run_import_lp(const struct lights_args *a) {
+        struct imp_error err = {};
+        struct imp_rig rig = {};
+        _cleanup_(imp_captureset_closep) struct imp_captureset *cs = NULL;
+        int r;
+        if (a->rig)
+                r = imp_rig_load(a->rig, &rig, &err);
+        else if ((r = imp_captureset_open(a->sets[0].dir, &cs, &err)) >= 0)
+                r = imp_rig_copy(imp_captureset_rig(cs), &rig);
+        if (r < 0)
+                return log_error("calibrate lights: %s", err.msg[0] ? err.msg : "out of memory"), EXIT_BADINPUT;
+        int n = 0, ret = EXIT_BADINPUT;
+        struct imp_rig_light *L = NULL;
+        bool near = false;
+        r = imp_lights_lp_read(a->import_lp, a->dome, a->dome[3], &n, &L, NULL, &near, &err);
+        if (r < 0)
+                log_error("calibrate lights: %s", err.msg);
+        else if (!near && !(a->dome[3] > 0))
+                log_error("calibrate lights: %s holds directions: give --dome CX,CY,CZ,R to place them", a->import_lp);
+        else if (n != rig.n_lights)
+                log_error("calibrate lights: %s has %d lights, the rig %d", a->import_lp, n, rig.n_lights);
+        else {
+                for (int i = 0; i < n; i++)
+                        memcpy(rig.lights[i].pos_mm, L[i].pos_mm, sizeof L[i].pos_mm);
+                ret = 0;
+                if ((r = imp_rig_save(a->out, &rig, &err)) < 0) {
+                        log_error_errno(r, "calibrate lights: %s", err.msg);
+                        ret = 1;
+                } else
+                        log_info("%s: %d light positions from %s (%s)", a->out, n, a->import_lp,
+                                 near ? "near-field, mm" : "directions on the dome");
+        }
+        free(L);
+        imp_rig_free(&rig);
+        return ret;
+}
+
+static int lights_main(int argc, char **argv, struct lights_args *a) {
         for (int i = 1; i < argc; i++) {
                 const char *o = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
                 int n;
                 if (!strcmp(o, "--help") || !strcmp(o, "-h"))
                         return usage_lights(stdout), 0;
                 if (!strcmp(o, "--json")) {
-                        a.json = true;
+                        a->json = true;
                         continue;
                 }
                 if (!strcmp(o, "--lp-near-field")) {
-                        a.lp_near_field = true;
+                        a->lp_near_field = true;
+                        continue;
+                }
+                if (!strcmp(o, "--hemispheres")) {
+                        a->sphere_cut_mm = 0;
                         continue;
                 }
                 if (!val) {
@@ -626,33 +957,44 @@ int imp_calibrate_lights_main(int argc, char **argv) {
                         return usage_lights(stderr), EXIT_USAGE;
                 }
                 i++;
-                if (!strcmp(o, "--set"))
-                        a.set = val;
-                else if (!strcmp(o, "--rig"))
-                        a.rig = val;
+                if (!strcmp(o, "--set")) {
+                        if (parse_set(val, a) < 0)
+                                return EXIT_USAGE;
+                } else if (!strcmp(o, "--rig"))
+                        a->rig = val;
                 else if (!strcmp(o, "--lp"))
-                        a.lp = val;
+                        a->lp = val;
+                else if (!strcmp(o, "--import-lp"))
+                        a->import_lp = val;
                 else if (!strcmp(o, "--out"))
-                        a.out = val;
+                        a->out = val;
                 else if (!strcmp(o, "--camera"))
-                        a.camera = val;
+                        a->camera = val;
                 else if (!strcmp(o, "--spheres")) {
-                        if (parse_spheres(val, &a) < 0)
+                        if (parse_spheres(val, a) < 0)
+                                return EXIT_USAGE;
+                } else if (!strcmp(o, "--sphere-radius")) {
+                        if (parse_list(o, val, &a->sphere_radius_mm, 1, 1, &n) < 0 || !(a->sphere_radius_mm > 0)) {
+                                log_error("--sphere-radius: expected a radius > 0 mm");
+                                return EXIT_USAGE;
+                        }
+                } else if (!strcmp(o, "--sphere-cut")) {
+                        if (parse_list(o, val, &a->sphere_cut_mm, 1, 1, &n) < 0)
                                 return EXIT_USAGE;
                 } else if (!strcmp(o, "--plane-z")) {
-                        if (parse_list(o, val, &a.plane_z_mm, 1, 1, &n) < 0)
+                        if (parse_list(o, val, &a->plane_z_mm, 1, 1, &n) < 0)
                                 return EXIT_USAGE;
                 } else if (!strcmp(o, "--dome")) {
-                        if (parse_list(o, val, a.dome, 4, 4, &n) < 0)
+                        if (parse_list(o, val, a->dome, 4, 4, &n) < 0)
                                 return EXIT_USAGE;
-                        if (!(a.dome[3] > 0)) {
+                        if (!(a->dome[3] > 0)) {
                                 log_error("--dome: the radius must be > 0");
                                 return EXIT_USAGE;
                         }
                 } else if (!strcmp(o, "--white")) {
-                        if (parse_list(o, val, a.white, 4, 4, &n) < 0)
+                        if (parse_list(o, val, a->white, 4, 4, &n) < 0)
                                 return EXIT_USAGE;
-                        if (!(a.white[2] > a.white[0] && a.white[3] > a.white[1])) {
+                        if (!(a->white[2] > a->white[0] && a->white[3] > a->white[1])) {
                                 log_error("--white: expected X0 < X1 and Y0 < Y1");
                                 return EXIT_USAGE;
                         }
@@ -661,12 +1003,31 @@ int imp_calibrate_lights_main(int argc, char **argv) {
                         return usage_lights(stderr), EXIT_USAGE;
                 }
         }
-        if (!a.set || !a.n_spheres) {
-                log_error("calibrate lights: --set and --spheres are required (sphere detection is not "
-                          "implemented: give their positions)");
+        if (a->import_lp) {
+                if (!a->out || (!a->rig && !a->n_sets)) {
+                        log_error("calibrate lights: --import-lp needs --out and --rig or --set");
+                        return usage_lights(stderr), EXIT_USAGE;
+                }
+                return run_import_lp(a);
+        }
+        if (!a->n_sets || (!a->n_spheres && !(a->sphere_radius_mm > 0))) {
+                log_error("calibrate lights: --set and --sphere-radius (detection) or --spheres are required");
                 return usage_lights(stderr), EXIT_USAGE;
         }
-        return run_lights(&a);
+        if (a->n_spheres && a->n_sets > 1) {
+                log_error("calibrate lights: --spheres gives positions in one set; with several sets use "
+                          "--sphere-radius (detection)");
+                return EXIT_USAGE;
+        }
+        return run_lights(a);
+}
+
+int imp_calibrate_lights_main(int argc, char **argv) {
+        struct lights_args a = { .white = { 0, 0, -1, -1 }, .sphere_cut_mm = NAN };
+        int r = lights_main(argc, argv, &a);
+        for (int i = 0; i < a.n_sets; i++)
+                free((char *) a.sets[i].dir);
+        return r;
 }
 
 /* ---- radiometric ---- */

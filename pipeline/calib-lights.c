@@ -136,6 +136,32 @@ static bool find_edge(const struct imp_image *img, const double c[2], double ang
         return false;
 }
 
+/* Edge points (full-frame pixels, image offset x0, y0) along SILHOUETTE_PROFILES radial
+ * profiles from c (image coordinates) between 0.5 and 1.5 ρ: the first crossing of `thr`
+ * from outside inwards, refined at the local half level (the background and the body
+ * EDGE_LEVEL_OFFSET_PX either side). Returns the number found. */
+static int profile_edges(const struct imp_image *img, const double c[2], double rho, double thr, int x0, int y0,
+                         struct edge *edges) {
+        int ne = 0;
+        for (int k = 0; k < SILHOUETTE_PROFILES; k++) {
+                double ang = 2 * M_PI * k / SILHOUETTE_PROFILES, r;
+                if (!find_edge(img, c, ang, 0.5 * rho, 1.5 * rho, thr, &r))
+                        continue;
+                double ca = cos(ang), sa = sin(ang);
+                double vo = bilinear(img, c[0] + (r + EDGE_LEVEL_OFFSET_PX) * ca, c[1] + (r + EDGE_LEVEL_OFFSET_PX) * sa);
+                double vi = bilinear(img, c[0] + (r - EDGE_LEVEL_OFFSET_PX) * ca, c[1] + (r - EDGE_LEVEL_OFFSET_PX) * sa);
+                if (isnan(vo) || isnan(vi) || !(vo > vi))
+                        continue;
+                double r2;
+                if (!find_edge(img, c, ang, r - EDGE_LEVEL_OFFSET_PX, r + EDGE_LEVEL_OFFSET_PX, 0.5 * (vo + vi), &r2))
+                        continue;
+                edges[ne].px[0] = x0 + c[0] + r2 * ca;
+                edges[ne].px[1] = y0 + c[1] + r2 * sa;
+                ne++;
+        }
+        return ne;
+}
+
 static int collect_edges(const struct imp_frame_view *vw, struct edge *edges, double ret_c[2], double *ret_rho) {
         const struct imp_image *img = vw->img;
         size_t n = (size_t) img->width * img->height;
@@ -156,24 +182,7 @@ static int collect_edges(const struct imp_frame_view *vw, struct edge *edges, do
         if (cnt < 16)
                 return -ENOENT;
         double c[2] = { sx / cnt, sy / cnt }, rho = sqrt(cnt / M_PI);
-        int ne = 0;
-        for (int k = 0; k < SILHOUETTE_PROFILES; k++) {
-                double ang = 2 * M_PI * k / SILHOUETTE_PROFILES, r;
-                if (!find_edge(img, c, ang, 0.5 * rho, 1.5 * rho, thr, &r))
-                        continue;
-                /* local half level: the background and the sphere body next to this edge */
-                double ca = cos(ang), sa = sin(ang);
-                double vo = bilinear(img, c[0] + (r + EDGE_LEVEL_OFFSET_PX) * ca, c[1] + (r + EDGE_LEVEL_OFFSET_PX) * sa);
-                double vi = bilinear(img, c[0] + (r - EDGE_LEVEL_OFFSET_PX) * ca, c[1] + (r - EDGE_LEVEL_OFFSET_PX) * sa);
-                if (isnan(vo) || isnan(vi) || !(vo > vi))
-                        continue;
-                double r2;
-                if (!find_edge(img, c, ang, r - EDGE_LEVEL_OFFSET_PX, r + EDGE_LEVEL_OFFSET_PX, 0.5 * (vo + vi), &r2))
-                        continue;
-                edges[ne].px[0] = vw->x0 + c[0] + r2 * ca;
-                edges[ne].px[1] = vw->y0 + c[1] + r2 * sa;
-                ne++;
-        }
+        int ne = profile_edges(img, c, rho, thr, vw->x0, vw->y0, edges);
         ret_c[0] = c[0];
         ret_c[1] = c[1];
         *ret_rho = rho;
@@ -208,18 +217,171 @@ static bool circle_fit(const struct edge *e, int n, double ret_c[2], double *ret
         return true;
 }
 
-/* Gauss–Newton on the tangency residuals dist(C, ray_i) − r; np = 2 holds C_z. */
-static int fit_centre(const double (*d)[3], int n, const double O[3], double r, int np, double C[3],
-                      double *ret_rms) {
+/* ---- sphere detection ---- */
+
+struct component {
+        long count;
+        int xa, xb, ya, yb;
+        bool border;
+};
+
+/* 8-connected component of pixels marked 1 in `lab` from seed k (marks them 2). */
+static struct component flood(uint8_t *lab, int W, int H, int k, int *stack) {
+        struct component c = { .xa = W, .ya = H, .xb = -1, .yb = -1 };
+        int ns = 0;
+        stack[ns++] = k;
+        lab[k] = 2;
+        while (ns > 0) {
+                int q = stack[--ns], x = q % W, y = q / W;
+                c.count++;
+                c.xa = IMP_MIN(c.xa, x); c.xb = IMP_MAX(c.xb, x);
+                c.ya = IMP_MIN(c.ya, y); c.yb = IMP_MAX(c.yb, y);
+                c.border |= x == 0 || y == 0 || x == W - 1 || y == H - 1;
+                for (int dy = -1; dy <= 1; dy++)
+                        for (int dx = -1; dx <= 1; dx++) {
+                                int xn = x + dx, yn = y + dy;
+                                if (xn < 0 || yn < 0 || xn >= W || yn >= H || lab[yn * W + xn] != 1)
+                                        continue;
+                                lab[yn * W + xn] = 2;
+                                stack[ns++] = yn * W + xn;
+                        }
+        }
+        return c;
+}
+
+/* Robust circle: Kåsa, then passes that drop the points beyond max(3 × 1.4826 MAD, 0.5 px). */
+static bool robust_circle(struct edge *e, int n, double *res, struct imp_sphere_circle *ret) {
+        double c[2], r;
+        for (int pass = 0; pass < 4; pass++) {
+                if (n < SILHOUETTE_MIN_EDGES || !circle_fit(e, n, c, &r))
+                        return false;
+                for (int i = 0; i < n; i++)
+                        res[i] = fabs(hypot(e[i].px[0] - c[0], e[i].px[1] - c[1]) - r);
+                if (pass == 3)
+                        break;
+                _cleanup_free_ double *sorted = malloc((size_t) n * sizeof *sorted);
+                if (!sorted)
+                        return false;
+                memcpy(sorted, res, (size_t) n * sizeof *sorted);
+                qsort(sorted, (size_t) n, sizeof *sorted, cmp_double);
+                double lim = IMP_MAX(3 * 1.4826 * sorted[n / 2], 0.5);
+                int m = 0;
+                for (int i = 0; i < n; i++)
+                        if (res[i] <= lim)
+                                e[m++] = e[i];
+                n = m;
+        }
+        double ss = 0;
+        for (int i = 0; i < n; i++)
+                ss += res[i] * res[i];
+        *ret = (struct imp_sphere_circle) { .centre_px = { c[0], c[1] }, .radius_px = r, .rms_px = sqrt(ss / n),
+                                            .n_edge = n };
+        return true;
+}
+
+/* Reading order: rows of `band` pixels, then x (insertion sort, a handful of circles). */
+static void sort_circles(struct imp_sphere_circle *c, int n, double band) {
+        for (int i = 1; i < n; i++)
+                for (int j = i; j > 0; j--) {
+                        const struct imp_sphere_circle *p = &c[j - 1], *q = &c[j];
+                        double rp = floor(p->centre_px[1] / band), rq = floor(q->centre_px[1] / band);
+                        if (rp < rq || (rp == rq && p->centre_px[0] <= q->centre_px[0]))
+                                break;
+                        struct imp_sphere_circle t = c[j - 1];
+                        c[j - 1] = c[j];
+                        c[j] = t;
+                }
+}
+
+int imp_lights_sphere_detect(const struct imp_frame_view *v, double min_radius_px, double max_radius_px,
+                             struct imp_sphere_circle *ret, int max) {
+        if (!v || !v->img || (max > 0 && !ret) || !(min_radius_px > 2) || !(max_radius_px >= min_radius_px))
+                return -EINVAL;
+        const struct imp_image *img = v->img;
+        int W = img->width, H = img->height;
+        size_t n = (size_t) W * H, m = 0;
+        if (W < 8 || H < 8)
+                return -EINVAL;
+        _cleanup_free_ double *vals = malloc((n / 4 + 1) * sizeof *vals);
+        _cleanup_free_ uint8_t *lab = calloc(n, 1);
+        _cleanup_free_ int *stack = malloc(n * sizeof *stack);
+        _cleanup_free_ struct edge *edges = calloc(SILHOUETTE_PROFILES, sizeof *edges);
+        _cleanup_free_ double *res = calloc(SILHOUETTE_PROFILES, sizeof *res);
+        if (!vals || !lab || !stack || !edges || !res)
+                return -ENOMEM;
+        for (size_t k = 0; k < n; k += 4) {   /* every 4th pixel is plenty for two percentiles */
+                double val = view_get(v, (int) (k % W), (int) (k / W), 0);
+                if (isfinite(val))
+                        vals[m++] = val;
+        }
+        if (m < 16)
+                return 0;
+        qsort(vals, m, sizeof *vals, cmp_double);
+        double thr = 0.5 * (vals[m / 20] + vals[m * 19 / 20]);
+        if (!(vals[m * 19 / 20] > vals[m / 20]))
+                return 0;
+        for (int y = 0; y < H; y++)
+                for (int x = 0; x < W; x++)
+                        lab[(size_t) y * W + x] = view_get(v, x, y, 0) < thr;   /* NaN: not dark */
+        int found = 0;
+        for (size_t k = 0; k < n; k++) {
+                if (lab[k] != 1)
+                        continue;
+                struct component c = flood(lab, W, H, (int) k, stack);
+                double rb = 0.25 * (c.xb - c.xa + 1 + c.yb - c.ya + 1);
+                /* a disc fills π/4 of its box: a ring, a line or a shadow's sliver does not */
+                if (c.border || rb < min_radius_px || rb > max_radius_px || c.count < 0.6 * M_PI * rb * rb)
+                        continue;
+                double cc[2] = { 0.5 * (c.xa + c.xb), 0.5 * (c.ya + c.yb) };
+                int ne = profile_edges(img, cc, rb, thr, v->x0, v->y0, edges);
+                struct imp_sphere_circle circ;
+                if (ne < 0.7 * SILHOUETTE_PROFILES || !robust_circle(edges, ne, res, &circ) ||
+                    circ.n_edge < 0.7 * SILHOUETTE_PROFILES || !(circ.rms_px < 0.1 * circ.radius_px) ||
+                    circ.radius_px < min_radius_px || circ.radius_px > max_radius_px)
+                        continue;
+                if (found < max)
+                        ret[found] = circ;
+                found++;
+        }
+        if (ret)
+                sort_circles(ret, IMP_MIN(found, max), 0.25 * H);
+        return found;
+}
+
+/* Residual and Jacobian (in C) of one edge ray (origin O, unit direction d) for a sphere of
+ * radius r at C: tangency dist(C, ray) − r, or for a sphere cut at C_z + cut (finite) whose
+ * closest ray point lies below the cut, the rim's: |crossing of the cut plane − C|_xy − a. */
+static double edge_residual(const double O[3], const double d[3], const double C[3], double r, double cut,
+                            double J[3]) {
+        double w[3] = { C[0] - O[0], C[1] - O[1], C[2] - O[2] }, s = dot3(w, d), u[3];
+        for (int k = 0; k < 3; k++)
+                u[k] = w[k] - s * d[k];   /* from the closest ray point to C */
+        if (isfinite(cut) && u[2] > -cut && fabs(d[2]) > 1e-12) {
+                double t = (w[2] + cut) / d[2], e[2] = { O[0] + t * d[0] - C[0], O[1] + t * d[1] - C[1] };
+                double l = hypot(e[0], e[1]);
+                if (l > 0) {
+                        J[0] = -e[0] / l;
+                        J[1] = -e[1] / l;
+                        J[2] = (e[0] * d[0] + e[1] * d[1]) / (l * d[2]);
+                        return l - sqrt(IMP_MAX(r * r - cut * cut, 0.0));
+                }
+        }
+        double dist = norm3(u);
+        for (int k = 0; k < 3; k++)
+                J[k] = dist > 0 ? u[k] / dist : 0;
+        return dist - r;
+}
+
+/* Gauss–Newton on the edge residuals; np = 2 holds C_z. ret_sigma: √λmax of the centre's
+ * covariance (JᵀJ)⁻¹ · rms² at the solution. */
+static int fit_centre(const double (*d)[3], int n, const double O[3], double r, int np, double cut, double C[3],
+                      double *ret_rms, double *ret_sigma) {
         for (int it = 0; it < FIT_MAX_ITER; it++) {
                 double JtJ[9] = { 0 }, Jtr[3] = { 0 }, ss = 0;
                 for (int i = 0; i < n; i++) {
-                        double w[3] = { C[0] - O[0], C[1] - O[1], C[2] - O[2] }, s = dot3(w, d[i]), u[3];
-                        for (int k = 0; k < 3; k++)
-                                u[k] = w[k] - s * d[i][k];
-                        double dist = norm3(u), res = dist - r, J[3];
-                        for (int k = 0; k < 3; k++)
-                                J[k] = k < np ? u[k] / dist : 0;
+                        double J[3], res = edge_residual(O, d[i], C, r, cut, J);
+                        if (np == 2)
+                                J[2] = 0;
                         for (int a = 0; a < 3; a++) {
                                 Jtr[a] += J[a] * res;
                                 for (int b = 0; b < 3; b++)
@@ -239,14 +401,20 @@ static int fit_centre(const double (*d)[3], int n, const double O[3], double r, 
                 *ret_rms = sqrt(ss / n);
                 if (!isfinite(sn))
                         return -EDOM;
-                if (sqrt(sn) < FIT_STEP_TOL_MM)
+                if (sqrt(sn) < FIT_STEP_TOL_MM) {
+                        if (np == 2)
+                                Ji[8] = 0;
+                        double l[3], V[9];
+                        eig3(Ji, l, V);
+                        *ret_sigma = sqrt(IMP_MAX(l[2], 0.0) * ss / IMP_MAX(n - np, 1));
                         return 0;
+                }
         }
         return -EDOM;
 }
 
 int imp_lights_sphere_fit(const struct imp_pinhole *cam, const struct imp_frame_view *v, double radius_mm,
-                          double plane_z_mm, struct imp_sphere *ret, struct imp_error *err) {
+                          double centre_z_mm, double cut_mm, struct imp_sphere *ret, struct imp_error *err) {
         if (!cam || !v || !v->img || !ret || !(radius_mm > 0) || v->img->width < 8 || v->img->height < 8)
                 return imp_error_set(err, -EINVAL, "sphere fit: bad arguments");
         _cleanup_free_ struct edge *edges = calloc(SILHOUETTE_PROFILES, sizeof *edges);
@@ -263,35 +431,44 @@ int imp_lights_sphere_fit(const struct imp_pinhole *cam, const struct imp_frame_
         if (ne < SILHOUETTE_MIN_EDGES)
                 return imp_error_set(err, -EDOM, "sphere fit: only %d silhouette edge points (need %d)", ne,
                                      SILHOUETTE_MIN_EDGES);
-        double cc[2], rho;
-        if (!circle_fit(edges, ne, cc, &rho))
+        /* edge points of something else in the view (a neighbour, a dark mark) are outliers */
+        _cleanup_free_ double *res = calloc(SILHOUETTE_PROFILES, sizeof *res);
+        struct imp_sphere_circle circ;
+        if (!res)
+                return imp_error_set(err, -ENOMEM, "sphere fit: out of memory");
+        if (!robust_circle(edges, ne, res, &circ))
                 return imp_error_set(err, -EDOM, "sphere fit: the silhouette edge is not a circle");
+        ne = circ.n_edge;
+        double cc[2] = { circ.centre_px[0], circ.centre_px[1] }, rho = circ.radius_px;
         double O[3], d0[3];
         for (int i = 0; i < ne; i++)
                 imp_pinhole_ray_world(cam, edges[i].px, O, dirs[i]);
         imp_pinhole_ray_world(cam, cc, O, d0);
         double C[3], s;
-        bool on_plane = isfinite(plane_z_mm);
+        bool on_plane = isfinite(centre_z_mm);
         if (on_plane && fabs(d0[2]) > 1e-9)
-                s = (plane_z_mm + radius_mm - O[2]) / d0[2];
+                s = (centre_z_mm - O[2]) / d0[2];
         else
                 s = radius_mm * 0.5 * (cam->fx + cam->fy) / rho;
         for (int k = 0; k < 3; k++)
                 C[k] = O[k] + s * d0[k];
-        double rms = 0;
-        int r = fit_centre((const double (*)[3]) dirs, ne, O, radius_mm, on_plane ? 2 : 3, C, &rms);
+        double rms = 0, csig = 0;
+        int r = fit_centre((const double (*)[3]) dirs, ne, O, radius_mm, on_plane ? 2 : 3, cut_mm, C, &rms, &csig);
         if (r < 0 || !isfinite(C[0] + C[1] + C[2]))
                 return imp_error_set(err, -EDOM, "sphere fit: the centre fit did not converge");
-        struct imp_sphere out = { .radius_mm = radius_mm, .n_edge = ne };
+        struct imp_sphere out = { .radius_mm = radius_mm, .n_edge = ne, .centre_sigma_mm = csig, .cut_mm = cut_mm };
         memcpy(out.centre_mm, C, sizeof C);
-        if (!imp_pinhole_project(cam, C, out.image_centre_px))
+        /* a cut sphere's outline is mostly its rim: the image disc is centred on the rim's centre */
+        double Cv[3] = { C[0], C[1], C[2] + (isfinite(cut_mm) ? cut_mm : 0) };
+        if (!imp_pinhole_project(cam, Cv, out.image_centre_px))
                 return imp_error_set(err, -EDOM, "sphere fit: the sphere lies behind the camera");
         double sr = 0, se = 0;
         for (int i = 0; i < ne; i++)
                 sr += hypot(edges[i].px[0] - out.image_centre_px[0], edges[i].px[1] - out.image_centre_px[1]);
         out.image_radius_px = sr / ne;
         /* the edge residual in pixels: tangency error (mm) over the mm per pixel at the sphere */
-        double mm_per_px = radius_mm / out.image_radius_px;
+        double mm_per_px = (isfinite(cut_mm) ? sqrt(IMP_MAX(radius_mm * radius_mm - cut_mm * cut_mm, 1e-12)) : radius_mm) /
+                           out.image_radius_px;
         se = rms / mm_per_px;
         out.rms_px = se;
         *ret = out;
@@ -432,7 +609,8 @@ int imp_lights_reflect(const struct imp_pinhole *cam, const struct imp_sphere *s
                                 ang = acos(IMP_CLAMP(dot3(d, dq), -1.0, 1.0));
                         acc += ang * ang;
                 }
-                *ret_sigma_rad = sqrt(acc / 2);
+                double sc = 2 * IMP_MAX(s->centre_sigma_mm, 0.0) / s->radius_mm;
+                *ret_sigma_rad = sqrt(acc / 2 + sc * sc);
         }
         memcpy(ret_origin, P, sizeof P);
         memcpy(ret_dir, d, sizeof d);

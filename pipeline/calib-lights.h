@@ -20,24 +20,53 @@ struct imp_frame_view {
 struct imp_sphere {
         double centre_mm[3];          /* world */
         double radius_mm;             /* known (given), not estimated */
-        double image_centre_px[2];    /* projection of centre_mm (full-frame pixels) */
+        double image_centre_px[2];    /* projection of centre_mm (of the rim's centre for a cut sphere) */
         double image_radius_px;       /* mean apparent radius of the silhouette */
         double rms_px;                /* RMS of the silhouette edge residuals, pixels */
+        double centre_sigma_mm;       /* 1σ of the fitted centre (worst direction, fit covariance) */
         int n_edge;                   /* edge points used */
+        double cut_mm;                /* the sphere exists above z = C_z + cut_mm only; NAN: whole */
 };
 
 /* Sphere from its silhouette: a dark (glossy black) sphere on a brighter background,
  * wholly inside the view `v`. Edges are found along 360 radial profiles from the centroid
  * of the dark pixels (threshold halfway between the 10th and 90th percentile), each at the
  * crossing of the local half level. The centre C minimises Σ (dist(C, edge ray) − r)²
- * (Gauss–Newton, ≤ 50 iterations, stops when the step < 1e-7 mm). When `plane_z_mm` is
- * finite, C_z = plane_z_mm + radius is held (the sphere rests on that plane; the depth
- * from the cone angle alone is weak), otherwise C_z is fitted too. Initial guess: the ray
- * through the edge points' circle centre at the depth r·f/ρ_px.
+ * (Gauss–Newton, ≤ 50 iterations, stops when the step < 1e-7 mm). When `centre_z_mm` is
+ * finite, C_z = centre_z_mm is held (a ball resting on a plane: plane + r; the depth from
+ * the cone angle alone is weak), otherwise C_z is fitted too. `cut_mm` finite: the sphere
+ * is cut by the plane z = C_z + cut_mm and only the part above exists (0: a half ball on a
+ * board; > 0: a spherical cap, a convex mirror whose rim meets the board at a slant); an
+ * edge ray whose closest point to C lies below the cut is the rim's: its residual is the
+ * distance of its crossing of the cut plane from C minus √(r² − cut²). Initial guess: the
+ * ray through the edge points' circle centre at C_z, or at the depth r·f/ρ_px.
  * -EINVAL bad arguments; -ENOENT no contrast (no silhouette); -EDOM fewer than 32 usable
  * edge points or a non-converged fit. *ret untouched on failure. */
 int imp_lights_sphere_fit(const struct imp_pinhole *cam, const struct imp_frame_view *v, double radius_mm,
-                          double plane_z_mm, struct imp_sphere *ret, struct imp_error *err);
+                          double centre_z_mm, double cut_mm, struct imp_sphere *ret, struct imp_error *err);
+
+/* A dark disc found in an image (image coordinates only). */
+struct imp_sphere_circle {
+        double centre_px[2];          /* full-frame pixels, sub-pixel */
+        double radius_px;
+        double rms_px;                /* RMS radial residual of the edge points kept */
+        int n_edge;                   /* edge points kept (of 360 profiles) */
+};
+
+/* Mirror spheres in an image where the background is bright around each sphere and the
+ * sphere's body dark (the per-pixel maximum over the light frames of a calibration
+ * capture: every canvas pixel is lit in some frame, the body only at its highlights).
+ * Dark pixels (below the midpoint of the 5th and 95th percentiles) form 8-connected
+ * components; each that does not touch the view's border and whose equivalent radius is in
+ * [min_radius_px, max_radius_px] seeds 360 radial profiles from outside inwards (the first
+ * crossing of the local half level, so highlights inside the body do not matter); a
+ * circle is fitted to the edge points (Kåsa, then three passes dropping points beyond
+ * 3 × 1.4826 MAD and 0.5 px). Kept: ≥ 70 % of the profiles give an edge and the RMS is
+ * below 0.1 × radius — a shadow, the canvas border or a blob is no circle. Sorted by
+ * image position (rows of 1/4 image height, then x), at most `max` written.
+ * Returns the number found (≥ 0) or -EINVAL / -ENOMEM. */
+int imp_lights_sphere_detect(const struct imp_frame_view *v, double min_radius_px, double max_radius_px,
+                             struct imp_sphere_circle *ret, int max);
 
 /* ---- highlights ---- */
 
@@ -61,7 +90,9 @@ int imp_lights_highlight(const struct imp_frame_view *v, const struct imp_sphere
 
 /* The reflected ray of a highlight: camera ray through px → first intersection with the
  * sphere → reflection about the sphere normal. ret_sigma_rad (may be NULL) is the angular
- * 1σ of the reflected direction for a centroid 1σ of sigma_px (numerical derivative).
+ * 1σ of the reflected direction for a centroid 1σ of sigma_px (numerical derivative),
+ * combined with that of the sphere centre's 1σ (s->centre_sigma_mm moves the normal by
+ * σ_C/r, the ray by twice that).
  * -EDOM when the pixel ray misses the sphere. */
 int imp_lights_reflect(const struct imp_pinhole *cam, const struct imp_sphere *s, const double px[2],
                        double sigma_px, double ret_origin[3], double ret_dir[3], double *ret_sigma_rad);

@@ -266,14 +266,16 @@ static void add_plane(const struct imp_sim_surface *s, float *h, const struct im
                    h[k] += (float) (L->slope[0] * x + L->slope[1] * y + L->offset_mm));
 }
 
-/* Mirror spheres for light calibration: the upper hemisphere only. Its rim meets the
- * surface vertically, which the sampled heightfield turns into a ramp one sample wide. */
+/* Mirror spheres for light calibration: the part above the surface of a sphere whose
+ * centre lies offset_mm (≤ 0) above it: the upper hemisphere at 0, whose rim meets the
+ * surface vertically (the sampled heightfield turns that into a ramp one sample wide), a
+ * cap with a slanted rim below. */
 static void add_sphere(const struct imp_sim_surface *s, float *h, const struct imp_layer *L) {
-        double r = L->radius_mm, cx = L->centre_mm[0], cy = L->centre_mm[1];
+        double r = L->radius_mm, cx = L->centre_mm[0], cy = L->centre_mm[1], z0 = L->offset_mm;
         FOR_CANVAS(s, cx - r, cx + r, cy - r, cy + r, {
                 double d2 = (x - cx) * (x - cx) + (y - cy) * (y - cy);
-                if (d2 < r * r)
-                        h[k] += (float) sqrt(r * r - d2);
+                if (d2 < r * r && sqrt(r * r - d2) + z0 > 0)
+                        h[k] += (float) (sqrt(r * r - d2) + z0);
         });
 }
 

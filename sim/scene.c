@@ -564,6 +564,7 @@ static int parse_layer(const struct imp_conf *c, const config_setting_t *g, int 
         case IMP_LAYER_SPHERE:
                 TRY(imp_conf_get_doubles(c, g, "centre_mm", true, 2, L->centre_mm, 2, NULL, err));
                 TRY(imp_conf_get_double(c, g, "radius_mm", true, 1e-2, 1e3, &L->radius_mm, err));
+                TRY(imp_conf_get_double(c, g, "offset_mm", false, -0.99 * L->radius_mm, 0, &L->offset_mm, err));
                 break;
         case IMP_LAYER_FILE: {
                 const char *p = NULL;

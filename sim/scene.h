@@ -120,7 +120,9 @@ struct imp_layer {
         char path[512];               /* FILE: EXR/PNG/TIFF, first channel, spans the canvas */
         double slope[2];              /* PLANE: z += slope[0]·x + slope[1]·y + offset_mm (a flat
                                          board tilted by atan(|slope|) about the axis ⟂ slope) */
-        double offset_mm;             /* PLANE */
+        double offset_mm;             /* PLANE; SPHERE: centre height over the surface (≤ 0: a
+                                         buried centre leaves a spherical cap whose rim meets
+                                         the surface at a slant instead of vertically) */
         double centre_mm[2];          /* SPHERE: centre above canvas point (x, y) */
         double radius_mm;             /* SPHERE: z += √(r² − d²) for d < r, the upper half of
                                          a sphere whose centre lies on the surface below it

@@ -4,3 +4,5 @@ impasto_test(test-calib-radiometric LIBS impasto_pipeline TIMEOUT 60)
 impasto_test(test-calib-lights LIBS impasto_pipeline TIMEOUT 60)
 # Saturated highlights, near-parallel rays: flags, inflated σ, finite outputs.
 impasto_test(test-calib-lights-stability LABELS stability LIBS impasto_pipeline TIMEOUT 60)
+# Mirror-sphere detection in a max-over-lights image, balls, half balls and caps (analytic).
+impasto_test(test-calib-lights-detect LIBS impasto_pipeline TIMEOUT 60)

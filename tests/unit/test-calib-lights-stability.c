@@ -1,6 +1,7 @@
 /* Degenerate light calibrations: a saturated highlight (flagged, centroid still within
- * 0.3 px, σ ≥ 0.25 px), nearly and exactly parallel rays (IMP_LIGHT_ILL_CONDITIONED, σ
- * larger than the well-conditioned case, finite values), one ray, NaN refused. */
+ * 0.3 px, σ ≥ 0.25 px, and that σ carried into the reflected ray with the sphere centre's),
+ * nearly and exactly parallel rays (IMP_LIGHT_ILL_CONDITIONED, σ larger than the
+ * well-conditioned case, finite values), one ray, NaN refused. */
 #include <math.h>
 #include <stdint.h>
 #include "calib-lights.h"
@@ -109,8 +110,30 @@ static void test_collinear(void) {
         CHECK_NEAR(keep.sigma_mm, -7, 0);
 }
 
+/* A saturated highlight's σ and the sphere centre's σ both reach the reflected ray. */
+static void test_ray_sigma(void) {
+        struct imp_pinhole cam = { .width = 1400, .height = 1000, .fx = 6000, .fy = 6000, .cx = 699.5, .cy = 499.5 };
+        double eye[3] = { 0, 0, 300 }, at[3] = { 0, 0, 0 }, right[3] = { 1, 0, 0 }, o[3], d[3];
+        imp_pinhole_look_at(&cam, eye, at, right);
+        struct imp_sphere s = { .centre_mm = { 0, 0, 10 }, .radius_mm = 10, .cut_mm = NAN };
+        const double px[2] = { 760.3, 470.8 };
+        double s_sharp, s_sat, s_centre;
+        CHECK_OK(imp_lights_reflect(&cam, &s, px, 0.02, o, d, &s_sharp));
+        CHECK_OK(imp_lights_reflect(&cam, &s, px, 0.25, o, d, &s_sat));
+        s.centre_sigma_mm = 0.005;
+        CHECK_OK(imp_lights_reflect(&cam, &s, px, 0.02, o, d, &s_centre));
+        fprintf(stderr, "ray σ: %.2e rad (0.02 px), %.2e (saturated, 0.25 px), %.2e (+ 5 µm centre)\n", s_sharp, s_sat,
+                s_centre);
+        CHECK_NEAR(s_sat / s_sharp, 12.5, 1.0);
+        CHECK_NEAR(s_centre, hypot(s_sharp, 2 * 0.005 / 10), 1e-6);
+        /* a pixel off the sphere: no ray */
+        const double off[2] = { 1300, 900 };
+        CHECK_ERR(imp_lights_reflect(&cam, &s, off, 0.02, o, d, &s_sharp), -EDOM);
+}
+
 int main(void) {
         test_saturated();
         test_collinear();
+        test_ray_sigma();
         return TEST_DONE();
 }

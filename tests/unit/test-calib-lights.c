@@ -112,7 +112,7 @@ int main(void) {
                 struct imp_image *img = render_silhouette(&cam, centres[s], x0[s], y0[s]);
                 struct imp_frame_view v = { img, x0[s], y0[s] };
                 struct imp_error err = { 0 };
-                CHECK_OK(imp_lights_sphere_fit(&cam, &v, R_SPHERE, 0.0, &sph[s], &err));
+                CHECK_OK(imp_lights_sphere_fit(&cam, &v, R_SPHERE, R_SPHERE, NAN, &sph[s], &err));
                 double e = hypot(hypot(sph[s].centre_mm[0] - centres[s][0], sph[s].centre_mm[1] - centres[s][1]),
                                  sph[s].centre_mm[2] - centres[s][2]);
                 fprintf(stderr, "sphere %d: centre error %.4f mm, %d edges, rms %.3f px, radius %.1f px\n", s, e,
@@ -121,7 +121,7 @@ int main(void) {
                 CHECK_LE(sph[s].rms_px, 0.2);
                 /* free fit (no plane): still close, depth is the weak direction */
                 struct imp_sphere fr;
-                CHECK_OK(imp_lights_sphere_fit(&cam, &v, R_SPHERE, NAN, &fr, &err));
+                CHECK_OK(imp_lights_sphere_fit(&cam, &v, R_SPHERE, NAN, NAN, &fr, &err));
                 CHECK_LE(fabs(fr.centre_mm[2] - centres[s][2]), 2.0);
                 imp_image_free(img);
         }
