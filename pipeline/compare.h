@@ -9,7 +9,9 @@
  * texels is subtracted before the rmse (reported as height_offset_mm). Texels whose world
  * point falls outside the truth grid or on the truth frame (truth mask 0) are not compared.
  * Normals: the copy normal (nx, ny, √(1−nx²−ny²)) rotated to the world vs the truth normal
- * at the nearest truth sample; mean angle over the compared texels.
+ * at the same point: the normalised bilinear blend of the four surrounding truth samples'
+ * normals, the normal the simulator shades that point with (not the nearest sample, which
+ * is up to half a truth sample off); mean angle over the compared texels.
  * Mask IoU: over the truth grid samples; A = truth canvas mask, B = copy mask at the copy
  * texel nearest to the sample's world point; IoU = |A∩B| / |A∪B| (frame excluded since A
  * excludes it and a copy texel on the frame counts against B). */
@@ -24,9 +26,11 @@ struct imp_compare_result {
         double height_max_abs_um;     /* after offset */
         double normal_err_deg_mean;
         /* The same against truth normals band-limited to the copy's sampling: the truth
-         * canvas heights smoothed by a Gaussian of σ = one copy pitch (canvas samples
-         * only), then central differences. A copy sampled at pitch p cannot hold slopes
-         * of detail finer than ~2p (the demo's 0.2 mm bristle grooves, for instance). */
+         * canvas heights smoothed by a Gaussian of σ = 0.375 copy pitch (response ½ at
+         * the copy's Nyquist frequency; canvas samples only), then central differences,
+         * blended bilinearly like the raw ones. A copy sampled at pitch p cannot hold
+         * detail finer than 2p; what it can hold (the demo's 0.2 mm bristle grooves at
+         * 4 texels per period) is kept. */
         double normal_err_deg_mean_bandlimited;
         double mask_iou;
         /* IoU over the canvas the rig can measure: truth canvas samples that the projector

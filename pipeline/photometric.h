@@ -40,6 +40,10 @@ struct imp_photometric_params {
         double tol_deg;               /* stop when the normal moves less than this (0.01) */
         double geo_sigma_deg;         /* > 0: fuse n = normalise(n_p/σp² + n_g/σg²) with this
                                          σ of the geometric normal; <= 0: replace (0) */
+        int lanczos;                  /* imp_photometric_normals() reads the frames again at
+                                         each sample with a Lanczos kernel of this order
+                                         (1..4; 3) instead of the extractor's bilinear value;
+                                         0: keep the bilinear values */
 };
 void imp_photometric_params_default(struct imp_photometric_params *ret);
 
@@ -66,13 +70,20 @@ struct imp_photometric_stats {
         long n_texels, n_refined, n_few, n_ill, n_dark, n_disagree, n_masked;
         double dev_deg_mean, dev_deg_median;   /* over refined texels */
         double sigma_deg_median, rms_median;   /* over refined texels */
+        long n_resampled;             /* samples whose value was read with the Lanczos kernel
+                                         (the others keep the bilinear value: window off the
+                                         frame or touching a saturated/invalid pixel) */
 };
 
 /* The whole grid: tile by tile, extract the samples (shadow rays on the heightfield) and
  * refine each texel (OpenMP). ret_normal: 3 floats per texel, canvas frame, unit; filled
  * with the refined normal where refined and hf->normal elsewhere (may not alias
- * hf->normal). ret_flags (may be NULL): enum imp_pn_flag per texel. ret_stats may be
- * NULL. Errors as imp_btf_samples_extract(), -ENOMEM. */
+ * hf->normal). ret_normal_bilinear (may be NULL; may alias neither): the same from the
+ * extractor's bilinear values, before the Lanczos re-reading — the normals whose shading
+ * matches frames read bilinearly, as the BTF fit and its validation read them. ret_flags
+ * (may be NULL): enum imp_pn_flag per texel (of ret_normal). ret_stats may be NULL.
+ * Errors as imp_btf_samples_extract(), -EINVAL, -ENOMEM. */
 int imp_photometric_normals(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
                             const struct imp_btf_sample_params *sp, const struct imp_photometric_params *p,
-                            float *ret_normal, uint16_t *ret_flags, struct imp_photometric_stats *ret_stats);
+                            float *ret_normal, float *ret_normal_bilinear, uint16_t *ret_flags,
+                            struct imp_photometric_stats *ret_stats);

@@ -18,6 +18,7 @@
 #include "captureset.h"
 #include "copy-previews.h"
 #include "hdr.h"
+#include "fuse.h"
 #include "heightfield.h"
 #include "json-util.h"
 #include "photometric.h"
@@ -178,6 +179,50 @@ struct geometry_out {
         json_t *stages;
 };
 
+/* Relief boxes of g->hf (replacing g->boxes) and boxes.json. */
+static int classify_boxes(const struct process_opts *o, struct geometry_out *g, struct imp_error *err) {
+        struct imp_boxes_options bo;
+        imp_boxes_options_default(&bo);
+        if (o->opt->cell_px > 0)
+                bo.cell_px = o->opt->cell_px;
+        if (o->opt->delta_frac > 0)
+                bo.delta_frac = o->opt->delta_frac;
+        imp_boxes_done(&g->boxes);
+        int r = imp_boxes_classify(&g->hf, &bo, &g->boxes);
+        if (r < 0)
+                return imp_error_set(err, r, "%s: relief classification failed: %s", o->capture, strerror(-r));
+        char path[4096];
+        snprintf(path, sizeof path, "%s/boxes.json", o->out);
+        return imp_boxes_save(&g->boxes, path, err);
+}
+
+/* Heights from the triangulated positions and the photometric normals (fuse.h, issue #4):
+ * the heights take the normals' detail, the boxes follow the new heights. */
+static int fuse_heights(const struct process_opts *o, struct geometry_out *g, const float *normal,
+                        json_t *stages, struct imp_error *err) {
+        struct imp_heightfield *hf = &g->hf;
+        double t0 = now_s();
+        struct imp_fuse_params fp;
+        struct imp_fuse_stats fs = {};
+        imp_fuse_params_default(&fp);
+        progress(o, "height fusion", 0, 1);
+        int r = imp_fuse_heights(hf->nx, hf->ny, hf->pitch_mm, hf->height_mm, normal, hf->sigma_mm, hf->mask,
+                                 &fp, &fs);
+        if (r < 0)
+                return imp_error_set(err, r, "%s: height fusion failed: %s", o->capture, strerror(-r));
+        r = classify_boxes(o, g, err);
+        if (r < 0)
+                return r;
+        json_object_set_new(json_object_get(stages, "boxes"), "boxes", json_integer((json_int_t) g->boxes.n_boxes));
+        json_object_set_new(stages, "fusion", json_pack("{s:f,s:I,s:I,s:i,s:f,s:f,s:f,s:f,s:f}",
+                "lambda", fp.lambda, "texels", (json_int_t) fs.n_texels, "gradient_rows", (json_int_t) fs.n_rows,
+                "iterations", fs.iterations, "residual_rel", fs.residual_rel, "change_rms_um", fs.change_rms_mm * 1000,
+                "normal_agreement_deg_before", fs.agree_deg_before,
+                "normal_agreement_deg_after", fs.agree_deg_after, "seconds", now_s() - t0));
+        progress(o, "height fusion", 1, 1);
+        return 0;
+}
+
 static int run_geometry(const struct process_opts *o, const struct imp_captureset *cs,
                         struct geometry_out *g, struct imp_error *err) {
         const struct imp_rig *rig = imp_captureset_rig(cs);
@@ -244,6 +289,7 @@ static int run_geometry(const struct process_opts *o, const struct imp_capturese
         slp.proj_width = rig->projector.model.width;
         slp.proj_height = rig->projector.model.height;
         slp.black_level = rig->projector.black_level;
+        slp.projector_gamma = rig->projector.gamma;     /* phase response inverted (docs/structured-light.md) */
         if (o->opt->threads > 0)
                 slp.threads = o->opt->threads;
         struct imp_sl_frames fr = { pats, (const struct imp_image *const *) imgs, (int) n_stacks };
@@ -252,6 +298,8 @@ static int run_geometry(const struct process_opts *o, const struct imp_capturese
                 imp_error_prefix(err, "%s: structured light: ", o->capture);
                 goto out;
         }
+        for (size_t i = 0; i < n_stacks; i++)   /* decoded: not held through triangulation */
+                imp_image_free(TAKE_PTR(imgs[i]));
         progress(o, "decode", 1, 1);
         double t_sl = now_s();
 
@@ -282,20 +330,7 @@ static int run_geometry(const struct process_opts *o, const struct imp_capturese
         progress(o, "heightfield", 1, 1);
         double t_hf = now_s();
 
-        struct imp_boxes_options bo;
-        imp_boxes_options_default(&bo);
-        if (o->opt->cell_px > 0)
-                bo.cell_px = o->opt->cell_px;
-        if (o->opt->delta_frac > 0)
-                bo.delta_frac = o->opt->delta_frac;
-        r = imp_boxes_classify(&g->hf, &bo, &g->boxes);
-        if (r < 0) {
-                imp_error_set(err, r, "%s: relief classification failed: %s", o->capture, strerror(-r));
-                goto out;
-        }
-        char path[4096];
-        snprintf(path, sizeof path, "%s/boxes.json", o->out);
-        r = imp_boxes_save(&g->boxes, path, err);
+        r = classify_boxes(o, g, err);
         if (r < 0)
                 goto out;
         progress(o, "boxes", 1, 1);
@@ -312,6 +347,9 @@ static int run_geometry(const struct process_opts *o, const struct imp_capturese
                 "boxes", "cell_px", g->boxes.cell_px, "boxes", (json_int_t) g->boxes.n_boxes,
                        "delta0_mm", g->boxes.delta0_mm, "seconds", t_box - t_hf);
         json_object_set_new(json_object_get(g->stages, "heightfield"), "seconds", json_real(t_hf - t_tri));
+        json_object_set_new(json_object_get(g->stages, "structured_light"), "phase",
+                            json_pack("{s:[f,f],s:[b,b]}", "err_px", sl->phase_err_px[0], sl->phase_err_px[1],
+                                      "rejected", sl->phase_rejected[0], sl->phase_rejected[1]));
         r = 0;
 out:
         if (imgs)
@@ -498,35 +536,40 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
         if (o->opt->btf_no_shadow_test)
                 sp.march_step_texels = 0;   /* a zero step casts no ray: nothing is blocked */
         if (o->opt->photometric_normals && n_used >= 8) {
-                /* Photometric normals (issue #4): replace the geometric normals before the fit,
-                 * so its local frames, the validation and heightfield.exr use them. */
+                /* Photometric normals (issue #4): heightfield.exr and the height fusion take
+                 * the ones from the Lanczos re-reading; the fit's local frames and the
+                 * validation take the ones from bilinear reading, the way the extractor
+                 * reads the frames they fit and check (docs/geometry.md). */
                 double t_pn0 = now_s();
                 struct imp_photometric_params pp;
                 struct imp_photometric_stats ps = {};
                 imp_photometric_params_default(&pp);
-                pn_normal = malloc(nt * 3 * sizeof *pn_normal);
+                pn_normal = malloc(nt * 6 * sizeof *pn_normal);
                 if (!pn_normal) {
                         r = imp_error_set(err, -ENOMEM, "out of memory");
                         goto out;
                 }
                 progress(o, "photometric normals", 0, 1);
-                r = imp_photometric_normals(&bh, &cap, &sp, &pp, pn_normal, NULL, &ps);
+                r = imp_photometric_normals(&bh, &cap, &sp, &pp, pn_normal, pn_normal + nt * 3, NULL, &ps);
                 if (r < 0) {
                         imp_error_set(err, r, "%s: photometric normals failed: %s", o->capture, strerror(-r));
                         goto out;
                 }
-                memcpy(normal, pn_normal, nt * 3 * sizeof *normal);
+                memcpy(normal, pn_normal + nt * 3, nt * 3 * sizeof *normal);
                 for (size_t i = 0; i < nt; i++)
                         if (!hf->mask || hf->mask[i]) {
-                                hf->nx_[i] = normal[3 * i];
-                                hf->ny_[i] = normal[3 * i + 1];
+                                hf->nx_[i] = pn_normal[3 * i];
+                                hf->ny_[i] = pn_normal[3 * i + 1];
                         }
+                if (o->opt->fuse_heights && (r = fuse_heights(o, g, pn_normal, stages, err)) < 0)
+                        goto out;
                 r = imp_heightfield_save(hf, o->out, err);
                 if (r < 0)
                         goto out;
                 json_object_set_new(stages, "photometric", json_pack(
-                        "{s:i,s:I,s:I,s:I,s:I,s:I,s:f,s:f,s:f,s:f,s:f,s:f}",
+                        "{s:i,s:I,s:I,s:I,s:I,s:I,s:I,s:i,s:f,s:f,s:f,s:f,s:f,s:f}",
                         "lights", (int) n_used, "refined", (json_int_t) ps.n_refined,
+                        "resampled_samples", (json_int_t) ps.n_resampled, "lanczos", pp.lanczos,
                         "kept_few_samples", (json_int_t) ps.n_few, "kept_ill_conditioned", (json_int_t) ps.n_ill,
                         "kept_dark", (json_int_t) ps.n_dark, "kept_disagree", (json_int_t) ps.n_disagree,
                         "max_dev_deg", pp.max_dev_deg,
@@ -639,7 +682,8 @@ static int write_copy_json(const struct process_opts *o, const struct geometry_o
 }
 
 void imp_process_options_default(struct imp_process_options *o) {
-        *o = (struct imp_process_options) { .btf = true, .btf_robust_passes = -1, .photometric_normals = true };
+        *o = (struct imp_process_options) { .btf = true, .btf_robust_passes = -1, .photometric_normals = true,
+                                            .fuse_heights = true };
 }
 
 int imp_process_capture(const char *capture_dir, const char *copy_dir,

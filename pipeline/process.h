@@ -28,6 +28,10 @@ struct imp_process_options {
                                          when it has >= 8 fitted lights; the BTF fit and
                                          heightfield.exr's nx, ny use the refined normals.
                                          Default true; false: the geometric normals */
+        bool fuse_heights;            /* with photometric normals: heights from the
+                                         triangulated positions (low frequencies) and the
+                                         normals (high ones), pipeline/fuse.h; copy.json
+                                         stages.fusion. Default true */
         /* Progress per stage (may be NULL); called from the calling thread. */
         void (*progress)(void *userdata, const char *stage, size_t done, size_t total);
         void *userdata;
@@ -37,8 +41,11 @@ void imp_process_options_default(struct imp_process_options *o);
 /* Writes COPY_DIR/{heightfield.exr, boxes.json, rho_d.exr, rho_s.exr, lobe.exr,
  * fit-flags.exr (channel "flags": enum imp_btf_flag per texel), copy.json, previews/}.
  * With photometric_normals (and >= 8 dome lights in the fit), heightfield.exr's nx, ny are
- * the photometric normals and copy.json stages.photometric = {lights, refined, kept_*,
- * dev_deg_mean, dev_deg_median, sigma_deg_median, rms_median, seconds}.
+ * the photometric normals and copy.json stages.photometric = {lights, refined,
+ * resampled_samples, lanczos, kept_*, dev_deg_mean, dev_deg_median, sigma_deg_median,
+ * rms_median, seconds}; with fuse_heights too, the heights are fused with them and
+ * stages.fusion = {lambda, texels, gradient_rows, iterations, residual_rel, change_rms_um,
+ * normal_agreement_deg_before, normal_agreement_deg_after, seconds}.
  * With holdout_every > 0, copy.json stages.btf.validation = {lights, texels, rmse,
  * rmse_per_light[]}: the held-out frames against the copy shaded per texel
  * (V = E·cos θl·f(v, l)), over mask texels the camera sees that are lit, not
