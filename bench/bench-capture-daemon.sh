@@ -8,26 +8,40 @@
 # ratio (MiB/s counts pixel bytes, w x h x 2 per frame; the TIFFs on disk are compressed,
 # their own rate is printed as stored_mib_s), frames the plan asked for but the set lacks, and impastod's CPU and peak RSS
 # (VmHWM). The rig has no dome controller, so the plan's light switching costs nothing
-# here: what is measured is camera -> daemon -> disk.
+# here: what is measured is camera -> daemon -> disk. A second peer run, arv-camera-test
+# with software triggers (-o 1000, "arv-trig"), shows what the camera gives a triggering
+# client at all.
+#
+# Camera (-c): "arv" is arv-fake-gv-camera-0.8, whose software trigger is polled at 25 Hz
+# (no triggered client gets more than 25 frames/s from it); "fast" is bench-fake-camera
+# (the same Aravis fake camera, trigger polled at 1 kHz; free running it is identical).
+# -D runs another impastod binary (e.g. an older build, for before/after runs side by side).
 #
 # Runs in a private network namespace (unshare -n) when it can (see capture-vs-arv.sh).
 #
 # Usage: bench/bench-capture-daemon.sh [-B build-dir] [-r reps] [-W width] [-H height]
 #                                      [-l lights] [-e exposures_us,...] [-s state-parent-dir]
+#                                      [-c arv|fast] [-D impastod]
 set -euo pipefail
 
 here=$(cd "$(dirname "$0")" && pwd)
 build=${IMPASTO_BUILD:-$here/../build}
-reps=3 width=1024 height=1024 lights=60 exposures=1000,2000 state_parent=${TMPDIR:-/tmp}
-while getopts "B:r:W:H:l:e:s:" opt; do
+reps=3 width=1024 height=1024 lights=60 exposures=1000,2000 state_parent=${TMPDIR:-/tmp} camera=arv daemon=
+while getopts "B:r:W:H:l:e:s:c:D:" opt; do
         case $opt in
         B) build=$OPTARG ;; r) reps=$OPTARG ;; W) width=$OPTARG ;; H) height=$OPTARG ;;
         l) lights=$OPTARG ;; e) exposures=$OPTARG ;; s) state_parent=$OPTARG ;;
-        *) sed -n '2,16p' "$0"; exit 2 ;;
+        c) camera=$OPTARG ;; D) daemon=$OPTARG ;;
+        *) sed -n '2,25p' "$0"; exit 2 ;;
         esac
 done
-daemon=$build/daemon/impastod client=$build/cli/impasto
-for tool in "$daemon" "$client" arv-camera-test-0.8 arv-fake-gv-camera-0.8 arv-tool-0.8 /usr/bin/time python3; do
+daemon=${daemon:-$build/daemon/impastod} client=$build/cli/impasto
+case $camera in
+arv) camera_cmd=(arv-fake-gv-camera-0.8) ;;
+fast) camera_cmd=("$build/bench/bench-fake-camera" -t 1000) ;;
+*) echo "bench-capture-daemon: -c: expected arv or fast" >&2; exit 2 ;;
+esac
+for tool in "$daemon" "$client" "${camera_cmd[0]}" arv-camera-test-0.8 arv-tool-0.8 /usr/bin/time python3; do
         command -v "$tool" >/dev/null || { echo "bench-capture-daemon: $tool missing, skipping" >&2; exit 77; }
 done
 
@@ -49,7 +63,7 @@ cleanup() {
         wait 2>/dev/null; rm -rf "$work"
 }
 trap cleanup EXIT
-arv-fake-gv-camera-0.8 -i "$addr" -s BENCH02 >"$work/camera.log" 2>&1 &
+"${camera_cmd[@]}" -i "$addr" -s BENCH02 >"$work/camera.log" 2>&1 &
 cam_pid=$!
 for _ in $(seq 50); do arv-tool-0.8 -a "$addr" control DeviceModelName >/dev/null 2>&1 && break; sleep 0.2; done
 
@@ -139,39 +153,42 @@ PY
         rm -rf "$state"
 }
 
-# The peer: free-running Mono16 at the camera's top rate, for the daemon's last wall time.
+# The peer: Mono16 at the camera's top rate, for the daemon's last wall time; free running
+# ("arv") or with software triggers at 1 kHz ("arv-trig", -o 1000: as fast as the camera
+# takes them, without waiting for each frame as impastod must).
 run_arv() {
-        local seconds=$1
+        local seconds=$1 name=$2 trig=()
+        [[ $name == arv-trig ]] && trig=(-o 1000)
         arv-tool-0.8 -a "$addr" control Width="$width" Height="$height" PixelFormat=Mono16 \
                 TriggerMode=Off AcquisitionFrameRate=1000 >/dev/null
         /usr/bin/time -f 'time_user_s=%U time_sys_s=%S time_maxrss_kb=%M' -o "$work/time" \
-                arv-camera-test-0.8 -n "$addr" -a -w "$width" -h "$height" -f 1000 \
+                arv-camera-test-0.8 -n "$addr" -a -w "$width" -h "$height" -f 1000 "${trig[@]}" \
                 --duration="$seconds" >"$work/arv.log" 2>&1
         { tr -s ' ' <"$work/arv.log" | sed -n 's/^\(n_[a-z_]*\) = \([0-9]*\)$/\1=\2/p'; tr ' ' '\n' <"$work/time"; } |
-                awk -v d="$seconds" -v fm="$frame_mib" -F= '{ v[$1] = $2 }
+                awk -v d="$seconds" -v fm="$frame_mib" -v name="$name" -F= '{ v[$1] = $2 }
                      END { n = v["n_completed_buffers"]; cpu = v["time_user_s"] + v["time_sys_s"]
-                           printf "arv %.2f %.2f %d %d %.2f %.3f %d free-run\n", n / d, n * fm / d, n,
+                           printf "%s %.2f %.2f %d %d %.2f %.3f %d %s\n", name, n / d, n * fm / d, n,
                                   v["n_missing_frames"] + v["n_failures"], cpu, n ? 1000 * cpu / n : 0,
-                                  v["time_maxrss_kb"] }'
+                                  v["time_maxrss_kb"], name == "arv" ? "free-run" : "sw-trigger" }'
 }
 
 echo "# bench-capture-daemon: ${width}x${height} Mono16, plan ${lights} lights x ${n_exp} exposures" \
-     "= $n_frames frames, store $state_parent, netns=${IMPASTO_BENCH_NETNS:-0}, $(nproc) cores," \
-     "load $(cut -d' ' -f1-3 /proc/loadavg)"
-printf '%-7s %8s %8s %7s %8s %7s %12s %9s %s\n' client fps MiB/s frames missing cpu_s cpu_ms/frame rss_kb state
+     "= $n_frames frames, camera $camera, daemon $daemon, store $state_parent," \
+     "netns=${IMPASTO_BENCH_NETNS:-0}, $(nproc) cores, load $(cut -d' ' -f1-3 /proc/loadavg)"
+printf '%-8s %8s %8s %7s %8s %7s %12s %9s %s\n' client fps MiB/s frames missing cpu_s cpu_ms/frame rss_kb state
 : >"$work/results"
 seconds=10
 for ((rep = 1; rep <= reps; rep++)); do
-        if ((rep % 2)); then order="daemon arv"; else order="arv daemon"; fi
+        if ((rep % 2)); then order="daemon arv arv-trig"; else order="arv-trig arv daemon"; fi
         for who in $order; do
                 if [[ $who == daemon ]]; then
                         line=$(run_daemon "$rep")
                         seconds=$(echo "$line" | awk -v n="$n_frames" '{ s = $2 > 0 ? $4 / $2 : 10; print (s < 3 ? 3 : int(s + 0.5)) }')
                 else
-                        line=$(run_arv "$seconds")
+                        line=$(run_arv "$seconds" "$who")
                 fi
                 echo "$line" | tee -a "$work/results" |
-                        awk '{ printf "%-7s %8.2f %8.2f %7d %8d %7.2f %12.3f %9d %s %s %s\n", $1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11 }'
+                        awk '{ printf "%-8s %8.2f %8.2f %7d %8d %7.2f %12.3f %9d %s %s %s\n", $1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11 }'
         done
 done
 
@@ -187,9 +204,12 @@ END {
                 delete f; delete m; delete c
                 for (i = 1; i <= n[k]; i++) { f[i] = fps[k, i]; m[i] = mib[k, i]; c[i] = cpf[k, i] }
                 mf[k] = median(f, n[k]); mm[k] = median(m, n[k])
-                printf "%-7s median %.2f fps (%.2f..%.2f), %.2f MiB/s, %.3f ms CPU/frame, missing %d, peak RSS %d kB\n",
+                printf "%-8s median %.2f fps (%.2f..%.2f), %.2f MiB/s, %.3f ms CPU/frame, missing %d, peak RSS %d kB\n",
                        k, mf[k], lo[k], hi[k], mm[k], median(c, n[k]), miss[k], rss[k]
         }
         if (mf["arv"] > 0)
                 printf "ratio impastod-to-disk / arv-camera-test free-run: %.3f\n", mf["daemon"] / mf["arv"]
-}' "$work/results"
+        if (mf["arv-trig"] > 0)
+                printf "ratio impastod-to-disk / arv-camera-test software-triggered: %.3f\n", mf["daemon"] / mf["arv-trig"]
+        printf "load at the end: %s\n", load
+}' load="$(cut -d' ' -f1-3 /proc/loadavg)" "$work/results"

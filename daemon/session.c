@@ -2,8 +2,10 @@
  * aborted | failed) and the capture loop, driven one step at a time from the event loop so
  * that the socket stays responsive. A frame: (tile move) → projector pattern or dark →
  * light → settle (timer) → exposure/gain (when changed) → trigger → grab → light off when
- * the next frame needs another → capture set → events. Device failures are retried a bounded number of
- * times, then the session pauses with a fault, lights off and projector dark. */
+ * the next frame needs another → store writer (store.c) → next frame. The writer thread makes
+ * each frame durable in order while the next one is exposed; `frame` and `progress` events
+ * follow its results, so they name durable frames only. Device failures are retried a bounded
+ * number of times, then the session pauses with a fault, lights off and projector dark. */
 #include <math.h>
 #include <string.h>
 #include <sys/stat.h>
@@ -59,6 +61,7 @@ void session_free(struct session *s) {
         if (!s)
                 return;
         sd_event_source_disable_unref(s->step_source);
+        store_writer_free(s->writer);
         imp_captureset_close(s->cs);
         imp_plan_free(s->plan);
         if (s->have_rig)
@@ -157,7 +160,7 @@ static void emit_fault(struct session *s, const char *device, enum imp_proto_err
         rfc3339_now(ts);
         json_t *f = json_pack("{s:s?, s:s, s:i, s:s, s:b, s:s, s:I}", "device", device, "code",
                               imp_proto_error_code_name(code), "errno", err, "message", msg, "fatal", fatal,
-                              "time", ts, "frame", (json_int_t) s->n_frames);
+                              "time", ts, "frame", (json_int_t) s->n_captured);
         if (f)
                 json_array_append(s->faults, f);
         json_t *ev = json_deep_copy(f);
@@ -217,11 +220,22 @@ static void release_rig(struct session *s) {
         s->current_tile = -1;
 }
 
-static void finish(struct session *s, enum session_state st) {
+/* Stops capturing in state st: no further step, the rig safe, then every frame the writer
+ * holds durable (or failed) before this returns, so that nothing is in flight once the
+ * session is paused or ended. The state changes first: results delivered meanwhile only
+ * count frames (or record a fault) and do not step on. */
+static void halt(struct session *s, enum session_state st) {
         stop_stepping(s);
-        release_rig(s);
         s->state = st;
+        release_rig(s);
+        store_writer_flush(s->writer);
+}
+
+static void finish(struct session *s, enum session_state st) {
+        halt(s, st);
         rfc3339_now(s->ended);
+        store_writer_free(s->writer);
+        s->writer = NULL;
         imp_captureset_close(s->cs);
         s->cs = NULL;
         if (s->d->active == s)
@@ -237,10 +251,8 @@ static void finish(struct session *s, enum session_state st) {
 
 static void pause_with_fault(struct session *s, const char *device, enum imp_proto_errcode code, int r,
                              const char *msg) {
-        stop_stepping(s);
-        release_rig(s);
-        s->state = SESSION_PAUSED;
-        log_error("session %s: frame %zu: %s; pausing", s->id, s->n_frames, msg);
+        halt(s, SESSION_PAUSED);
+        log_error("session %s: frame %zu: %s; pausing", s->id, s->n_captured, msg);
         emit_fault(s, device, code, r < 0 ? -r : r, false, msg);
         save(s);
         emit_progress(s);
@@ -271,7 +283,7 @@ static void step_failed(struct session *s, const char *device, int r, const char
         release_rig(s);
         s->phase = 0;
         if (++s->attempt < (int) s->d->retries) {
-                log_warning("session %s: frame %zu: %s (attempt %d of %u), retrying", s->id, s->n_frames, msg,
+                log_warning("session %s: frame %zu: %s (attempt %d of %u), retrying", s->id, s->n_captured, msg,
                             s->attempt, s->d->retries);
                 /* A camera that stopped answering is reopened on the next attempt. */
                 struct dev_camera *cam = device ? rigcfg_camera(s->d->rigcfg, device) : NULL;
@@ -300,6 +312,8 @@ static int frame_to_image(const struct imp_frame *f, struct imp_image **ret) {
                 if (f->pixel_format == IMP_PIXEL_MONO8)
                         for (unsigned x = 0; x < f->width; x++)
                                 dst[x] = src[x];
+                else if (__BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__)
+                        memcpy(dst, src, (size_t) f->width * 2);       /* GigE Mono16 is little-endian */
                 else
                         for (unsigned x = 0; x < f->width; x++)
                                 dst[x] = (uint16_t) (src[2 * x] | src[2 * x + 1] << 8);
@@ -311,7 +325,7 @@ static int frame_to_image(const struct imp_frame *f, struct imp_image **ret) {
 /* Phase 0: put the rig in the state the frame needs; returns the settle time to wait. */
 static int setup_frame(struct session *s, const struct imp_frame_record *rec, uint64_t *ret_settle_us) {
         struct rigcfg *rc = s->d->rigcfg;
-        const struct imp_frame_record *prev = s->n_frames > 0 ? imp_plan_frame(s->plan, s->n_frames - 1) : NULL;
+        const struct imp_frame_record *prev = s->n_captured > 0 ? imp_plan_frame(s->plan, s->n_captured - 1) : NULL;
         bool changed = !prev || s->shown_pattern == -2;
         int r;
         if (rec->tile != s->current_tile && rc->tile_pitch_um > 0 && rc->dome.dome) {
@@ -357,14 +371,14 @@ static int setup_frame(struct session *s, const struct imp_frame_record *rec, ui
  * frame. The cache is cleared by forget_exposures() whenever the camera may have lost them. */
 static int apply_exposure(struct dev_camera *cam, double exposure_us, double gain_db) {
         int r;
-        if (!cam->applied_valid || cam->applied_exposure_us != exposure_us) {
-                cam->applied_valid = false;
+        bool valid = cam->applied_valid;
+        cam->applied_valid = false;     /* until both are written: a failure forgets both */
+        if (!valid || cam->applied_exposure_us != exposure_us) {
                 if ((r = imp_camera_set_exposure_us(cam->cam, exposure_us)) < 0)
                         return r;
                 cam->applied_exposure_us = exposure_us;
         }
-        if (!cam->gain_unsupported && (!cam->applied_valid || cam->applied_gain_db != gain_db)) {
-                cam->applied_valid = false;
+        if (!cam->gain_unsupported && (!valid || cam->applied_gain_db != gain_db)) {
                 r = imp_camera_set_gain_db(cam->cam, gain_db);
                 if (r == -EOPNOTSUPP)
                         cam->gain_unsupported = true;
@@ -418,33 +432,70 @@ static int expose_frame(struct session *s, const struct imp_frame_record *plan_r
                 return r;
         }
         /* The light stays on through an exposure stack; off before anything else. */
-        const struct imp_frame_record *next = s->n_frames + 1 < s->frames_total ?
-                                              imp_plan_frame(s->plan, s->n_frames + 1) : NULL;
+        const struct imp_frame_record *next = s->n_captured + 1 < s->frames_total ?
+                                              imp_plan_frame(s->plan, s->n_captured + 1) : NULL;
         if (rc->dome.dome && rec.light >= 0 && (!next || next->light != rec.light) &&
             (r = imp_dome_all_off(rc->dome.dome)) < 0) {
                 step_failed(s, rc->dome.name, r, "lights off");
                 return r;
         }
-        struct imp_error e = { 0 };
-        if ((r = imp_captureset_add_frame(s->cs, &rec, img, &e)) < 0) {
-                char msg[1100];
-                snprintf(msg, sizeof msg, "storing frame %lld: %s", rec.seq, e.msg);
-                s->attempt = (int) s->d->retries;     /* storage errors are not retried */
-                release_rig(s);
-                pause_with_fault(s, NULL, IMP_PROTO_E_IO, r, msg);
+        /* Stored by the writer thread while the next frame is exposed (on_stored follows).
+         * -EIO: an earlier frame failed to store; its result pauses the session. */
+        if ((r = store_writer_push(s->writer, &rec, TAKE_PTR(img))) < 0)
                 return r;
+        s->n_captured++;
+        s->attempt = 0;
+        return 0;
+}
+
+/* Steps on unless the writer is full or holds the last frames (its results call this
+ * again), or a step is already due (a settle or retry timer must not be cut short). */
+static void next_step(struct session *s) {
+        if (s->state != SESSION_CAPTURING || s->d->stopping)
+                return;
+        if (s->n_frames >= s->frames_total) {
+                finish(s, SESSION_COMPLETED);
+                return;
+        }
+        if (s->n_captured >= s->frames_total || (s->writer && store_writer_full(s->writer)))
+                return;
+        int enabled = SD_EVENT_OFF;
+        if (s->step_source && sd_event_source_get_enabled(s->step_source, &enabled) >= 0 &&
+            enabled != SD_EVENT_OFF)
+                return;
+        (void) schedule(s, 0);
+}
+
+/* A result of the store writer, in frame order: the frame is durable and in the manifest
+ * (events follow), or storing it failed and the writer dropped the frames behind it. */
+static void on_stored(void *userdata, const struct imp_frame_record *rec, long long pixel_bytes, int r,
+                      const char *what) {
+        struct session *s = userdata;
+        if (r < 0) {
+                char msg[1100];
+                snprintf(msg, sizeof msg, "storing frame %lld: %s", rec->seq, what);
+                s->n_captured = s->n_frames;    /* capture resumes at the failed frame */
+                if (s->state == SESSION_CAPTURING) {
+                        s->attempt = (int) s->d->retries;     /* storage errors are not retried */
+                        pause_with_fault(s, NULL, IMP_PROTO_E_IO, r, msg);
+                } else {
+                        /* Already pausing or ending: the fault is recorded all the same. */
+                        log_error("session %s: %s", s->id, msg);
+                        emit_fault(s, NULL, IMP_PROTO_E_IO, -r, false, msg);
+                        save(s);
+                }
+                return;
         }
         s->n_frames++;
-        s->bytes += (long long) img->stride * img->height;
-        s->attempt = 0;
+        s->bytes += pixel_bytes;
         char pat[64];
-        pattern_name(&rec.pattern, pat, sizeof pat);
+        pattern_name(&rec->pattern, pat, sizeof pat);
         server_broadcast(s->d, "frame", json_pack("{s:s, s:I, s:s, s:s, s:i, s:f, s:s}", "session", s->id,
-                                                  "step", (json_int_t) rec.seq, "camera", rec.camera,
-                                                  "pattern", pat, "light", rec.light, "exposure_us",
-                                                  rec.exposure_us, "file", rec.file));
+                                                  "step", (json_int_t) rec->seq, "camera", rec->camera,
+                                                  "pattern", pat, "light", rec->light, "exposure_us",
+                                                  rec->exposure_us, "file", rec->file));
         emit_progress(s);
-        return 0;
+        next_step(s);
 }
 
 static int step_cb(sd_event_source *src, uint64_t usec, void *userdata) {
@@ -455,10 +506,15 @@ static int step_cb(sd_event_source *src, uint64_t usec, void *userdata) {
                 finish(s, SESSION_COMPLETED);
                 return 0;
         }
-        const struct imp_frame_record *rec = imp_plan_frame(s->plan, s->n_frames);
+        /* Every frame captured, or the writer's queue full: its results step on. */
+        if (s->n_captured >= s->frames_total || store_writer_full(s->writer))
+                return 0;
+        const struct imp_frame_record *rec = imp_plan_frame(s->plan, s->n_captured);
         if (s->phase == 0) {
                 char msg[512];
-                int r = check_disk(s, store_frame_bytes(&s->rig, rec->camera), msg, sizeof msg);
+                /* This frame and those the writer still holds. */
+                uint64_t need = store_frame_bytes(&s->rig, rec->camera) * (1 + s->n_captured - s->n_frames);
+                int r = check_disk(s, need, msg, sizeof msg);
                 if (r < 0) {
                         pause_with_fault(s, NULL, IMP_PROTO_E_IO, r, msg);
                         return 0;
@@ -473,17 +529,13 @@ static int step_cb(sd_event_source *src, uint64_t usec, void *userdata) {
         s->phase = 0;
         if (expose_frame(s, rec) < 0)
                 return 0;
-        if (s->n_frames >= s->frames_total)
-                finish(s, SESSION_COMPLETED);
-        else if (s->pause_requested) {
+        if (s->pause_requested) {
                 s->pause_requested = false;
-                stop_stepping(s);
-                release_rig(s);
-                s->state = SESSION_PAUSED;
+                halt(s, SESSION_PAUSED);
                 save(s);
                 emit_progress(s);
         } else
-                (void) schedule(s, 0);
+                next_step(s);
         return 0;
 }
 
@@ -513,6 +565,10 @@ static int begin_capture(struct session *s, struct imp_proto_error *perr) {
                                            s->plan_path);
 #endif
         }
+        if (!s->writer && (r = store_writer_new(d->event, s->cs, on_stored, s, &s->writer)) < 0)
+                return imp_proto_error_set(perr, IMP_PROTO_E_INTERNAL, -r, NULL, "starting the store writer: %s",
+                                           strerror(-r));
+        s->n_captured = s->n_frames;    /* the writer holds nothing between runs */
         s->shown_pattern = -2;          /* unknown: the first frame sets it */
         s->current_tile = -1;
         s->phase = 0;
@@ -619,10 +675,8 @@ int session_pause(struct session *s, struct imp_proto_error *perr) {
         if (s->state != SESSION_CAPTURING)
                 return imp_proto_error_set(perr, IMP_PROTO_E_BAD_STATE, EINVAL, "args.session",
                                            "session %s is %s", s->id, session_state_name(s->state));
-        /* Steps run to completion inside one callback, so no frame is in flight here. */
-        stop_stepping(s);
-        release_rig(s);
-        s->state = SESSION_PAUSED;
+        /* The frames the writer holds are stored before the pause is answered. */
+        halt(s, SESSION_PAUSED);
         save(s);
         emit_progress(s);
         return 0;
@@ -723,7 +777,10 @@ int session_abort(struct session *s, struct imp_proto_error *perr) {
 void session_shutdown(struct session *s) {
         stop_stepping(s);
         release_rig(s);
-        imp_captureset_close(s->cs);    /* every frame is already durable: nothing to flush */
+        /* The frames already grabbed become durable (d->stopping: no step follows). */
+        store_writer_free(s->writer);
+        s->writer = NULL;
+        imp_captureset_close(s->cs);
         s->cs = NULL;
 }
 

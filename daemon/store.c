@@ -1,8 +1,11 @@
 /* The daemon's state directory: sessions/<id>/ is a capture set (pipeline/captureset.h)
  * plus session.json (plan, name, state, times, faults), written atomically at every state
- * change; jobs/ holds the job files. Free space checks for the capture store. */
+ * change; jobs/ holds the job files. Free space checks for the capture store, and its
+ * writer thread (below). */
 #include <dirent.h>
+#include <pthread.h>
 #include <string.h>
+#include <sys/eventfd.h>
 #include <sys/stat.h>
 #include <sys/statvfs.h>
 #include <time.h>
@@ -153,4 +156,229 @@ uint64_t store_frame_bytes(const struct imp_rig *rig, const char *camera) {
                 if (!strcmp(rig->cameras[i].name, camera))
                         return (uint64_t) rig->cameras[i].model.width * rig->cameras[i].model.height * 2 + 4096;
         return 4096;
+}
+
+/* ---- the store writer ------------------------------------------------------------------ */
+
+struct store_item {
+        struct store_item *next;
+        struct imp_frame_record rec;
+        struct imp_image *img;
+        long long pixel_bytes;
+        int r;
+        char msg[1024];
+};
+
+struct store_writer {
+        pthread_mutex_t lock;
+        pthread_cond_t work;            /* an item queued, or stop */
+        pthread_cond_t idle;            /* the queue ran empty */
+        pthread_t thread;
+        struct imp_captureset *cs;      /* used by the thread alone while it holds items */
+        struct store_item *todo, **todo_tail;   /* queued, in order */
+        struct store_item *done, **done_tail;   /* finished, not yet delivered */
+        unsigned held;                  /* queued or being written: their images are in memory */
+        uint64_t held_bytes;
+        bool busy, failed, stop;
+        int efd;                        /* the thread → event loop doorbell */
+        sd_event_source *source;
+        store_done_fn done_fn;
+        void *userdata;
+        bool delivering, free_pending;
+};
+
+static void store_items_free(struct store_item *it) {
+        while (it) {
+                struct store_item *next = it->next;
+                imp_image_free(it->img);
+                free(it);
+                it = next;
+        }
+}
+
+static void *writer_main(void *userdata) {
+        struct store_writer *w = userdata;
+        pthread_mutex_lock(&w->lock);
+        for (;;) {
+                while (!w->todo && !w->stop)
+                        pthread_cond_wait(&w->work, &w->lock);
+                struct store_item *it = w->todo;
+                if (!it)
+                        break;
+                w->todo = it->next;
+                if (!w->todo)
+                        w->todo_tail = &w->todo;
+                it->next = NULL;
+                bool drop = w->failed;
+                w->busy = true;
+                pthread_mutex_unlock(&w->lock);
+
+                uint64_t held_bytes = (uint64_t) it->img->stride * (uint64_t) it->img->height;
+                if (!drop) {
+                        struct imp_error e = { 0 };
+                        it->r = imp_captureset_add_frame(w->cs, &it->rec, it->img, &e);
+                        if (it->r < 0)
+                                snprintf(it->msg, sizeof it->msg, "%s", e.msg[0] ? e.msg : strerror(-it->r));
+                }
+                it->pixel_bytes = (long long) held_bytes;
+                imp_image_free(it->img);
+                it->img = NULL;
+
+                pthread_mutex_lock(&w->lock);
+                w->busy = false;
+                w->held--;
+                w->held_bytes -= held_bytes;
+                if (drop)
+                        free(it);       /* never in the manifest: captured again on resume */
+                else {
+                        if (it->r < 0)
+                                w->failed = true;
+                        *w->done_tail = it;
+                        w->done_tail = &it->next;
+                        (void) eventfd_write(w->efd, 1);
+                }
+                if (!w->todo)
+                        pthread_cond_broadcast(&w->idle);
+        }
+        pthread_mutex_unlock(&w->lock);
+        return NULL;
+}
+
+static void writer_destroy(struct store_writer *w) {
+        pthread_mutex_lock(&w->lock);
+        w->stop = true;
+        pthread_cond_signal(&w->work);
+        pthread_mutex_unlock(&w->lock);
+        pthread_join(w->thread, NULL);
+        store_items_free(w->todo);
+        store_items_free(w->done);
+        sd_event_source_disable_unref(w->source);
+        close(w->efd);
+        pthread_cond_destroy(&w->idle);
+        pthread_cond_destroy(&w->work);
+        pthread_mutex_destroy(&w->lock);
+        free(w);
+}
+
+/* Results in order, on the event loop. A `done` callback may flush or free the writer:
+ * nested deliveries are left to this loop, a free to its end. */
+static void writer_deliver(struct store_writer *w) {
+        if (w->delivering)
+                return;
+        w->delivering = true;
+        for (;;) {
+                pthread_mutex_lock(&w->lock);
+                struct store_item *it = w->done;
+                if (it) {
+                        w->done = it->next;
+                        if (!w->done)
+                                w->done_tail = &w->done;
+                }
+                pthread_mutex_unlock(&w->lock);
+                if (!it)
+                        break;
+                w->done_fn(w->userdata, &it->rec, it->pixel_bytes, it->r, it->msg);
+                free(it);
+        }
+        w->delivering = false;
+        if (w->free_pending)
+                writer_destroy(w);
+}
+
+static int on_writer_event(sd_event_source *src, int fd, uint32_t revents, void *userdata) {
+        eventfd_t v;
+        (void) eventfd_read(fd, &v);
+        writer_deliver(userdata);
+        return 0;
+}
+
+int store_writer_new(sd_event *event, struct imp_captureset *cs, store_done_fn done, void *userdata,
+                     struct store_writer **ret) {
+        struct store_writer *w = calloc(1, sizeof *w);
+        if (!w)
+                return -ENOMEM;
+        w->cs = cs;
+        w->done_fn = done;
+        w->userdata = userdata;
+        w->todo_tail = &w->todo;
+        w->done_tail = &w->done;
+        pthread_mutex_init(&w->lock, NULL);
+        pthread_cond_init(&w->work, NULL);
+        pthread_cond_init(&w->idle, NULL);
+        int r;
+        w->efd = eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
+        if (w->efd < 0)
+                r = negative_errno();
+        else
+                r = sd_event_add_io(event, &w->source, w->efd, EPOLLIN, on_writer_event, w);
+        if (r >= 0)
+                r = -pthread_create(&w->thread, NULL, writer_main, w);
+        if (r < 0) {
+                sd_event_source_disable_unref(w->source);
+                if (w->efd >= 0)
+                        close(w->efd);
+                pthread_cond_destroy(&w->idle);
+                pthread_cond_destroy(&w->work);
+                pthread_mutex_destroy(&w->lock);
+                free(w);
+                return r;
+        }
+        *ret = w;
+        return 0;
+}
+
+int store_writer_push(struct store_writer *w, const struct imp_frame_record *rec, struct imp_image *img) {
+        struct store_item *it = calloc(1, sizeof *it);
+        if (!it) {
+                imp_image_free(img);
+                return -ENOMEM;
+        }
+        it->rec = *rec;
+        it->img = img;
+        pthread_mutex_lock(&w->lock);
+        if (w->failed) {
+                pthread_mutex_unlock(&w->lock);
+                store_items_free(it);
+                return -EIO;
+        }
+        *w->todo_tail = it;
+        w->todo_tail = &it->next;
+        w->held++;
+        w->held_bytes += (uint64_t) img->stride * (uint64_t) img->height;
+        pthread_cond_signal(&w->work);
+        pthread_mutex_unlock(&w->lock);
+        return 0;
+}
+
+bool store_writer_full(const struct store_writer *w) {
+        if (!w)
+                return false;
+        struct store_writer *m = (struct store_writer *) w;     /* the lock only */
+        pthread_mutex_lock(&m->lock);
+        bool full = w->held > 0 && (w->held >= STORE_QUEUE_MAX_FRAMES || w->held_bytes >= STORE_QUEUE_MAX_BYTES);
+        pthread_mutex_unlock(&m->lock);
+        return full;
+}
+
+void store_writer_flush(struct store_writer *w) {
+        if (!w)
+                return;
+        pthread_mutex_lock(&w->lock);
+        while (w->todo || w->busy)
+                pthread_cond_wait(&w->idle, &w->lock);
+        pthread_mutex_unlock(&w->lock);
+        writer_deliver(w);
+        pthread_mutex_lock(&w->lock);
+        w->failed = false;
+        pthread_mutex_unlock(&w->lock);
+}
+
+void store_writer_free(struct store_writer *w) {
+        if (!w)
+                return;
+        store_writer_flush(w);
+        if (w->delivering)
+                w->free_pending = true;
+        else
+                writer_destroy(w);
 }

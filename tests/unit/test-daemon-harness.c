@@ -186,7 +186,9 @@ _unused_ static int tc_connect(struct tclient *c, const char *path, unsigned tim
         memset(c, 0, sizeof *c);
         c->fd = -1;
         struct sockaddr_un sa = { .sun_family = AF_UNIX };
-        snprintf(sa.sun_path, sizeof sa.sun_path, "%s", path);
+        if (strlen(path) >= sizeof sa.sun_path)
+                return -ENAMETOOLONG;
+        memcpy(sa.sun_path, path, strlen(path) + 1);
         uint64_t end = h_now_ms() + timeout_ms;
         for (;;) {
                 int fd = socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
@@ -395,6 +397,34 @@ _unused_ static int tc_wait_job(struct tclient *c, const char *state, unsigned t
 
 _unused_ static json_t *h_arg(const char *key, const char *value) {
         return json_pack("{s:s}", key, value);
+}
+
+/* The end of a capture test: the session says completed with every frame, the client goes,
+ * impastod exits 0 on SIGTERM, and the set equals an uninterrupted one frame for frame with
+ * never two lights on at once. */
+_unused_ static size_t h_verify_set(const char *dir, const char *plan_path, bool expect_complete);
+_unused_ static void h_check_completed(struct harness *h, struct tclient *c, const char *id, const char *setdir,
+                                       const char *plan, size_t frames) {
+        json_t *r = tc_ok(c, "session.show", h_arg("session", id));
+        CHECK_STR_EQ(json_string_value(json_object_get(r, "state")), "completed");
+        CHECK_INT_EQ(json_integer_value(json_object_get(r, "frames")), frames);
+        json_decref(r);
+        tc_close(c);
+        h_kill(h, SIGTERM);
+        CHECK(h_wait(h, 10000) == 0);
+        CHECK_INT_EQ(h_verify_set(setdir, plan, true), frames);
+        CHECK_INT_EQ(imp_emu_rig_max_lights_on(h->rig), 1);
+}
+
+/* session.start of plan as name: the session id and its set's path ("" when refused). */
+_unused_ static void tc_start_session(struct tclient *c, const char *plan, const char *name, char id[static 128],
+                                      char setdir[static 1024]) {
+        json_t *r = tc_ok(c, "session.start", json_pack("{s:s, s:s}", "plan", plan, "name", name));
+        const char *i = json_string_value(json_object_get(r, "session"));
+        const char *p = json_string_value(json_object_get(r, "path"));
+        snprintf(id, 128, "%s", i ? i : "");
+        snprintf(setdir, 1024, "%s", p ? p : "");
+        json_decref(r);
 }
 
 /* Checks a finished capture set against the plan and the emulator's pixel formula. Returns
