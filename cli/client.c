@@ -351,3 +351,49 @@ int imp_client_main_simple(int argc, char **argv, const char *cmd, void (*human)
         }
         return imp_client_simple(&o, cmd, NULL, human);
 }
+
+int imp_client_subscribe(struct imp_client *c, json_t *events, unsigned long long *ret_seq) {
+        struct imp_error err = {};
+        _cleanup_proto_message_ struct imp_proto_message reply = {};
+        int r = imp_client_call(c, "subscribe", json_pack("{s:o}", "events", events), NULL, NULL, &reply, &err);
+        if (r < 0) {
+                log_error("%s", err.msg);
+                return imp_client_exit_for_errno(r);
+        }
+        if (!reply.ok)
+                return imp_client_report_error("subscribe", &reply);
+        *ret_seq = (unsigned long long) imp_client_int(reply.result, "seq");
+        return IMP_EXIT_OK;
+}
+
+int imp_client_parse_limit(const char *arg, long *ret) {
+        char *end;
+        long v = strtol(arg, &end, 10);
+        if (!*arg || *end || v < 1 || v > 1000) {
+                log_error("--limit: expected 1 to 1000, got '%s'", arg);
+                return IMP_EXIT_USAGE;
+        }
+        *ret = v;
+        return 0;
+}
+
+void imp_client_print_table(const json_t *rows, const struct imp_client_column *cols, size_t n_cols,
+                            const char *empty) {
+        if (!json_array_size(rows)) {
+                printf("%s\n", empty);
+                return;
+        }
+        for (size_t k = 0; k < n_cols; k++)
+                printf("%-*s%s", cols[k].width, cols[k].title, k + 1 < n_cols ? " " : "\n");
+        size_t i;
+        const json_t *row;
+        json_array_foreach(rows, i, row)
+                for (size_t k = 0; k < n_cols; k++) {
+                        const json_t *v = json_object_get(row, cols[k].key);
+                        char num[32];
+                        if (json_is_integer(v))
+                                snprintf(num, sizeof num, "%lld", (long long) json_integer_value(v));
+                        printf("%-*s%s", cols[k].width, json_is_integer(v) ? num : imp_client_str(row, cols[k].key),
+                               k + 1 < n_cols ? " " : "\n");
+                }
+}

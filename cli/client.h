@@ -84,3 +84,20 @@ double imp_client_num(const json_t *obj, const char *key);
 /* "1.2 GB"-style byte counts and "1 h 02 min"-style durations into buf. */
 const char *imp_client_fmt_bytes(double bytes, char *buf, size_t size);
 const char *imp_client_fmt_duration(double s, char *buf, size_t size);
+
+/* Subscribes c to the event types given (a JSON array of strings, stolen) and returns an
+ * exit code; *ret_seq gets the connection's last event sequence number (events before the
+ * subscription are not counted as dropped). */
+int imp_client_subscribe(struct imp_client *c, json_t *events, unsigned long long *ret_seq);
+
+/* --limit N of the list commands: 0 and *ret, or IMP_EXIT_USAGE (logged). */
+int imp_client_parse_limit(const char *arg, long *ret);
+
+/* A list result as a table: one column per entry (a string or integer member of each row;
+ * width 0: the last, unpadded column), a header line first; `empty` when there are no rows. */
+struct imp_client_column {
+        const char *title, *key;
+        int width;
+};
+void imp_client_print_table(const json_t *rows, const struct imp_client_column *cols, size_t n_cols,
+                            const char *empty);

@@ -104,6 +104,7 @@ static inline bool session_state_final(enum session_state s) {
 }
 
 struct daemon;
+struct store_writer;
 
 struct session {
         struct session *next;
@@ -119,7 +120,10 @@ struct session {
         bool have_rig;
         struct imp_plan *plan;
         struct imp_captureset *cs;
-        size_t n_frames, frames_total;
+        /* n_frames: durable frames (in the manifest); n_captured: frames grabbed, i.e. the
+         * stored ones plus those the store writer still holds (the next plan index). */
+        size_t n_frames, n_captured, frames_total;
+        struct store_writer *writer;    /* owns cs while frames are queued (store.c) */
         long long bytes;
         double estimate_s;
         json_t *faults;                 /* array of fault objects */
@@ -146,6 +150,31 @@ int store_sessions_load(struct daemon *d);
 int store_free_bytes(const char *path, uint64_t *ret);
 uint64_t store_frame_bytes(const struct imp_rig *rig, const char *camera);
 void rfc3339_now(char buf[static 32]);
+
+/* The store writer: one thread per capturing session that appends frames to the set in
+ * the order queued, each through imp_captureset_add_frame() (TIFF to a temporary name,
+ * fsync, rename, directory fsync, manifest line, fsync), while the event loop triggers the
+ * next frame. The queue is bounded (STORE_QUEUE_MAX_FRAMES, STORE_QUEUE_MAX_BYTES): the
+ * session does not capture while it is full. Results come back on the event loop, in
+ * order, through `done`; after a failure the writer drops what it still held (those
+ * frames were never in the manifest: capture resumes at the failed one). A SIGKILL loses
+ * only queued frames, which the manifest does not list, so a restart captures them again. */
+#define STORE_QUEUE_MAX_FRAMES 8
+#define STORE_QUEUE_MAX_BYTES (96ULL * 1024 * 1024)
+typedef void (*store_done_fn)(void *userdata, const struct imp_frame_record *rec, long long pixel_bytes,
+                              int r, const char *msg);
+int store_writer_new(sd_event *event, struct imp_captureset *cs, store_done_fn done, void *userdata,
+                     struct store_writer **ret);
+/* Queues a frame; takes img in every case. -EIO once a write failed, until the flush that
+ * delivers the failure. The bound is the caller's to respect (store_writer_full). */
+int store_writer_push(struct store_writer *w, const struct imp_frame_record *rec, struct imp_image *img);
+bool store_writer_full(const struct store_writer *w);
+/* Waits until every queued frame is stored (or dropped after a failure) and delivers the
+ * results before returning; then accepts frames again. */
+void store_writer_flush(struct store_writer *w);
+/* Flushes, stops the thread; cs stays open (the caller's). NULL is fine. Called from a
+ * `done` callback, the writer goes once that delivery returns. */
+void store_writer_free(struct store_writer *w);
 
 /* session.c */
 int session_start(struct daemon *d, const char *plan_path, const char *name, struct session **ret,
@@ -197,6 +226,10 @@ struct job {
         bool ev_sent;
 };
 
+/* fork + execv(argv[0]) with the signal mask cleared, standard output and error on fd_out
+ * and fd_err when >= 0; cb runs when it exits. *ret_pid and *ret_source set on success. */
+int daemon_spawn(struct daemon *d, const char *const *argv, int fd_out, int fd_err, sd_event_child_handler_t cb,
+                 void *userdata, pid_t *ret_pid, sd_event_source **ret_source);
 int jobs_load(struct daemon *d);
 int jobs_enqueue(struct daemon *d, const struct session *s);
 int jobs_retry(struct daemon *d, struct job *j, struct imp_proto_error *perr);
@@ -207,6 +240,68 @@ void jobs_kick(struct daemon *d);
 /* Watch STATE/jobs (inotify, and a slow timer for claims whose worker died). */
 int jobs_watch(struct daemon *d);
 void jobs_free_all(struct daemon *d);
+
+/* ---- calibrations (calibration.c) ------------------------------------------------------ */
+
+/* A calibration run by the daemon (docs/daemon.md, "Calibrations"): a capture session of the
+ * routine's plan, then the offline routine on the set as a durable job of the daemon's own
+ * (STATE/calibrations/<version>/calibration.json), then a new calibration version. */
+struct ucred;    /* <sys/socket.h> with _GNU_SOURCE */
+
+enum calib_state { CALIB_CAPTURING, CALIB_QUEUED, CALIB_RUNNING, CALIB_DONE, CALIB_FAILED };
+
+struct calibration {
+        struct calibration *next;
+        struct daemon *d;
+        int version;
+        char id[16];                    /* the version as a token */
+        char routine[16];
+        char session[128];
+        char set_dir[PATH_MAX];
+        char dir[PATH_MAX];             /* STATE/calibrations/<version> */
+        char plan[PATH_MAX];
+        json_t *args;                   /* routine parameters as given */
+        enum calib_state state;
+        int attempts, max_attempts;
+        int based_on;                   /* the version current when it started (0: the rig config's) */
+        char created[32], started[32], ended[32];
+        char error[1024];
+        json_t *figures;                /* flattened scalars of the routine's report, once done */
+        pid_t pid;
+        sd_event_source *child_source;
+};
+
+/* Loads STATE/calibrations and makes the current version (if any) the daemon's rig. */
+int calibrations_load(struct daemon *d);
+void calibrations_free_all(struct daemon *d);
+int calibration_start(struct daemon *d, const char *routine, const json_t *args, const char *plan,
+                      const char *name, const struct ucred *peer, struct calibration **ret,
+                      struct imp_proto_error *perr);
+struct calibration *calibration_find(struct daemon *d, const char *id);
+json_t *calibration_json(const struct calibration *c, bool full);
+/* The calibration in force as {"version","file","date","routine"}; never NULL. */
+json_t *calibration_current_json(struct daemon *d);
+/* A session of a calibration: its set is calibrated, not processed. */
+bool calibrations_own_session(struct daemon *d, const char *session);
+/* From the session's `done` event: a completed capture queues its routine. */
+void calibrations_session_ended(struct daemon *d, const char *session, const char *state);
+/* Writes <set>/calibration.json naming the calibration version the set was captured with. */
+int calibration_reference_set(struct daemon *d, const char *set_dir, struct imp_error *err);
+
+/* ---- plan paths from clients (planpath.c) ------------------------------------------------ */
+
+#define DAEMON_MAX_PLAN_DIRS 8
+#define DAEMON_PLAN_MAX_BYTES (1024 * 1024)
+
+/* A plan path named by a client, confined: it must resolve (symlinks followed) to a regular
+ * file of at most DAEMON_PLAN_MAX_BYTES below one of the --plan-dir directories when any is
+ * configured, and be readable by the peer itself (its uid and groups against the file's mode
+ * and the search rights of its directories), so that the daemon never reads for a client what
+ * the client could not. The resolved path in ret; not_found naming `field` otherwise. */
+int plan_path_resolve(struct daemon *d, const struct ucred *peer, const char *path, const char *field,
+                      char ret[static PATH_MAX], struct imp_proto_error *perr);
+/* A plan file by name (e.g. "photon-transfer.cfg") from the first plan directory that has it. */
+int plan_path_builtin(struct daemon *d, const char *name, char ret[static PATH_MAX]);
 
 /* ---- server (server.c) ----------------------------------------------------------------- */
 
@@ -251,6 +346,12 @@ struct daemon {
         sd_event_source *job_timer;     /* spawn mode: the next start or retry */
         sd_event_source *job_watch;     /* inotify on STATE/jobs */
         sd_event_source *job_poll;      /* periodic re-read of jobs claimed by other workers */
+        const char *plan_dirs[DAEMON_MAX_PLAN_DIRS];    /* --plan-dir */
+        unsigned n_plan_dirs;
+        const char *calibrate_cmd;      /* run as CMD calibrate ROUTINE --set SET … (calibration.c) */
+        struct calibration *calibrations;       /* newest first */
+        int calib_version;              /* the calibration in force; 0: the rig config's rig.json */
+        sd_event_source *calib_timer;   /* the next calibration attempt */
         bool stopping;
 };
 

@@ -203,7 +203,7 @@ static void job_unlock(const struct job *j, int fd) {
 }
 
 static void job_set_failed_attempt(struct job *j, const char *why) {
-        snprintf(j->error, sizeof j->error, "%s", why);
+        snprintf(j->error, sizeof j->error, "%.1000s", why);
         j->state = j->attempts >= j->max_attempts ? JOB_FAILED : JOB_QUEUED;
         rfc3339_now(j->ended);
 }
@@ -321,9 +321,8 @@ static void job_refresh(struct daemon *d, struct job *j) {
 
 static int job_exited(sd_event_source *src, const siginfo_t *si, void *userdata);
 
-static int job_spawn(struct daemon *d, struct job *j) {
-        char file[PATH_MAX + 200];
-        job_path(j, JOB_FILE_QUEUE, file, sizeof file);
+int daemon_spawn(struct daemon *d, const char *const *argv, int fd_out, int fd_err, sd_event_child_handler_t cb,
+                 void *userdata, pid_t *ret_pid, sd_event_source **ret_source) {
         pid_t pid = fork();
         if (pid < 0)
                 return negative_errno();
@@ -331,18 +330,27 @@ static int job_spawn(struct daemon *d, struct job *j) {
                 sigset_t all;
                 sigemptyset(&all);
                 sigprocmask(SIG_SETMASK, &all, NULL);
-                execl(d->worker_cmd, d->worker_cmd, file, (char *) NULL);
+                if ((fd_out >= 0 && dup2(fd_out, STDOUT_FILENO) < 0) || (fd_err >= 0 && dup2(fd_err, STDERR_FILENO) < 0))
+                        _exit(127);
+                execv(argv[0], (char *const *) argv);
+                dprintf(STDERR_FILENO, "exec %s: %s\n", argv[0], strerror(errno));
                 _exit(127);
         }
-        j->pid = pid;
-        int r = sd_event_add_child(d->event, &j->child_source, pid, WEXITED, job_exited, j);
+        int r = sd_event_add_child(d->event, ret_source, pid, WEXITED, cb, userdata);
         if (r < 0) {
                 kill(pid, SIGKILL);
                 (void) waitpid(pid, NULL, 0);
-                j->pid = 0;
                 return r;
         }
+        *ret_pid = pid;
         return 0;
+}
+
+static int job_spawn(struct daemon *d, struct job *j) {
+        char file[PATH_MAX + 200];
+        job_path(j, JOB_FILE_QUEUE, file, sizeof file);
+        const char *const argv[] = { d->worker_cmd, file, NULL };
+        return daemon_spawn(d, argv, -1, -1, job_exited, j, &j->pid, &j->child_source);
 }
 
 void jobs_kick(struct daemon *d) {
@@ -436,6 +444,8 @@ static json_t *worker_args_json(const struct daemon *d) {
 }
 
 int jobs_enqueue(struct daemon *d, const struct session *s) {
+        if (calibrations_own_session(d, s->id))
+                return 0;       /* its set is calibrated (calibration.c), not processed */
         if (jobs_find(d, s->id))
                 return -EEXIST;
         struct job *j = job_new(d, s->id);

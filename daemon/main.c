@@ -26,6 +26,10 @@ static void help(void) {
                "  --job-attempts N       worker runs per job before it fails (default 3)\n"
                "  --device-timeout-ms N  timeout of a device connection (default 3000)\n"
                "  --min-free-bytes N     free space kept on the store; below it capture pauses (default 256 MiB)\n"
+               "  --plan-dir DIR         plans named by clients must lie below DIR (repeatable; also where\n"
+               "                         `calibrate` finds a routine's default plan)\n"
+               "  --calibrate-cmd PATH   the offline calibration routines, run as PATH calibrate ROUTINE …\n"
+               "                         (default /usr/bin/impasto)\n"
                "  -v, --verbose          debug logging\n");
 }
 
@@ -98,7 +102,7 @@ static int check_worker_args(const char *args) {
 
 static int parse_args(int argc, char **argv, struct daemon *d) {
         enum { ARG_SOCKET = 256, ARG_STATE, ARG_WORKER, ARG_RESUME, ARG_OPS, ARG_MAXC, ARG_RETRIES, ARG_JOBS,
-               ARG_MINFREE, ARG_RIG, ARG_DEVTIMEOUT, ARG_WORKER_ARGS, ARG_NO_SPAWN };
+               ARG_MINFREE, ARG_RIG, ARG_DEVTIMEOUT, ARG_WORKER_ARGS, ARG_NO_SPAWN, ARG_PLAN_DIR, ARG_CALIB_CMD };
         static const struct option opts[] = {
                 { "rig", required_argument, NULL, ARG_RIG },
                 { "socket", required_argument, NULL, ARG_SOCKET },
@@ -113,6 +117,8 @@ static int parse_args(int argc, char **argv, struct daemon *d) {
                 { "job-attempts", required_argument, NULL, ARG_JOBS },
                 { "min-free-bytes", required_argument, NULL, ARG_MINFREE },
                 { "device-timeout-ms", required_argument, NULL, ARG_DEVTIMEOUT },
+                { "plan-dir", required_argument, NULL, ARG_PLAN_DIR },
+                { "calibrate-cmd", required_argument, NULL, ARG_CALIB_CMD },
                 { "verbose", no_argument, NULL, 'v' },
                 { "help", no_argument, NULL, 'h' },
                 {},
@@ -158,6 +164,15 @@ static int parse_args(int argc, char **argv, struct daemon *d) {
                         }
                         d->device_timeout_ms = (unsigned) v;
                         break;
+                case ARG_PLAN_DIR:
+                        if (d->n_plan_dirs == DAEMON_MAX_PLAN_DIRS || access(optarg, X_OK) < 0) {
+                                log_error("--plan-dir %s: %s", optarg, d->n_plan_dirs == DAEMON_MAX_PLAN_DIRS ?
+                                          "too many plan directories" : strerror(errno));
+                                return -EINVAL;
+                        }
+                        d->plan_dirs[d->n_plan_dirs++] = optarg;
+                        break;
+                case ARG_CALIB_CMD: d->calibrate_cmd = optarg; break;
                 case 'v': imp_log_set_level(IMP_LOG_DEBUG); break;
                 case 'h': help(); exit(0);
                 default: return -EINVAL;
@@ -209,6 +224,7 @@ int main(int argc, char **argv) {
                 .socket_path = "/run/impasto/control.sock",
                 .state_dir = "/var/lib/impasto",
                 .worker_cmd = "/usr/bin/impasto-worker",
+                .calibrate_cmd = "/usr/bin/impasto",
                 .spawn_workers = true,
                 .max_clients = 32,
                 .retries = 3,
@@ -260,13 +276,21 @@ int main(int argc, char **argv) {
                 log_error("socket activation passed %d sockets, expected one", n);
                 return 1;
         }
-        if (n == 1)
+        if (n == 1) {
+                if (sd_is_socket_unix(SD_LISTEN_FDS_START, SOCK_STREAM, 1, NULL, 0) <= 0) {
+                        log_error("socket activation passed fd %d, which is not a listening UNIX stream socket",
+                                  SD_LISTEN_FDS_START);
+                        return 1;
+                }
                 d.listen_fd = SD_LISTEN_FDS_START;
+        }
         if ((r = server_start(&d)) < 0) {
                 log_error_errno(r, "control socket %s: %m", d.socket_path);
                 return 1;
         }
         int ns = store_sessions_load(&d);
+        if ((r = calibrations_load(&d)) < 0)
+                log_warning_errno(r, "%s/calibrations: %m; calibrations cannot be stored, ignoring", d.state_dir);
         (void) jobs_load(&d);
         (void) jobs_watch(&d);
         if (d.spawn_workers)
@@ -299,6 +323,7 @@ int main(int argc, char **argv) {
         if (d.listen_fd >= 0)
                 close(d.listen_fd);
         jobs_free_all(&d);
+        calibrations_free_all(&d);
         while (d.sessions) {
                 struct session *s = d.sessions;
                 d.sessions = s->next;

@@ -24,6 +24,8 @@ struct client {
         sd_event_source *io;
         struct imp_linebuf *lb;
         enum imp_proto_role role;
+        struct ucred cred;              /* the peer's, for the plan paths it names */
+        bool have_cred;
         char *out;                      /* queued output */
         size_t out_len, out_off, out_cap;
         unsigned long long seq;         /* last event sequence number sent */
@@ -90,6 +92,13 @@ static void reply_error(struct client *c, const json_t *id, struct imp_proto_err
 }
 
 void server_broadcast(struct daemon *d, const char *type, json_t *fields) {
+        /* A session's end is what a calibration waits for (after the event is queued). */
+        char ended[128] = "", ended_state[32] = "";
+        if (!strcmp(type, "done") && json_is_string(json_object_get(fields, "session"))) {
+                snprintf(ended, sizeof ended, "%s", json_string_value(json_object_get(fields, "session")));
+                snprintf(ended_state, sizeof ended_state, "%s",
+                         json_string_value(json_object_get(fields, "state")) ?: "");
+        }
         int ti = -1;
         for (int i = 0; imp_proto_event_types[i]; i++)
                 if (!strcmp(imp_proto_event_types[i], type))
@@ -115,6 +124,8 @@ void server_broadcast(struct daemon *d, const char *type, json_t *fields) {
                 client_send(c, ev);
         }
         json_decref(fields);
+        if (ended[0])
+                calibrations_session_ended(d, ended, ended_state);
 }
 
 /* ---- commands -------------------------------------------------------------------------- */
@@ -132,10 +143,10 @@ static json_t *cmd_status(struct daemon *d) {
                                  "steps", (json_int_t) d->active->frames_total);
         uint64_t now;
         sd_event_now(d->event, CLOCK_MONOTONIC, &now);
-        return json_pack("{s:{s:s, s:f, s:i}, s:{s:s, s:b}, s:o, s:{s:i, s:i}}", "daemon", "version",
+        return json_pack("{s:{s:s, s:f, s:i}, s:{s:s, s:b, s:i}, s:o, s:{s:i, s:i}}", "daemon", "version",
                          imp_version(), "uptime_s", (double) (now - d->started_us) / 1e6, "pid", (int) getpid(),
-                         "rig", "name", d->rigcfg->name, "calibrated", d->have_rig, "session", sess, "jobs",
-                         "queued", queued, "running", running);
+                         "rig", "name", d->rigcfg->name, "calibrated", d->have_rig, "calibration",
+                         d->calib_version, "session", sess, "jobs", "queued", queued, "running", running);
 }
 
 static int arg_limit(const json_t *args) {
@@ -147,22 +158,48 @@ static const char *arg_str(const json_t *args, const char *key) {
         return json_string_value(json_object_get(args, key));
 }
 
+/* args.plan, confined (planpath.c). */
+static int client_plan(struct client *c, const json_t *args, char ret[static PATH_MAX], struct imp_proto_error *e) {
+        return plan_path_resolve(c->d, c->have_cred ? &c->cred : NULL, arg_str(args, "plan"), "args.plan", ret, e);
+}
+
+/* The new set names the calibration it is captured with; the set is usable without it. */
+static void reference_calibration(struct daemon *d, const struct session *s) {
+        struct imp_error err = { 0 };
+        int r = calibration_reference_set(d, s->dir, &err);
+        if (r < 0)
+                log_warning_errno(r, "session %s: %s, ignoring", s->id, err.msg);
+}
+
+static json_t *cmd_calibrate(struct client *c, const json_t *args, struct imp_proto_error *e) {
+        struct daemon *d = c->d;
+        struct calibration *cal;
+        if (calibration_start(d, arg_str(args, "routine"), json_object_get(args, "args"), arg_str(args, "plan"),
+                              arg_str(args, "name"), c->have_cred ? &c->cred : NULL, &cal, e) < 0)
+                return NULL;
+        struct session *s = session_find(d, cal->session);
+        if (s)
+                reference_calibration(d, s);
+        return json_pack("{s:s, s:s, s:s, s:s, s:s, s:s}", "routine", cal->routine, "calibration", cal->id,
+                         "session", cal->session, "path", cal->set_dir, "plan", cal->plan, "state", "capturing");
+}
+
 static json_t *dispatch(struct client *c, const struct imp_proto_request *req, struct imp_proto_error *e) {
         struct daemon *d = c->d;
         const json_t *args = req->args;
         struct session *s;
         struct job *j;
         struct imp_plan *plan = NULL;
+        struct calibration *cal;
+        char planp[PATH_MAX];
         int r;
         switch (req->command->cmd) {
         case IMP_PROTO_CMD_STATUS:
                 return cmd_status(d);
         case IMP_PROTO_CMD_RIG: {
-                json_t *cal = json_null();
-                if (d->have_rig)
-                        cal = json_pack("{s:s, s:n, s:n}", "file", d->rigcfg->calibration, "date", "rms_px");
+                json_t *calj = d->have_rig ? calibration_current_json(d) : json_null();
                 return json_pack("{s:s, s:O, s:o}", "name", d->rigcfg->name, "config", d->rigcfg->config,
-                                 "calibration", cal);
+                                 "calibration", calj);
         }
         case IMP_PROTO_CMD_DEVICES:
                 /* Enumerating opens what is not open yet; only when the rig is free. */
@@ -170,14 +207,14 @@ static json_t *dispatch(struct client *c, const struct imp_proto_request *req, s
                         (void) rigcfg_open_devices(d->rigcfg, d->have_rig ? &d->rig : NULL, NULL);
                 return json_pack("{s:o}", "devices", rigcfg_devices_json(d->rigcfg));
         case IMP_PROTO_CMD_PLAN_VALIDATE:
-                if ((r = plan_check(d, arg_str(args, "plan"), &plan, e)) < 0)
+                if (client_plan(c, args, planp, e) < 0 || (r = plan_check(d, planp, &plan, e)) < 0)
                         return NULL;
                 json_t *v = json_pack("{s:b, s:I, s:I}", "valid", 1, "steps", (json_int_t) imp_plan_count(plan),
                                       "frames", (json_int_t) imp_plan_count(plan));
                 imp_plan_free(plan);
                 return v;
         case IMP_PROTO_CMD_PLAN_ESTIMATE: {
-                if ((r = plan_check(d, arg_str(args, "plan"), &plan, e)) < 0)
+                if (client_plan(c, args, planp, e) < 0 || (r = plan_check(d, planp, &plan, e)) < 0)
                         return NULL;
                 uint64_t bytes = 0, free_b = 0;
                 size_t n = imp_plan_count(plan);
@@ -192,8 +229,9 @@ static json_t *dispatch(struct client *c, const struct imp_proto_request *req, s
                 return v2;
         }
         case IMP_PROTO_CMD_SESSION_START:
-                if (session_start(d, arg_str(args, "plan"), arg_str(args, "name"), &s, e) < 0)
+                if (client_plan(c, args, planp, e) < 0 || session_start(d, planp, arg_str(args, "name"), &s, e) < 0)
                         return NULL;
+                reference_calibration(d, s);
                 return json_pack("{s:s, s:s, s:s}", "session", s->id, "path", s->dir, "state",
                                  session_state_name(s->state));
         case IMP_PROTO_CMD_SESSION_PAUSE:
@@ -264,6 +302,22 @@ static json_t *dispatch(struct client *c, const struct imp_proto_request *req, s
                 c->events = 0;
                 return json_object();
         case IMP_PROTO_CMD_CALIBRATE:
+                return cmd_calibrate(c, args, e);
+        case IMP_PROTO_CMD_CALIBRATION_LIST: {
+                json_t *a = json_array();
+                int lim = arg_limit(args);
+                for (cal = d->calibrations; cal && lim-- > 0; cal = cal->next)
+                        json_array_append_new(a, calibration_json(cal, false));
+                return json_pack("{s:o, s:o}", "calibrations", a, "current", calibration_current_json(d));
+        }
+        case IMP_PROTO_CMD_CALIBRATION_SHOW:
+                cal = calibration_find(d, arg_str(args, "calibration"));
+                if (!cal) {
+                        imp_proto_error_set(e, IMP_PROTO_E_NOT_FOUND, ENOENT, "args.calibration", "no calibration %s",
+                                            arg_str(args, "calibration"));
+                        return NULL;
+                }
+                return calibration_json(cal, true);
         default:
                 imp_proto_error_set(e, IMP_PROTO_E_UNKNOWN_COMMAND, EOPNOTSUPP, "cmd",
                                     "%s is not implemented by this impastod", req->command->name);
@@ -411,6 +465,8 @@ static int on_accept(sd_event_source *src, int fd, uint32_t revents, void *userd
         c->d = d;
         c->fd = cfd;
         c->role = role;
+        c->cred = cred;
+        c->have_cred = len == sizeof cred && cred.pid > 0;
         c->next = d->clients;
         d->clients = c;
         d->n_clients++;

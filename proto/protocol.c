@@ -97,7 +97,8 @@ const char *imp_proto_role_name(enum imp_proto_role role) {
 /* ---- The command table ---- */
 
 static const char *const calibrate_routines[] = { "camera", "procam", "lights", "radiometric", NULL };
-const char *const imp_proto_event_types[] = { "progress", "frame", "device", "fault", "done", "job", NULL };
+const char *const imp_proto_event_types[] = { "progress", "frame", "device", "fault", "done", "job", "calibration",
+                                               NULL };
 
 #define STR(n, fl, lo, hi, w) { .name = n, .type = IMP_PROTO_T_STRING, .flags = fl, .min = lo, .max = hi, .what = w }
 #define PLAN  STR("plan", IMP_PROTO_F_REQUIRED, 1, PATH_MAX - 1, "path of a scan plan on the daemon's host")
@@ -120,6 +121,12 @@ static const struct imp_proto_field calibrate_args[] = {
         { .name = "routine", .type = IMP_PROTO_T_STRING, .flags = IMP_PROTO_F_REQUIRED,
           .min = 1, .max = 32, .choices = calibrate_routines, .what = "calibration routine" },
         { .name = "args", .type = IMP_PROTO_T_OBJECT, .what = "routine parameters" },
+        STR("plan", 0, 1, PATH_MAX - 1, "path of a scan plan on the daemon's host"),
+        STR("name", IMP_PROTO_F_TOKEN, 1, 64, "session name"),
+        END,
+};
+static const struct imp_proto_field calibration_args[] = {
+        STR("calibration", IMP_PROTO_F_REQUIRED | IMP_PROTO_F_TOKEN, 1, 128, "calibration version"),
         END,
 };
 static const struct imp_proto_field subscribe_args[] = {
@@ -147,6 +154,8 @@ static const struct imp_proto_command commands[] = {
         C("jobs.retry",     JOBS_RETRY,     true,  job_args,       "queue a failed job again"),
         C("subscribe",      SUBSCRIBE,      false, subscribe_args, "stream events on this connection"),
         C("unsubscribe",    UNSUBSCRIBE,    false, no_args,        "stop streaming events"),
+        C("calibration.list", CALIBRATION_LIST, false, list_args,  "stored calibrations, newest first"),
+        C("calibration.show", CALIBRATION_SHOW, false, calibration_args, "one calibration with its figures"),
 #undef C
 };
 _Static_assert(ARRAY_SIZE(commands) == _IMP_PROTO_CMD_MAX, "one row per command");

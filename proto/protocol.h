@@ -97,6 +97,8 @@ enum imp_proto_cmd {
         IMP_PROTO_CMD_JOBS_RETRY,
         IMP_PROTO_CMD_SUBSCRIBE,
         IMP_PROTO_CMD_UNSUBSCRIBE,
+        IMP_PROTO_CMD_CALIBRATION_LIST,
+        IMP_PROTO_CMD_CALIBRATION_SHOW,
         _IMP_PROTO_CMD_MAX,
 };
 
@@ -136,7 +138,7 @@ const struct imp_proto_command *imp_proto_command_find(const char *name);
 
 /* ---- Events ---- */
 
-/* Event types, NULL-terminated: progress, frame, device, fault, done, job. */
+/* Event types, NULL-terminated: progress, frame, device, fault, done, job, calibration. */
 extern const char *const imp_proto_event_types[];
 bool imp_proto_event_type_valid(const char *type);
 

@@ -28,6 +28,8 @@ static const struct {
         { "jobs.retry",     "{\"id\":15,\"cmd\":\"jobs.retry\",\"args\":{\"job\":\"j-42\"}}" },
         { "subscribe",      "{\"id\":16,\"cmd\":\"subscribe\",\"args\":{\"events\":[\"progress\",\"done\"]}}" },
         { "unsubscribe",    "{\"id\":-17,\"cmd\":\"unsubscribe\"}" },
+        { "calibration.list", "{\"id\":18,\"cmd\":\"calibration.list\",\"args\":{\"limit\":5}}" },
+        { "calibration.show", "{\"id\":19,\"cmd\":\"calibration.show\",\"args\":{\"calibration\":\"3\"}}" },
 };
 
 static void test_table(void) {
