@@ -16,6 +16,7 @@
 #include <string.h>
 #include "calib.h"
 #include "calibrate-ext.h"
+#include "calibrate-remote.h"
 #include "captureset.h"
 #include "commands.h"
 #include "rig.h"
@@ -31,10 +32,12 @@ static void usage(FILE *f) {
         fprintf(f, "usage: impasto calibrate procam --captures DIR... --projector WxH --board COLSxROWS\n"
                    "                                --square SIZE [--black-threshold N (40)]\n"
                    "                                [--white-threshold N (5)] [--window PX (auto)]\n"
-                   "                                [--json] [--out RIG.json] [--mm-per-unit F (1)]\n"
+                   "                                [--json] [--out RIG.json] [--mm-per-unit F (1)] [--opencv-only]\n"
                    "       impasto calibrate procam --sets SET... --board COLSxROWS --square SIZE\n"
                    "                                [--reference SET --board-origin X,Y] [--projector WxH]\n"
                    "                                [same options as above]\n"
+                   "  --opencv-only: skip the Ceres refinement (robust loss, outliers dropped) that\n"
+                   "  follows OpenCV's estimate when impasto is built with Ceres.\n"
                    "  DIR holds graycode_00.png ... (Gray-code frames, then white, then black);\n"
                    "  SET is a capture set with Gray code on both axes with inverses, white and black\n"
                    "  (config/plans/target.cfg); its rig.json gives the projector size, names, sensor\n"
@@ -184,6 +187,10 @@ static int run_procam(int argc, char **argv) {
                         json = true;
                         continue;
                 }
+                if (!strcmp(a, "--opencv-only")) {
+                        o.opencv_only = true;
+                        continue;
+                }
                 if (!strcmp(a, "--help") || !strcmp(a, "-h")) {
                         usage(stdout);
                         return 0;
@@ -287,6 +294,8 @@ static int run(int argc, char **argv) {
                 usage(argc < 2 ? stderr : stdout);
                 return argc < 2 ? EXIT_USAGE : 0;
         }
+        if (!strcmp(argv[1], "start") || !strcmp(argv[1], "list") || !strcmp(argv[1], "show"))
+                return imp_calibrate_remote_main(argc - 1, argv + 1);   /* on the daemon */
         if (!strcmp(argv[1], "lights")) return imp_calibrate_lights_main(argc - 1, argv + 1);
         if (!strcmp(argv[1], "radiometric")) return imp_calibrate_radiometric_main(argc - 1, argv + 1);
         if (!strcmp(argv[1], "procam")) {

@@ -39,7 +39,7 @@ json_t *imp_calib_intrinsics_to_json(const struct imp_calib_intrinsics *in) {
         json_t *worst = json_pack("{s:f, s:i, s:i}", "px", in->worst_px, "view", in->worst_view,
                                   "point", in->worst_point);
         return json_pack("{s:i, s:i, s:f, s:f, s:f, s:f, s:o, s:f, s:f, s:o, s:o, s:o, s:o, "
-                         "s:i, s:i, s:f, s:o, s:b}",
+                         "s:i, s:i, s:f, s:o, s:b, s:s, s:i}",
                          "width", in->width, "height", in->height, "fx", in->fx, "fy", in->fy,
                          "cx", in->cx, "cy", in->cy, "dist", doubles(in->dist, 5),
                          "rms_px", in->rms_px, "sigma_px", in->sigma_px, "std", std,
@@ -49,7 +49,9 @@ json_t *imp_calib_intrinsics_to_json(const struct imp_calib_intrinsics *in) {
                          "flags", flags_json(in->flags),
                          "confident", !(in->flags & (IMP_CALIB_FOCAL_UNDETERMINED |
                                                      IMP_CALIB_PP_UNDETERMINED | IMP_CALIB_FEW_VIEWS |
-                                                     IMP_CALIB_RANK_DEFICIENT)));
+                                                     IMP_CALIB_RANK_DEFICIENT)),
+                         "refinement", in->ceres_refined ? "ceres" : "opencv",
+                         "outliers", in->n_outliers);
 }
 
 json_t *imp_calib_procam_to_json(const struct imp_calib_procam *r) {
@@ -75,6 +77,8 @@ json_t *imp_calib_procam_to_json(const struct imp_calib_procam *r) {
                                    "convention", "X_projector = R X_camera + t");
         json_t *j = json_pack("{s:s, s:o, s:o, s:o, s:i, s:i, s:i, s:o, s:o}",
                               "method", "Moreno-Taubin local homographies; OpenCV calibrateCamera, "
+                                        "refined by Ceres (robust loss, outliers dropped) when "
+                                        "camera/projector.refinement says so; "
                                         "stereoCalibrate(CALIB_FIX_INTRINSIC)",
                               "camera", imp_calib_intrinsics_to_json(&r->camera),
                               "projector", imp_calib_intrinsics_to_json(&r->projector),
@@ -102,8 +106,11 @@ static void print_device(FILE *f, const char *who, const struct imp_calib_intrin
         fprintf(f, "  largest board tilt %.1f°\n", in->max_tilt_deg);
         fprintf(f, "  RMS %.4f px, worst %.4f px (view %d, point %d)\n", in->rms_px, in->worst_px,
                 in->worst_view, in->worst_point);
-        fprintf(f, "  projection uncertainty (1σ): %.3f px at the centre, %.3f px at a corner\n",
-                in->proj_unc_centre_px, in->proj_unc_corner_px);
+        if (in->ceres_refined)
+                fprintf(f, "  refined by Ceres (robust loss): %d outlier point%s dropped\n", in->n_outliers,
+                        in->n_outliers == 1 ? "" : "s");
+        fprintf(f, "  projection uncertainty (1σ%s): %.3f px at the centre, %.3f px at a corner\n",
+                in->ceres_refined ? ", mrcal-style" : "", in->proj_unc_centre_px, in->proj_unc_corner_px);
 }
 
 void imp_calib_procam_print(const struct imp_calib_procam *r, FILE *f) {

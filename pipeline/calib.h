@@ -88,6 +88,11 @@ struct imp_calib_intrinsics {
         double proj_unc_centre_px, proj_unc_corner_px;
         double max_tilt_deg;                    /* largest board tilt from fronto-parallel */
         unsigned flags;                         /* IMP_CALIB_* */
+        /* Refined by Ceres after OpenCV's estimate (pipeline/cv/ceres-calib.h): robust loss,
+         * outliers dropped (rms, worst, n_points, std, cov over the inliers), and the
+         * projection uncertainty is then mrcal's (poses compensating the intrinsics). */
+        bool ceres_refined;
+        int n_outliers;                         /* points dropped by the refinement */
 };
 
 struct imp_calib_stereo {
@@ -129,6 +134,9 @@ struct imp_calib_procam_opts {
         /* k3 of both devices: IMP_CALIB_K3_AUTO (0, the default) holds it at 0 for a device
          * whose diagonal field of view is below IMP_CALIB_K3_MIN_FOV_DEG, fits it otherwise. */
         int k3;
+        /* OpenCV's calibrateCamera only, no Ceres refinement (which runs by default when
+         * impasto is built with Ceres, on views that determine the focal length). */
+        bool opencv_only;
 };
 static inline void imp_calib_procam_opts_default(struct imp_calib_procam_opts *o) {
         *o = (struct imp_calib_procam_opts) { .proj_w = 1024, .proj_h = 768, .board_cols = 9,

@@ -8,4 +8,7 @@ if(TARGET impasto_cv)
   impasto_test(test-calib-synth LABELS integration LIBS impasto_cv impasto_pipeline TIMEOUT 120)
   # Degenerate view sets: fronto-parallel boards, one view; flags and finite outputs.
   impasto_test(test-calib-stability LABELS integration LIBS impasto_cv impasto_pipeline TIMEOUT 120)
+  # Ceres bundle refinement: agrees with OpenCV on clean corners; robust loss and outlier
+  # rejection keep fx within 0.1 % with corners moved 20 px (skips without Ceres).
+  impasto_test(test-calib-ceres LABELS integration LIBS impasto_cv impasto_pipeline TIMEOUT 120)
 endif()

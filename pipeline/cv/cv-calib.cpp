@@ -17,6 +17,7 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/structured_light.hpp>
+#include "ceres-calib.h"
 #include "cv-calib.h"
 #include "cv-graycode.h"
 
@@ -666,19 +667,49 @@ int world_pose(const struct imp_calib_procam_opts *o, const std::vector<double> 
 
 /* Intrinsics of one device with opts.k3 (calib.h): k3 held at 0 first; with
  * IMP_CALIB_K3_AUTO refitted with k3 when that estimate's diagonal field of view reaches
- * IMP_CALIB_K3_MIN_FOV_DEG. */
-int device_intrinsics(const std::vector<struct imp_calib_view> &v, int w, int h, int k3_mode,
+ * IMP_CALIB_K3_MIN_FOV_DEG. Then, built with Ceres and unless opts.opencv_only, the
+ * robust bundle refinement (ceres-calib.h) — skipped on views that do not determine the
+ * focal length (the flags and inflated σ of the OpenCV fit stand), and with a warning
+ * (keeping OpenCV's result) when it fails. */
+int device_intrinsics(const std::vector<struct imp_calib_view> &v, int w, int h,
+                      const struct imp_calib_procam_opts *o, const char *who, struct imp_calib_procam *res,
                       struct imp_calib_intrinsics *ret, struct imp_error *err) {
-        int r = imp_cv_calib_intrinsics_fit(v.data(), (int) v.size(), w, h,
-                                            k3_mode == IMP_CALIB_K3_FIT ? 0u : (unsigned) IMP_CALIB_FIT_FIX_K3,
-                                            ret, nullptr, nullptr, err);
-        if (r < 0 || k3_mode != IMP_CALIB_K3_AUTO)
+        const int n = (int) v.size();
+        std::vector<double> rv((size_t) 3 * n), tv((size_t) 3 * n);
+        int r = imp_cv_calib_intrinsics_fit(v.data(), n, w, h,
+                                            o->k3 == IMP_CALIB_K3_FIT ? 0u : (unsigned) IMP_CALIB_FIT_FIX_K3,
+                                            ret, rv.data(), tv.data(), err);
+        if (r < 0)
                 return r;
         double hx = 0.5 * w / ret->fx, hy = 0.5 * h / ret->fy;
         double fov = 2 * std::atan(std::sqrt(hx * hx + hy * hy)) * 180 / M_PI;
-        if (!(fov >= IMP_CALIB_K3_MIN_FOV_DEG))
+        if (o->k3 == IMP_CALIB_K3_AUTO && fov >= IMP_CALIB_K3_MIN_FOV_DEG) {
+                r = imp_cv_calib_intrinsics_fit(v.data(), n, w, h, 0u, ret, rv.data(), tv.data(), err);
+                if (r < 0)
+                        return r;
+        }
+        if (o->opencv_only || !imp_ceres_calib_available() ||
+            (ret->flags & (IMP_CALIB_FOCAL_UNDETERMINED | IMP_CALIB_FEW_VIEWS | IMP_CALIB_RANK_DEFICIENT)))
                 return 0;
-        return imp_cv_calib_intrinsics_fit(v.data(), (int) v.size(), w, h, 0u, ret, nullptr, nullptr, err);
+        struct imp_ceres_calib_opts co;
+        imp_ceres_calib_opts_default(&co);
+        struct imp_calib_intrinsics refined = *ret;
+        struct imp_ceres_calib_report rep = {};
+        struct imp_error cerr = {};
+        r = imp_ceres_calib_refine(v.data(), n, &co, &refined, rv.data(), tv.data(), nullptr, &rep, &cerr);
+        if (r < 0) {
+                imp_calib_warn(res, "%s: %s; keeping OpenCV's estimate", who, cerr.msg);
+                return 0;
+        }
+        refined.ceres_refined = true;
+        refined.n_outliers = rep.n_outliers;
+        if (rep.n_outliers > 0)
+                imp_calib_warn(res, "%s: %d of %d points dropped as outliers by the refinement", who,
+                               rep.n_outliers, refined.n_points + rep.n_outliers);
+        refined.flags &= ~(unsigned) (IMP_CALIB_PP_UNDETERMINED | IMP_CALIB_FOCAL_UNDETERMINED);
+        imp_calib_intrinsics_assess(&refined);
+        *ret = refined;
+        return 0;
 }
 
 int procam_cpp(const char *const *dirs, int n_dirs, const source &src, const struct imp_calib_procam_opts *o,
@@ -737,10 +768,10 @@ int procam_cpp(const char *const *dirs, int n_dirs, const source &src, const str
                 vp.push_back({ (int) p.proj.size() / 2, p.obj_p.data(), p.proj.data() });
                 vcp.push_back({ (int) p.cam_p.size() / 2, p.obj_p.data(), p.cam_p.data() });
         }
-        int r = device_intrinsics(vc, cam_w, cam_h, o->k3, &res->camera, err);
+        int r = device_intrinsics(vc, cam_w, cam_h, o, "camera", res.get(), &res->camera, err);
         if (r < 0)
                 return imp_error_prefix(err, "camera: ");
-        r = device_intrinsics(vp, o->proj_w, o->proj_h, o->k3, &res->projector, err);
+        r = device_intrinsics(vp, o->proj_w, o->proj_h, o, "projector", res.get(), &res->projector, err);
         if (r < 0)
                 return imp_error_prefix(err, "projector: ");
         r = imp_cv_calib_stereo(vcp.data(), vp.data(), (int) vp.size(), &res->camera, &res->projector,

@@ -23,9 +23,14 @@
  * RMS 0.070 px; projector fx, fy −0.026 %, −0.022 %, cx +5.6 px (σ 8.4), cy +7.7 px (σ 4.7),
  * RMS 0.093 px; stereo |Δt| 0.30 mm, ΔR 0.14°; camera centre on the canvas 0.054 mm, axis
  * 0.020°; found − true corners ≤ 0.096 px RMS per target (worst corner 0.19 px).
+ * The Ceres refinement (default when built with it) lands on the same optimum — no outlier
+ * in rendered corners: camera fx, fy +0.021 %, cx −1.02, cy +0.76 px, projector −0.025 %,
+ * −0.021 %, cx +5.7, cy +7.6 px, stereo |Δt| 0.30 mm — and its mrcal-style projection
+ * uncertainty is 0.003 px (camera) / 0.014 px (projector) at the image centre.
  * Issue #8 asks for 0.1 % on f (met, both devices) and 0.5 px on the principal point: NOT
  * met and not determinable here — a 13° field of view leaves σ(cx, cy) at 3–8 px, so the
- * limits below record what the method gives with about 2× room (docs/calibration.md). */
+ * limits below record what the method gives with about 2× room (docs/calibration.md, which
+ * also shows that other target poses cannot fix it). */
 #define N_TARGETS 14
 #define CAM_F_REL_TOL      1e-3        /* issue #8: 0.1 % */
 #define CAM_PP_TOL_PX      2.5
@@ -45,8 +50,11 @@ static int run(const char *cmd) {
         return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
 }
 
+/* j.a.b (j.a when b is NULL) as a number, NAN when missing. */
 static double num(json_t *j, const char *a, const char *b) {
-        json_t *o = json_object_get(json_object_get(j, a), b);
+        json_t *o = json_object_get(j, a);
+        if (b)
+                o = json_object_get(o, b);
         return o ? json_number_value(o) : NAN;
 }
 
@@ -159,6 +167,39 @@ static double corner_bias(const char *cfg, const char *dir) {
         return rms;
 }
 
+/* The --opencv-only result still meets issue #8's focal-length limit (it is the start of the
+ * refinement); printed for the comparison in docs/calibration.md. */
+static void opencv_only(const char *tmp) {
+        char path[1024];
+        struct imp_error err = { 0 };
+        struct imp_rig est = { 0 }, truth = { 0 };
+        snprintf(path, sizeof path, "%s/rig-cv.json", tmp);
+        int r = imp_rig_load(path, &est, &err);
+        CHECK_OK(r);
+        snprintf(path, sizeof path, "%s/t0/truth/rig.json", tmp);
+        CHECK_OK(imp_rig_load(path, &truth, &err));
+        if (r == 0 && est.n_cameras > 0 && truth.n_cameras > 0) {
+                check_intrinsics("camera (opencv only)", &est.cameras[0].model, &truth.cameras[0].model,
+                                 CAM_F_REL_TOL, CAM_PP_TOL_PX);
+                check_intrinsics("projector (opencv only)", &est.projector.model, &truth.projector.model,
+                                 PROJ_F_REL_TOL, PROJ_PP_TOL_PX);
+        }
+        imp_rig_free(&est);
+        imp_rig_free(&truth);
+}
+
+/* σ of the principal point as the calibration reports it (std.cx, std.cy). */
+static void print_std(json_t *j, const char *who) {
+        json_t *s = json_object_get(json_object_get(j, who), "std");
+        fprintf(stderr, "%s: 1σ fx %.3f fy %.3f cx %.3f cy %.3f px; refinement %s, %lld outliers; projection "
+                "uncertainty centre %.3f corner %.3f px\n", who, num(s, "fx", NULL), num(s, "fy", NULL),
+                num(s, "cx", NULL), num(s, "cy", NULL),
+                json_string_value(json_object_get(json_object_get(j, who), "refinement")),
+                (long long) json_integer_value(json_object_get(json_object_get(j, who), "outliers")),
+                num(json_object_get(j, who), "projection_uncertainty", "centre_px"),
+                num(json_object_get(j, who), "projection_uncertainty", "corner_px"));
+}
+
 int main(void) {
         struct stat st;
         if (stat(IMPASTO, &st) < 0)
@@ -178,10 +219,16 @@ int main(void) {
                 if (i > 0)   /* target-0 (flat) goes in as the reference */
                         snprintf(sets + strlen(sets), sizeof sets - strlen(sets), " %s/t%d", tmp, i);
         }
+        /* OpenCV alone first (the method before the Ceres refinement), then the default. */
+        snprintf(cmd, sizeof cmd, "%s calibrate procam --sets%s --reference %s/t0 --board-origin 9,9.5 "
+                 "--board 15x8 --square 3 --json --opencv-only --out %s/rig-cv.json > %s/calib-cv.json",
+                 IMPASTO, sets, tmp, tmp, tmp);
+        CHECK_INT_EQ(run(cmd), 0);
         snprintf(cmd, sizeof cmd, "%s calibrate procam --sets%s --reference %s/t0 --board-origin 9,9.5 "
                  "--board 15x8 --square 3 --json --out %s/rig.json > %s/calib.json", IMPASTO, sets, tmp,
                  tmp, tmp);
         CHECK_INT_EQ(run(cmd), 0);
+        opencv_only(tmp);
 
         struct imp_error err = { 0 };
         snprintf(path, sizeof path, "%s/calib.json", tmp);
@@ -202,6 +249,12 @@ int main(void) {
                 num(j, "stereo", "rms_px"));
         CHECK_LE(cam_rms, CAM_RMS_MAX_PX);
         CHECK_LE(proj_rms, PROJ_RMS_MAX_PX);
+        print_std(j, "camera");
+        print_std(j, "projector");
+        /* Rendered corners have no gross errors: the refinement (when built with Ceres) may
+         * drop a stray corner, not a view's worth. */
+        CHECK_LE(num(j, "camera", "outliers"), 20);
+        CHECK_LE(num(j, "projector", "outliers"), 20);
 
         const struct imp_pinhole *ec = &est.cameras[0].model, *tc = &truth.cameras[0].model;
         const struct imp_pinhole *ep = &est.projector.model, *tp = &truth.projector.model;

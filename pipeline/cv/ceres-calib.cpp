@@ -1,0 +1,367 @@
+/* Ceres bundle refinement of a planar-target calibration (see ceres-calib.h): intrinsics,
+ * Brown–Conrady distortion and one pose per view, robust loss, outlier rejection, then
+ * the covariance (ceres::Covariance, all blocks) and an mrcal-style projection
+ * uncertainty. Every exception stops at this boundary. */
+#include <algorithm>
+#include <cerrno>
+#include <cmath>
+#include <new>
+#include <vector>
+#include <opencv2/calib3d.hpp>
+#include "ceres-calib.h"
+#ifdef IMPASTO_HAVE_CERES
+#include <ceres/ceres.h>
+#include <ceres/rotation.h>
+#endif
+
+#ifdef IMPASTO_HAVE_CERES
+namespace {
+
+constexpr int NI = IMP_CALIB_N_INTR;    /* fx fy cx cy k1 k2 p1 p2 k3 */
+constexpr int NP = 6;                   /* Rodrigues r (3), t (3) */
+/* Median of the norm of a 2-D isotropic Gaussian residual is σ·√(2 ln 2). */
+const double RAYLEIGH_MEDIAN = std::sqrt(2.0 * std::log(2.0));
+
+/* OpenCV's projection (projectPoints with 5 distortion terms) of board point X. */
+template <typename T>
+void project(const T *in, const T *pose, const T X[3], T out[2]) {
+        T p[3];
+        ceres::AngleAxisRotatePoint(pose, X, p);
+        for (int k = 0; k < 3; k++)
+                p[k] += pose[3 + k];
+        T x = p[0] / p[2], y = p[1] / p[2], r2 = x * x + y * y;
+        T rad = T(1) + r2 * (in[4] + r2 * (in[5] + r2 * in[8]));
+        T xd = x * rad + T(2) * in[6] * x * y + in[7] * (r2 + T(2) * x * x);
+        T yd = y * rad + in[6] * (r2 + T(2) * y * y) + T(2) * in[7] * x * y;
+        out[0] = in[0] * xd + in[2];
+        out[1] = in[1] * yd + in[3];
+}
+
+struct corner_cost {
+        double X[3], u, v;
+        template <typename T>
+        bool operator()(const T *in, const T *pose, T *res) const {
+                T P[3] = { T(X[0]), T(X[1]), T(X[2]) }, q[2];
+                project(in, pose, P, q);
+                res[0] = q[0] - T(u);
+                res[1] = q[1] - T(v);
+                return true;
+        }
+};
+
+struct point_ref { int view, index; };
+
+struct bundle {
+        const struct imp_calib_view *views;
+        int n_views;
+        double intr[NI];
+        std::vector<double> poses;              /* NP per view */
+        std::vector<point_ref> pts;             /* every point, in view order */
+        std::vector<uint8_t> inlier;
+
+        double residual(const point_ref &p) const {
+                const double *X = views[p.view].obj + 3 * p.index, *m = views[p.view].img + 2 * p.index;
+                double q[2];
+                project(intr, &poses[NP * (size_t) p.view], X, q);
+                return std::hypot(q[0] - m[0], q[1] - m[1]);
+        }
+};
+
+/* The problem over the inliers; loss may be null (plain least squares). The problem owns
+ * the cost functions and the (shared) loss. */
+void build(bundle &b, ceres::Problem &pb, ceres::LossFunction *loss, bool fix_k3) {
+        for (size_t i = 0; i < b.pts.size(); i++) {
+                if (!b.inlier[i])
+                        continue;
+                const point_ref &p = b.pts[i];
+                const struct imp_calib_view &v = b.views[p.view];
+                auto *c = new corner_cost{ { v.obj[3 * p.index], v.obj[3 * p.index + 1], v.obj[3 * p.index + 2] },
+                                           v.img[2 * p.index], v.img[2 * p.index + 1] };
+                pb.AddResidualBlock(new ceres::AutoDiffCostFunction<corner_cost, 2, NI, NP>(c), loss, b.intr,
+                                    &b.poses[NP * (size_t) p.view]);
+        }
+        if (fix_k3)
+                pb.SetManifold(b.intr, new ceres::SubsetManifold(NI, { NI - 1 }));
+}
+
+int solve(bundle &b, const struct imp_ceres_calib_opts *o, bool robust, int *iterations) {
+        ceres::Problem pb;
+        ceres::LossFunction *loss = nullptr;
+        if (robust && o->loss == IMP_CERES_LOSS_HUBER)
+                loss = new ceres::HuberLoss(o->loss_scale_px);
+        else if (robust && o->loss == IMP_CERES_LOSS_CAUCHY)
+                loss = new ceres::CauchyLoss(o->loss_scale_px);
+        build(b, pb, loss, o->fix_k3);
+        ceres::Solver::Options so;
+        so.linear_solver_type = ceres::DENSE_SCHUR;     /* intrinsics ⟂ independent poses */
+        so.max_num_iterations = o->max_iterations > 0 ? o->max_iterations : 200;
+        so.function_tolerance = 1e-12;
+        so.parameter_tolerance = 1e-12;
+        so.gradient_tolerance = 1e-14;
+        so.num_threads = 1;
+        so.logging_type = ceres::SILENT;
+        ceres::Solver::Summary sum;
+        ceres::Solve(so, &pb, &sum);
+        *iterations += (int) sum.iterations.size();
+        return sum.IsSolutionUsable() ? 0 : -EDOM;
+}
+
+/* Drops points whose residual exceeds max(k·σ_robust, min_px); returns how many. */
+int reject(bundle &b, const struct imp_ceres_calib_opts *o) {
+        std::vector<double> e(b.pts.size());
+        for (size_t i = 0; i < b.pts.size(); i++)
+                e[i] = b.residual(b.pts[i]);
+        std::vector<double> s = e;
+        std::nth_element(s.begin(), s.begin() + (long) s.size() / 2, s.end());
+        double sigma = s[s.size() / 2] / RAYLEIGH_MEDIAN;
+        double limit = std::max(o->outlier_sigmas * sigma, o->outlier_min_px);
+        int n = 0;
+        for (size_t i = 0; i < b.pts.size(); i++)
+                if (e[i] > limit) {
+                        b.inlier[i] = 0;
+                        n++;
+                }
+        return n;
+}
+
+/* mrcal's projection uncertainty (Kogan, mrcal docs "projection uncertainty"): the point
+ * seen at pixel q at range d is carried into every board's frame, and after a parameter
+ * perturbation back into the camera by the mean of the perturbed poses, then projected
+ * with the perturbed intrinsics. Σq = J C Jᵀ with J = ∂q/∂θ over all parameters (central
+ * differences) and C their full covariance; returns √λmax(Σq). A shift of (cx, cy) that
+ * the poses compensate therefore does not count, unlike the intrinsics-only figure. */
+double mrcal_uncertainty(const bundle &b, const std::vector<double> &C, double qx, double qy, double range) {
+        const double in0[NI] = { b.intr[0], b.intr[1], b.intr[2], b.intr[3], b.intr[4], b.intr[5],
+                                 b.intr[6], b.intr[7], b.intr[8] };
+        cv::Mat K = (cv::Mat_<double>(3, 3) << in0[0], 0, in0[2], 0, in0[1], in0[3], 0, 0, 1);
+        cv::Mat D = (cv::Mat_<double>(1, 5) << in0[4], in0[5], in0[6], in0[7], in0[8]);
+        std::vector<cv::Point2d> q{ { qx, qy } }, n;
+        cv::undistortPoints(q, n, K, D, cv::noArray(), cv::noArray(),
+                            cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 100, 1e-14));
+        const double pc[3] = { range * n[0].x, range * n[0].y, range };
+        const int M = b.n_views, P = NI + NP * M;
+        std::vector<double> board((size_t) 3 * M);      /* pc in each board's frame */
+        for (int v = 0; v < M; v++) {
+                const double *pose = &b.poses[NP * (size_t) v];
+                double d[3] = { pc[0] - pose[3], pc[1] - pose[4], pc[2] - pose[5] }, ir[3] = { -pose[0], -pose[1], -pose[2] };
+                ceres::AngleAxisRotatePoint(ir, d, &board[3 * (size_t) v]);
+        }
+        std::vector<double> theta((size_t) P);
+        std::copy(in0, in0 + NI, theta.begin());
+        std::copy(b.poses.begin(), b.poses.end(), theta.begin() + NI);
+        auto F = [&](const std::vector<double> &th, double out[2]) {
+                double mean[3] = { 0, 0, 0 };
+                for (int v = 0; v < M; v++) {
+                        const double *pose = &th[NI + NP * (size_t) v];
+                        double p[3];
+                        ceres::AngleAxisRotatePoint(pose, &board[3 * (size_t) v], p);
+                        for (int k = 0; k < 3; k++)
+                                mean[k] += (p[k] + pose[3 + k]) / M;
+                }
+                const double zero[NP] = { 0, 0, 0, 0, 0, 0 };
+                project(th.data(), zero, mean, out);
+        };
+        std::vector<double> J((size_t) 2 * P);
+        for (int k = 0; k < P; k++) {
+                double h = 1e-6 * std::max(std::fabs(theta[k]), 1.0), a[2], c[2];
+                std::vector<double> t = theta;
+                t[k] = theta[k] + h;
+                F(t, a);
+                t[k] = theta[k] - h;
+                F(t, c);
+                J[k] = (a[0] - c[0]) / (2 * h);
+                J[P + k] = (a[1] - c[1]) / (2 * h);
+        }
+        double S[3] = { 0, 0, 0 };      /* Sxx, Sxy, Syy */
+        for (int i = 0; i < P; i++)
+                for (int j = 0; j < P; j++) {
+                        double c = C[(size_t) i * P + j];
+                        S[0] += J[i] * c * J[j];
+                        S[1] += J[i] * c * J[P + j];
+                        S[2] += J[P + i] * c * J[P + j];
+                }
+        double tr = 0.5 * (S[0] + S[2]), det = S[0] * S[2] - S[1] * S[1];
+        double lmax = tr + std::sqrt(std::max(tr * tr - det, 0.0));
+        return std::sqrt(std::max(lmax, 0.0));
+}
+
+/* Residual statistics over the inliers, covariance of all parameters, std, σ and the
+ * projection uncertainty into r. Returns false when Ceres finds the Jacobian rank
+ * deficient (r's std/cov then untouched). */
+bool assess(bundle &b, const struct imp_ceres_calib_opts *o, struct imp_calib_intrinsics *r) {
+        double sse = 0, worst = -1;
+        int N = 0;
+        for (size_t i = 0; i < b.pts.size(); i++) {
+                if (!b.inlier[i])
+                        continue;
+                double e = b.residual(b.pts[i]);
+                sse += e * e;
+                N++;
+                if (e > worst) {
+                        worst = e;
+                        r->worst_view = b.pts[i].view;
+                        r->worst_point = b.pts[i].index;
+                }
+        }
+        r->n_points = N;
+        r->rms_px = std::sqrt(sse / std::max(N, 1));
+        r->worst_px = std::max(worst, 0.0);
+        const int M = b.n_views, n_intr = o->fix_k3 ? NI - 1 : NI, P = NI + NP * M;
+        const int dof = N - (n_intr + NP * M);     /* OpenCV's convention, see calib.h */
+        const double sigma2 = sse / std::max(dof, 1);
+        r->sigma_px = std::sqrt(sigma2);
+
+        ceres::Problem pb;
+        build(b, pb, nullptr, o->fix_k3);
+        std::vector<const double *> blocks{ b.intr };
+        for (int v = 0; v < M; v++)
+                blocks.push_back(&b.poses[NP * (size_t) v]);
+        std::vector<double> C((size_t) P * P);
+        bool ok = false;
+        for (auto alg : { ceres::SPARSE_QR, ceres::DENSE_SVD }) {
+                ceres::Covariance::Options co;
+                co.algorithm_type = alg;
+                co.null_space_rank = 0;         /* fail, rather than truncate, when singular */
+                ceres::Covariance cov(co);
+                if (cov.Compute(blocks, &pb) && cov.GetCovarianceMatrix(blocks, C.data())) {
+                        ok = true;
+                        break;
+                }
+        }
+        if (!ok || dof <= 0)
+                return false;
+        for (double &c : C)
+                c *= sigma2;
+        for (int a = 0; a < NI; a++) {
+                for (int c = 0; c < NI; c++)
+                        r->cov[a * NI + c] = C[(size_t) a * P + c];
+                r->std[a] = std::sqrt(std::max(C[(size_t) a * P + a], 0.0));
+        }
+        double range = 0;
+        for (int v = 0; v < M; v++)
+                range += b.poses[NP * (size_t) v + 5] / M;
+        r->proj_unc_centre_px = mrcal_uncertainty(b, C, (r->width - 1) / 2.0, (r->height - 1) / 2.0, range);
+        r->proj_unc_corner_px = mrcal_uncertainty(b, C, 0.0, 0.0, range);
+        return true;
+}
+
+bool finite_all(const double *v, size_t n) {
+        for (size_t i = 0; i < n; i++)
+                if (!std::isfinite(v[i]))
+                        return false;
+        return true;
+}
+
+int refine_cpp(const struct imp_calib_view *views, int n_views, const struct imp_ceres_calib_opts *o,
+               struct imp_calib_intrinsics *io, double *io_rvecs, double *io_tvecs, uint8_t *ret_inlier,
+               struct imp_ceres_calib_report *ret_report, struct imp_error *err) {
+        bundle b;
+        b.views = views;
+        b.n_views = n_views;
+        const double start[NI] = { io->fx, io->fy, io->cx, io->cy, io->dist[0], io->dist[1], io->dist[2],
+                                   io->dist[3], io->dist[4] };
+        std::copy(start, start + NI, b.intr);
+        b.poses.resize((size_t) NP * n_views);
+        for (int v = 0; v < n_views; v++)
+                for (int k = 0; k < 3; k++) {
+                        b.poses[NP * (size_t) v + k] = io_rvecs[3 * v + k];
+                        b.poses[NP * (size_t) v + 3 + k] = io_tvecs[3 * v + k];
+                }
+        for (int v = 0; v < n_views; v++)
+                for (int i = 0; i < views[v].n; i++)
+                        b.pts.push_back({ v, i });
+        b.inlier.assign(b.pts.size(), 1);
+        struct imp_ceres_calib_report rep = {};
+        double s0 = 0;
+        for (const auto &p : b.pts)
+                s0 += b.residual(p) * b.residual(p);
+        rep.initial_rms_px = std::sqrt(s0 / std::max<size_t>(b.pts.size(), 1));
+
+        struct imp_ceres_calib_opts oo = *o;
+        oo.fix_k3 = o->fix_k3 || io->k3_fixed;
+        const bool robust = oo.loss != IMP_CERES_LOSS_NONE;
+        if (solve(b, &oo, robust, &rep.iterations) < 0)
+                return imp_error_set(err, -EDOM, "ceres refinement: the solver gave no usable solution");
+        if (oo.outlier_sigmas > 0) {
+                rep.n_outliers = reject(b, &oo);
+                for (int v = 0, base = 0; v < n_views; base += views[v].n, v++) {
+                        int kept = 0;
+                        for (int i = 0; i < views[v].n; i++)
+                                kept += b.inlier[(size_t) base + i];
+                        if (kept < 4)
+                                return imp_error_set(err, -EDOM, "ceres refinement: view %d keeps %d of %d "
+                                                     "points after outlier rejection", v, kept, views[v].n);
+                }
+                if (rep.n_outliers > 0 && solve(b, &oo, robust, &rep.iterations) < 0)
+                        return imp_error_set(err, -EDOM, "ceres refinement: the solver gave no usable "
+                                             "solution after outlier rejection");
+        }
+        if (!finite_all(b.intr, NI) || !finite_all(b.poses.data(), b.poses.size()) || !(b.intr[0] > 0) ||
+            !(b.intr[1] > 0))
+                return imp_error_set(err, -EDOM, "ceres refinement gave a non-finite or non-positive result");
+
+        struct imp_calib_intrinsics r = *io;
+        r.fx = b.intr[0];
+        r.fy = b.intr[1];
+        r.cx = b.intr[2];
+        r.cy = b.intr[3];
+        std::copy(b.intr + 4, b.intr + NI, r.dist);
+        r.k3_fixed = oo.fix_k3;
+        rep.covariance_ok = assess(b, &oo, &r);
+        if (!rep.covariance_ok)
+                r.flags |= IMP_CALIB_RANK_DEFICIENT;
+        if (!finite_all(r.std, NI) || !finite_all(r.cov, NI * NI) || !std::isfinite(r.proj_unc_centre_px) ||
+            !std::isfinite(r.proj_unc_corner_px))
+                return imp_error_set(err, -EDOM, "ceres refinement: non-finite uncertainty");
+        if (oo.fix_k3)
+                r.std[NI - 1] = 0;
+        *io = r;
+        for (int v = 0; v < n_views; v++)
+                for (int k = 0; k < 3; k++) {
+                        io_rvecs[3 * v + k] = b.poses[NP * (size_t) v + k];
+                        io_tvecs[3 * v + k] = b.poses[NP * (size_t) v + 3 + k];
+                }
+        if (ret_inlier)
+                std::copy(b.inlier.begin(), b.inlier.end(), ret_inlier);
+        if (ret_report)
+                *ret_report = rep;
+        return 0;
+}
+
+}  // namespace
+#endif
+
+extern "C" bool imp_ceres_calib_available(void) {
+#ifdef IMPASTO_HAVE_CERES
+        return true;
+#else
+        return false;
+#endif
+}
+
+extern "C" int imp_ceres_calib_refine(const struct imp_calib_view *views, int n_views,
+                                      const struct imp_ceres_calib_opts *opts, struct imp_calib_intrinsics *io,
+                                      double *io_rvecs, double *io_tvecs, uint8_t *ret_inlier,
+                                      struct imp_ceres_calib_report *ret_report, struct imp_error *err) {
+        if (!views || n_views < 1 || !opts || !io || !io_rvecs || !io_tvecs || io->width < 1 || io->height < 1 ||
+            (opts->loss != IMP_CERES_LOSS_NONE && !(opts->loss_scale_px > 0)) || !(opts->outlier_sigmas >= 0))
+                return imp_error_set(err, -EINVAL, "ceres refinement: bad arguments");
+        for (int v = 0; v < n_views; v++)
+                if (views[v].n < 4 || !views[v].obj || !views[v].img)
+                        return imp_error_set(err, -EINVAL, "ceres refinement: view %d has %d points, at "
+                                             "least 4 needed", v, views[v].n);
+#ifdef IMPASTO_HAVE_CERES
+        try {
+                return refine_cpp(views, n_views, opts, io, io_rvecs, io_tvecs, ret_inlier, ret_report, err);
+        } catch (const std::bad_alloc &) {
+                return imp_error_set(err, -ENOMEM, "ceres refinement: out of memory");
+        } catch (const cv::Exception &e) {
+                return imp_error_set(err, -EDOM, "ceres refinement: %s", e.what());
+        }
+#else
+        (void) ret_inlier;
+        (void) ret_report;
+        return imp_error_set(err, -EOPNOTSUPP, "ceres refinement: impasto was built without Ceres "
+                             "(IMPASTO_WITH_CERES off)");
+#endif
+}
