@@ -35,6 +35,7 @@ struct plan_spec {
         double gain_db;
         bool sl;
         int gray_bits[2];          /* per axis; 0 = axis not scanned */
+        int code_bits[2];          /* bits of the whole code; gray_bits may keep only its coarsest */
         bool inverse, white, black;
         int n_periods, steps;
         double periods_px[IMP_PLAN_MAX_PERIODS];
@@ -136,8 +137,14 @@ static int parse_sl(const struct imp_conf *c, const struct imp_rig *rig, struct 
         if (r < 0)
                 return r;
         const int size[2] = { rig->projector.model.width, rig->projector.model.height };
-        for (int a = 0; a < 2; a++)
-                ps->gray_bits[a] = !axes[a] ? 0 : bits > 0 ? (int) bits : ceil_log2(size[a]);
+        /* Fewer bits than the projector needs keep the coarsest planes of the full code; the
+         * phase periods then resolve the rest (structured-light.c checks they can). */
+        for (int a = 0; a < 2; a++) {
+                ps->code_bits[a] = !axes[a] ? 0 : ceil_log2(size[a]);
+                ps->gray_bits[a] = !axes[a] ? 0 : bits > 0 ? (int) bits : ps->code_bits[a];
+                if (ps->gray_bits[a] > ps->code_bits[a])
+                        ps->code_bits[a] = ps->gray_bits[a];
+        }
         if ((r = imp_conf_get_bool(c, g, "inverse", false, &ps->inverse, err)) < 0 ||
             (r = imp_conf_get_bool(c, g, "white", false, &ps->white, err)) < 0 ||
             (r = imp_conf_get_bool(c, g, "black", false, &ps->black, err)) < 0)
@@ -276,7 +283,7 @@ static int expand_sl(struct imp_plan *p, size_t *cap, const struct plan_spec *ps
                         for (int b = 0; b < ps->gray_bits[a]; b++)
                                 for (int inv = 0; inv <= (ps->inverse ? 1 : 0); inv++) {
                                         t->pattern = (struct imp_pattern) { .kind = IMP_PAT_GRAY, .axis = a,
-                                                .bit = b, .nbits = ps->gray_bits[a], .inverse = inv };
+                                                .bit = b, .nbits = ps->code_bits[a], .inverse = inv };
                                         if ((r = push(p, cap, t)) < 0) return r;
                                 }
                         for (int k = 0; ps->gray_bits[a] > 0 && k < ps->n_periods; k++)

@@ -111,6 +111,25 @@ int main(void) {
                 CHECK_INT_EQ(imp_plan_frame(p, i)->seq, i);
         CHECK(imp_plan_frame(p, imp_plan_count(p)) == NULL);
 
+        /* fewer Gray bits than the projector needs: the coarsest planes of the full 7-bit code */
+        {
+                _cleanup_(imp_plan_freep) struct imp_plan *q = NULL;
+                CHECK_OK(imp_plan_load_string("structured_light = { gray_bits = 4; phase = { periods_px = [16.0]; steps = 4; };\n"
+                                              "  exposures_us = [1000.0]; };\n",
+                                              "plan.cfg", rig, &q, &err));
+                CHECK_INT_EQ(imp_plan_gray_bits(q, 0), 4);
+                int seen = 0;
+                for (size_t i = 0; q && i < imp_plan_count(q); i++) {
+                        const struct imp_frame_record *g = imp_plan_frame(q, i);
+                        if (g->pattern.kind == IMP_PAT_GRAY && g->pattern.axis == 0 && !g->pattern.inverse) {
+                                CHECK_INT_EQ(g->pattern.nbits, 7);
+                                CHECK(g->pattern.bit < 4);
+                                seen++;
+                        }
+                }
+                CHECK_INT_EQ(seen, 4);
+        }
+
         /* estimate: Σ (exposure + readout + settle) + settle per light/pattern change */
         double expo = 0, changes = 0;
         for (size_t i = 0; i < imp_plan_count(p); i++) {
