@@ -16,8 +16,6 @@
 #define RHO_S_MAX 1e4                 /* last-resort cap of the reported ρs */
 #define PEAK_SEEN_FLAG 0.15           /* LOBE_UNCERTAIN when the brightest seen lobe value is
                                          below this fraction of the lobe's peak */
-#define PEAK_SEEN_MIN 0.01            /* k is lowered until the peak is at most 1/this times
-                                         the brightest seen lobe value (no wild extrapolation) */
 #define LAMBDA_INIT 1e-3
 #define LAMBDA_MAX 1e8
 #define STEP_MIN 1e-4                 /* stop when no parameter moves more than this */
@@ -40,6 +38,7 @@ void imp_btf_fit_params_default(struct imp_btf_fit_params *ret) {
                 .k_rel_uncertain = 0.2,
                 .k_default = 10.0,
                 .c_prior_sigma = 0.5,
+                .peak_seen_min = PEAK_SEEN_FLAG,
         };
 }
 
@@ -689,7 +688,8 @@ static bool cx_cy_separable(const struct work *w, double tau) {
 int imp_btf_fit_texel(const struct imp_btf_sample *samples, int n, const struct imp_btf_fit_params *p,
                       struct imp_btf_texel *ret) {
         if (n < 0 || (n > 0 && !samples) || !p || !ret || !(p->k_min > 0.0) || !(p->k_max >= p->k_min) ||
-            !(p->c_max > 0.0) || p->min_samples < 1 || !(p->c_prior_sigma > 0.0) || !(p->sigma_floor > 0.0))
+            !(p->c_max > 0.0) || p->min_samples < 1 || !(p->c_prior_sigma > 0.0) || !(p->sigma_floor > 0.0) ||
+            !(p->peak_seen_min > 0.0 && p->peak_seen_min <= 1.0))
                 return -EINVAL;
         if (n > IMP_BTF_MAX_SAMPLES)
                 return -E2BIG;
@@ -750,14 +750,14 @@ int imp_btf_fit_texel(const struct imp_btf_sample *samples, int n, const struct 
         }
 
         /* Bound the extrapolation from the brightest seen lobe value to the lobe's peak:
-         * lower k (same C) until peak_seen ≥ PEAK_SEEN_MIN, and re-solve ρ. */
+         * lower k (same C) until peak_seen ≥ p->peak_seen_min, and re-solve ρ. */
         double cx, cy, k;
         theta_to_lobe(cxy, th, &cx, &cy, &k);
         double mx = fmax(1.0, fmax(fabs(cx), fabs(cy)));
         double peak_seen = exp(k * (e.ldmax - log(mx)));   /* brightest seen / peak, ≤ 1 */
         bool extrapolated = peak_seen < PEAK_SEEN_FLAG;
-        if (peak_seen < PEAK_SEEN_MIN) {
-                k = fmax(log(PEAK_SEEN_MIN) / (e.ldmax - log(mx)), p->k_min);
+        if (peak_seen < p->peak_seen_min) {
+                k = fmax(log(p->peak_seen_min) / (e.ldmax - log(mx)), p->k_min);
                 th[cxy ? 1 : 2] = log(k);
                 evaluate(&w, cx, cy, k, &e);
                 peak_seen = exp(k * (e.ldmax - log(mx)));
@@ -897,49 +897,46 @@ int imp_btf_fit_grid(const struct imp_btf_heightfield *hf, const struct imp_btf_
                 return -EINVAL;
         if (cap->n_lights <= 0 || cap->n_lights > IMP_BTF_MAX_SAMPLES)
                 return -E2BIG;
-        int T = tile_texels ? tile_texels : 64;
-        _cleanup_btf_samples_ struct imp_btf_samples *buf = NULL;
-        int r = imp_btf_samples_new(T * T, cap->n_lights, &buf);
-        if (r < 0)
-                return r;
         struct imp_btf_stats st = { 0 };
         struct imp_btf_texel dflt = { 0 };
-        r = imp_btf_fit_texel(NULL, 0, fp, &dflt);    /* checks fp */
+        int r = imp_btf_fit_texel(NULL, 0, fp, &dflt);    /* checks fp */
         if (r < 0)
                 return r;
         dflt = (struct imp_btf_texel) { 0 };
         set_default_lobe(fp, &dflt);
         _cleanup_(imp_btf_hf_pyramid_freep) struct imp_btf_hf_pyramid *py = NULL;
-        r = imp_btf_hf_pyramid_new(hf, &py);
-        if (r < 0)
+        _cleanup_(imp_btf_extractor_freep) struct imp_btf_extractor *x = NULL;
+        if ((r = imp_btf_hf_pyramid_new(hf, &py)) < 0 || (r = imp_btf_extractor_new(hf, cap, sp, py, &x)) < 0)
                 return r;
 
-        for (int y0 = 0; y0 < hf->height; y0 += T)
-                for (int x0 = 0; x0 < hf->width; x0 += T) {
-                        int w = IMP_MIN(T, hf->width - x0), h = IMP_MIN(T, hf->height - y0);
-                        r = imp_btf_samples_extract_pyramid(hf, cap, sp, py, x0, y0, w, h, buf);
-                        if (r < 0)
-                                return r;
-                        long n_samples = 0, n_shadowed = 0;
-#pragma omp parallel for schedule(dynamic, 8) reduction(+ : n_samples, n_shadowed)
-                        for (int i = 0; i < w * h; i++) {
-                                struct imp_btf_texel *t = &ret_texels[(size_t) (y0 + i / w) * hf->width + x0 + i % w];
-                                uint16_t sf = buf->flags[i];
-                                n_samples += buf->count[i];
-                                n_shadowed += buf->n_shadowed[i];
-                                if (sf & (IMP_BTF_MASKED | IMP_BTF_HIDDEN)) {
-                                        *t = dflt;
-                                        t->flags = sf;
-                                        continue;
-                                }
-                                /* Cannot fail: fp checked above, count ≤ IMP_BTF_MAX_SAMPLES. */
-                                (void) imp_btf_fit_texel(buf->samples + (size_t) i * buf->max_per_texel,
-                                                         buf->count[i], fp, t);
-                                t->flags |= sf;
+        /* One parallel loop: each thread extracts a texel's samples into its own buffer and
+         * fits them at once (no tile buffer, no barrier between the two; chunks of
+         * consecutive texels keep the frame taps and the heightfield in cache). */
+        const int W = hf->width;
+        const long nt = (long) W * hf->height, chunk = tile_texels > 0 ? tile_texels : 64;
+        long n_samples = 0, n_shadowed = 0;
+#pragma omp parallel reduction(+ : n_samples, n_shadowed)
+        {
+                struct imp_btf_sample smp[IMP_BTF_MAX_SAMPLES];
+#pragma omp for schedule(dynamic, chunk)
+                for (long i = 0; i < nt; i++) {
+                        struct imp_btf_texel *t = &ret_texels[i];
+                        uint16_t sf, nsh;
+                        int n = imp_btf_extract_texel(x, (int) (i % W), (int) (i / W), smp, &sf, &nsh);
+                        n_samples += n;
+                        n_shadowed += nsh;
+                        if (sf & (IMP_BTF_MASKED | IMP_BTF_HIDDEN)) {
+                                *t = dflt;
+                                t->flags = sf;
+                                continue;
                         }
-                        st.n_samples += n_samples;
-                        st.n_shadowed += n_shadowed;
+                        /* Cannot fail: fp checked above, n ≤ IMP_BTF_MAX_SAMPLES. */
+                        (void) imp_btf_fit_texel(smp, n, fp, t);
+                        t->flags |= sf;
                 }
+        }
+        st.n_samples = n_samples;
+        st.n_shadowed = n_shadowed;
 
         r = imp_btf_fill(ret_texels, hf->width, hf->height);
         if (r < 0)

@@ -9,6 +9,7 @@
 #include <string.h>
 
 #include "btf.h"
+#include "hdr.h"
 
 void imp_btf_sample_params_default(struct imp_btf_sample_params *ret) {
         *ret = (struct imp_btf_sample_params) {
@@ -60,7 +61,8 @@ double imp_btf_light_irradiance(const struct imp_rig_light *light, const double 
         double e = light->intensity * 1e6 / r2;
         if (light->profile_exp != 0.0) {
                 double c = (d[0] * light->axis[0] + d[1] * light->axis[1] + d[2] * light->axis[2]) / sqrt(r2);
-                e *= c > 0.0 ? pow(c, light->profile_exp) : 0.0;
+                double pe = light->profile_exp;
+                e *= !(c > 0.0) ? 0.0 : pe == 1.0 ? c : pe == 2.0 ? c * c : pow(c, pe);
         }
         return e;
 }
@@ -300,6 +302,29 @@ bool imp_btf_heightfield_ray(const struct imp_btf_heightfield *hf, const struct 
 
 /* ---- frames ------------------------------------------------------------------ */
 
+int imp_btf_valid_from_hdr(const struct imp_image *hdr_flags, struct imp_image **ret) {
+        if (!hdr_flags || hdr_flags->type != IMP_PIX_U8 || !ret)
+                return -EINVAL;
+        struct imp_image *v;
+        int r = imp_image_new(hdr_flags->width, hdr_flags->height, 1, IMP_PIX_U8, &v);
+        if (r < 0)
+                return r;
+        for (int y = 0; y < hdr_flags->height; y++)
+                for (int x = 0; x < hdr_flags->width; x++) {
+                        const uint8_t *f = imp_image_u8(hdr_flags, x, y);
+                        uint8_t o = 0;
+                        for (int c = 0; c < hdr_flags->channels; c++) {
+                                if (f[c] & IMP_HDR_SATURATED)
+                                        o |= IMP_BTF_PIX_SATURATED;
+                                if (f[c] & IMP_HDR_DARK)
+                                        o |= IMP_BTF_PIX_INVALID;
+                        }
+                        *imp_image_u8(v, x, y) = o;
+                }
+        *ret = v;
+        return 0;
+}
+
 enum { PIX_OK, PIX_SATURATED, PIX_INVALID };
 
 /* Bilinear value at pixel position px (pixel centres at integers). */
@@ -458,6 +483,69 @@ int imp_btf_samples_extract(const struct imp_btf_heightfield *hf, const struct i
         return imp_btf_samples_extract_pyramid(hf, cap, p, py, x0, y0, w, h, out);
 }
 
+struct imp_btf_extractor {
+        const struct imp_btf_heightfield *hf;
+        const struct imp_btf_capture *cap;
+        struct imp_btf_sample_params p;
+        struct scene sc;
+        double (*light_c)[3];
+};
+
+void imp_btf_extractor_free(struct imp_btf_extractor *x) {
+        if (!x)
+                return;
+        free(x->light_c);
+        free(x);
+}
+
+int imp_btf_extractor_new(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
+                          const struct imp_btf_sample_params *p, const struct imp_btf_hf_pyramid *py,
+                          struct imp_btf_extractor **ret) {
+        int r = check_capture(hf, cap);
+        if (r < 0)
+                return r;
+        if (!p || !py || !ret || py->height_mm != hf->height_mm || py->width != hf->width || py->height != hf->height)
+                return -EINVAL;
+        struct imp_btf_extractor *x = calloc(1, sizeof *x);
+        if (!x)
+                return -ENOMEM;
+        x->light_c = malloc(cap->n_lights * sizeof *x->light_c);
+        if (!x->light_c) {
+                imp_btf_extractor_free(x);
+                return -ENOMEM;
+        }
+        struct scene *sc = &x->sc;
+        if (!rigid_parts(hf->canvas_to_world, sc->R, sc->t)) {
+                imp_btf_extractor_free(x);
+                return -EINVAL;
+        }
+        x->hf = hf;
+        x->cap = cap;
+        x->p = *p;
+        double cw[3];
+        imp_pinhole_centre(cap->camera, cw);
+        mat_apply_inv(sc->R, sc->t, cw, sc->cam_c);
+        sc->hmax = py->hmax;
+        sc->py = py->levels > 0 ? py : NULL;
+        sc->light_c = x->light_c;
+        for (int j = 0; j < cap->n_lights; j++) {
+                const struct imp_rig_light *L = &cap->lights[j];
+                bool unset = L->colour[0] == 0.0 && L->colour[1] == 0.0 && L->colour[2] == 0.0;
+                mat_apply_inv(sc->R, sc->t, L->pos_mm, x->light_c[j]);
+                for (int c = 0; c < 3; c++)
+                        sc->colour_inv[j][c] = unset ? 1.0 : L->colour[c] > 0.0 ? 1.0 / L->colour[c] : 0.0;
+        }
+        *ret = x;
+        return 0;
+}
+
+int imp_btf_extract_texel(const struct imp_btf_extractor *x, int u, int v, struct imp_btf_sample *out,
+                          uint16_t *ret_flags, uint16_t *ret_shadowed) {
+        uint16_t count;
+        extract_texel(x->hf, x->cap, &x->p, &x->sc, u, v, out, &count, ret_flags, ret_shadowed);
+        return count;
+}
+
 int imp_btf_samples_extract_pyramid(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
                                     const struct imp_btf_sample_params *p, const struct imp_btf_hf_pyramid *py,
                                     int x0, int y0, int w, int h, struct imp_btf_samples *out) {
@@ -467,39 +555,20 @@ int imp_btf_samples_extract_pyramid(const struct imp_btf_heightfield *hf, const 
         if (!p || !out || !py || w <= 0 || h <= 0 || x0 < 0 || y0 < 0 || x0 + w > hf->width ||
             y0 + h > hf->height)
                 return -EINVAL;
-        if (py->height_mm != hf->height_mm || py->width != hf->width || py->height != hf->height)
-                return -EINVAL;
         if ((long) w * h > out->capacity_texels || cap->n_lights > out->max_per_texel)
                 return -E2BIG;
-
-        _cleanup_free_ struct scene *sc = malloc(sizeof *sc);
-        _cleanup_free_ double (*light_c)[3] = malloc(cap->n_lights * sizeof *light_c);
-        if (!sc || !light_c)
-                return -ENOMEM;
-        if (!rigid_parts(hf->canvas_to_world, sc->R, sc->t))
-                return -EINVAL;
-        double cw[3];
-        imp_pinhole_centre(cap->camera, cw);
-        mat_apply_inv(sc->R, sc->t, cw, sc->cam_c);
-        sc->hmax = py->hmax;
-        sc->py = py->levels > 0 ? py : NULL;
-        sc->light_c = light_c;
-        for (int j = 0; j < cap->n_lights; j++) {
-                const struct imp_rig_light *L = &cap->lights[j];
-                bool unset = L->colour[0] == 0.0 && L->colour[1] == 0.0 && L->colour[2] == 0.0;
-                mat_apply_inv(sc->R, sc->t, L->pos_mm, light_c[j]);
-                for (int c = 0; c < 3; c++)
-                        sc->colour_inv[j][c] = unset ? 1.0 : L->colour[c] > 0.0 ? 1.0 / L->colour[c] : 0.0;
-        }
-
+        _cleanup_(imp_btf_extractor_freep) struct imp_btf_extractor *x = NULL;
+        r = imp_btf_extractor_new(hf, cap, p, py, &x);
+        if (r < 0)
+                return r;
         out->x0 = x0;
         out->y0 = y0;
         out->w = w;
         out->h = h;
 #pragma omp parallel for schedule(dynamic, 16)
         for (int i = 0; i < w * h; i++)
-                extract_texel(hf, cap, p, sc, x0 + i % w, y0 + i / w,
-                              out->samples + (size_t) i * out->max_per_texel, &out->count[i],
-                              &out->flags[i], &out->n_shadowed[i]);
+                out->count[i] = (uint16_t) imp_btf_extract_texel(x, x0 + i % w, y0 + i / w,
+                                                                 out->samples + (size_t) i * out->max_per_texel,
+                                                                 &out->flags[i], &out->n_shadowed[i]);
         return 0;
 }

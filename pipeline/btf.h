@@ -32,6 +32,11 @@ enum {
         IMP_BTF_PIX_INVALID   = 1 << 1,   /* no usable exposure (too dark, defect) */
 };
 
+/* The validity image of a frame from the per-channel flags of its HDR merge (hdr.h, u8):
+ * SATURATED in any channel → IMP_BTF_PIX_SATURATED, DARK in any → IMP_BTF_PIX_INVALID.
+ * Caller frees *ret. -EINVAL, -ENOMEM. */
+int imp_btf_valid_from_hdr(const struct imp_image *hdr_flags, struct imp_image **ret);
+
 /* One camera and one HDR-merged linear frame per light (frames[i] lit by lights[i]).
  * Frames: f32, 1 or 3 channels, camera->width × camera->height; 1.0 = a white
  * Lambertian reference at normal incidence under irradiance 1. valid: NULL, or one u8
@@ -120,6 +125,22 @@ int imp_btf_samples_extract_pyramid(const struct imp_btf_heightfield *hf, const 
                                     const struct imp_btf_sample_params *p, const struct imp_btf_hf_pyramid *py,
                                     int x0, int y0, int w, int h, struct imp_btf_samples *out);
 
+/* One texel at a time, for callers that fit as they extract (no tile buffer, no barrier
+ * between extraction and fit): the per-capture set-up of imp_btf_samples_extract_pyramid()
+ * once, then imp_btf_extract_texel() from any thread. The extractor refers to hf, cap
+ * and py (they must outlive it); p is copied. -EINVAL, -E2BIG, -ENOMEM as above. */
+struct imp_btf_extractor;
+int imp_btf_extractor_new(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
+                          const struct imp_btf_sample_params *p, const struct imp_btf_hf_pyramid *py,
+                          struct imp_btf_extractor **ret);
+void imp_btf_extractor_free(struct imp_btf_extractor *x);
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_btf_extractor *, imp_btf_extractor_free);
+/* The samples of texel (u, v) (inside the grid) into out (room for cap->n_lights);
+ * returns their number; *ret_flags: HIDDEN, SATURATED, MASKED; *ret_shadowed: samples
+ * rejected as self-shadowed. Thread-safe. */
+int imp_btf_extract_texel(const struct imp_btf_extractor *x, int u, int v, struct imp_btf_sample *out,
+                          uint16_t *ret_flags, uint16_t *ret_shadowed);
+
 /* Ray against the heightfield in canvas coordinates: origin o (on the surface), unit
  * direction d. Linear search in steps of march_step_texels·pitch, then march_refine
  * bisections (seed §5.2). True when the ray passes below the surface (by more than the
@@ -154,6 +175,9 @@ struct imp_btf_fit_params {
         double k_default;             /* k of the default lobe of MATTE / FEW_SAMPLES texels (10) */
         double c_prior_sigma;         /* prior σ of Cx, Cy around the mirror lobe (-1), as a
                                          pseudo-observation of σ sigma_floor (0.5) */
+        double peak_seen_min;         /* k is lowered until the brightest seen lobe value is at
+                                         least this fraction of the lobe's peak (0.15, the
+                                         LOBE_UNCERTAIN level: no peak far above the data) */
 };
 void imp_btf_fit_params_default(struct imp_btf_fit_params *ret);
 
@@ -168,6 +192,7 @@ struct imp_btf_texel {
         uint16_t n_samples;           /* usable samples */
         uint16_t flags;               /* enum imp_btf_flag */
 };
+
 
 /* Fit one texel from n samples (0 ≤ n ≤ IMP_BTF_MAX_SAMPLES; samples that are not
  * finite or have e_cos ≤ 0 or l[2] ≤ 0 are ignored). Thread-safe, allocates nothing.
@@ -186,10 +211,11 @@ struct imp_btf_stats {
         long n_samples, n_shadowed;
 };
 
-/* The whole stage: tile by tile (tile_texels² texels at a time, 0 = 64), extract the
- * samples and fit each texel (OpenMP), then imp_btf_fill(). ret_texels: caller's array
- * of hf->width·hf->height texels. ret_stats may be NULL. Errors as the functions above,
- * -ENOMEM when the tile's sample buffer cannot be allocated. */
+/* The whole stage: one parallel loop (OpenMP) over the texels in which each thread
+ * extracts a texel's samples into its own stack buffer and fits them, then imp_btf_fill().
+ * tile_texels: the loop's scheduling chunk of consecutive texels (0 = 64); memory does not
+ * depend on it. ret_texels: caller's array of hf->width·hf->height texels. ret_stats may
+ * be NULL. Errors as the functions above, -ENOMEM. */
 int imp_btf_fit_grid(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
                      const struct imp_btf_sample_params *sp, const struct imp_btf_fit_params *fp,
                      int tile_texels, struct imp_btf_texel *ret_texels, struct imp_btf_stats *ret_stats);

@@ -56,7 +56,7 @@ static void test_accuracy(void) {
         const double n_up[3] = { 0, 0, 1 };
 
         for (int m = 0; m < 3; m++) {
-                int n_k = 0, n_k_ok = 0, n_uncertain = 0, n_matte = 0, n_tex = 0;
+                int n_k = 0, n_k_ok = 0, n_uncertain = 0, n_matte = 0, n_tex = 0, n_peak_low = 0;
                 double ss_rr = 0.0, worst_k = 0.0;
                 for (int gy = -3; gy <= 3; gy++)
                         for (int gx = -3; gx <= 3; gx++) {
@@ -73,6 +73,18 @@ static void test_accuracy(void) {
                                 CHECK_FINITE(t.k);
                                 CHECK_FINITE(t.cond);
                                 n_matte += !!(t.flags & IMP_BTF_MATTE);
+                                /* No peak far above the data (docs/btf-fit.md §5): the brightest
+                                 * lobe value the samples saw is ≥ peak_seen_min of the peak (1). */
+                                if (!(t.flags & (IMP_BTF_MATTE | IMP_BTF_FEW_SAMPLES | IMP_BTF_K_BOUND))) {
+                                        struct imp_lafortune b = { .cx = t.cx, .cy = t.cy, .cz = t.cz, .k = t.k };
+                                        double seen = 0.0;
+                                        for (int i = 0; i < n; i++) {
+                                                double v[3] = { s[i].v[0], s[i].v[1], s[i].v[2] };
+                                                double l[3] = { s[i].l[0], s[i].l[1], s[i].l[2] };
+                                                seen = fmax(seen, imp_lafortune_lobe(&b, v, l));
+                                        }
+                                        n_peak_low += !(seen >= 0.99 * p.peak_seen_min);
+                                }
                                 double rr = rerender_rmse(s, n, &materials[m], &t);
                                 ss_rr += rr * rr;
                                 if (materials[m].rho_s[0] >= 0.1) {
@@ -92,6 +104,7 @@ static void test_accuracy(void) {
                 fprintf(stderr, "%-17s: re-rendered RMSE %.4f, MATTE %d/%d, k checked %d (worst rel err %.3f), "
                         "lobe flagged uncertain %d\n", material_names[m], rmse, n_matte, n_tex, n_k, worst_k, n_uncertain);
                 CHECK_LE(rmse, RERENDER_RMSE_TOL);
+                CHECK_INT_EQ(n_peak_low, 0);
                 if (materials[m].rho_s[0] == 0.0)
                         CHECK_GE(n_matte, 0.9 * n_tex);          /* matte recognised as such */
                 else
@@ -150,6 +163,22 @@ static void brdf_halves(double x, double y, void *ctx, struct imp_lafortune *ret
         *ret = x < h->split_x ? materials[0] : materials[1];
 }
 
+/* n frames of the two-material flat canvas (brdf_halves) under the first n lights, the
+ * capture over them and default parameters. */
+static void halves_capture(const struct imp_pinhole *cam, struct halves *hv, uint64_t seed, struct imp_image **frames,
+                           int n, struct imp_btf_capture *cap, struct imp_btf_sample_params *sp,
+                           struct imp_btf_fit_params *fp) {
+        uint64_t rng = seed;
+        for (int j = 0; j < n; j++) {
+                CHECK_OK(imp_image_new(cam->width, cam->height, 3, IMP_PIX_F32, &frames[j]));
+                synth_render_flat(cam, &lights[j], 0.0, brdf_halves, hv, NOISE_REL, &rng, frames[j]);
+        }
+        *cap = (struct imp_btf_capture) { .camera = cam, .lights = lights, .n_lights = n,
+                                          .frames = (const struct imp_image *const *) frames };
+        imp_btf_sample_params_default(sp);
+        imp_btf_fit_params_default(fp);
+}
+
 static void test_grid_end_to_end(void) {
         enum { W = 50, H = 40, NL = 48 };
         const double pitch = 0.5, origin[3] = { 70, 30, 0 };
@@ -166,17 +195,10 @@ static void test_grid_end_to_end(void) {
         synth_camera(&cam, eye_top, target, 200, 160, 2400.0);
         struct halves hv = { origin[0] + 0.5 * W * pitch };
         struct imp_image *frames[NL] = { 0 };
-        uint64_t rng = 99;
-        for (int j = 0; j < NL; j++) {
-                CHECK_OK(imp_image_new(cam.width, cam.height, 3, IMP_PIX_F32, &frames[j]));
-                synth_render_flat(&cam, &lights[j], 0.0, brdf_halves, &hv, NOISE_REL, &rng, frames[j]);
-        }
-        struct imp_btf_capture cap = { .camera = &cam, .lights = lights, .n_lights = NL,
-                                       .frames = (const struct imp_image *const *) frames };
+        struct imp_btf_capture cap;
         struct imp_btf_sample_params sp;
         struct imp_btf_fit_params fp;
-        imp_btf_sample_params_default(&sp);
-        imp_btf_fit_params_default(&fp);
+        halves_capture(&cam, &hv, 99, frames, NL, &cap, &sp, &fp);
         static struct imp_btf_texel tex[W * H];
         struct imp_btf_stats st;
         CHECK_OK(imp_btf_fit_grid(&hf, &cap, &sp, &fp, 16, tex, &st));
@@ -204,11 +226,86 @@ static void test_grid_end_to_end(void) {
                 imp_image_free(frames[j]);
 }
 
+/* The driver fuses extraction and fit in one parallel loop (imp_btf_extractor): its
+ * texels must be byte for byte those of the tile-wise path it replaced — extract a tile
+ * with imp_btf_samples_extract(), fit each texel, default lobe for hidden and masked
+ * texels, then imp_btf_fill() — on a relief that shadows and hides texels. */
+static void test_grid_fused_equals_tiles(void) {
+        enum { W = 48, H = 36, NL = 48, T = 16 };
+        const double pitch = 0.05, origin[3] = { -1.2, -0.9, 0 };
+        static float height[W * H], normal[3 * W * H];
+        static uint8_t mask[W * H];
+        for (int v = 0; v < H; v++)
+                for (int u = 0; u < W; u++) {
+                        /* a ridge 0.8 mm high along v (long shadows from the 15° ring) */
+                        double x = (u - 20) * pitch, hgt = 0.8 * exp(-x * x / 0.02);
+                        height[v * W + u] = (float) hgt;
+                        double g = -2.0 * x / 0.02 * hgt, n = sqrt(1 + g * g);
+                        normal[3 * (v * W + u)] = (float) (-g / n);
+                        normal[3 * (v * W + u) + 2] = (float) (1 / n);
+                        mask[v * W + u] = !(u < 3 && v < 3);   /* a masked corner */
+                }
+        struct imp_btf_heightfield hf = { .width = W, .height = H, .pitch_mm = pitch, .height_mm = height,
+                                          .normal = normal, .mask = mask,
+                                          .canvas_to_world = { 1, 0, 0, origin[0], 0, 1, 0, origin[1],
+                                                               0, 0, 1, origin[2], 0, 0, 0, 1 } };
+        struct imp_pinhole cam;
+        const double eye[3] = { 150, 0, 300 }, target[3] = { 0, 0, 0 };   /* oblique: hides texels */
+        synth_camera(&cam, eye, target, 160, 120, 4000.0);
+        struct halves hv = { 0.0 };
+        struct imp_image *frames[NL] = { 0 };
+        struct imp_btf_capture cap;
+        struct imp_btf_sample_params sp;
+        struct imp_btf_fit_params fp;
+        halves_capture(&cam, &hv, 7, frames, NL, &cap, &sp, &fp);
+        static struct imp_btf_texel fused[W * H], tiles[W * H];
+        struct imp_btf_stats st;
+        CHECK_OK(imp_btf_fit_grid(&hf, &cap, &sp, &fp, 0, fused, &st));
+
+        struct imp_btf_samples *smp = NULL;
+        CHECK_OK(imp_btf_samples_new(T * T, NL, &smp));
+        long n_samples = 0, n_shadowed = 0;
+        for (int y0 = 0; y0 < H && smp; y0 += T)
+                for (int x0 = 0; x0 < W; x0 += T) {
+                        int w = IMP_MIN(T, W - x0), h = IMP_MIN(T, H - y0);
+                        CHECK_OK(imp_btf_samples_extract(&hf, &cap, &sp, x0, y0, w, h, smp));
+                        for (int i = 0; i < w * h; i++) {
+                                struct imp_btf_texel *t = &tiles[(y0 + i / w) * W + x0 + i % w];
+                                n_samples += smp->count[i];
+                                n_shadowed += smp->n_shadowed[i];
+                                if (smp->flags[i] & (IMP_BTF_MASKED | IMP_BTF_HIDDEN)) {
+                                        *t = (struct imp_btf_texel) { .cx = -1, .cy = -1, .cz = 1,
+                                                                      .k = (float) fp.k_default, .flags = smp->flags[i] };
+                                        continue;
+                                }
+                                CHECK_OK(imp_btf_fit_texel(smp->samples + (size_t) i * smp->max_per_texel, smp->count[i],
+                                                           &fp, t));
+                                t->flags |= smp->flags[i];
+                        }
+                }
+        imp_btf_samples_free(smp);
+        CHECK(imp_btf_fill(tiles, W, H) >= 0);
+        fprintf(stderr, "fused vs tiles: samples %ld / %ld, shadowed %ld / %ld, hidden %ld, masked %ld\n", st.n_samples,
+                n_samples, st.n_shadowed, n_shadowed, st.n_hidden, st.n_masked);
+        CHECK_INT_EQ(st.n_samples, n_samples);
+        CHECK_INT_EQ(st.n_shadowed, n_shadowed);
+        CHECK(st.n_shadowed > 0);                        /* the ridge shadows */
+        CHECK(st.n_hidden > 0);                          /* and hides from the oblique camera */
+        CHECK_INT_EQ(st.n_masked, 9);
+        int differ = 0;
+        for (int i = 0; i < W * H; i++)
+                differ += memcmp(&fused[i], &tiles[i], sizeof fused[i]) != 0;
+        CHECK_INT_EQ(differ, 0);
+        for (int j = 0; j < NL; j++)
+                imp_image_free(frames[j]);
+}
+
 int main(void) {
         const double centre[3] = { 0, 0, 0 };
         CHECK_INT_EQ(synth_dome(lights, elev, 3, 16, 500.0, centre, 1.0, 0.0), 48);
         test_accuracy();
         test_single_viewpoint();
         test_grid_end_to_end();
+        test_grid_fused_equals_tiles();
         return TEST_DONE();
 }

@@ -4,6 +4,7 @@
 #include <stdlib.h>
 
 #include "btf.h"
+#include "hdr.h"
 #include "unit/btf-synth.h"
 #include "unit/test.h"
 
@@ -146,7 +147,32 @@ static void test_hidden(const struct imp_btf_heightfield *hf, const struct imp_b
         CHECK_ERR(imp_btf_samples_extract(&bad, &cap, sp, 0, 0, 1, 1, s), -EINVAL);
 }
 
+/* Validity images from HDR merge flags: any channel SATURATED → PIX_SATURATED, any DARK →
+ * PIX_INVALID, interpolation-only flags → valid. */
+static void test_valid_from_hdr(void) {
+        struct imp_image *fl = NULL, *v = NULL;
+        CHECK_OK(imp_image_new(4, 1, 3, IMP_PIX_U8, &fl));
+        if (!fl)
+                return;
+        memset(fl->data, 0, 12);
+        imp_image_u8(fl, 1, 0)[2] = IMP_HDR_SATURATED;
+        imp_image_u8(fl, 2, 0)[0] = IMP_HDR_DARK;
+        imp_image_u8(fl, 3, 0)[1] = IMP_HDR_INTERPOLATED_FLAGGED;
+        CHECK_OK(imp_btf_valid_from_hdr(fl, &v));
+        if (v) {
+                CHECK_INT_EQ(v->channels, 1);
+                CHECK_INT_EQ(*imp_image_u8(v, 0, 0), 0);
+                CHECK_INT_EQ(*imp_image_u8(v, 1, 0), IMP_BTF_PIX_SATURATED);
+                CHECK_INT_EQ(*imp_image_u8(v, 2, 0), IMP_BTF_PIX_INVALID);
+                CHECK_INT_EQ(*imp_image_u8(v, 3, 0), 0);
+        }
+        CHECK_ERR(imp_btf_valid_from_hdr(NULL, &v), -EINVAL);
+        imp_image_free(v);
+        imp_image_free(fl);
+}
+
 int main(void) {
+        test_valid_from_hdr();
         const double centre[3] = { 0, 0, 0 }, elev[3] = { 15, 35, 60 };
         CHECK_INT_EQ(synth_dome(lights, elev, 3, 16, 500.0, centre, 1.0, 0.0), NL);
         struct imp_btf_heightfield hf;
