@@ -245,8 +245,10 @@ int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_com
         double ex[3] = { M[0], M[4], M[8] }, ey[3] = { M[1], M[5], M[9] }, ez[3] = { M[2], M[6], M[10] };
         double o[3] = { M[3], M[7], M[11] };
         size_t n_tex = (size_t) cimg->width * cimg->height;
-        _cleanup_free_ double *diff = malloc((n_tex ? n_tex : 1) * sizeof(double));
-        if (!diff)
+        _cleanup_free_ double *diff = malloc((n_tex ? n_tex : 1) * sizeof(double) * 2);
+        _cleanup_free_ uint8_t *filled = malloc(n_tex ? n_tex : 1);
+        double sum_ang_f = 0;
+        if (!diff || !filled)
                 return imp_error_set(err, -ENOMEM, "compare: out of memory");
         double sum_ang = 0, sum_ang_bl = 0;
         size_t n = 0;
@@ -269,6 +271,8 @@ int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_com
                         }
                         if (!ok)
                                 continue;
+                        filled[n] = p[cm] >= 1.5;
+                        diff[n_tex + n] = -s;   /* unsorted copy for the split figures */
                         diff[n++] = -s;
                         double nxv = isfinite(p[cnxc]) ? p[cnxc] : 0, nyv = isfinite(p[cnyc]) ? p[cnyc] : 0;
                         double nz = sqrt(fmax(0.0, 1 - nxv * nxv - nyv * nyv)), nw[3];
@@ -277,7 +281,9 @@ int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_com
                         double tn[3], tb[3];
                         truth_normal_at(&t, NULL, P[0] + s * ez[0], P[1] + s * ez[1], tn);
                         truth_normal_at(&t, hs, P[0] + s * ez[0], P[1] + s * ez[1], tb);
-                        sum_ang += acos(IMP_CLAMP(nw[0] * tn[0] + nw[1] * tn[1] + nw[2] * tn[2], -1.0, 1.0)) * 180.0 / M_PI;
+                        double ang = acos(IMP_CLAMP(nw[0] * tn[0] + nw[1] * tn[1] + nw[2] * tn[2], -1.0, 1.0)) * 180.0 / M_PI;
+                        sum_ang += ang;
+                        sum_ang_f += filled[n - 1] ? ang : 0;
                         sum_ang_bl += acos(IMP_CLAMP(nw[0] * tb[0] + nw[1] * tb[1] + nw[2] * tb[2], -1.0, 1.0)) * 180.0 / M_PI;
                 }
         res.n_compared = n;
@@ -318,6 +324,21 @@ int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_com
                 ss += d * d;
                 mx = fmax(mx, fabs(d));
         }
+        double ss_k[2] = { 0, 0 };
+        for (size_t k = 0; k < n; k++) {
+                double d = diff[n_tex + k] - med;
+                ss_k[filled[k]] += d * d;
+                res.n_filled += filled[k];
+        }
+        size_t n_meas = n - res.n_filled;
+        if (res.n_filled) {
+                res.height_rmse_um_filled = sqrt(ss_k[1] / res.n_filled) * 1000.0;
+                res.normal_err_deg_mean_filled = sum_ang_f / res.n_filled;
+        }
+        if (n_meas) {
+                res.height_rmse_um_measured = sqrt(ss_k[0] / n_meas) * 1000.0;
+                res.normal_err_deg_mean_measured = (sum_ang - sum_ang_f) / n_meas;
+        }
         res.height_offset_mm = med;
         res.height_rmse_um = sqrt(ss / n) * 1000.0;
         res.height_max_abs_um = mx * 1000.0;
@@ -326,7 +347,7 @@ int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_com
 }
 
 json_t *imp_compare_result_to_json(const struct imp_compare_result *r) {
-        return json_pack("{s:f,s:f,s:f,s:f,s:f,s:f,s:f,s:I,s:I}",
+        return json_pack("{s:f,s:f,s:f,s:f,s:f,s:f,s:f,s:I,s:I,s:I,s:f,s:f,s:f,s:f}",
                          "height_rmse_um", r->height_rmse_um,
                          "height_offset_mm", r->height_offset_mm,
                          "height_max_abs_um", r->height_max_abs_um,
@@ -335,5 +356,10 @@ json_t *imp_compare_result_to_json(const struct imp_compare_result *r) {
                          "mask_iou", r->mask_iou,
                          "mask_iou_observable", r->mask_iou_observable,
                          "nan_count", (json_int_t) r->nan_count,
-                         "n_compared", (json_int_t) r->n_compared);
+                         "n_compared", (json_int_t) r->n_compared,
+                         "n_filled", (json_int_t) r->n_filled,
+                         "height_rmse_um_filled", r->height_rmse_um_filled,
+                         "normal_err_deg_mean_filled", r->normal_err_deg_mean_filled,
+                         "height_rmse_um_measured", r->height_rmse_um_measured,
+                         "normal_err_deg_mean_measured", r->normal_err_deg_mean_measured);
 }

@@ -40,6 +40,12 @@ struct imp_compare_result {
         double mask_iou_observable;
         size_t nan_count;             /* non-finite samples over all copy EXR channels */
         size_t n_compared;            /* texels in the height/normal figures */
+        /* The same figures split by the copy's mask value (heightfield.h): texels filled
+         * from the normals in projector shadow (mask 2) and measured ones (mask 1); RMSE
+         * about the common median offset. 0 when there is none of the kind. */
+        size_t n_filled;
+        double height_rmse_um_filled, normal_err_deg_mean_filled;
+        double height_rmse_um_measured, normal_err_deg_mean_measured;
 };
 
 /* Reads COPY_DIR/{copy.json,heightfield.exr} and TRUTH_DIR/{truth.json,heightfield.exr}.

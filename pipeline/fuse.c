@@ -89,8 +89,8 @@ static int cmp_float(const void *a, const void *b) {
         return (x > y) - (x < y);
 }
 
-/* Median of the positive finite σ over the mask (0 when none). */
-static double sigma_ref(const float *sigma, const uint8_t *in, size_t n) {
+/* Median of the positive finite σ over the measured mask texels (0 when none). */
+static double sigma_ref(const float *sigma, const uint8_t *in, const uint8_t *mask, size_t n) {
         if (!sigma)
                 return 0;
         _cleanup_free_ float *v = malloc((n ? n : 1) * sizeof *v);
@@ -98,7 +98,7 @@ static double sigma_ref(const float *sigma, const uint8_t *in, size_t n) {
         if (!v)
                 return 0;
         for (size_t t = 0; t < n; t++)
-                if (in[t] && isfinite(sigma[t]) && sigma[t] > 0)
+                if (in[t] && !(mask && mask[t] == 2) && isfinite(sigma[t]) && sigma[t] > 0)
                         v[m++] = sigma[t];
         if (!m)
                 return 0;
@@ -125,7 +125,7 @@ int imp_fuse_heights(int nx, int ny, double pitch_mm, float *height_mm, const fl
                 in[t] = (!mask || mask[t]) && isfinite(height_mm[t]);
                 st.n_texels += in[t];
         }
-        double sref = sigma_ref(sigma_mm, in, n);
+        double sref = sigma_ref(sigma_mm, in, mask, n);
         for (int j = 0; j < ny; j++)
                 for (int i = 0; i < nx; i++) {
                         size_t t = (size_t) j * nx + i;
@@ -140,7 +140,9 @@ int imp_fuse_heights(int nx, int ny, double pitch_mm, float *height_mm, const fl
                         if (sref > 0 && sigma_mm && isfinite(sigma_mm[t]) && sigma_mm[t] > 0)
                                 ratio = IMP_CLAMP((sref / sigma_mm[t]) * (sref / sigma_mm[t]),
                                                   1 / FUSE_WEIGHT_RATIO_MAX, FUSE_WEIGHT_RATIO_MAX);
-                        w[t] = in[t] ? p->lambda * ratio : 0;
+                        /* mask value 2 (IMP_HF_MASK_FILLED): no position, height from the
+                         * normals and the measured texels it is connected to */
+                        w[t] = in[t] && !(mask && mask[t] == 2) ? p->lambda * ratio : 0;
                         z[t] = in[t] ? height_mm[t] : 0;
                 }
         /* b = W z0 + Dxᵀ tx + Dyᵀ ty, Jacobi diagonal. */
@@ -157,7 +159,7 @@ int imp_fuse_heights(int nx, int ny, double pitch_mm, float *height_mm, const fl
                         if (j > 0) a += ty[t - nx], dg += ry[t - nx];
                         if (j + 1 < ny) a -= ty[t + nx], dg += ry[t + nx];
                         b[t] = a;
-                        prec[t] = 1 / dg;
+                        prec[t] = dg > 0 ? 1 / dg : 0;   /* 0: a filled texel in no row keeps z0 */
                 }
         struct system sys = { nx, ny, in, rx, ry, w, tx, ty };
         st.agree_deg_before = agreement_deg(&sys, z, normal, pitch_mm);

@@ -40,7 +40,10 @@ struct imp_fuse_stats {
 };
 
 /* Fuses in place: height_mm (nx·ny, row-major) is replaced by z on mask texels (others
- * untouched). normal: 3 floats per texel, unit, canvas frame. sigma_mm may be NULL (equal
+ * untouched). Mask value 2 (IMP_HF_MASK_FILLED: a texel without a triangulated position,
+ * e.g. in projector shadow) is an unknown with position weight 0: its height_mm is only
+ * the starting value, the result comes from the gradient rows that tie it to measured
+ * texels (a filled texel in no row keeps its start value). normal: 3 floats per texel, unit, canvas frame. sigma_mm may be NULL (equal
  * weights). mask NULL = all texels. Returns 0; -EINVAL on bad arguments, -ENOMEM. When
  * nothing can be solved (no mask texel) the heights are left as they are. */
 int imp_fuse_heights(int nx, int ny, double pitch_mm, float *height_mm, const float *normal,

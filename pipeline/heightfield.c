@@ -18,6 +18,7 @@
 #define HF_MAX_NORMAL_RADIUS      64
 #define HF_MAX_TEXELS             ((size_t) 1 << 28)
 #define HF_PLANE_WEAK_RATIO       0.99
+#define HF_MIN_FILL_FRAC          0.05   /* a seed fill over fewer valid points is retried */
 
 void imp_heightfield_options_default(struct imp_heightfield_options *opt) {
         *opt = (struct imp_heightfield_options) {
@@ -226,6 +227,13 @@ static bool fill_crossable(const struct fill_barrier *b, size_t i, size_t j) {
         }
         double plane2 = fmax(d2 - dh * dh, 0.0);
         return dh <= b->slope_max * sqrt(plane2);
+}
+
+static size_t count_set(const uint8_t *v, size_t n) {
+        size_t c = 0;
+        for (size_t i = 0; i < n; i++)
+                c += v[i] != 0;
+        return c;
 }
 
 /* 4-connected fill from seed over pixels with g <= T (g is +inf on invalid pixels, so
@@ -490,6 +498,206 @@ static int plane_normals(struct imp_heightfield *hf, int rad) {
         return 0;
 }
 
+/* Shadow fill (heightfield.h, shadow_fill_px). */
+#define HF_FILL_SLOPE_SIGMA 0.035     /* tan 2°: slope uncertainty integrated over the fill */
+
+struct fill_frame {                   /* canvas frame: origin m, axes ex, ey, ez; grid origin */
+        const double *m, *ex, *ey, *ez;
+        double umin, vmin, h_frame;
+};
+
+/* Frame texels: non-canvas points above h_frame splatted onto the grid, dilated by one
+ * texel (8-neighbours). */
+static void frame_texels(const struct imp_heightfield *hf, const struct imp_range_image *range,
+                         const uint8_t *canvas, const struct fill_frame *f, uint8_t *splat, uint8_t *ret) {
+        int nx = hf->nx, ny = hf->ny;
+        size_t N = (size_t) range->width * range->height;
+        memset(splat, 0, (size_t) nx * ny);
+        for (size_t i = 0; i < N; i++) {
+                if (!range->valid[i] || canvas[i])
+                        continue;
+                const float *X = range->xyz + 3 * i;
+                double d[3] = { X[0] - f->m[0], X[1] - f->m[1], X[2] - f->m[2] };
+                if (!(dot3(d, f->ez) > f->h_frame))
+                        continue;
+                long ti = lround((dot3(d, f->ex) - f->umin) / hf->pitch_mm);
+                long tj = lround((dot3(d, f->ey) - f->vmin) / hf->pitch_mm);
+                if (ti >= 0 && tj >= 0 && ti < nx && tj < ny)
+                        splat[(size_t) tj * nx + ti] = 1;
+        }
+        for (int j = 0; j < ny; j++)
+                for (int i = 0; i < nx; i++) {
+                        bool on = false;
+                        for (int dy = -1; dy <= 1 && !on; dy++)
+                                for (int dx = -1; dx <= 1 && !on; dx++) {
+                                        int ii = i + dx, jj = j + dy;
+                                        on = ii >= 0 && jj >= 0 && ii < nx && jj < ny && splat[(size_t) jj * nx + ii];
+                                }
+                        ret[(size_t) j * nx + i] = on;
+                }
+}
+
+/* k-th 4-neighbour (0..3) of texel t on an nx × ny grid; false when off the grid. */
+static bool neighbour4(int nx, int ny, size_t t, int k, size_t *ret_u) {
+        static const int ox[4] = { 1, -1, 0, 0 }, oy[4] = { 0, 0, 1, -1 };
+        int ii = (int) (t % nx) + ox[k], jj = (int) (t / nx) + oy[k];
+        if (ii < 0 || jj < 0 || ii >= nx || jj >= ny)
+                return false;
+        *ret_u = (size_t) jj * nx + ii;
+        return true;
+}
+
+/* Fills the uncovered texels between the measured canvas and the frame (see
+ * heightfield.h). Returns the number filled or -ENOMEM. */
+static long shadow_fill(struct imp_heightfield *hf, const struct imp_range_image *range, const uint8_t *canvas,
+                        const struct fill_frame *f, int max_px) {
+        int nx = hf->nx, ny = hf->ny;
+        size_t n = (size_t) nx * ny;
+        _cleanup_free_ uint8_t *frame = malloc(n), *state = calloc(n, 1);
+        _cleanup_free_ uint32_t *stack = malloc(n * sizeof(uint32_t)), *src = malloc(n * sizeof(uint32_t));
+        _cleanup_free_ uint16_t *dist = malloc(n * sizeof(uint16_t));
+        if (!frame || !state || !stack || !src || !dist)
+                return -ENOMEM;
+        frame_texels(hf, range, canvas, f, state, frame);
+        /* Enclosed by the canvas and the frame = not reached from the padded grid's border
+         * (8-connected): fill_holes. state: 0 candidate, 1 not enclosed, 2 canvas or frame. */
+        for (size_t t = 0; t < n; t++)
+                state[t] = hf->mask[t] || frame[t];
+        _cleanup_free_ uint8_t *enclosed = malloc(n);
+        if (!enclosed)
+                return -ENOMEM;
+        int r = fill_holes(state, nx, ny, enclosed);
+        if (r < 0)
+                return r;
+        for (size_t t = 0; t < n; t++)
+                state[t] = state[t] ? 2 : enclosed[t] ? 0 : 1;
+        /* Enclosed components (4-connected): accepted (3) when they touch the frame. */
+        for (size_t t0 = 0; t0 < n; t0++) {
+                if (state[t0] != 0)
+                        continue;
+                size_t first = 0, end = 0;
+                bool touches = false;
+                state[t0] = 4;
+                src[end++] = (uint32_t) t0;   /* src as the component's list */
+                while (first < end) {
+                        size_t t = src[first++], u;
+                        for (int k = 0; k < 4; k++) {
+                                if (!neighbour4(nx, ny, t, k, &u))
+                                        continue;
+                                touches |= frame[u] != 0;
+                                if (state[u] == 0) {
+                                        state[u] = 4;
+                                        src[end++] = (uint32_t) u;
+                                }
+                        }
+                }
+                for (size_t k = 0; k < end; k++)
+                        state[src[k]] = touches ? 3 : 5;
+        }
+        /* Breadth-first from the measured texels into accepted ones, up to max_px steps:
+         * nearest measured texel (src) and the distance. */
+        size_t head = 0, tail = 0;
+        for (size_t t = 0; t < n; t++)
+                if (hf->mask[t]) {
+                        src[t] = (uint32_t) t, dist[t] = 0;
+                        stack[tail++] = (uint32_t) t;
+                }
+        long filled = 0;
+        while (head < tail) {
+                size_t t = stack[head++], u;
+                if (dist[t] >= max_px)
+                        continue;
+                for (int k = 0; k < 4; k++) {
+                        if (!neighbour4(nx, ny, t, k, &u) || state[u] != 3)
+                                continue;
+                        state[u] = 6;
+                        src[u] = src[t], dist[u] = (uint16_t) (dist[t] + 1);
+                        size_t s = src[u];
+                        double ds = dist[u] * hf->pitch_mm * HF_FILL_SLOPE_SIGMA;
+                        hf->mask[u] = IMP_HF_MASK_FILLED;
+                        hf->height_mm[u] = hf->height_mm[s];
+                        hf->nx_[u] = 0, hf->ny_[u] = 0;
+                        hf->sigma_mm[u] = (float) hypot(hf->sigma_mm[s], ds);
+                        stack[tail++] = (uint32_t) u;
+                        filled++;
+                }
+        }
+        return filled;
+}
+
+/* Crops the grid to the mask's bounding box; moves the grid origin (umin, vmin). */
+static int crop_to_mask(struct imp_heightfield *hf, double *umin, double *vmin) {
+        int i0 = hf->nx, i1 = -1, j0 = hf->ny, j1 = -1;
+        for (int j = 0; j < hf->ny; j++)
+                for (int i = 0; i < hf->nx; i++)
+                        if (hf->mask[(size_t) j * hf->nx + i]) {
+                                i0 = IMP_MIN(i0, i), i1 = IMP_MAX(i1, i);
+                                j0 = IMP_MIN(j0, j), j1 = IMP_MAX(j1, j);
+                        }
+        if (i1 < 0 || (i0 == 0 && j0 == 0 && i1 == hf->nx - 1 && j1 == hf->ny - 1))
+                return 0;
+        int w = i1 - i0 + 1, h = j1 - j0 + 1;
+        float **f[4] = { &hf->height_mm, &hf->nx_, &hf->ny_, &hf->sigma_mm };
+        for (int k = 0; k < 4; k++) {
+                float *o = malloc((size_t) w * h * sizeof(float));
+                if (!o)
+                        return -ENOMEM;
+                for (int j = 0; j < h; j++)
+                        memcpy(o + (size_t) j * w, *f[k] + (size_t) (j + j0) * hf->nx + i0, w * sizeof(float));
+                free(*f[k]);
+                *f[k] = o;
+        }
+        uint8_t *o = malloc((size_t) w * h);
+        if (!o)
+                return -ENOMEM;
+        for (int j = 0; j < h; j++)
+                memcpy(o + (size_t) j * w, hf->mask + (size_t) (j + j0) * hf->nx + i0, w);
+        free(hf->mask);
+        hf->mask = o;
+        hf->nx = w, hf->ny = h;
+        *umin += i0 * hf->pitch_mm, *vmin += j0 * hf->pitch_mm;
+        return 0;
+}
+
+void imp_heightfield_drop_filled(struct imp_heightfield *hf, const uint8_t *drop) {
+        if (!hf || !hf->mask)
+                return;
+        int nx = hf->nx, ny = hf->ny;
+        size_t n = (size_t) nx * ny;
+        for (size_t t = 0; t < n; t++)
+                if (hf->mask[t] == IMP_HF_MASK_FILLED && (!drop || drop[t]))
+                        hf->mask[t] = 0;
+        /* Filled texels cut off from the measured canvas go too: mark the connected ones
+         * (value 3 temporarily) from every measured texel. */
+        _cleanup_free_ uint32_t *stack = malloc((n ? n : 1) * sizeof(uint32_t));
+        size_t top = 0;
+        if (stack) {
+                for (size_t t = 0; t < n; t++)
+                        if (hf->mask[t] == IMP_HF_MASK_MEASURED)
+                                stack[top++] = (uint32_t) t;
+                while (top > 0) {
+                        size_t t = stack[--top], u;
+                        for (int k = 0; k < 4; k++) {
+                                if (neighbour4(nx, ny, t, k, &u) && hf->mask[u] == IMP_HF_MASK_FILLED) {
+                                        hf->mask[u] = 3;
+                                        stack[top++] = (uint32_t) u;
+                                }
+                        }
+                }
+        }
+        hf->n_mask_texels = hf->n_filled_texels = 0;
+        for (size_t t = 0; t < n; t++) {
+                if (hf->mask[t] == 3 || (!stack && hf->mask[t] == IMP_HF_MASK_FILLED))
+                        hf->mask[t] = IMP_HF_MASK_FILLED;
+                else if (hf->mask[t] != IMP_HF_MASK_MEASURED) {
+                        hf->mask[t] = 0;
+                        hf->height_mm[t] = hf->nx_[t] = hf->ny_[t] = hf->sigma_mm[t] = 0;
+                }
+                hf->n_mask_texels += hf->mask[t] != 0;
+                hf->n_filled_texels += hf->mask[t] == IMP_HF_MASK_FILLED;
+        }
+}
+
 int imp_heightfield_from_range(const struct imp_range_image *range,
                                const struct imp_heightfield_options *opt, struct imp_heightfield *ret) {
         struct imp_heightfield_options defaults;
@@ -501,7 +709,7 @@ int imp_heightfield_from_range(const struct imp_range_image *range,
         }
         if (opt->erode_px < 0 || !(opt->gradient_rel > 0) || !(opt->max_edge_factor > 0) ||
             opt->normal_radius < 0 || opt->normal_radius > HF_MAX_NORMAL_RADIUS || isnan(opt->slope_max) ||
-            !(opt->step_min_mm >= 0))
+            !(opt->step_min_mm >= 0) || opt->shadow_fill_px < 0 || opt->shadow_fill_px > UINT16_MAX - 1)
                 return -EINVAL;
         int w = range->width, h = range->height, r;
         size_t N = (size_t) w * h;
@@ -550,6 +758,20 @@ int imp_heightfield_from_range(const struct imp_range_image *range,
                                           .slope_max = opt->slope_max, .step_min = opt->step_min_mm };
                 if ((r = seed_fill(g, w, h, seed, T, &b, canvas)) < 0)
                         return r;
+                /* A fill that stops almost at once is a staircase, not a frame: a Gray-only
+                 * decode with a camera finer than the projector gives terraces one
+                 * projector column wide whose risers pass for near-vertical steps. Raise
+                 * step_min (doubling) until the fill spreads; with no level below the
+                 * relief span that does, drop the slope barrier. */
+                while (b.slope_max > 0 && count_set(canvas, N) < HF_MIN_FILL_FRAC * hf.n_range_points) {
+                        b.step_min = fmax(2 * b.step_min, 0.05);
+                        if (b.step_min > 0.5 * (p99 - p1))
+                                b.slope_max = 0;
+                        hf.flags |= IMP_HF_STEP_RAISED;
+                        if ((r = seed_fill(g, w, h, seed, T, &b, canvas)) < 0)
+                                return r;
+                }
+                hf.step_min_used_mm = b.slope_max > 0 ? b.step_min : INFINITY;
                 if (opt->keep_holes) {
                         if ((r = erode(canvas, w, h, opt->erode_px)) < 0)
                                 return r;
@@ -602,6 +824,20 @@ int imp_heightfield_from_range(const struct imp_range_image *range,
                 ss += hh * hh;
         }
         hf.plane_rms_mm = sqrt(ss / hf.n_canvas_points);
+        bool fill = opt->shadow_fill_px > 0 && !opt->skip_extraction;
+        if (fill) {   /* frame threshold: canvas h99 + (h99 − h1) */
+                _cleanup_free_ float *hv = malloc(hf.n_canvas_points * sizeof(float));
+                if (!hv)
+                        return -ENOMEM;
+                size_t k = 0;
+                for (size_t i = 0; i < N; i++)
+                        if (canvas[i])
+                                hv[k++] = uvh[3 * i + 2];
+                float c1, c99;
+                if ((r = percentile(hv, k, 1, &c1)) < 0 || (r = percentile(hv, k, 99, &c99)) < 0)
+                        return r;
+                hf.frame_height_mm = c99 + fmax((double) c99 - c1, opt->step_min_mm);
+        }
 
         /* Footprint: median 3D distance between horizontally (or vertically) adjacent
          * canvas points. */
@@ -644,6 +880,10 @@ int imp_heightfield_from_range(const struct imp_range_image *range,
                 hf.footprint_mm = med;
         }
         hf.pitch_mm = opt->pitch_mm > 0 ? opt->pitch_mm : hf.footprint_mm;
+        if (fill) {   /* room for the fill; cropped again below */
+                double pad = opt->shadow_fill_px * hf.pitch_mm;
+                umin -= pad, vmin -= pad, umax += pad, vmax += pad;
+        }
         double gx = floor((umax - umin) / hf.pitch_mm + 1e-9) + 1, gy = floor((vmax - vmin) / hf.pitch_mm + 1e-9) + 1;
         if (!(gx * gy <= (double) HF_MAX_TEXELS))
                 return -E2BIG;
@@ -677,8 +917,18 @@ int imp_heightfield_from_range(const struct imp_range_image *range,
                 imp_heightfield_done(&hf);
                 return r;
         }
+        if (fill) {
+                struct fill_frame ff = { m, ex, ey, ez, umin, vmin, hf.frame_height_mm };
+                long nf = shadow_fill(&hf, range, canvas, &ff, opt->shadow_fill_px);
+                if (nf < 0 || (r = crop_to_mask(&hf, &umin, &vmin)) < 0) {
+                        imp_heightfield_done(&hf);
+                        return nf < 0 ? (int) nf : r;
+                }
+                hf.n_filled_texels = (size_t) nf;
+        }
+        n_tex = (size_t) hf.nx * hf.ny;   /* the fill may have cropped the grid */
         for (size_t t = 0; t < n_tex; t++)
-                hf.n_mask_texels += hf.mask[t];
+                hf.n_mask_texels += hf.mask[t] != 0;
         if (hf.n_mask_texels == 0) {
                 imp_heightfield_done(&hf);
                 return -ENODATA;
@@ -700,16 +950,21 @@ int imp_heightfield_from_range(const struct imp_range_image *range,
 }
 
 json_t *imp_heightfield_stage_json(const struct imp_heightfield *hf) {
-        return json_pack("{s:I,s:I,s:I,s:f,s:f,s:f,s:f,s:b,s:b}",
+        return json_pack("{s:I,s:I,s:I,s:I,s:f,s:f,s:f,s:f,s:f,s:b,s:b,s:b,s:f}",
                          "range_points", (json_int_t) hf->n_range_points,
                          "canvas_points", (json_int_t) hf->n_canvas_points,
                          "mask_texels", (json_int_t) hf->n_mask_texels,
+                         "shadow_filled_texels", (json_int_t) hf->n_filled_texels,
+                         "frame_height_mm", hf->frame_height_mm,
                          "plane_rms_mm", hf->plane_rms_mm,
                          "gradient_threshold_mm", hf->gradient_threshold_mm,
                          "footprint_mm", hf->footprint_mm,
                          "pitch_mm", hf->pitch_mm,
                          "seed_moved", (hf->flags & IMP_HF_SEED_MOVED) != 0,
-                         "plane_weak", (hf->flags & IMP_HF_PLANE_WEAK) != 0);
+                         "plane_weak", (hf->flags & IMP_HF_PLANE_WEAK) != 0,
+                         "step_raised", (hf->flags & IMP_HF_STEP_RAISED) != 0,
+                         /* −1: the slope barrier had to go */
+                         "step_min_mm", isfinite(hf->step_min_used_mm) ? hf->step_min_used_mm : -1.0);
 }
 
 int imp_heightfield_save(const struct imp_heightfield *hf, const char *copy_dir, struct imp_error *err) {

@@ -52,6 +52,20 @@ struct imp_heightfield_options {
                                          averages height noise at the cost of detail finer
                                          than the window. Default 0: on the demo scene every
                                          r > 0 measured worse (docs/geometry.md) */
+        /* Projector-shadow fill (issue #4, docs/geometry.md "Shadow fill"). > 0: texels the
+         * range mesh does not cover that lie between the measured canvas and the frame are
+         * added to the mask with value IMP_HF_MASK_FILLED: the grid is padded by this many
+         * texels, the frame is every non-canvas point higher than the canvas's 99th height
+         * percentile plus its relief span (1st..99th), splatted and dilated by one texel;
+         * uncovered texels not reachable from the padded grid's border without crossing the
+         * canvas or the frame, in a region that touches the frame, within this many texels
+         * (4-neighbour steps) of a measured texel, are filled. A frame with a gap (the region
+         * reaches the border) or no frame fills nothing; holes inside the canvas away from
+         * the frame stay holes. Filled texels get the height of the nearest measured texel,
+         * normal (0, 0, 1) and σ = hypot(σ_nearest, d·pitch·tan 2°) (d in texels): their
+         * shape has to come from normals (imp_fuse_heights with mask value 2). 0: off
+         * (default; imp_process turns it on when photometric normals and fusion run). */
+        int shadow_fill_px;
 };
 void imp_heightfield_options_default(struct imp_heightfield_options *opt);
 
@@ -62,6 +76,15 @@ enum {
                                          the plane orientation is not determined by the data
                                          (e.g. points along a line); the normal is still a unit
                                          vector */
+        IMP_HF_STEP_RAISED  = 1 << 2, /* the seed fill reached fewer than 5 % of the valid
+                                         points: step_min was doubled until it spread (a
+                                         Gray-only staircase), or the slope barrier dropped */
+};
+
+/* Mask values. */
+enum {
+        IMP_HF_MASK_MEASURED = 1,     /* covered by the triangulated range mesh */
+        IMP_HF_MASK_FILLED   = 2,     /* shadow fill: no position, shape from the normals */
 };
 
 struct imp_heightfield {
@@ -70,10 +93,13 @@ struct imp_heightfield {
         float *height_mm;             /* nx·ny, row-major (j·nx + i); 0 where mask = 0 */
         float *nx_, *ny_;             /* normal x, y in the canvas frame; 0 where mask = 0 */
         float *sigma_mm;              /* height σ (range σ projected on the normal); 0 off mask */
-        uint8_t *mask;                /* 1 = canvas texel covered by the measured mesh */
+        uint8_t *mask;                /* 0 off the canvas; IMP_HF_MASK_MEASURED; IMP_HF_MASK_FILLED */
         double canvas_to_world[16];   /* row-major 4×4 */
         /* figures */
         size_t n_range_points, n_canvas_points, n_mask_texels;
+        size_t n_filled_texels;       /* of n_mask_texels, IMP_HF_MASK_FILLED */
+        double frame_height_mm;       /* shadow fill: frame threshold used (0 when off) */
+        double step_min_used_mm;      /* the slope barrier's step_min in the end (+inf: off) */
         double plane_rms_mm;          /* rms height about the canvas plane */
         double gradient_threshold_mm; /* the Sobel threshold that was used */
         double footprint_mm;          /* median neighbour distance */
@@ -91,7 +117,13 @@ void imp_heightfield_done(struct imp_heightfield *hf);   /* frees members; accep
 /* The heightfield stage's figures as a JSON object (for copy.json "stages"). */
 json_t *imp_heightfield_stage_json(const struct imp_heightfield *hf);
 
-/* Writes COPY_DIR/heightfield.exr (float channels height, nx, ny, sigma, mask) and
+/* Removes the IMP_HF_MASK_FILLED texels whose drop[t] is nonzero (drop NULL: all of
+ * them) and then the filled texels no longer 4-connected to a measured texel through
+ * filled ones; their values are zeroed. Updates n_mask_texels, n_filled_texels. */
+void imp_heightfield_drop_filled(struct imp_heightfield *hf, const uint8_t *drop);
+
+/* Writes COPY_DIR/heightfield.exr (float channels height, nx, ny, sigma, mask; mask holds
+ * the IMP_HF_MASK_* value: 1 measured, 2 filled from the normals, with a larger sigma) and
  * creates or updates COPY_DIR/copy.json (units, pitch_mm, nx, ny, canvas_to_world,
  * provenance {} kept, stages.heightfield). Creates COPY_DIR. */
 int imp_heightfield_save(const struct imp_heightfield *hf, const char *copy_dir, struct imp_error *err);

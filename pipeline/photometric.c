@@ -8,6 +8,8 @@
 #include "macro.h"
 
 #define DEG (M_PI / 180.0)
+#define PN_SHADOW_FRAC  0.5           /* trimmed samples read below this × the fit */
+#define PN_SHADOW_START 0.25          /* trimming: first solve without samples below this × median */
 #define TILE 64
 
 void imp_photometric_params_default(struct imp_photometric_params *ret) {
@@ -15,6 +17,7 @@ void imp_photometric_params_default(struct imp_photometric_params *ret) {
                 .min_samples = 6, .spec_cone_deg = 40, .min_cos = 0.05, .max_cond = 100,
                 .min_albedo = 0.01, .max_dev_deg = 25, .passes = 5, .huber_delta = 1.345,
                 .sigma_floor = 0.002, .tol_deg = 0.01, .geo_sigma_deg = 0, .lanczos = 3,
+                .shadow_trim_sigma = 0, .filled_trim_sigma = 3, .filled_passes = 10, .filled_max_dev_deg = 60,
         };
 }
 
@@ -70,6 +73,15 @@ int imp_photometric_texel(const struct imp_btf_sample *s, int n, const struct im
                 keep_geometric(ret, m == 0 ? IMP_PN_MASKED | IMP_PN_FEW_SAMPLES : IMP_PN_FEW_SAMPLES);
                 ret->n_used = (uint16_t) m;
                 return 0;
+        }
+        if (p->shadow_trim_sigma > 0) {
+                /* Cast shadows expected: the first solve leaves out the samples darker than
+                 * PN_SHADOW_START × the median, so that the shadows do not bias the fit the
+                 * trimming starts from; they come back when the fit explains them. */
+                double ymed = median_small(y, m, tmp);
+                for (int i = 0; i < m; i++)
+                        if (y[i] < PN_SHADOW_START * ymed)
+                                w[i] = 0;
         }
         double nc[3] = { 0, 0, 1 }, g[3] = { 0, 0, 0 }, sigma = p->sigma_floor, cone = cos(p->spec_cone_deg * DEG);
         double cond = 1e12, Ainv[9] = {}, rms = 0;
@@ -156,6 +168,10 @@ int imp_photometric_texel(const struct imp_btf_sample *s, int n, const struct im
                         for (int i = 0; i < m; i++) {
                                 double u = fabs(res[i]) / sigma;
                                 w[i] = u <= p->huber_delta ? 1.0 : p->huber_delta / u;
+                                /* cast shadow: far below the fit and under half of it */
+                                if (p->shadow_trim_sigma > 0 && res[i] < -p->shadow_trim_sigma * sigma &&
+                                    y[i] < PN_SHADOW_FRAC * (y[i] - res[i]))
+                                        w[i] = 0;
                         }
                         if (pass > 0 && moved < p->tol_deg)
                                 break;
@@ -345,6 +361,11 @@ int imp_photometric_normals(const struct imp_btf_heightfield *hf, const struct i
         _cleanup_free_ double (*light_c)[3] = malloc((size_t) cap->n_lights * sizeof *light_c);
         if (!light_c)
                 return -ENOMEM;
+        /* Shadow-filled texels (mask value 2): cast-shadow trimming (photometric.h). */
+        struct imp_photometric_params pf = *p;
+        pf.shadow_trim_sigma = p->filled_trim_sigma;
+        pf.passes = IMP_MAX(p->passes, p->filled_passes);
+        pf.max_dev_deg = p->filled_max_dev_deg > 0 ? p->filled_max_dev_deg : p->max_dev_deg;
         struct resample rs = { .hf = hf, .cap = cap, .light_c = light_c, .sat = sp->saturation_value, .a = p->lanczos };
         for (int i = 0; i < 3; i++) {
                 for (int k = 0; k < 3; k++)
@@ -382,13 +403,14 @@ int imp_photometric_normals(const struct imp_btf_heightfield *hf, const struct i
                                                                     .flags = IMP_PN_MASKED };
                                 } else {
                                         struct imp_btf_sample *ts = &smp->samples[(size_t) k * smp->max_per_texel];
+                                        const struct imp_photometric_params *pt = hf->mask && hf->mask[i] == 2 ? &pf : p;
                                         if (ret_normal_bilinear) {
                                                 struct imp_pn_texel tb;
-                                                imp_photometric_texel(ts, smp->count[k], p, &tb);
-                                                to_canvas(&hf->normal[3 * i], &tb, p, &ret_normal_bilinear[3 * i]);
+                                                imp_photometric_texel(ts, smp->count[k], pt, &tb);
+                                                to_canvas(&hf->normal[3 * i], &tb, pt, &ret_normal_bilinear[3 * i]);
                                         }
                                         res += resample_texel(&rs, x0 + k % w, y0 + k / w, ts, smp->count[k]);
-                                        imp_photometric_texel(ts, smp->count[k], p, &t);
+                                        imp_photometric_texel(ts, smp->count[k], pt, &t);
                                 }
                                 if (ret_flags)
                                         ret_flags[i] = t.flags;

@@ -44,6 +44,18 @@ struct imp_photometric_params {
                                          each sample with a Lanczos kernel of this order
                                          (1..4; 3) instead of the extractor's bilinear value;
                                          0: keep the bilinear values */
+        double shadow_trim_sigma;     /* > 0: samples darker than the current fit by more
+                                         than this many robust σ get weight 0 in the next
+                                         solve (a cast shadow only darkens). 0 (default) */
+        /* imp_photometric_normals() solves the texels with mask value 2
+         * (heightfield.h IMP_HF_MASK_FILLED: shadow-filled, no triangulated position,
+         * usually next to the frame, which is not in the heightfield and so casts shadows
+         * the extractor does not predict) with shadow_trim_sigma = filled_trim_sigma, at
+         * least filled_passes solves and max_dev_deg = filled_max_dev_deg (their geometric
+         * normal is only the canvas plane's). */
+        double filled_trim_sigma;     /* 3 */
+        int filled_passes;            /* 10 */
+        double filled_max_dev_deg;    /* 60 */
 };
 void imp_photometric_params_default(struct imp_photometric_params *ret);
 

@@ -223,6 +223,27 @@ static int fuse_heights(const struct process_opts *o, struct geometry_out *g, co
         return 0;
 }
 
+/* Shadow-filled texels (heightfield.h) without a usable photometric normal leave the
+ * mask: drop[t] nonzero (NULL: all of them). With resave, heightfield.exr and the boxes
+ * are written again (no fusion follows to do it). */
+#define PROCESS_FILL_MIN_NZ 0.5   /* filled texels steeper than 60° are the frame's wall */
+static int drop_fill(const struct process_opts *o, struct geometry_out *g, const uint8_t *drop, bool resave,
+                     struct imp_error *err) {
+        struct imp_heightfield *hf = &g->hf;
+        if (hf->n_filled_texels == 0)
+                return 0;
+        size_t before = hf->n_filled_texels;
+        imp_heightfield_drop_filled(hf, drop);
+        json_t *st = imp_heightfield_stage_json(hf);
+        json_object_set(st, "seconds", json_object_get(json_object_get(g->stages, "heightfield"), "seconds"));
+        json_object_set_new(st, "shadow_fill_dropped", json_integer((json_int_t) (before - hf->n_filled_texels)));
+        json_object_set_new(g->stages, "heightfield", st);
+        if (!resave)
+                return 0;
+        int r = imp_heightfield_save(hf, o->out, err);
+        return r < 0 ? r : classify_boxes(o, g, err);
+}
+
 static int run_geometry(const struct process_opts *o, const struct imp_captureset *cs,
                         struct geometry_out *g, struct imp_error *err) {
         const struct imp_rig *rig = imp_captureset_rig(cs);
@@ -319,7 +340,15 @@ static int run_geometry(const struct process_opts *o, const struct imp_capturese
         imp_heightfield_options_default(&ho);
         if (o->opt->pitch_mm > 0)
                 ho.pitch_mm = o->opt->pitch_mm;
+        if (o->opt->btf && o->opt->photometric_normals && o->opt->fuse_heights)
+                ho.shadow_fill_px = IMP_MAX(o->opt->shadow_fill_px, 0);   /* dropped later without normals */
         r = imp_heightfield_from_range(&range, &ho, &g->hf);
+        if (r == -ENODATA) {
+                imp_error_set(err, r, "%s: heightfield failed: no canvas in the %zu triangulated points "
+                              "(fewer than 3, no usable seed near the image centre, or nothing left "
+                              "after the seed fill and erosion)", o->capture, range.n_valid);
+                goto out;
+        }
         if (r < 0) {
                 imp_error_set(err, r, "%s: heightfield failed: %s", o->capture, strerror(-r));
                 goto out;
@@ -438,8 +467,8 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
         int r = collect_stacks(cs, "dome", cam->name, &stacks, &n_stacks);
         if (r < 0)
                 return imp_error_set(err, r, "out of memory");
-        if (n_stacks == 0)
-                return 0;   /* no dome sweep: a geometry-only copy */
+        if (n_stacks == 0)   /* no dome sweep: a geometry-only copy, no normals for a fill */
+                return drop_fill(o, g, NULL, true, err);
         if (n_stacks > IMP_BTF_MAX_SAMPLES)
                 n_stacks = IMP_BTF_MAX_SAMPLES;
 
@@ -447,6 +476,8 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
         struct imp_heightfield *hf = &g->hf;
         size_t nt = (size_t) hf->nx * hf->ny;
         float *pn_normal = NULL;
+        uint16_t *pn_flags = NULL;
+        uint8_t *drop = NULL;
         struct imp_image **frames = calloc(n_stacks, sizeof *frames);
         struct imp_image **valid = calloc(n_stacks, sizeof *valid);
         struct imp_rig_light *lights = calloc(n_stacks, sizeof *lights);
@@ -479,21 +510,11 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
                         goto out;
                 /* Validity per pixel from the merge flags (any channel). */
                 struct imp_image *vimg;
-                r = imp_image_new(h.value->width, h.value->height, 1, IMP_PIX_U8, &vimg);
+                r = imp_btf_valid_from_hdr(h.flags, &vimg);
                 if (r < 0) {
                         imp_hdr_result_done(&h);
                         goto out;
                 }
-                for (int y = 0; y < h.flags->height; y++)
-                        for (int x = 0; x < h.flags->width; x++) {
-                                const uint8_t *f = imp_image_u8(h.flags, x, y);
-                                uint8_t v = 0;
-                                for (int c = 0; c < h.flags->channels; c++) {
-                                        if (f[c] & IMP_HDR_SATURATED) v |= IMP_BTF_PIX_SATURATED;
-                                        if (f[c] & IMP_HDR_DARK) v |= IMP_BTF_PIX_INVALID;
-                                }
-                                *imp_image_u8(vimg, x, y) = v;
-                        }
                 int N = o->opt->holdout_every;
                 if (N > 0 && (i + 1) % (size_t) N == 0) {
                         ho_frames[n_held] = TAKE_PTR(h.value);
@@ -545,12 +566,14 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
                 struct imp_photometric_stats ps = {};
                 imp_photometric_params_default(&pp);
                 pn_normal = malloc(nt * 6 * sizeof *pn_normal);
-                if (!pn_normal) {
+                pn_flags = malloc(nt * sizeof *pn_flags);
+                drop = malloc(nt);
+                if (!pn_normal || !pn_flags || !drop) {
                         r = imp_error_set(err, -ENOMEM, "out of memory");
                         goto out;
                 }
                 progress(o, "photometric normals", 0, 1);
-                r = imp_photometric_normals(&bh, &cap, &sp, &pp, pn_normal, pn_normal + nt * 3, NULL, &ps);
+                r = imp_photometric_normals(&bh, &cap, &sp, &pp, pn_normal, pn_normal + nt * 3, pn_flags, &ps);
                 if (r < 0) {
                         imp_error_set(err, r, "%s: photometric normals failed: %s", o->capture, strerror(-r));
                         goto out;
@@ -561,6 +584,22 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
                                 hf->nx_[i] = pn_normal[3 * i];
                                 hf->ny_[i] = pn_normal[3 * i + 1];
                         }
+                long why[6] = { 0 };   /* filled texels dropped: few, ill, dark, disagree, masked, steep */
+                for (size_t i = 0; i < nt; i++) {
+                        bool steep = !(pn_normal[3 * i + 2] >= PROCESS_FILL_MIN_NZ);
+                        drop[i] = (pn_flags[i] & IMP_PN_KEPT) || steep;
+                        if (hf->mask[i] == IMP_HF_MASK_FILLED && drop[i])
+                                for (int k = 0; k < 6; k++)
+                                        why[k] += k < 5 ? (pn_flags[i] >> k) & 1 : steep;
+                }
+                if ((r = drop_fill(o, g, drop, !o->opt->fuse_heights, err)) < 0)
+                        goto out;
+                if (hf->n_filled_texels || why[0] + why[1] + why[2] + why[3] + why[4] + why[5])
+                        json_object_set_new(json_object_get(stages, "heightfield"), "shadow_fill_dropped_why",
+                                json_pack("{s:I,s:I,s:I,s:I,s:I,s:I}", "few_samples", (json_int_t) why[0],
+                                          "ill_conditioned", (json_int_t) why[1], "dark", (json_int_t) why[2],
+                                          "disagree", (json_int_t) why[3], "masked", (json_int_t) why[4],
+                                          "steep", (json_int_t) why[5]));
                 if (o->opt->fuse_heights && (r = fuse_heights(o, g, pn_normal, stages, err)) < 0)
                         goto out;
                 r = imp_heightfield_save(hf, o->out, err);
@@ -577,7 +616,8 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
                         "sigma_deg_median", ps.sigma_deg_median, "rms_median", ps.rms_median,
                         "seconds", now_s() - t_pn0));
                 progress(o, "photometric normals", 1, 1);
-        }
+        } else if ((r = drop_fill(o, g, NULL, true, err)) < 0)
+                goto out;
         struct imp_btf_stats st = {};
         progress(o, "btf fit", 0, 1);
         r = imp_btf_fit_grid(&bh, &cap, &sp, &fp, 64, tex, &st);
@@ -658,6 +698,8 @@ out:
         free(lights);
         free(normal);
         free(pn_normal);
+        free(pn_flags);
+        free(drop);
         free(tex);
         return r;
 }
@@ -683,7 +725,7 @@ static int write_copy_json(const struct process_opts *o, const struct geometry_o
 
 void imp_process_options_default(struct imp_process_options *o) {
         *o = (struct imp_process_options) { .btf = true, .btf_robust_passes = -1, .photometric_normals = true,
-                                            .fuse_heights = true };
+                                            .fuse_heights = true, .shadow_fill_px = 80 };
 }
 
 int imp_process_capture(const char *capture_dir, const char *copy_dir,

@@ -32,6 +32,14 @@ struct imp_process_options {
                                          triangulated positions (low frequencies) and the
                                          normals (high ones), pipeline/fuse.h; copy.json
                                          stages.fusion. Default true */
+        int shadow_fill_px;           /* with photometric normals and fusion: canvas texels
+                                         in projector shadow between the measured canvas and
+                                         the frame, up to this many texels from it, join the
+                                         mask (value 2 in heightfield.exr) with heights
+                                         integrated from their photometric normals; those
+                                         whose normal the dome cannot determine, or steeper
+                                         than 60°, are dropped (docs/geometry.md "Shadow
+                                         fill"). Default 80; 0: off */
         /* Progress per stage (may be NULL); called from the calling thread. */
         void (*progress)(void *userdata, const char *stage, size_t done, size_t total);
         void *userdata;

@@ -8,3 +8,11 @@ impasto_test(test-geometry-stability LABELS stability LIBS impasto_pipeline)
 # Heights from positions and normals (pipeline/fuse.c, Nehab et al. 2005): synthetic
 # surfaces with a known answer.
 impasto_test(test-fuse LIBS impasto_pipeline)
+# Projector-shadow fill (heightfield.h shadow_fill_px, fuse.h mask value 2): synthetic
+# canvas in a raised frame with an undecoded strip along one wall.
+impasto_test(test-shadow-fill LIBS impasto_pipeline)
+# The same end to end on a small rendered scene with a frame and a dome (~10 s).
+impasto_test(test-shadow-fill-render LABELS integration LIBS impasto_pipeline TIMEOUT 120)
+if(TARGET impasto)
+  add_dependencies(test-shadow-fill-render impasto)
+endif()
