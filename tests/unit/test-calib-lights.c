@@ -20,11 +20,7 @@
 #define N_LIGHTS 48
 
 static uint64_t rng_state = 0x2545f4914f6cdd1dull;
-static double urand(void) {
-        rng_state ^= rng_state << 13; rng_state ^= rng_state >> 7; rng_state ^= rng_state << 17;
-        return ((rng_state >> 11) + 0.5) / 9007199254740992.0;
-}
-static double nrand(void) { return sqrt(-2 * log(urand())) * cos(2 * M_PI * urand()); }
+static double nrand(void) { return test_nrand(&rng_state); }
 static double dot(const double a[3], const double b[3]) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 
 static struct imp_pinhole camera(void) {

@@ -12,11 +12,8 @@
 #define H 120
 
 static uint64_t rng_state = 0x9e3779b97f4a7c15ull;
-static double urand(void) {
-        rng_state ^= rng_state << 13; rng_state ^= rng_state >> 7; rng_state ^= rng_state << 17;
-        return ((rng_state >> 11) + 0.5) / 9007199254740992.0;
-}
-static double nrand(void) { return sqrt(-2 * log(urand())) * cos(2 * M_PI * urand()); }
+static double urand(void) { return test_urand(&rng_state); }
+static double nrand(void) { return test_nrand(&rng_state); }
 static double poisson(double m) {
         if (m > 50) return fmax(floor(m + sqrt(m) * nrand() + 0.5), 0);   /* exp(−m) underflows: Gaussian regime */
         double L = exp(-m), p = 1; int k = 0;

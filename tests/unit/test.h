@@ -55,3 +55,13 @@ static inline const char *test_tmpdir(void) {
         }
         return buf;
 }
+
+/* Seeded xorshift64 for synthetic test data: uniform in (0, 1) and standard normal. */
+static inline double test_urand(uint64_t *s) {
+        *s ^= *s << 13; *s ^= *s >> 7; *s ^= *s << 17;
+        return ((*s >> 11) + 0.5) / 9007199254740992.0;
+}
+static inline double test_nrand(uint64_t *s) {
+        double u = test_urand(s), v = test_urand(s);
+        return sqrt(-2 * log(u)) * cos(2 * M_PI * v);
+}
