@@ -6,6 +6,7 @@
 #include <sys/stat.h>
 #include "btf.h"
 #include "compare-appearance.h"
+#include "compare.h"
 #include "image.h"
 #include "json-util.h"
 
@@ -100,18 +101,15 @@ int imp_compare_appearance(const char *copy_dir, const char *truth_dir,
         snprintf(path, sizeof path, "%s/rho_d.exr", copy_dir);
         if (stat(path, &st) < 0)
                 return imp_error_set(err, -ENOENT, "%s: no appearance in this copy", path);
-        int r;
-        _cleanup_json_ json_t *cj = NULL, *tj = NULL;
+        _cleanup_json_ json_t *cj = NULL;
+        struct imp_compare_grids grids;
+        int r = imp_compare_load_grids(copy_dir, truth_dir, &cj, &grids, err);
+        if (r < 0)
+                return r;
+        const double *M = grids.canvas_to_world;
+        const double cpitch = grids.copy_pitch;
+        const long long cnx = grids.copy_nx, cny = grids.copy_ny;
         snprintf(path, sizeof path, "%s/copy.json", copy_dir);
-        if ((r = imp_json_load(path, &cj, err)) < 0)
-                return r;
-        double M[16], cpitch;
-        long long cnx, cny, tnx, tny;
-        if ((r = imp_json_get_doubles(cj, "canvas_to_world", true, 16, M, path, err)) < 0 ||
-            (r = imp_json_get_double(cj, "pitch_mm", true, &cpitch, path, err)) < 0 ||
-            (r = imp_json_get_int(cj, "nx", true, &cnx, path, err)) < 0 ||
-            (r = imp_json_get_int(cj, "ny", true, &cny, path, err)) < 0)
-                return r;
         struct imp_compare_appearance res = { .rerender_rmse = -1 };
         json_t *val = json_object_get(json_object_get(json_object_get(cj, "stages"), "btf"), "validation");
         if (json_is_object(val)) {
@@ -125,18 +123,8 @@ int imp_compare_appearance(const char *copy_dir, const char *truth_dir,
                         res.rerender_texels = (size_t) n;
         }
 
-        struct truth_grid g;
-        snprintf(path, sizeof path, "%s/truth.json", truth_dir);
-        if ((r = imp_json_load(path, &tj, err)) < 0)
-                return r;
-        if ((r = imp_json_get_double(tj, "pitch_mm", true, &g.pitch, path, err)) < 0 ||
-            (r = imp_json_get_doubles(tj, "origin_mm", true, 2, g.origin, path, err)) < 0 ||
-            (r = imp_json_get_int(tj, "nx", true, &tnx, path, err)) < 0 ||
-            (r = imp_json_get_int(tj, "ny", true, &tny, path, err)) < 0)
-                return r;
-        if (!(cpitch > 0) || !(g.pitch > 0))
-                return imp_error_set(err, -EBADMSG, "compare: pitch_mm must be > 0");
-        g.nx = (int) tnx, g.ny = (int) tny;
+        struct truth_grid g = { .pitch = grids.truth_pitch, .origin = { grids.truth_origin[0], grids.truth_origin[1] },
+                                .nx = (int) grids.truth_nx, .ny = (int) grids.truth_ny };
 
         static const char *const HF[] = { "height", "mask" }, *const TM[] = { "mask" }, *const FL[] = { "flags" };
         struct map ch = {}, cd = {}, cs = {}, cl = {}, cf = {}, tm = {}, td = {}, ts = {}, tl = {};

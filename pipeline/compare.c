@@ -179,37 +179,52 @@ static float *smooth_truth(const struct truth *t, double sigma) {
         return realloc(tmp, n * sizeof(float)) ?: tmp;
 }
 
-int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_compare_result *ret,
-                     struct imp_error *err) {
+int imp_compare_load_grids(const char *copy_dir, const char *truth_dir, json_t **ret_copy_json,
+                           struct imp_compare_grids *ret, struct imp_error *err) {
         if (!copy_dir || !truth_dir || !ret)
                 return imp_error_set(err, -EINVAL, "compare: bad arguments");
         char path[4096];
         int r;
         _cleanup_json_ json_t *cj = NULL, *tj = NULL;
+        struct imp_compare_grids g = {};
         snprintf(path, sizeof path, "%s/copy.json", copy_dir);
         if ((r = imp_json_load(path, &cj, err)) < 0)
                 return r;
-        double M[16], cpitch;
-        long long cnx, cny, tnx, tny;
-        if ((r = imp_json_get_doubles(cj, "canvas_to_world", true, 16, M, path, err)) < 0 ||
-            (r = imp_json_get_double(cj, "pitch_mm", true, &cpitch, path, err)) < 0 ||
-            (r = imp_json_get_int(cj, "nx", true, &cnx, path, err)) < 0 ||
-            (r = imp_json_get_int(cj, "ny", true, &cny, path, err)) < 0)
+        if ((r = imp_json_get_doubles(cj, "canvas_to_world", true, 16, g.canvas_to_world, path, err)) < 0 ||
+            (r = imp_json_get_double(cj, "pitch_mm", true, &g.copy_pitch, path, err)) < 0 ||
+            (r = imp_json_get_int(cj, "nx", true, &g.copy_nx, path, err)) < 0 ||
+            (r = imp_json_get_int(cj, "ny", true, &g.copy_ny, path, err)) < 0)
                 return r;
-        if (!(cpitch > 0))
+        if (!(g.copy_pitch > 0))
                 return imp_error_set(err, -EBADMSG, "%s: pitch_mm must be > 0", path);
-
-        struct truth t = {};
         snprintf(path, sizeof path, "%s/truth.json", truth_dir);
         if ((r = imp_json_load(path, &tj, err)) < 0)
                 return r;
-        if ((r = imp_json_get_double(tj, "pitch_mm", true, &t.pitch, path, err)) < 0 ||
-            (r = imp_json_get_doubles(tj, "origin_mm", true, 2, t.origin, path, err)) < 0 ||
-            (r = imp_json_get_int(tj, "nx", true, &tnx, path, err)) < 0 ||
-            (r = imp_json_get_int(tj, "ny", true, &tny, path, err)) < 0)
+        if ((r = imp_json_get_double(tj, "pitch_mm", true, &g.truth_pitch, path, err)) < 0 ||
+            (r = imp_json_get_doubles(tj, "origin_mm", true, 2, g.truth_origin, path, err)) < 0 ||
+            (r = imp_json_get_int(tj, "nx", true, &g.truth_nx, path, err)) < 0 ||
+            (r = imp_json_get_int(tj, "ny", true, &g.truth_ny, path, err)) < 0)
                 return r;
-        if (!(t.pitch > 0))
+        if (!(g.truth_pitch > 0))
                 return imp_error_set(err, -EBADMSG, "%s: pitch_mm must be > 0", path);
+        *ret = g;
+        if (ret_copy_json)
+                *ret_copy_json = TAKE_PTR(cj);
+        return 0;
+}
+
+int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_compare_result *ret,
+                     struct imp_error *err) {
+        if (!copy_dir || !truth_dir || !ret)
+                return imp_error_set(err, -EINVAL, "compare: bad arguments");
+        struct imp_compare_grids g;
+        int r = imp_compare_load_grids(copy_dir, truth_dir, NULL, &g, err);
+        if (r < 0)
+                return r;
+        const double *M = g.canvas_to_world;
+        const double cpitch = g.copy_pitch;
+        const long long cnx = g.copy_nx, cny = g.copy_ny, tnx = g.truth_nx, tny = g.truth_ny;
+        struct truth t = { .pitch = g.truth_pitch, .origin = { g.truth_origin[0], g.truth_origin[1] } };
 
         _cleanup_image_ struct imp_image *cimg = NULL, *timg = NULL;
         char **cnames = NULL, **tnames = NULL;

@@ -52,6 +52,18 @@ struct imp_compare_result {
  * Returns 0; file errors as imp_json_load / imp_exr_read with err filled; -EBADMSG when a
  * required field or channel is missing; -ENODATA when no texel could be compared (the
  * figures are then left at 0 and the result is not written). */
+/* The copy's grid (copy.json) and the truth's (truth.json): what both comparisons need to
+ * map copy texels onto truth samples. Pitches are checked > 0. *ret_copy_json, when not
+ * NULL, gets copy.json for further figures. */
+struct imp_compare_grids {
+        double canvas_to_world[16], copy_pitch;
+        long long copy_nx, copy_ny;
+        double truth_pitch, truth_origin[2];
+        long long truth_nx, truth_ny;
+};
+int imp_compare_load_grids(const char *copy_dir, const char *truth_dir, json_t **ret_copy_json,
+                           struct imp_compare_grids *ret, struct imp_error *err);
+
 int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_compare_result *ret,
                      struct imp_error *err);
 
