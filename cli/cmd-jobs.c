@@ -58,15 +58,10 @@ static int run(int argc, char **argv) {
                 switch (c) {
                 case 'j': o.json = true; break;
                 case 'S': o.socket = optarg; break;
-                case 'n': {
-                        char *end;
-                        limit = strtol(optarg, &end, 10);
-                        if (!*optarg || *end || limit < 1 || limit > 1000) {
-                                log_error("--limit: expected 1 to 1000, got '%s'", optarg);
+                case 'n':
+                        if (imp_client_parse_limit(optarg, &limit))
                                 return IMP_EXIT_USAGE;
-                        }
                         break;
-                }
                 case 'h': usage(stdout); return 0;
                 default: usage(stderr); return IMP_EXIT_USAGE;
                 }
