@@ -378,9 +378,22 @@ static void serve_request(struct imp_emu_modbus *e, int slot, const uint8_t *q, 
                         return;
                 }
         }
-        if (modbus_reply(e->ctx, q, len, e->map) >= 0 && n)
+        /* Like a real controller, act on a write before answering it: a client that has its
+         * answer must find the lights and the projector already changed. modbus_reply()
+         * stores the written values itself, so what the write's side effects left in those
+         * registers (commands reading back 0) is put back after it. */
+        bool in_map = n && addr + n <= N_REGISTERS;
+        uint16_t after[ARRAY_SIZE(vals)];
+        if (in_map) {
+                memcpy(&e->map->tab_registers[addr], vals, n * sizeof *vals);
                 apply_write_locked(e, addr, n, vals);
+        }
         update_locked(e);
+        if (in_map)
+                memcpy(after, &e->map->tab_registers[addr], n * sizeof *after);
+        modbus_reply(e->ctx, q, len, e->map);
+        if (in_map)
+                memcpy(&e->map->tab_registers[addr], after, n * sizeof *after);
         pthread_mutex_unlock(&e->lock);
 }
 
