@@ -150,7 +150,12 @@ int main(int argc, char **argv) {
 
         char *render[] = { bin, "sim", "render", "--scene", scene, "--plan", plan, "--out", cap, NULL };
         CHECK_INT_EQ(run(render, "/dev/null"), 0);
-        char *process[] = { bin, "process", cap, "--out", copy, "--no-btf", "--quiet", NULL };
+        /* The full demo runs every stage as scripts/demo does (photometric normals, fusion,
+         * shadow fill and the BTF with light 8 held out), so both issues' targets are checked;
+         * the small scene checks geometry alone. */
+        char *process_small[] = { bin, "process", cap, "--out", copy, "--no-btf", "--quiet", NULL };
+        char *process_demo[] = { bin, "process", cap, "--out", copy, "--holdout", "8", "--quiet", NULL };
+        char **process = demo ? process_demo : process_small;
         CHECK_INT_EQ(run(process, NULL), 0);
         char *compare[] = { bin, "compare", copy, "--truth", truth, "--json", NULL };
         CHECK_INT_EQ(run(compare, cmp), 0);
@@ -177,9 +182,23 @@ int main(int argc, char **argv) {
                 /* Floors measured today (docs/geometry.md), to catch regressions. */
                 CHECK_GE(iou, demo ? 0.96 : 0.90);
                 /* Over the canvas one shot can measure (the frame's projector shadow
-                 * excluded), the extraction itself must hold the issue's 0.99 on the demo. */
-                CHECK_GE(iou_obs, demo ? 0.99 : 0.95);
+                 * excluded); with the shadow fill on, the filled strip counts against it. */
+                CHECK_GE(iou_obs, demo ? 0.97 : 0.95);
                 CHECK_LE(nerr, demo ? 9.5 : 8.0);
+                if (demo) {
+                        /* Issue #4 and #5 acceptance on the demo scene (true rig here; the
+                         * estimated one is scripts/demo's). */
+                        double rho = json_real_value(json_object_get(c, "rho_d_rel_err_median"));
+                        double k = json_real_value(json_object_get(c, "lobe_k_rel_err_median"));
+                        double rr = json_real_value(json_object_get(c, "rerender_rmse"));
+                        fprintf(stderr, "demo appearance: rho_d %.4f, k %.4f, re-render %.4f\n", rho, k, rr);
+                        CHECK_LE(nerr, 2.0);
+                        CHECK_GE(iou, 0.99);
+                        CHECK_LE(rho, 0.03);
+                        CHECK_LE(k, 0.20);
+                        CHECK(rr >= 0 && rr <= 0.02);
+                        CHECK_INT_EQ(json_integer_value(json_object_get(c, "appearance_nan_count")), 0);
+                }
                 json_decref(c);
         }
         check_boxes(copy);
