@@ -21,6 +21,7 @@ struct hdr_exp {
         double t_s;              /* exposure, s */
         double dark_e;           /* dark-current electrons expected */
         double fw_dn;            /* full well expressed in DN above the offset */
+        double k;                /* frames averaged (>= 1): noise variance / k */
 };
 
 struct hdr_ctx {
@@ -92,7 +93,7 @@ static void merge_one(const struct hdr_ctx *cx, int x, int y, int c, float *ret_
                 dark_lim = fmin(dark_lim, cx->k_read_e * to_v);
                 if (e_meas[i] < cx->k_read_e)
                         continue;
-                double var_e = e_meas[i] + e->dark_e + read2 + e->g * e->g / 12.0;
+                double var_e = (e_meas[i] + e->dark_e + read2) / e->k + e->g * e->g / 12.0;
                 double w = 1.0 / (var_e * to_v * to_v);
                 sw += w;
                 swv += w * e_meas[i] * to_v;
@@ -120,7 +121,7 @@ static void merge_one(const struct hdr_ctx *cx, int x, int y, int c, float *ret_
                 double dn_pred = off + (e_pred + e->dark_e) / e->g;
                 if (dn_pred >= sat_dn[i] || raw[i] >= clip_dn[i] - 0.5 || e_pred < cx->k_read_e)
                         continue;
-                double var_e = fmax(e_pred, 0.0) + e->dark_e + read2 + e->g * e->g / 12.0;
+                double var_e = (fmax(e_pred, 0.0) + e->dark_e + read2) / e->k + e->g * e->g / 12.0;
                 double w = 1.0 / (var_e * to_v * to_v);
                 sw2 += w;
                 swv2 += w * e_meas[i] * to_v;
@@ -190,7 +191,7 @@ static void demosaic(const struct imp_image *v1, const struct imp_image *var1, c
 struct hdr_fast_exp {
         const float *w1;           /* [2^bits] pass-1 weight, 0 when excluded */
         const float *x;            /* [2^bits] estimate e_meas·r (0 if non-finite) */
-        float r, b;                /* pass-2 weight 1/(x0·r + b) */
+        float r, b;                /* pass-2 weight 1/(x0·r + b) (r divided by the frames averaged) */
         float x_sat, x_lo;         /* pass 2 keeps x_lo <= x0 < x_sat */
         float sat_lb;              /* V·f lower bound from a saturated sample (>= 0) */
         uint32_t sat_dn, clip_dn;  /* raw >= sat_dn: saturated; raw >= clip_dn: clipped */
@@ -229,18 +230,18 @@ static void fast_build(const struct hdr_ctx *cx, float *tab, struct hdr_fast *fx
                 double a = 1.0 / (s->quantum_scale * e->t_s), r = a / a_ref;
                 double clip = fmin(cx->max_dn, off + e->fw_dn);
                 double sat = clip - (cx->margin_dn >= 0 ? cx->margin_dn : cx->margin_frac * (clip - off));
-                double c = e->dark_e + read2 + e->g * e->g / 12.0;
+                double c = (e->dark_e + read2) / e->k + e->g * e->g / 12.0;
                 double e_sat = (sat - off) * e->g - e->dark_e;
                 float *w1 = tab + 2 * i * n_dn, *x = w1 + n_dn;
                 for (size_t d = 0; d < n_dn; d++) {
                         double lin = cx->o->response ? cx->o->response[d] : (double) d;
                         double em = (lin - off) * e->g - e->dark_e;
                         bool finite = isfinite(em);
-                        w1[d] = finite && d < sat && em >= cx->k_read_e ? (float) (1.0 / ((em + c) * r * r)) : 0.0f;
+                        w1[d] = finite && d < sat && em >= cx->k_read_e ? (float) (1.0 / ((em / e->k + c) * r * r)) : 0.0f;
                         x[d] = finite ? (float) (em * r) : 0.0f;
                 }
                 fx->e[i] = (struct hdr_fast_exp) {
-                        .w1 = w1, .x = x, .r = (float) r, .b = (float) (c * r * r),
+                        .w1 = w1, .x = x, .r = (float) (r / e->k), .b = (float) (c * r * r),
                         .x_sat = (float) (e_sat * r), .x_lo = (float) (cx->k_read_e * r),
                         .sat_lb = (float) fmax(e_sat * a, 0.0),
                         .sat_dn = dn_threshold(sat), .clip_dn = dn_threshold(clip - 0.5),
@@ -399,6 +400,7 @@ int imp_hdr_merge(const struct imp_hdr_exposure *stack, size_t n, const struct i
                         .frame = stack[i].frame, .g = g, .t_s = stack[i].exposure_us * 1e-6,
                         .dark_e = fmax(sensor->dark_current_e_per_s, 0.0) * stack[i].exposure_us * 1e-6,
                         .fw_dn = sensor->full_well_e / g,
+                        .k = stack[i].n_frames > 1 ? (double) stack[i].n_frames : 1.0,
                 };
         }
 

@@ -29,6 +29,11 @@ struct imp_hdr_exposure {
                                             sensor->bayer) or 3 channels (RGB) */
         double exposure_us;              /* > 0 */
         double gain_db;
+        /* Frames of this exposure averaged into `frame` (the mean DN, rounded), e.g. the
+         * repeats of a plan's `repeat`: their noise is divided by it. 0 or 1: one frame.
+         * Separate equal exposures in the stack are also right (weighted equally, i.e.
+         * averaged); this only saves holding them all at once. */
+        unsigned n_frames;
 };
 
 struct imp_hdr_options {

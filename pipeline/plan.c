@@ -46,6 +46,7 @@ struct plan_spec {
         int *lights;               /* rig light ids */
         int n_dome_exp;
         double dome_exp_us[IMP_PLAN_MAX_EXPOSURES];
+        int dome_repeat;           /* frames per light × exposure */
         int dark_count;
 };
 
@@ -188,14 +189,17 @@ static int parse_sl(const struct imp_conf *c, const struct imp_rig *rig, struct 
 
 static int parse_dome(const struct imp_conf *c, const struct imp_rig *rig, struct plan_spec *ps,
                       struct imp_error *err) {
-        static const char *const known[] = { "lights", "exposures_us", NULL };
+        static const char *const known[] = { "lights", "exposures_us", "repeat", NULL };
         config_setting_t *g = NULL;
         int r = imp_conf_get_group(c, NULL, "dome", false, &g, err);
         if (r < 0 || !g)
                 return r;
-        if ((r = imp_conf_check_known(c, g, known, err)) < 0)
+        long long repeat = 1;
+        if ((r = imp_conf_check_known(c, g, known, err)) < 0 ||
+            (r = imp_conf_get_int(c, g, "repeat", false, 1, IMP_PLAN_MAX_REPEAT, &repeat, err)) < 0)
                 return r;
         ps->dome = true;
+        ps->dome_repeat = (int) repeat;
         config_setting_t *l = config_setting_lookup(g, "lights");
         const char *s = l ? config_setting_get_string(l) : "all";
         if (s) {
@@ -320,13 +324,14 @@ static int expand(struct imp_plan *p, const struct plan_spec *ps) {
                         t.pattern = (struct imp_pattern) { .kind = IMP_PAT_NONE };
                         snprintf(t.step, sizeof t.step, "dome");
                         for (int l = 0; ps->dome && l < ps->n_lights; l++)
-                                for (int e = 0; e < ps->n_dome_exp; e++) {
-                                        t.light = ps->lights[l];
-                                        t.exposure_index = e;
-                                        t.exposure_us = ps->dome_exp_us[e];
-                                        if ((r = push(p, &cap, &t)) < 0)
-                                                return r;
-                                }
+                                for (int e = 0; e < ps->n_dome_exp; e++)
+                                        for (int k = 0; k < ps->dome_repeat; k++) {
+                                                t.light = ps->lights[l];
+                                                t.exposure_index = e;
+                                                t.exposure_us = ps->dome_exp_us[e];
+                                                if ((r = push(p, &cap, &t)) < 0)
+                                                        return r;
+                                        }
                         snprintf(t.step, sizeof t.step, "dark");
                         t.light = -1;
                         for (int e = 0; e < nd; e++)
@@ -399,8 +404,21 @@ int imp_plan_load_string(const char *text, const char *name, const struct imp_ri
 }
 
 static bool same_pattern(const struct imp_pattern *a, const struct imp_pattern *b) {
-        return a->kind == b->kind && a->axis == b->axis && a->bit == b->bit &&
-               a->inverse == b->inverse && a->period_px == b->period_px && a->step == b->step;
+        return a->kind == b->kind && a->axis == b->axis && a->bit == b->bit && a->nbits == b->nbits &&
+               a->inverse == b->inverse && a->period_px == b->period_px && a->step == b->step &&
+               a->steps == b->steps;
+}
+
+bool imp_plan_same_state(const struct imp_frame_record *a, const struct imp_frame_record *b) {
+        return a && b && !strcmp(a->camera, b->camera) && a->tile == b->tile && a->light == b->light &&
+               a->exposure_us == b->exposure_us && a->gain_db == b->gain_db && same_pattern(&a->pattern, &b->pattern);
+}
+
+size_t imp_plan_run_length(const struct imp_plan *p, size_t i) {
+        size_t j = i;
+        while (j < p->n_frames && imp_plan_same_state(&p->frames[i], &p->frames[j]))
+                j++;
+        return j - i;
 }
 
 double imp_plan_estimate_s(const struct imp_plan *p, const struct imp_rig *rig) {

@@ -16,13 +16,18 @@
  *     exposures_us = [5000.0, 20000.0]; # the stack; required when the group is present
  *   };
  *   dome = { lights = "all";            # or [0, 3, 7] (rig light ids)
- *            exposures_us = [10000.0]; };
+ *            exposures_us = [10000.0];
+ *            repeat = 1; };              # frames per light × exposure (1..IMP_PLAN_MAX_REPEAT):
+ *                                        # for averaging (dark paintings, photon-transfer pairs)
  *   dark = { count = 4; };              # per distinct exposure of the plan
  *
  * Frame order (per tile, per camera): structured light exposure-major (white, black, then
  * per axis the Gray bits MSB first, each followed by its inverse, then the phase shifts
  * period by period, step by step), then the dome light-major (a light's exposure stack
- * is contiguous, so a light is switched once), then the dark frames. */
+ * is contiguous, so a light is switched once; the `repeat` frames of one light × exposure
+ * follow each other), then the dark frames. Consecutive frames of the same state (see
+ * imp_plan_same_state: repeats, dark frames of one exposure) form a run that the daemon
+ * captures with the camera free-running (docs/daemon.md, "Streamed runs"). */
 #pragma once
 #include <stdbool.h>
 #include <stddef.h>
@@ -32,6 +37,7 @@
 
 #define IMP_PLAN_MAX_EXPOSURES 8
 #define IMP_PLAN_MAX_PERIODS 8
+#define IMP_PLAN_MAX_REPEAT 10000
 
 struct imp_plan;   /* opaque: the parsed settings and the expanded frame list */
 
@@ -51,8 +57,16 @@ const struct imp_frame_record *imp_plan_frame(const struct imp_plan *p, size_t i
 /* Gray bits used for axis 0 (x) / 1 (y); 0 when that axis is not scanned. */
 int imp_plan_gray_bits(const struct imp_plan *p, int axis);
 
+/* True when two frames need the same rig and camera state: camera, tile, projector pattern
+ * (or dark), light, exposure and gain. A frame in the same state as the one before it is a
+ * repeat (dome `repeat`, dark `count`), captured without setting anything up. */
+bool imp_plan_same_state(const struct imp_frame_record *a, const struct imp_frame_record *b);
+/* Frames from i on (i included) in the same state as frame i: 1 for a frame of its own,
+ * 0 past the end. */
+size_t imp_plan_run_length(const struct imp_plan *p, size_t i);
+
 /* Capture-time estimate in seconds: Σ over frames (exposure + camera readout + rig
  * settle) + one extra settle per light or pattern switch (a change of light id or of
- * projector pattern between consecutive frames). Cameras absent from the rig count a
- * readout of 0. */
+ * projector pattern between consecutive frames). Repeats count as frames (the simulator's
+ * clock charges them the same). Cameras absent from the rig count a readout of 0. */
 double imp_plan_estimate_s(const struct imp_plan *p, const struct imp_rig *rig);

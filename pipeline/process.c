@@ -29,12 +29,18 @@
 
 #define IMP_HDR_MAX_STACK 8   /* exposures per stack, as many as a plan may list */
 
-/* One exposure stack: the frames of one (step, camera, tile, pattern, light). */
+/* One exposure stack: the frames of one (step, camera, tile, pattern, light). idx holds the
+ * first frame of each distinct exposure (and gain); repeats of one (a plan's `repeat`) are
+ * averaged into it when the stack is merged, so every frame counts and none is dropped. */
 struct stack {
         size_t first;                 /* manifest index of the first frame */
         size_t idx[IMP_HDR_MAX_STACK];
         int n;
 };
+
+static bool same_exposure(const struct imp_frame_record *a, const struct imp_frame_record *b) {
+        return a->exposure_us == b->exposure_us && a->gain_db == b->gain_db;
+}
 
 /* What one run works on. */
 struct process_opts {
@@ -82,11 +88,64 @@ static int collect_stacks(const struct imp_captureset *cs, const char *step, con
                         s = &v[count++];
                         s->first = i;
                 }
-                if (s->n < IMP_HDR_MAX_STACK)
+                bool repeat = false;
+                for (int k = 0; k < s->n && !repeat; k++)
+                        repeat = same_exposure(imp_captureset_record(cs, s->idx[k]), r);
+                if (!repeat && s->n < IMP_HDR_MAX_STACK)
                         s->idx[s->n++] = i;
         }
         *ret = TAKE_PTR(v);
         *ret_n = count;
+        return 0;
+}
+
+/* Frame `first` and its repeats (same shot, exposure and gain) later in the set, as their
+ * mean (rounded DN) in *img; the number of frames in *ret_n. */
+static int load_averaged(const struct imp_captureset *cs, size_t first, struct imp_image **img,
+                         unsigned *ret_n, struct imp_error *err) {
+        const struct imp_frame_record *a = imp_captureset_record(cs, first);
+        int r = imp_captureset_load_frame(cs, first, img, err);
+        if (r < 0)
+                return r;
+        *ret_n = 1;
+        if ((*img)->type != IMP_PIX_U16)
+                return 0;
+        size_t n_px = (size_t) (*img)->width * (*img)->height * (*img)->channels;
+        _cleanup_free_ uint32_t *sum = NULL;
+        for (size_t i = first + 1; i < imp_captureset_count(cs); i++) {
+                const struct imp_frame_record *b = imp_captureset_record(cs, i);
+                if (!same_shot(a, b) || !same_exposure(a, b))
+                        continue;
+                _cleanup_image_ struct imp_image *f = NULL;
+                if ((r = imp_captureset_load_frame(cs, i, &f, err)) < 0)
+                        return r;
+                if (f->type != IMP_PIX_U16 || f->width != (*img)->width || f->height != (*img)->height ||
+                    f->channels != (*img)->channels)
+                        return imp_error_set(err, -EINVAL, "%s: frame %zu differs in size from frame %zu",
+                                             imp_captureset_dir(cs), i, first);
+                if (!sum) {
+                        if (!(sum = malloc(n_px * sizeof *sum)))
+                                return imp_error_set(err, -ENOMEM, "out of memory");
+                        for (int y = 0, j = 0; y < (*img)->height; y++) {
+                                const uint16_t *p = imp_image_row(*img, y);
+                                for (size_t x = 0; x < (size_t) (*img)->width * (*img)->channels; x++)
+                                        sum[j++] = p[x];
+                        }
+                }
+                for (int y = 0, j = 0; y < f->height; y++) {
+                        const uint16_t *p = imp_image_row(f, y);
+                        for (size_t x = 0; x < (size_t) f->width * f->channels; x++)
+                                sum[j++] += p[x];
+                }
+                ++*ret_n;
+        }
+        if (!sum)
+                return 0;
+        for (int y = 0, j = 0; y < (*img)->height; y++) {
+                uint16_t *p = imp_image_row(*img, y);
+                for (size_t x = 0; x < (size_t) (*img)->width * (*img)->channels; x++)
+                        p[x] = (uint16_t) ((sum[j++] + *ret_n / 2) / *ret_n);
+        }
         return 0;
 }
 
@@ -98,11 +157,12 @@ static int merge_stack(const struct imp_captureset *cs, const struct stack *s,
         struct imp_hdr_exposure ex[IMP_HDR_MAX_STACK];
         int r = 0;
         for (int k = 0; k < s->n; k++) {
-                r = imp_captureset_load_frame(cs, s->idx[k], &frames[k], err);
+                unsigned n_avg = 1;
+                r = load_averaged(cs, s->idx[k], &frames[k], &n_avg, err);
                 if (r < 0)
                         goto out;
                 const struct imp_frame_record *rec = imp_captureset_record(cs, s->idx[k]);
-                ex[k] = (struct imp_hdr_exposure) { frames[k], rec->exposure_us, rec->gain_db };
+                ex[k] = (struct imp_hdr_exposure) { frames[k], rec->exposure_us, rec->gain_db, n_avg };
         }
         struct imp_hdr_options opt;
         imp_hdr_options_default(&opt);
