@@ -697,7 +697,7 @@ int imp_captureset_add_frame(struct imp_captureset *cs, struct imp_frame_record 
         _cleanup_free_ char *desc = json_dumps(j, JSON_COMPACT | JSON_REAL_PRECISION(17));
         if (!desc)
                 return imp_error_set(err, -ENOMEM, "%s: out of memory", cs->dir);
-        int ret = imp_tiff_write(tmp, frame, desc, err);
+        int ret = imp_tiff_write_fast(tmp, frame, desc, err);
         if (ret < 0)
                 return ret;
         long long bytes = 0;

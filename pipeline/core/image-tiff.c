@@ -175,7 +175,7 @@ int imp_tiff_read(const char *path, struct imp_image **ret, char **ret_descripti
         return 0;
 }
 
-static int tiff_set_layout(TIFF *tif, const struct imp_image *img, const char *description) {
+static int tiff_set_layout(TIFF *tif, const struct imp_image *img, const char *description, bool fast) {
         static const uint16_t alpha[] = { EXTRASAMPLE_UNASSALPHA };
         uint16_t bps = (uint16_t) (8 * imp_pixel_type_size(img->type));
         uint16_t format = img->type == IMP_PIX_F32 ? SAMPLEFORMAT_IEEEFP : SAMPLEFORMAT_UINT;
@@ -192,11 +192,18 @@ static int tiff_set_layout(TIFF *tif, const struct imp_image *img, const char *d
                                 img->channels >= 3 ? PHOTOMETRIC_RGB : PHOTOMETRIC_MINISBLACK);
         if (img->channels == 2 || img->channels == 4)
                 ok = ok && TIFFSetField(tif, TIFFTAG_EXTRASAMPLES, (uint16_t) 1, alpha);
-        ok = ok && TIFFSetField(tif, TIFFTAG_COMPRESSION, COMPRESSION_ADOBE_DEFLATE);
+        /* fast (frames as they are captured): Zstandard level 1, about 3x less CPU than
+         * deflate level 1 for files within ~1 % of its size (issue #7, docs/bench-capture.md),
+         * when this libtiff has it. */
+        bool zstd = fast && TIFFIsCODECConfigured(COMPRESSION_ZSTD);
+        ok = ok && TIFFSetField(tif, TIFFTAG_COMPRESSION, zstd ? COMPRESSION_ZSTD : COMPRESSION_ADOBE_DEFLATE);
         ok = ok && TIFFSetField(tif, TIFFTAG_PREDICTOR, predictor);
         /* Deflate level 1: 2-3x less CPU than the default 6 and, after the predictor, files
          * within a few % of its size (issue #7: encoding was most of impastod's CPU/frame). */
-        ok = ok && TIFFSetField(tif, TIFFTAG_ZIPQUALITY, 1);
+        if (zstd)
+                ok = ok && TIFFSetField(tif, TIFFTAG_ZSTD_LEVEL, 1);
+        else
+                ok = ok && TIFFSetField(tif, TIFFTAG_ZIPQUALITY, 1);
         /* Strips of about 64 KiB: written whole (tiff_write_pixels), 8x fewer than libtiff's
          * 8 KiB default, so fewer write/seek calls per frame. */
         size_t row_bytes = (size_t) img->width * (size_t) img->channels * imp_pixel_type_size(img->type);
@@ -214,8 +221,8 @@ static int tiff_write_errno(void) {
 }
 
 static int tiff_write_pixels(TIFF *tif, const char *path, const struct imp_image *img,
-                             const char *description, struct imp_error *err) {
-        if (tiff_set_layout(tif, img, description) < 0)
+                             const char *description, bool fast, struct imp_error *err) {
+        if (tiff_set_layout(tif, img, description, fast) < 0)
                 return imp_error_set(err, -EINVAL, "%s: cannot set TIFF tags: %s", path,
                                      tiff_last_error());
         /* Whole strips, so that libtiff compresses each in one call (with libdeflate when it
@@ -246,8 +253,8 @@ static int tiff_write_pixels(TIFF *tif, const char *path, const struct imp_image
         return 0;
 }
 
-int imp_tiff_write(const char *path, const struct imp_image *img, const char *description,
-                   struct imp_error *err) {
+static int tiff_write(const char *path, const struct imp_image *img, const char *description, bool fast,
+                      struct imp_error *err) {
         TIFF *tif;
         int fd, r;
 
@@ -270,9 +277,19 @@ int imp_tiff_write(const char *path, const struct imp_image *img, const char *de
                 return imp_error_set(err, r, "%s: cannot start TIFF file: %s (%s)", path,
                                      tiff_last_error(), strerror(-r));
         }
-        r = tiff_write_pixels(tif, path, img, description, err);
+        r = tiff_write_pixels(tif, path, img, description, fast, err);
         TIFFClose(tif);         /* also closes fd */
         if (r < 0)
                 (void) unlink(path);
         return r;
+}
+
+int imp_tiff_write(const char *path, const struct imp_image *img, const char *description,
+                   struct imp_error *err) {
+        return tiff_write(path, img, description, false, err);
+}
+
+int imp_tiff_write_fast(const char *path, const struct imp_image *img, const char *description,
+                        struct imp_error *err) {
+        return tiff_write(path, img, description, true, err);
 }

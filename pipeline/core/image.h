@@ -71,6 +71,11 @@ int imp_png_read(const char *path, struct imp_image **ret, struct imp_error *err
  * On read, *ret_description (if not NULL) receives a malloc'd copy or NULL. */
 int imp_tiff_write(const char *path, const struct imp_image *img, const char *description,
                    struct imp_error *err);
+/* The same with the cheapest good lossless codec (Zstandard level 1 with the predictor when
+ * libtiff has it, else deflate): for frames stored as they are captured. imp_tiff_read (any
+ * libtiff with zstd) reads it back exactly. */
+int imp_tiff_write_fast(const char *path, const struct imp_image *img, const char *description,
+                        struct imp_error *err);
 int imp_tiff_read(const char *path, struct imp_image **ret, char **ret_description,
                   struct imp_error *err);
 
