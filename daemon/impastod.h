@@ -41,6 +41,9 @@ struct dev_camera {
         bool applied_valid;
         double applied_exposure_us, applied_gain_db;
         bool gain_unsupported;          /* the camera said -EOPNOTSUPP: not asked again */
+        /* Streamed runs (session.c): false from `stream = false;` in the rig config, or once
+         * the camera could not free-run (no TriggerMode, no frame free running). */
+        bool stream;
 };
 
 struct dev_dome {
@@ -137,6 +140,18 @@ struct session {
         size_t run_started_frames;
         int current_tile;
         int shown_pattern;              /* index into patterns[], -1 dark */
+        /* A streamed run (session.c): frames of one state taken from the free-running camera. */
+        struct dev_camera *stream_cam;  /* free-running now; NULL while triggered */
+        size_t stream_end;              /* plan index one past the run */
+        uint64_t stream_t0_ns;          /* CLOCK_REALTIME when it was switched to free running */
+        uint64_t stream_last_id;        /* camera's id of the last frame taken in the run, 0 none */
+        unsigned stream_bad;            /* incomplete frames in a row */
+        struct {
+                size_t runs, frames;    /* runs started, frames stored from them */
+                size_t lost;            /* frames the stream lost (id gaps): later ones took their seq */
+                size_t stale;           /* frames received before the switch, discarded */
+                size_t stops;           /* runs cut short by a full store queue */
+        } streamed;
         struct imp_pattern *patterns;   /* distinct patterns of the plan (projector upload) */
         unsigned n_patterns;
 };
@@ -159,7 +174,7 @@ void rfc3339_now(char buf[static 32]);
  * order, through `done`; after a failure the writer drops what it still held (those
  * frames were never in the manifest: capture resumes at the failed one). A SIGKILL loses
  * only queued frames, which the manifest does not list, so a restart captures them again. */
-#define STORE_QUEUE_MAX_FRAMES 8
+#define STORE_QUEUE_MAX_FRAMES 24
 #define STORE_QUEUE_MAX_BYTES (96ULL * 1024 * 1024)
 typedef void (*store_done_fn)(void *userdata, const struct imp_frame_record *rec, long long pixel_bytes,
                               int r, const char *msg);
@@ -169,6 +184,9 @@ int store_writer_new(sd_event *event, struct imp_captureset *cs, store_done_fn d
  * delivers the failure. The bound is the caller's to respect (store_writer_full). */
 int store_writer_push(struct store_writer *w, const struct imp_frame_record *rec, struct imp_image *img);
 bool store_writer_full(const struct store_writer *w);
+/* An image the writer has stored and kept for reuse (a frame's pages already faulted in),
+ * or NULL: a 1-channel u16 image of width × height, the caller's from then on. */
+struct imp_image *store_writer_spare_image(struct store_writer *w, int width, int height);
 /* Waits until every queued frame is stored (or dropped after a failure) and delivers the
  * results before returning; then accepts frames again. */
 void store_writer_flush(struct store_writer *w);

@@ -16,9 +16,11 @@ const char *dev_state_name(enum dev_state s) {
 static int get_dev(struct imp_conf *c, config_setting_t *g, char *name, size_t name_size,
                    char *backend, char *address, const char *default_name, struct imp_error *err) {
         static const char *const known[] = { "name", "backend", "address", NULL };
+        /* cameras (no default name) may also say `stream = false;` (session.c, streamed runs) */
+        static const char *const camera_known[] = { "name", "backend", "address", "stream", NULL };
         const char *n = default_name, *b = NULL, *a = NULL;
         int r;
-        if ((r = imp_conf_check_known(c, g, known, err)) < 0 ||
+        if ((r = imp_conf_check_known(c, g, default_name ? known : camera_known, err)) < 0 ||
             (r = imp_conf_get_string(c, g, "name", default_name == NULL, &n, err)) < 0 ||
             (r = imp_conf_get_string(c, g, "backend", true, &b, err)) < 0 ||
             (r = imp_conf_get_string(c, g, "address", true, &a, err)) < 0)
@@ -62,7 +64,7 @@ int rigcfg_load(const char *path, struct rigcfg **ret, struct imp_error *err) {
         if ((r = imp_conf_get_group(c, NULL, "rig", true, &g, err)) < 0)
                 return r;
         static const char *const known[] = { "name", "calibration", "cameras", "projector", "dome",
-                                             "tile_pitch_um", NULL };
+                                             "tile_pitch_um", "stream", NULL };
         if ((r = imp_conf_check_known(c, g, known, err)) < 0)
                 return r;
         struct rigcfg *rc = calloc(1, sizeof *rc);
@@ -70,7 +72,9 @@ int rigcfg_load(const char *path, struct rigcfg **ret, struct imp_error *err) {
                 return imp_error_set(err, -ENOMEM, "out of memory");
         const char *name = "rig", *calib = NULL;
         long long pitch = 0;
+        bool stream = true;
         if ((r = imp_conf_get_string(c, g, "name", false, &name, err)) < 0 ||
+            (r = imp_conf_get_bool(c, g, "stream", false, &stream, err)) < 0 ||
             (r = imp_conf_get_string(c, g, "calibration", true, &calib, err)) < 0 ||
             (r = imp_conf_get_int(c, g, "tile_pitch_um", false, 0, 10000000, &pitch, err)) < 0 ||
             (r = imp_conf_get_list(c, g, "cameras", true, &list, err)) < 0)
@@ -94,8 +98,11 @@ int rigcfg_load(const char *path, struct rigcfg **ret, struct imp_error *err) {
         }
         for (int i = 0; i < n; i++) {
                 struct dev_camera *cam = &rc->cameras[i];
+                cam->stream = stream;
                 if ((r = get_dev(c, config_setting_get_elem(list, i), cam->name, sizeof cam->name,
-                                 cam->backend, cam->address, NULL, err)) < 0)
+                                 cam->backend, cam->address, NULL, err)) < 0 ||
+                    (r = imp_conf_get_bool(c, config_setting_get_elem(list, i), "stream", false, &cam->stream,
+                                           err)) < 0)
                         goto fail;
                 rc->n_cameras++;
         }
@@ -225,6 +232,16 @@ static int open_projector(struct dev_projector *dp, struct imp_error *err) {
 int rigcfg_open_devices(struct rigcfg *rc, const struct imp_rig *rig, struct imp_error *err) {
         int first = 0, r;
         struct imp_error e = { 0 };
+        for (int i = 0; i < rc->n_cameras; i++) {
+                struct dev_camera *cam = &rc->cameras[i];
+                /* Open, but released by its driver (gone after a grab timeout): a reopen is the
+                 * only way back, else every trigger answers -ENOTCONN. */
+                if (cam->cam && cam->started && !imp_camera_is_acquiring(cam->cam)) {
+                        imp_camera_close(cam->cam);
+                        cam->cam = NULL;
+                        cam->started = false;
+                }
+        }
         for (int i = 0; i < rc->n_cameras; i++)
                 if (!rc->cameras[i].cam && (r = open_camera(&rc->cameras[i], rig, rc->timeout_ms, first ? &e : err)) < 0 && !first)
                         first = r;

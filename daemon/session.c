@@ -5,7 +5,10 @@
  * the next frame needs another → store writer (store.c) → next frame. The writer thread makes
  * each frame durable in order while the next one is exposed; `frame` and `progress` events
  * follow its results, so they name durable frames only. Device failures are retried a bounded
- * number of times, then the session pauses with a fault, lights off and projector dark. */
+ * number of times, then the session pauses with a fault, lights off and projector dark.
+ * A run of frames in one state (repeats, dark frames) is streamed: set up once, the camera
+ * switched to free running, one frame taken per step, then back to triggers ("Streamed runs"
+ * in docs/daemon.md). */
 #include <math.h>
 #include <string.h>
 #include <sys/stat.h>
@@ -20,6 +23,12 @@
 /* Accuracy of the step timer. 0 would mean sd-event's default of 250 ms, within which it
  * coalesces wake-ups: the settle time of every frame became ~180 ms (issue #7). */
 #define STEP_ACCURACY_US 1ULL
+/* Streamed runs: the shortest run worth switching the camera for, the wait for a free-running
+ * frame beyond the exposure (the camera's frame period is its own), incomplete frames in a
+ * row before the run counts as a failed step. */
+#define STREAM_MIN_FRAMES 2U
+#define STREAM_GRAB_MARGIN_MS 5000U
+#define STREAM_MAX_BAD 8U
 
 static const char *const state_names[_SESSION_STATE_MAX] = {
         [SESSION_IDLE] = "idle",
@@ -213,7 +222,30 @@ static void stop_stepping(struct session *s) {
 
 static void forget_exposures(struct rigcfg *rc);
 
+/* Back to triggers after a streamed run (or out of one cut short): frames still in flight
+ * are discarded by the camera layer (imp_camera_set_free_run). A camera that cannot go back
+ * is closed and opened again (in trigger mode, on a new stream). */
+static void stream_stop(struct session *s) {
+        struct dev_camera *cam = s->stream_cam;
+        if (!cam)
+                return;
+        s->stream_cam = NULL;
+        int r = cam->cam ? imp_camera_set_free_run(cam->cam, false) : 0;
+        if (r < 0) {
+                log_warning("session %s: camera %s: back to triggers: %s (%s); reopening it", s->id, cam->name,
+                            strerror(-r), imp_camera_last_error(cam->cam));
+                if (cam->started)
+                        (void) imp_camera_stop(cam->cam);
+                imp_camera_close(cam->cam);
+                cam->cam = NULL;
+                cam->started = false;
+                cam->applied_valid = false;
+                (void) rigcfg_open_devices(s->d->rigcfg, &s->rig, NULL);
+        }
+}
+
 static void release_rig(struct session *s) {
+        stream_stop(s);
         rigcfg_safe_state(s->d->rigcfg);
         forget_exposures(s->d->rigcfg);
         s->shown_pattern = -1;
@@ -241,7 +273,10 @@ static void finish(struct session *s, enum session_state st) {
         if (s->d->active == s)
                 s->d->active = NULL;
         save(s);
-        log_info("session %s: %s, %zu of %zu frames", s->id, session_state_name(st), s->n_frames, s->frames_total);
+        log_info("session %s: %s, %zu of %zu frames; streamed %zu frames in %zu runs, %zu lost and re-captured, "
+                 "%zu stale discarded, %zu runs cut by a full store queue", s->id, session_state_name(st), s->n_frames,
+                 s->frames_total, s->streamed.frames, s->streamed.runs, s->streamed.lost, s->streamed.stale,
+                 s->streamed.stops);
         server_broadcast(s->d, "done", json_pack("{s:s, s:s, s:I, s:s}", "session", s->id, "state",
                                                  session_state_name(st), "frames", (json_int_t) s->n_frames,
                                                  "path", s->dir));
@@ -285,9 +320,11 @@ static void step_failed(struct session *s, const char *device, int r, const char
         if (++s->attempt < (int) s->d->retries) {
                 log_warning("session %s: frame %zu: %s (attempt %d of %u), retrying", s->id, s->n_captured, msg,
                             s->attempt, s->d->retries);
-                /* A camera that stopped answering is reopened on the next attempt. */
+                /* A camera that stopped answering is reopened on the next attempt: also one
+                 * the driver gave up on (-ENODEV: it released the stream; every later trigger
+                 * would then be -ENOTCONN, for ever, without a reopen). */
                 struct dev_camera *cam = device ? rigcfg_camera(s->d->rigcfg, device) : NULL;
-                if (cam && (r == -ETIMEDOUT || r == -EIO)) {
+                if (cam && (r == -ETIMEDOUT || r == -EIO || r == -ENODEV || r == -ENOTCONN)) {
                         if (cam->started)
                                 (void) imp_camera_stop(cam->cam);
                         imp_camera_close(cam->cam);
@@ -399,7 +436,133 @@ static void forget_exposures(struct rigcfg *rc) {
         }
 }
 
-/* Phase 1: expose, grab, switch off, store. */
+/* The next frame as a 16-bit image: a 16-bit little-endian frame of the calibrated size is
+ * grabbed straight into it (one of the writer's spares when it has one: no copy out of the
+ * camera's buffer, no fresh pages to fault in), others through the camera's buffer. */
+static int grab_image(struct session *s, struct dev_camera *cam, unsigned timeout_ms, struct imp_frame_meta *ret_meta,
+                      struct imp_image **ret) {
+        const struct imp_rig_camera *model = NULL;
+        int r;
+        for (int i = 0; i < s->rig.n_cameras; i++)
+                if (!strcmp(s->rig.cameras[i].name, cam->name))
+                        model = &s->rig.cameras[i];
+        if (!model || imp_pixel_format_bytes(cam->format) != 2 || __BYTE_ORDER__ != __ORDER_LITTLE_ENDIAN__) {
+                const struct imp_frame *f;
+                if ((r = imp_camera_grab(cam->cam, timeout_ms, &f)) < 0)
+                        return r;
+                *ret_meta = f->meta;
+                return frame_to_image(f, ret);
+        }
+        int w = model->model.width, h = model->model.height;
+        _cleanup_image_ struct imp_image *img = store_writer_spare_image(s->writer, w, h);
+        if (!img && (r = imp_image_new(w, h, 1, IMP_PIX_U16, &img)) < 0)
+                return r;
+        struct imp_frame f;
+        if ((r = imp_camera_grab_into(cam->cam, timeout_ms, img->data, (size_t) w * (size_t) h * 2, &f)) < 0)
+                return r;
+        *ret_meta = f.meta;
+        if (f.width == (unsigned) w && f.height == (unsigned) h && f.stride_bytes == (unsigned) w * 2 &&
+            imp_pixel_format_bytes(f.pixel_format) == 2) {
+                *ret = TAKE_PTR(img);
+                return 0;
+        }
+        return frame_to_image(&f, ret);         /* another size than calibrated: as it came */
+}
+
+/* A grabbed frame of record rec (img taken): the light off when the next frame needs another
+ * (after a streamed run has ended, so that no stored frame saw it go), queued for the writer. */
+static int store_frame(struct session *s, const struct imp_frame_record *rec, struct imp_image *img) {
+        struct rigcfg *rc = s->d->rigcfg;
+        int r;
+        if (s->stream_cam && s->n_captured + 1 >= s->stream_end)
+                stream_stop(s);
+        /* The light stays on through an exposure stack; off before anything else. */
+        const struct imp_frame_record *next = s->n_captured + 1 < s->frames_total ?
+                                              imp_plan_frame(s->plan, s->n_captured + 1) : NULL;
+        if (rc->dome.dome && rec->light >= 0 && (!next || next->light != rec->light) &&
+            (r = imp_dome_all_off(rc->dome.dome)) < 0) {
+                imp_image_free(img);
+                step_failed(s, rc->dome.name, r, "lights off");
+                return r;
+        }
+        /* Stored by the writer thread while the next frame is exposed (on_stored follows).
+         * -EIO: an earlier frame failed to store; its result pauses the session. */
+        if ((r = store_writer_push(s->writer, rec, img)) < 0)
+                return r;
+        s->n_captured++;
+        s->attempt = 0;
+        return 0;
+}
+
+/* Switches the camera to free running for the run of frames in rec's state that starts here,
+ * when it is long enough and the camera may stream. 1: streaming, 0: capture it triggered. */
+static int stream_start(struct session *s, struct dev_camera *cam) {
+        size_t n = imp_plan_run_length(s->plan, s->n_captured);
+        if (!cam->stream || n < STREAM_MIN_FRAMES)
+                return 0;
+        s->stream_t0_ns = now_ns(CLOCK_REALTIME);
+        int r = imp_camera_set_free_run(cam->cam, true);
+        if (r == -EOPNOTSUPP || r == -EINVAL) {
+                log_warning("session %s: camera %s cannot run free (%s): every frame triggered", s->id, cam->name,
+                            strerror(-r));
+                cam->stream = false;
+                return 0;
+        }
+        if (r < 0) {
+                step_failed(s, cam->name, r, "free running");
+                return r;
+        }
+        s->stream_cam = cam;
+        s->stream_end = s->n_captured + n;
+        s->stream_last_id = 0;
+        s->stream_bad = 0;
+        s->streamed.runs++;
+        return 1;
+}
+
+/* One frame of a streamed run. Frames received before the switch are discarded; a frame the
+ * stream lost (a gap in the camera's ids, or incomplete) is replaced by the next one, as
+ * they all show the same state; every seq still gets exactly one frame. */
+static int stream_frame(struct session *s, const struct imp_frame_record *plan_rec) {
+        struct dev_camera *cam = s->stream_cam;
+        struct imp_frame_meta meta;
+        _cleanup_image_ struct imp_image *img = NULL;
+        int r = grab_image(s, cam, (unsigned) (plan_rec->exposure_us / 1000) + STREAM_GRAB_MARGIN_MS, &meta, &img);
+        if (r == -EIO && ++s->stream_bad < STREAM_MAX_BAD)
+                return 0;       /* the id gap counts it as lost */
+        if (r < 0) {
+                if (r == -ETIMEDOUT && s->stream_last_id == 0) {
+                        log_warning("session %s: camera %s gave no frame running free: every frame triggered",
+                                    s->id, cam->name);
+                        cam->stream = false;
+                }
+                step_failed(s, cam->name, r, "grab (free running)");
+                return r;
+        }
+        s->stream_bad = 0;
+        if (meta.system_timestamp_ns > 0 && meta.system_timestamp_ns < s->stream_t0_ns) {
+                s->streamed.stale++;
+                return 0;
+        }
+        if (s->stream_last_id)
+                s->streamed.lost += imp_camera_frames_skipped(s->stream_last_id, meta.frame_id);
+        s->stream_last_id = meta.frame_id;
+        struct imp_frame_record rec = *plan_rec;
+        rec.t_light_on_ns = (long long) s->t_light_on_ns;
+        rec.t_trigger_ns = (long long) s->stream_t0_ns;         /* the run's start: no trigger per frame */
+        rec.t_frame_ns = (long long) now_ns(CLOCK_REALTIME);
+        if ((r = store_frame(s, &rec, TAKE_PTR(img))) < 0)
+                return r;
+        s->streamed.frames++;
+        /* A full store queue ends the run: triggered (or a new run) once it has room. */
+        if (s->stream_cam && store_writer_full(s->writer)) {
+                s->streamed.stops++;
+                stream_stop(s);
+        }
+        return 0;
+}
+
+/* Phase 1: expose, grab, switch off, store; or start a streamed run and take its first frame. */
 static int expose_frame(struct session *s, const struct imp_frame_record *plan_rec) {
         struct rigcfg *rc = s->d->rigcfg;
         struct dev_camera *cam = rigcfg_camera(rc, plan_rec->camera);
@@ -409,43 +572,27 @@ static int expose_frame(struct session *s, const struct imp_frame_record *plan_r
                 return -ENODEV;
         }
         struct imp_frame_record rec = *plan_rec;
-        const struct imp_frame *f;
         if ((r = apply_exposure(cam, rec.exposure_us, rec.gain_db)) < 0) {
                 step_failed(s, cam->name, r, "exposure or gain");
                 return r;
         }
+        if ((r = stream_start(s, cam)) != 0)
+                return r < 0 ? r : stream_frame(s, plan_rec);
         rec.t_light_on_ns = (long long) s->t_light_on_ns;
         rec.t_trigger_ns = (long long) now_ns(CLOCK_REALTIME);
         if ((r = imp_camera_trigger_software(cam->cam)) < 0) {
                 step_failed(s, cam->name, r, "trigger");
                 return r;
         }
-        r = imp_camera_grab(cam->cam, (unsigned) (rec.exposure_us / 1000) + GRAB_MARGIN_MS, &f);
+        struct imp_frame_meta meta;
+        struct imp_image *img = NULL;
+        r = grab_image(s, cam, (unsigned) (rec.exposure_us / 1000) + GRAB_MARGIN_MS, &meta, &img);
         if (r < 0) {
                 step_failed(s, cam->name, r, "grab");
                 return r;
         }
         rec.t_frame_ns = (long long) now_ns(CLOCK_REALTIME);
-        _cleanup_image_ struct imp_image *img = NULL;
-        if ((r = frame_to_image(f, &img)) < 0) {
-                step_failed(s, cam->name, r, "frame buffer");
-                return r;
-        }
-        /* The light stays on through an exposure stack; off before anything else. */
-        const struct imp_frame_record *next = s->n_captured + 1 < s->frames_total ?
-                                              imp_plan_frame(s->plan, s->n_captured + 1) : NULL;
-        if (rc->dome.dome && rec.light >= 0 && (!next || next->light != rec.light) &&
-            (r = imp_dome_all_off(rc->dome.dome)) < 0) {
-                step_failed(s, rc->dome.name, r, "lights off");
-                return r;
-        }
-        /* Stored by the writer thread while the next frame is exposed (on_stored follows).
-         * -EIO: an earlier frame failed to store; its result pauses the session. */
-        if ((r = store_writer_push(s->writer, &rec, TAKE_PTR(img))) < 0)
-                return r;
-        s->n_captured++;
-        s->attempt = 0;
-        return 0;
+        return store_frame(s, &rec, img);
 }
 
 /* Steps on unless the writer is full or holds the last frames (its results call this
@@ -510,24 +657,31 @@ static int step_cb(sd_event_source *src, uint64_t usec, void *userdata) {
         if (s->n_captured >= s->frames_total || store_writer_full(s->writer))
                 return 0;
         const struct imp_frame_record *rec = imp_plan_frame(s->plan, s->n_captured);
-        if (s->phase == 0) {
+        int r;
+        if (s->stream_cam || s->phase == 0) {
                 char msg[512];
                 /* This frame and those the writer still holds. */
                 uint64_t need = store_frame_bytes(&s->rig, rec->camera) * (1 + s->n_captured - s->n_frames);
-                int r = check_disk(s, need, msg, sizeof msg);
+                r = check_disk(s, need, msg, sizeof msg);
                 if (r < 0) {
                         pause_with_fault(s, NULL, IMP_PROTO_E_IO, r, msg);
                         return 0;
                 }
+        }
+        if (s->stream_cam)      /* a streamed run: one frame a step, clients served in between */
+                r = stream_frame(s, rec);
+        else if (s->phase == 0) {
                 uint64_t settle_us = 0;
                 if (setup_frame(s, rec, &settle_us) < 0)
                         return 0;
                 s->phase = 1;
                 (void) schedule(s, settle_us);
                 return 0;
+        } else {
+                s->phase = 0;
+                r = expose_frame(s, rec);
         }
-        s->phase = 0;
-        if (expose_frame(s, rec) < 0)
+        if (r < 0)
                 return 0;
         if (s->pause_requested) {
                 s->pause_requested = false;
@@ -569,6 +723,7 @@ static int begin_capture(struct session *s, struct imp_proto_error *perr) {
                 return imp_proto_error_set(perr, IMP_PROTO_E_INTERNAL, -r, NULL, "starting the store writer: %s",
                                            strerror(-r));
         s->n_captured = s->n_frames;    /* the writer holds nothing between runs */
+        s->stream_cam = NULL;
         s->shown_pattern = -2;          /* unknown: the first frame sets it */
         s->current_tile = -1;
         s->phase = 0;
@@ -790,9 +945,14 @@ json_t *session_summary_json(const struct session *s) {
 }
 
 json_t *session_show_json(const struct session *s) {
-        return json_pack("{s:s, s:s, s:s, s:s, s:s, s:s, s:s?, s:I, s:I, s:I, s:b, s:O}", "session", s->id,
+        /* Counts of this daemon process (a restart starts them again). */
+        json_t *streamed = json_pack("{s:I, s:I, s:I, s:I, s:I}", "runs", (json_int_t) s->streamed.runs, "frames",
+                                     (json_int_t) s->streamed.frames, "lost", (json_int_t) s->streamed.lost,
+                                     "stale", (json_int_t) s->streamed.stale, "stops", (json_int_t) s->streamed.stops);
+        return json_pack("{s:s, s:s, s:s, s:s, s:s, s:s, s:s?, s:I, s:I, s:I, s:b, s:O, s:o}", "session", s->id,
                          "name", s->name, "state", session_state_name(s->state), "plan", s->plan_path, "path",
                          s->dir, "started", s->started, "ended", s->ended[0] ? s->ended : NULL, "step",
                          (json_int_t) s->n_frames, "steps", (json_int_t) s->frames_total, "frames",
-                         (json_int_t) s->n_frames, "interrupted", s->interrupted, "faults", s->faults);
+                         (json_int_t) s->n_frames, "interrupted", s->interrupted, "faults", s->faults,
+                         "streamed", streamed);
 }

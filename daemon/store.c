@@ -169,6 +169,9 @@ struct store_item {
         char msg[1024];
 };
 
+/* Stored images kept for the next frames (store_writer_spare_image). */
+#define STORE_SPARE_IMAGES 4
+
 struct store_writer {
         pthread_mutex_t lock;
         pthread_cond_t work;            /* an item queued, or stop */
@@ -185,6 +188,8 @@ struct store_writer {
         store_done_fn done_fn;
         void *userdata;
         bool delivering, free_pending;
+        struct imp_image *spare[STORE_SPARE_IMAGES];
+        unsigned n_spare;
 };
 
 static void store_items_free(struct store_item *it) {
@@ -221,10 +226,11 @@ static void *writer_main(void *userdata) {
                                 snprintf(it->msg, sizeof it->msg, "%s", e.msg[0] ? e.msg : strerror(-it->r));
                 }
                 it->pixel_bytes = (long long) held_bytes;
-                imp_image_free(it->img);
-                it->img = NULL;
+                struct imp_image *img = TAKE_PTR(it->img);
 
                 pthread_mutex_lock(&w->lock);
+                if (w->n_spare < STORE_SPARE_IMAGES)
+                        w->spare[w->n_spare++] = TAKE_PTR(img);
                 w->busy = false;
                 w->held--;
                 w->held_bytes -= held_bytes;
@@ -239,6 +245,11 @@ static void *writer_main(void *userdata) {
                 }
                 if (!w->todo)
                         pthread_cond_broadcast(&w->idle);
+                if (img) {
+                        pthread_mutex_unlock(&w->lock);
+                        imp_image_free(img);
+                        pthread_mutex_lock(&w->lock);
+                }
         }
         pthread_mutex_unlock(&w->lock);
         return NULL;
@@ -252,6 +263,8 @@ static void writer_destroy(struct store_writer *w) {
         pthread_join(w->thread, NULL);
         store_items_free(w->todo);
         store_items_free(w->done);
+        while (w->n_spare > 0)
+                imp_image_free(w->spare[--w->n_spare]);
         sd_event_source_disable_unref(w->source);
         close(w->efd);
         pthread_cond_destroy(&w->idle);
@@ -358,6 +371,21 @@ bool store_writer_full(const struct store_writer *w) {
         bool full = w->held > 0 && (w->held >= STORE_QUEUE_MAX_FRAMES || w->held_bytes >= STORE_QUEUE_MAX_BYTES);
         pthread_mutex_unlock(&m->lock);
         return full;
+}
+
+struct imp_image *store_writer_spare_image(struct store_writer *w, int width, int height) {
+        struct imp_image *img = NULL, *stale = NULL;
+        if (!w)
+                return NULL;
+        pthread_mutex_lock(&w->lock);
+        if (w->n_spare > 0) {
+                img = w->spare[--w->n_spare];
+                if (img->width != width || img->height != height || img->channels != 1 || img->type != IMP_PIX_U16)
+                        stale = TAKE_PTR(img);
+        }
+        pthread_mutex_unlock(&w->lock);
+        imp_image_free(stale);
+        return img;
 }
 
 void store_writer_flush(struct store_writer *w) {

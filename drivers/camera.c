@@ -192,6 +192,10 @@ int imp_camera_stop(struct imp_camera *c) {
         return c->ops->stop ? c->ops->stop(c->state) : 0;
 }
 
+bool imp_camera_is_acquiring(const struct imp_camera *c) {
+        return c && c->acquiring;
+}
+
 int imp_camera_trigger_software(struct imp_camera *c) {
         if (!c)
                 return -EINVAL;
@@ -200,13 +204,33 @@ int imp_camera_trigger_software(struct imp_camera *c) {
         return c->ops->trigger_software ? c->ops->trigger_software(c->state) : -EOPNOTSUPP;
 }
 
-int imp_camera_grab(struct imp_camera *c, unsigned timeout_ms, const struct imp_frame **ret_frame) {
+int imp_camera_set_free_run(struct imp_camera *c, bool on) {
+        if (!c)
+                return -EINVAL;
+        if (!c->acquiring)
+                return -ENOTCONN;
+        return c->ops->set_free_run ? c->ops->set_free_run(c->state, on) : -EOPNOTSUPP;
+}
+
+uint64_t imp_camera_frames_skipped(uint64_t prev_id, uint64_t id) {
+        const uint64_t gv1_max = 0xffff;
+        if (id > prev_id)
+                return id - prev_id - 1;
+        if (prev_id <= gv1_max && id <= gv1_max)
+                return (gv1_max - prev_id) + (id - 1);
+        return 0;
+}
+
+int imp_camera_grab_into(struct imp_camera *c, unsigned timeout_ms, void *dst, size_t dst_size,
+                         struct imp_frame *ret_frame) {
         if (!c || !ret_frame)
                 return -EINVAL;
         if (!c->acquiring)
                 return -ENOTCONN;
+        if (!dst)
+                return -EINVAL;
         struct imp_frame f = {};
-        int r = c->ops->grab(c->state, timeout_ms, c->buf, c->buf_size, &f);
+        int r = c->ops->grab(c->state, timeout_ms, dst, dst_size, &f);
         if (r == -ENODEV) {
                 /* Unplugged: release the stream now, so nothing waits on a dead device. */
                 c->acquiring = false;
@@ -215,8 +239,17 @@ int imp_camera_grab(struct imp_camera *c, unsigned timeout_ms, const struct imp_
         }
         if (r < 0)
                 return r;
-        f.data = c->buf;
-        c->frame = f;
+        f.data = dst;
+        *ret_frame = f;
+        return 0;
+}
+
+int imp_camera_grab(struct imp_camera *c, unsigned timeout_ms, const struct imp_frame **ret_frame) {
+        if (!c || !ret_frame)
+                return -EINVAL;
+        int r = imp_camera_grab_into(c, timeout_ms, c->buf, c->buf_size, &c->frame);
+        if (r < 0)
+                return r;
         *ret_frame = &c->frame;
         return 0;
 }

@@ -83,6 +83,12 @@ struct imp_camera_ops {
         int (*stop)(void *state);
         /* Fire one software trigger (acquisition started with software_trigger). */
         int (*trigger_software)(void *state);
+        /* While acquiring with software_trigger: on, the camera runs free (exposes frame
+         * after frame at its own frame rate, e.g. GenICam TriggerMode Off at its
+         * AcquisitionFrameRate) until off; off, it waits for triggers again, and no frame
+         * it exposed before off returned is ever returned by a later grab (the backend
+         * discards frames still in flight). */
+        int (*set_free_run)(void *state, bool on);
         /* Wait up to timeout_ms for the next complete frame, copy its pixels to dst
          * (dst_size bytes) and fill ret_frame (all but data). -ETIMEDOUT when none came,
          * -EIO for an incomplete frame (its buffer is recycled), -EMSGSIZE if dst is short. */
@@ -114,11 +120,24 @@ int imp_camera_set_roi(struct imp_camera *camera, unsigned x, unsigned y,
 /* Sizes the frame buffer from the current ROI and format (the only allocation), starts. */
 int imp_camera_start(struct imp_camera *camera, const struct imp_camera_acq *acq);
 int imp_camera_stop(struct imp_camera *camera);
+/* Started and not since stopped, by the caller or by the driver after an unplug (-ENODEV). */
+bool imp_camera_is_acquiring(const struct imp_camera *camera);
 int imp_camera_trigger_software(struct imp_camera *camera);
+/* Free running on or off while acquiring (see the ops slot): -ENOTCONN when not acquiring,
+ * -EOPNOTSUPP when the backend cannot switch mid-acquisition. */
+int imp_camera_set_free_run(struct imp_camera *camera, bool on);
+/* Frames a camera numbered between two frames received (prev then id) that never arrived:
+ * GigE Vision 1.x block ids are 16-bit and wrap skipping 0; larger ids do not wrap (a
+ * smaller one is a restart, not a loss). */
+uint64_t imp_camera_frames_skipped(uint64_t prev_id, uint64_t id);
 /* Next frame. *ret_frame points into the camera: valid until the next grab, stop or close.
  * -ENODEV: the camera is gone; the camera is then stopped (grab answers -ENOTCONN). */
 int imp_camera_grab(struct imp_camera *camera, unsigned timeout_ms,
                     const struct imp_frame **ret_frame);
+/* The same into the caller's dst (dst_size bytes; -EMSGSIZE when the frame is larger):
+ * ret_frame->data is dst. Saves the copy out of the camera's buffer. */
+int imp_camera_grab_into(struct imp_camera *camera, unsigned timeout_ms, void *dst, size_t dst_size,
+                         struct imp_frame *ret_frame);
 /* The backend's detail of its last failure ("" when it keeps none). Valid until the next call. */
 const char *imp_camera_last_error(const struct imp_camera *camera);
 /* Backends built before the last_error slot existed test for it. */

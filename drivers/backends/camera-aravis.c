@@ -12,9 +12,16 @@
 /* GigE Vision bootstrap register "Version", readable on every GVCP device: a probe. */
 #define GVBS_VERSION 0x0000
 
+/* Stream buffers while free running: frames arrive without waiting for the client, so a
+ * client busy for a few frame periods needs more than the triggered pool. */
+#define FREE_RUN_MIN_BUFFERS 12
+
 struct cam_arv {
         ArvCamera *cam;
         ArvStream *stream;
+        struct imp_camera_acq acq;      /* as started: a restart repeats it */
+        guint payload;
+        unsigned extra_buffers;         /* pushed for free running, gone with the stream */
         char address[128];
         bool gone;              /* a grab found it unplugged: talk to it no more */
         char error[256];
@@ -209,6 +216,9 @@ static int cam_start(void *state, const struct imp_camera_acq *acq) {
         guint payload = arv_camera_get_payload(c->cam, &err);
         if ((r = take_error(c, &err)) < 0)
                 return r;
+        c->acq = *acq;
+        c->payload = payload;
+        c->extra_buffers = 0;
         c->stream = arv_camera_create_stream(c->cam, NULL, NULL, &err);
         if (!c->stream)
                 return (r = take_error(c, &err)) < 0 ? r : -EIO;
@@ -233,6 +243,37 @@ static int cam_trigger_software(void *state) {
         GError *err = NULL;
         arv_camera_software_trigger(c->cam, &err);
         return take_error(c, &err);
+}
+
+/* Free running: TriggerMode Off on the FrameStart trigger (the selector arv_camera_set_trigger
+ * left), with more buffers. Back to triggers: the stream is stopped and created anew in
+ * software-trigger mode. Frames the camera exposed meanwhile were sent to the old stream's
+ * socket, which is closed with it: no later grab can return one of them, whatever the
+ * timing of their packets. */
+static int cam_set_free_run(void *state, bool on) {
+        struct cam_arv *c = state;
+        GError *err = NULL;
+        int r;
+        if (!c->stream)
+                return -ENOTCONN;
+        if (c->gone)
+                return -ENODEV;
+        if (!c->acq.software_trigger)
+                return on ? 0 : -EINVAL;
+        if (on) {
+                if (!arv_camera_is_feature_available(c->cam, "TriggerMode", NULL))
+                        return -EOPNOTSUPP;
+                for (unsigned n = c->acq.n_buffers + c->extra_buffers; n < FREE_RUN_MIN_BUFFERS; n++) {
+                        arv_stream_push_buffer(c->stream, arv_buffer_new(c->payload, NULL));
+                        c->extra_buffers++;
+                }
+                arv_camera_set_string(c->cam, "TriggerMode", "Off", &err);
+                return take_error(c, &err);
+        }
+        struct imp_camera_acq acq = c->acq;
+        if ((r = cam_stop(c)) < 0)
+                return r;
+        return cam_start(c, &acq);
 }
 
 /* Cumulative stream counters by name; a name the stream lacks reads as 0. */
@@ -342,6 +383,7 @@ const struct imp_camera_ops imp_camera_aravis_ops = {
         .start = cam_start,                     /* continuous or software-triggered, pool pushed */
         .stop = cam_stop,                       /* AcquisitionStop, stream released */
         .trigger_software = cam_trigger_software, /* TriggerSoftware command */
+        .set_free_run = cam_set_free_run,       /* TriggerMode Off; back: a new stream */
         .grab = cam_grab,                       /* arv_stream_timeout_pop_buffer, copy, push back;
                                                  * no frame and no control answer: -ENODEV */
         .last_error = cam_last_error,           /* names the camera's address */

@@ -12,14 +12,19 @@
 #define N_LIGHTS 12
 #define MIN_KILLS 20
 
-int main(void) {
+int main(int argc, char **argv) {
+        /* "repeat" (test-daemon-kill-repeat, tests/daemon-stream.cmake): a plan of streamed runs
+         * of 6 frames, so that kills land inside runs, on port 15901. */
+        bool repeat = argc > 1 && !strcmp(argv[1], "repeat");
         struct harness h;
-        h_setup(&h, PORT, N_LIGHTS);
+        h_setup(&h, repeat ? 15901 : PORT, N_LIGHTS);
         char plan[512];
         snprintf(plan, sizeof plan, "%s/sweep.cfg", h.dir);
-        h_write(plan, "dome = { lights = \"all\"; exposures_us = [1000.0, 1500.0, 2000.0, 2500.0]; };\n"
-                      "dark = { count = 2; };\n");
-        const size_t frames = N_LIGHTS * 4 + 2 * 4;
+        h_write(plan, repeat ? "dome = { lights = [0, 1, 2, 3]; exposures_us = [1000.0, 2000.0]; repeat = 6; };\n"
+                               "dark = { count = 4; };\n"
+                             : "dome = { lights = \"all\"; exposures_us = [1000.0, 1500.0, 2000.0, 2500.0]; };\n"
+                               "dark = { count = 2; };\n");
+        const size_t frames = repeat ? 4 * 2 * 6 + 4 * 2 : N_LIGHTS * 4 + 2 * 4;
         const char *const opts[] = { "--worker-cmd", "/bin/true", "--min-free-bytes", "0", "--resume",
                                      "--device-timeout-ms", "400", NULL };
         unsigned seed = 20250301;

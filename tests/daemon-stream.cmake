@@ -1,0 +1,13 @@
+# impastod's streamed runs (constant-state frames captured free-running) on the emulated rig,
+# and test-daemon-kill again with a plan of repeat runs (seeded kills mid-run). GigE camera
+# on UDP 127.0.0.1:3956 (RESOURCE_LOCK gvcp); Modbus ports 15900 and 15901.
+if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WITH_MODBUS)
+  impasto_test(test-daemon-stream LABELS integration LIBS impasto_proto impasto_pipeline impasto_emu TIMEOUT 120)
+  add_dependencies(test-daemon-stream impastod)
+  set_tests_properties(test-daemon-stream PROPERTIES RESOURCE_LOCK gvcp)
+  if(EXISTS ${CMAKE_CURRENT_SOURCE_DIR}/unit/test-daemon-kill.c)    # target from daemon.cmake
+    add_test(NAME test-daemon-kill-repeat COMMAND test-daemon-kill repeat)
+    set_tests_properties(test-daemon-kill-repeat PROPERTIES LABELS "integration;fault;slow" SKIP_RETURN_CODE 77
+      TIMEOUT 120 RESOURCE_LOCK gvcp)
+  endif()
+endif()
