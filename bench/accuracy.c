@@ -1,9 +1,16 @@
 /* `impasto bench accuracy [--quick] [--out DIR] [--repo DIR] [--keep-sets]` (issue #9):
  * what accuracy costs in time. Each study scene is rendered once with the richest plan;
  * every configuration's capture set is then derived by taking the frames its plan names
- * (2×2 binned for the binning knob), processed in a forked child (wall, CPU and peak RSS
- * of that child alone) and compared with the truth in another child. The outputs are
- * written by bench/accuracy-report.c. */
+ * (2×2 binned for the binning knob), processed by its own `impasto process` process (fork
+ * and exec of this binary with the configuration's knobs as flags: wall, CPU and peak RSS
+ * of that process alone) and compared with the truth in a forked child. The outputs are
+ * written by bench/accuracy-report.c.
+ *
+ * Processing used to run in a forked child of this process (until 2026-11-22). That cost the
+ * same as the exec (docs/accuracy-vs-time.md "Method changes"), but a forked child carries
+ * the parent's state, and its wait4 peak RSS starts at the parent's resident memory; an
+ * exec'd one is a command line anyone can rerun. Nothing that runs OpenMP is forked without
+ * an exec now: the simulator's effect costs run as `impasto bench sim-effects` too. */
 #define _GNU_SOURCE   /* nftw() */
 #include <errno.h>
 #include <ftw.h>
@@ -20,6 +27,7 @@
 #include <time.h>
 #include <unistd.h>
 #include "accuracy.h"
+#include "build-kind.h"
 #include "captureset.h"
 #include "commands.h"
 #include "compare-appearance.h"
@@ -123,8 +131,9 @@ struct child_cost {
 };
 
 /* Runs fn(arg) in a forked child; the child's exit code is fn's return. Cost from wait4(),
- * so it is that child's alone. OpenMP runs only in children: the parent never starts a
- * thread pool that a fork would leave behind. */
+ * so it is that child's alone; but a child that does not exec carries this process's
+ * memory (its peak RSS starts at ours) and state, so anything whose cost is reported goes
+ * through exec_self. The parent never starts an OpenMP thread pool. */
 static int run_forked(int (*fn)(void *), void *arg, const char *log_path, struct child_cost *ret) {
         fflush(NULL);
         double t0 = now_s();
@@ -161,18 +170,26 @@ static int exec_self(void *arg) {
         return 127;
 }
 
-struct process_job {
-        const char *set, *copy;
-        struct imp_process_options opt;
-};
+/* The 1-minute load average (-1 when unknown): the machine is shared, so every measured
+ * figure is reported with it. */
+static double load1(void) {
+        double l[1];
+        return getloadavg(l, 1) == 1 ? l[0] : -1;
+}
 
-static int process_child(void *arg) {
-        struct process_job *j = arg;
-        struct imp_error err = {};
-        int r = imp_process_capture(j->set, j->copy, &j->opt, &err);
-        if (r < 0)
-                fprintf(stderr, "process %s: %s\n", j->set, err.msg[0] ? err.msg : strerror(-r));
-        return r < 0 ? 1 : 0;
+/* `impasto process` flags for a configuration's processing knobs (the defaults give none). */
+static void process_flags(const struct acc_config *c, char *buf, size_t size) {
+        snprintf(buf, size, "%s%s%s", c->btf ? "" : " --no-btf", c->gray_decode ? " --gray-only" : "",
+                 c->no_shadow_test ? " --no-shadow-test" : "");
+        size_t n = strlen(buf);
+        if (c->cell_px > 0)
+                n += (size_t) snprintf(buf + n, n < size ? size - n : 0, " --cell %d", c->cell_px);
+        if (c->threads > 0)
+                n += (size_t) snprintf(buf + n, n < size ? size - n : 0, " --threads %d", c->threads);
+        if (c->btf_max_iter > 0)
+                n += (size_t) snprintf(buf + n, n < size ? size - n : 0, " --btf-iterations %d", c->btf_max_iter);
+        if (c->btf_robust_passes >= 0)
+                snprintf(buf + n, n < size ? size - n : 0, " --btf-robust-passes %d", c->btf_robust_passes);
 }
 
 struct compare_job {
@@ -467,7 +484,7 @@ static int render_rich(struct acc_study *st, int si, const char *scene_path, con
         pathf(path, sizeof path, "%s.log", dir);
         char *argv[] = { "impasto", "sim", "render", "--scene", (char *) scene_path, "--plan", (char *) plan_path,
                          "--out", (char *) dir, "--quiet", NULL };
-        struct child_cost cost;
+        struct child_cost cost = { .status = -1 };
         fprintf(stderr, "bench accuracy: rendering %s (%zu frames)…\n", scene_path, st->render_frames[si]);
         int r = run_forked(exec_self, argv, path, &cost);
         if (r < 0 || cost.status != 0)
@@ -486,26 +503,31 @@ static void measure(struct acc_study *st, struct acc_result *res, const char *se
         pathf(cmp, sizeof cmp, "%s/copies/%s/%s.compare.json", st->out_dir, res->scene, c->name);
         pathf(log_path, sizeof log_path, "%s/copies/%s/%s.log", st->out_dir, res->scene, c->name);
         remove_tree(copy);
-        struct process_job pj = { set, copy };
-        imp_process_options_default(&pj.opt);
-        pj.opt.btf = c->btf;
-        pj.opt.cell_px = c->cell_px;
-        pj.opt.sl_gray_only = c->gray_decode;
-        pj.opt.threads = c->threads;
-        pj.opt.btf_max_iter = c->btf_max_iter;
-        pj.opt.btf_robust_passes = c->btf_robust_passes;
-        pj.opt.btf_no_shadow_test = c->no_shadow_test;
-        struct child_cost cost;
-        if (run_forked(process_child, &pj, log_path, &cost) < 0 || cost.status != 0) {
-                log_error("bench accuracy: %s/%s: processing failed, see %s", res->scene, c->name, log_path);
+        /* Its own process: `impasto process SET --out COPY --quiet FLAGS`, exec'd. */
+        pathf(res->set_dir, sizeof res->set_dir, "%s", set);
+        process_flags(c, res->process_flags, sizeof res->process_flags);
+        char flags[sizeof res->process_flags];
+        snprintf(flags, sizeof flags, "%s", res->process_flags);
+        char *argv[24] = { "impasto", "process", (char *) set, "--out", copy, "--quiet" };
+        int n = 6;
+        char *save = NULL;
+        for (char *w = strtok_r(flags, " ", &save); w && n < (int) ARRAY_SIZE(argv) - 1; w = strtok_r(NULL, " ", &save))
+                argv[n++] = w;
+        struct child_cost cost = { .status = -1 };
+        res->load_before = load1();
+        if (run_forked(exec_self, argv, log_path, &cost) < 0 || cost.status != 0) {
+                log_error("bench accuracy: %s/%s: processing failed (exit %d), see %s", res->scene, c->name,
+                          cost.status, log_path);
                 return;
         }
+        res->load_after = load1();
         res->wall_s = cost.wall_s;
         res->cpu_s = cost.cpu_s;
         res->peak_rss_kib = cost.maxrss_kib;
         res->copy_bytes = dir_bytes(copy);
         struct compare_job cj = { copy, truth, cmp, c->btf && c->lights > 0 };
-        struct child_cost ccost;
+        struct child_cost ccost = { .status = -1 };
+        pathf(log_path, sizeof log_path, "%s/copies/%s/%s.compare.log", st->out_dir, res->scene, c->name);
         if (run_forked(compare_child, &cj, log_path, &ccost) < 0 || ccost.status != 0) {
                 log_error("bench accuracy: %s/%s: compare failed, see %s", res->scene, c->name, log_path);
                 return;
@@ -624,9 +646,10 @@ static int sweep_scene(struct acc_study *st, int si, const char *scene_path, boo
                         if (k != i)
                                 write_text(res->plan_path, text);
                         measure(st, res, set, truth);
-                        fprintf(stderr, "bench accuracy: %s/%-9s capture %6.2f s  processing %6.2f s (cpu %6.2f s)  "
-                                "height rmse %7.2f um\n", scene, d->name, res->capture_s, res->wall_s, res->cpu_s,
-                                res->height_rmse_um);
+                        fprintf(stderr, "bench accuracy: %s/%-9s capture %6.2f s  processing %6.2f s (cpu %6.2f s, "
+                                "peak RSS %4.0f MiB, load %.2f→%.2f)  height rmse %7.2f um\n", scene, d->name,
+                                res->capture_s, res->wall_s, res->cpu_s, res->peak_rss_kib / 1024.0, res->load_before,
+                                res->load_after, res->height_rmse_um);
                 }
                 if (!keep_sets)
                         remove_tree(set);
@@ -635,16 +658,13 @@ static int sweep_scene(struct acc_study *st, int si, const char *scene_path, boo
 }
 
 /* The simulator's cost per effect on a study scene (bench/bench-sim-effects.c's
- * measurement: `direct` alone, then each other effect alone on top of it; four frames). */
-struct effects_job {
-        const char *scene_path, *out;
-};
-
-static int effects_child(void *arg) {
-        struct effects_job *j = arg;
+ * measurement: `direct` alone, then each other effect alone on top of it; four frames),
+ * as `impasto bench sim-effects SCENE OUT_JSON` (not in the usage: the study's own step,
+ * exec'd so that the renderer's OpenMP threads start in a fresh process). */
+static int cmd_sim_effects(const char *scene_path, const char *out) {
         struct imp_error err = {};
         _cleanup_(imp_scene_freep) struct imp_scene *scene = NULL;
-        if (imp_scene_load(j->scene_path, &scene, &err) < 0)
+        if (imp_scene_load(scene_path, &scene, &err) < 0)
                 return fprintf(stderr, "%s\n", err.msg), 1;
         const struct imp_rig *rig = imp_scene_rig(scene);
         struct imp_frame_record frames[4] = {
@@ -684,7 +704,7 @@ static int effects_child(void *arg) {
                         "projector_lookups", (json_int_t) c->projector_lookups,
                         "distortion_evals", (json_int_t) c->distortion_evals));
         }
-        int r = imp_json_save_atomic(j->out, arr, &err);
+        int r = imp_json_save_atomic(out, arr, &err);
         json_decref(arr);
         return r < 0 ? 1 : 0;
 }
@@ -693,9 +713,9 @@ static void measure_effects(struct acc_study *st, const char *scene_path) {
         char out[4096], log_path[4096];
         pathf(out, sizeof out, "%s/sim-effects.json", st->out_dir);
         pathf(log_path, sizeof log_path, "%s/sim-effects.log", st->out_dir);
-        struct effects_job j = { scene_path, out };
-        struct child_cost cost;
-        if (run_forked(effects_child, &j, log_path, &cost) < 0 || cost.status != 0) {
+        char *argv[] = { "impasto", "bench", "sim-effects", (char *) scene_path, out, NULL };
+        struct child_cost cost = { .status = -1 };
+        if (run_forked(exec_self, argv, log_path, &cost) < 0 || cost.status != 0) {
                 log_warning("bench accuracy: the simulator's effect costs could not be measured, see %s, ignoring",
                             log_path);
                 return;
@@ -761,6 +781,18 @@ static int cmd_accuracy(int argc, char **argv) {
         }
         if (!repo_given && !st.quick && access("config/plans", F_OK) == 0 && access("docs", F_OK) == 0)
                 st.repo_dir = ".";
+        /* The study's costs are the pipeline's only in an optimized build (an ASan build costs
+         * ~9x the CPU and ~7x the memory on the study sets; docs/accuracy-vs-time.md). */
+        if (imp_build_is_slow()) {
+                if (repo_given)
+                        return log_error("bench accuracy: this impasto is an %s build, whose processing costs are "
+                                         "several times the pipeline's: not writing %s/docs from it (use an "
+                                         "optimized build)", imp_build_kind(), st.repo_dir), 2;
+                log_warning("bench accuracy: this impasto is an %s build: processing costs are several times the "
+                            "pipeline's%s", imp_build_kind(), st.repo_dir ? "; docs/ and config/plans/ are left "
+                            "alone" : "");
+                st.repo_dir = NULL;
+        }
         memcpy(st.sl_exposures_us, sl_exposures_us, sizeof sl_exposures_us);
         memcpy(st.dome_exposures_us, dome_exposures_us, sizeof dome_exposures_us);
         st.scenes[0] = "study-demo";
@@ -773,6 +805,7 @@ static int cmd_accuracy(int argc, char **argv) {
         if (!results)
                 return log_error("out of memory"), 1;
         st.results = results;
+        st.load_start = load1();
         double t0 = now_s();
         char path[4096];
         for (int si = 0; si < st.n_scenes; si++) {
@@ -785,6 +818,7 @@ static int cmd_accuracy(int argc, char **argv) {
                 measure_effects(&st, path);
         }
         st.total_wall_s = now_s() - t0;
+        st.load_end = load1();
         acc_analyse(&st);
         if (acc_write_outputs(&st) < 0)
                 return 1;
@@ -803,6 +837,8 @@ static int run(int argc, char **argv) {
         }
         if (!strcmp(argv[1], "accuracy"))
                 return cmd_accuracy(argc - 1, argv + 1);
+        if (!strcmp(argv[1], "sim-effects") && argc == 4)
+                return cmd_sim_effects(argv[2], argv[3]);
         fprintf(stderr, "impasto bench: unknown subcommand '%s'\n", argv[1]);
         usage(stderr);
         return 2;

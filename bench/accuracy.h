@@ -42,9 +42,13 @@ struct acc_result {
         size_t frames;
         double capture_s;             /* imp_plan_estimate_s of the plan */
         double sim_capture_s;         /* the simulator's clock replayed over the set */
-        /* processing (a forked child per configuration) */
+        /* processing: `impasto process SET --out COPY --quiet` + process_flags, its own
+         * process (fork and exec); wall, CPU and peak RSS from wait4 */
+        char process_flags[128];
+        char set_dir[512];            /* the derived set (removed after the sweep without --keep-sets) */
         double wall_s, cpu_s;
         long peak_rss_kib;
+        double load_before, load_after;   /* 1-minute load average around the run (-1: unknown) */
         long long copy_bytes;
         /* accuracy */
         double height_rmse_um, normal_err_deg, mask_iou;
@@ -78,6 +82,7 @@ struct acc_study {
         int n_effects;
         const char *effects_scene;
         double total_wall_s;
+        double load_start, load_end;  /* 1-minute load average at the study's start and end */
 };
 
 /* Marks the Pareto fronts (per scene) and picks the presets (on the first scene). */

@@ -23,11 +23,28 @@ static void progress_bar(void *userdata, const char *stage, size_t done, size_t 
 static void usage(FILE *f) {
         fprintf(f, "usage: impasto process CAPTURE_DIR --out COPY_DIR [--pitch MM] [--cell N]\n"
                    "                       [--delta FRACTION] [--no-btf] [--holdout N] [--quiet]\n"
-                   "                       [--no-photometric-normals]\n"
+                   "                       [--no-photometric-normals] [--threads N] [--gray-only]\n"
+                   "                       [--btf-iterations N] [--btf-robust-passes N] [--no-shadow-test]\n"
                    "  --holdout N   leave every Nth dome light out of the fit and report the\n"
                    "                re-render error on those lights in copy.json\n"
                    "  --no-photometric-normals  keep the geometric (structured-light) normals\n"
-                   "                instead of refining them from the dome sweep\n");
+                   "                instead of refining them from the dome sweep\n"
+                   "  cost knobs (docs/accuracy-vs-time.md): --threads N OpenMP threads (0: all);\n"
+                   "                --gray-only decodes the Gray code alone; --btf-iterations N LM\n"
+                   "                iterations per pass (0: default); --btf-robust-passes N Huber\n"
+                   "                reweightings (-1: default); --no-shadow-test keeps self-shadowed samples\n");
+}
+
+/* An integer option from lo to 1000 (--holdout 0 = none, --threads 0 = all, ...). */
+static int int_arg(const char *name, const char *arg, long lo, int *ret) {
+        char *end;
+        long v = strtol(arg, &end, 10);
+        if (end == arg || *end || v < lo || v > 1000) {
+                log_error("--%s: expected an integer %ld..1000, got '%s'", name, lo, arg);
+                return -EINVAL;
+        }
+        *ret = (int) v;
+        return 0;
 }
 
 static int run(int argc, char **argv) {
@@ -42,6 +59,10 @@ static int run(int argc, char **argv) {
                 { "no-btf", no_argument, NULL, 'B' },
                 { "no-photometric-normals", no_argument, NULL, 'P' },
                 { "holdout", required_argument, NULL, 'H' }, { "quiet", no_argument, NULL, 'q' },
+                { "threads", required_argument, NULL, 't' }, { "gray-only", no_argument, NULL, 'G' },
+                { "btf-iterations", required_argument, NULL, 'I' },
+                { "btf-robust-passes", required_argument, NULL, 'R' },
+                { "no-shadow-test", no_argument, NULL, 'S' },
                 { "help", no_argument, NULL, 'h' }, {}
         };
         int c;
@@ -53,16 +74,24 @@ static int run(int argc, char **argv) {
                 case 'd': o.delta_frac = atof(optarg); break;
                 case 'B': o.btf = false; break;
                 case 'P': o.photometric_normals = false; break;
-                case 'H': {
-                        char *end;
-                        long v = strtol(optarg, &end, 10);
-                        if (end == optarg || *end || v < 0 || v > 1000) {
-                                log_error("--holdout: expected an integer 0..1000 (0 = none), got '%s'", optarg);
+                case 'H':
+                        if (int_arg("holdout", optarg, 0, &o.holdout_every) < 0)
                                 return 2;
-                        }
-                        o.holdout_every = (int) v;
                         break;
-                }
+                case 't':
+                        if (int_arg("threads", optarg, 0, &o.threads) < 0)
+                                return 2;
+                        break;
+                case 'I':
+                        if (int_arg("btf-iterations", optarg, 0, &o.btf_max_iter) < 0)
+                                return 2;
+                        break;
+                case 'R':
+                        if (int_arg("btf-robust-passes", optarg, -1, &o.btf_robust_passes) < 0)
+                                return 2;
+                        break;
+                case 'G': o.sl_gray_only = true; break;
+                case 'S': o.btf_no_shadow_test = true; break;
                 case 'q': o.progress = NULL; break;
                 case 'h': usage(stdout); return 0;
                 default: usage(stderr); return 2;

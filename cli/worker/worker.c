@@ -10,6 +10,8 @@
  * While it runs, the worker writes its stage and overall progress into the claimed file
  * (atomically, on every new stage and at most once a second), which impastod re-reads to
  * send `job` events. The job's worker_args ("--holdout 8 --no-btf") set processing options.
+ * It also records worker_build ("optimized", "AddressSanitizer", "unoptimized (-O0)"), and
+ * warns when it is not an optimized build: such a build processes several times slower.
  *
  * Exit codes: 0 the job is done (or, with --once, nothing was queued; without --once, the
  * worker was stopped by SIGTERM/SIGINT), 1 the job failed or was put back for a retry,
@@ -29,6 +31,7 @@
 #include <sys/stat.h>
 #include <time.h>
 #include <unistd.h>
+#include "build-kind.h"
 #include "json-util.h"
 #include "log.h"
 #include "process.h"
@@ -349,6 +352,12 @@ static int job_run(struct job *j) {
         int r = args ? parse_worker_args(args, &o, err.msg, sizeof err.msg) : 0;
         if (r == 0 && args && args[0])
                 printf("job %s: worker_args %s\n", j->id, args);
+        /* The job file says which build processed it; a sanitizer or -O0 build is said aloud,
+         * since its processing time is not the pipeline's (pipeline/core/build-kind.h). */
+        json_object_set_new(j->doc, "worker_build", json_string(imp_build_kind()));
+        if (imp_build_is_slow())
+                log_warning("job %s: this impasto-worker is an %s build: processing takes several times longer "
+                            "(and more memory) than with an optimized build", j->id, imp_build_kind());
         if (r == 0)
                 r = imp_process_capture(j->capture, j->copy, &o, &err);
         const char *state = "done";
