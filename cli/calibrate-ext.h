@@ -5,3 +5,5 @@
 
 int imp_calibrate_lights_main(int argc, char **argv);
 int imp_calibrate_radiometric_main(int argc, char **argv);
+/* `impasto calibrate camera` (cli/calibrate-camera.c). */
+int imp_calibrate_camera_main(int argc, char **argv);

@@ -33,18 +33,26 @@ static void usage(FILE *f) {
                    "                                --square SIZE [--black-threshold N (40)]\n"
                    "                                [--white-threshold N (5)] [--window PX (auto)]\n"
                    "                                [--json] [--out RIG.json] [--mm-per-unit F (1)] [--opencv-only]\n"
+                   "                                [--no-joint]\n"
                    "       impasto calibrate procam --sets SET... --board COLSxROWS --square SIZE\n"
                    "                                [--reference SET --board-origin X,Y] [--projector WxH]\n"
                    "                                [same options as above]\n"
                    "  --opencv-only: skip the Ceres refinement (robust loss, outliers dropped) that\n"
-                   "  follows OpenCV's estimate when impasto is built with Ceres.\n"
+                   "  follows OpenCV's estimate when impasto is built with Ceres (and the joint one).\n"
+                   "  --no-joint: skip the joint refinement of camera, projector and their pose in one\n"
+                   "  problem; the pose is then stereoCalibrate's with the per-device intrinsics.\n"
                    "  DIR holds graycode_00.png ... (Gray-code frames, then white, then black);\n"
                    "  SET is a capture set with Gray code on both axes with inverses, white and black\n"
                    "  (config/plans/target.cfg); its rig.json gives the projector size, names, sensor\n"
                    "  and dome, and --out writes it back with the calibrated camera and projector.\n"
                    "  --reference: the set whose board lies on the canvas (z = 0) with inner corner\n"
                    "  (0, 0) at canvas (X, Y) (units of SIZE): it puts the rig in the canvas frame.\n"
-                   "  COLSxROWS counts inner corners; SIZE is the square side (output unit).\n");
+                   "  COLSxROWS counts inner corners; SIZE is the square side (output unit).\n"
+                   "Other routines (each has --help):\n"
+                   "       impasto calibrate camera ...       intrinsics, distortion, pose from target sets\n"
+                   "       impasto calibrate lights ...       dome light positions from mirror spheres\n"
+                   "       impasto calibrate radiometric ...  black level, response, gain, read noise\n"
+                   "       impasto calibrate start|list|show  routines captured and run by impastod\n");
 }
 
 static int parse_wxh(const char *opt, const char *s, int *w, int *h) {
@@ -191,6 +199,10 @@ static int run_procam(int argc, char **argv) {
                         o.opencv_only = true;
                         continue;
                 }
+                if (!strcmp(a, "--no-joint")) {
+                        o.no_joint = true;
+                        continue;
+                }
                 if (!strcmp(a, "--help") || !strcmp(a, "-h")) {
                         usage(stdout);
                         return 0;
@@ -298,6 +310,7 @@ static int run(int argc, char **argv) {
                 return imp_calibrate_remote_main(argc - 1, argv + 1);   /* on the daemon */
         if (!strcmp(argv[1], "lights")) return imp_calibrate_lights_main(argc - 1, argv + 1);
         if (!strcmp(argv[1], "radiometric")) return imp_calibrate_radiometric_main(argc - 1, argv + 1);
+        if (!strcmp(argv[1], "camera")) return imp_calibrate_camera_main(argc - 1, argv + 1);
         if (!strcmp(argv[1], "procam")) {
 #ifdef IMPASTO_HAVE_CV
                 return run_procam(argc - 1, argv + 1);
@@ -311,4 +324,4 @@ static int run(int argc, char **argv) {
         return EXIT_USAGE;
 }
 
-const struct imp_command imp_cmd_calibrate = { "calibrate", "projector-camera calibration from Gray-code chessboard captures", run };
+const struct imp_command imp_cmd_calibrate = { "calibrate", "calibrate camera, projector-camera, dome lights and radiometry", run };

@@ -5,6 +5,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "calib.h"
+#include "calib-camera.h"
 #include "captureset.h"
 #include "json-util.h"
 #include "rig.h"
@@ -50,8 +51,35 @@ json_t *imp_calib_intrinsics_to_json(const struct imp_calib_intrinsics *in) {
                          "confident", !(in->flags & (IMP_CALIB_FOCAL_UNDETERMINED |
                                                      IMP_CALIB_PP_UNDETERMINED | IMP_CALIB_FEW_VIEWS |
                                                      IMP_CALIB_RANK_DEFICIENT)),
-                         "refinement", in->ceres_refined ? "ceres" : "opencv",
+                         "refinement", in->joint_refined ? "joint" : in->ceres_refined ? "ceres" : "opencv",
                          "outliers", in->n_outliers);
+}
+
+/* What the joint refinement did (calib.h, struct imp_calib_joint). */
+static json_t *joint_json(const struct imp_calib_procam *r) {
+        const struct imp_calib_joint *jt = &r->joint;
+        json_t *refined = json_array();
+        if (jt->attempted) {
+                static const char *const what[] = { "camera intrinsics", "camera distortion",
+                                                    "projector intrinsics", "projector distortion",
+                                                    "board poses", "camera-projector pose" };
+                for (size_t i = 0; i < sizeof what / sizeof what[0]; i++)
+                        json_array_append_new(refined, json_string(what[i]));
+        }
+        json_t *held = json_array();
+        if (jt->k3_fixed_camera)
+                json_array_append_new(held, json_string("camera k3"));
+        if (jt->k3_fixed_projector)
+                json_array_append_new(held, json_string("projector k3"));
+        json_t *o = json_pack("{s:b, s:b, s:b, s:i, s:{s:f, s:f, s:f}, s:{s:i, s:i}, s:o, s:o}",
+                              "attempted", jt->attempted, "used", jt->used, "converged", jt->converged,
+                              "iterations", jt->iterations, "rms_px", "camera", jt->rms_camera_px,
+                              "projector", jt->rms_projector_px, "both", jt->rms_px, "outliers",
+                              "camera", jt->outliers_camera, "projector", jt->outliers_projector,
+                              "refined", refined, "held", held);
+        if (o && !jt->used && jt->why_not_used[0])
+                json_object_set_new(o, "fallback", json_string(jt->why_not_used));
+        return o;
 }
 
 json_t *imp_calib_procam_to_json(const struct imp_calib_procam *r) {
@@ -75,16 +103,25 @@ json_t *imp_calib_procam_to_json(const struct imp_calib_procam *r) {
                                    "baseline", baseline, "worst_view_rms_px", s->worst_view_rms_px,
                                    "worst_view", s->worst_view,
                                    "convention", "X_projector = R X_camera + t");
+        if (stereo && s->have_std)
+                json_object_set_new(stereo, "std", json_pack("{s:o, s:o, s:o}", "rotation_deg",
+                                                             doubles(s->r_std_deg, 3), "translation",
+                                                             doubles(s->t_std, 3), "covariance",
+                                                             doubles(s->cov, 36)));
         json_t *j = json_pack("{s:s, s:o, s:o, s:o, s:i, s:i, s:i, s:o, s:o}",
                               "method", "Moreno-Taubin local homographies; OpenCV calibrateCamera, "
                                         "refined by Ceres (robust loss, outliers dropped) when "
                                         "camera/projector.refinement says so; "
-                                        "stereoCalibrate(CALIB_FIX_INTRINSIC)",
+                                        "stereoCalibrate(CALIB_FIX_INTRINSIC); then, when joint.used, "
+                                        "one Ceres bundle adjustment of both devices, the board "
+                                        "poses and the pose (values from it)",
                               "camera", imp_calib_intrinsics_to_json(&r->camera),
                               "projector", imp_calib_intrinsics_to_json(&r->projector),
                               "stereo", stereo, "window_px", 2 * r->window_half_px + 1,
                               "captures_given", r->n_captures, "captures_used", r->n_used,
                               "captures", caps, "warnings", warn);
+        if (j)
+                json_object_set_new(j, "joint", joint_json(r));
         if (j && r->have_world)
                 json_object_set_new(j, "world", json_pack("{s:i, s:o, s:o, s:f, s:s}", "reference_capture",
                                                           r->reference, "rotation", doubles(r->world_R, 9),
@@ -107,7 +144,8 @@ static void print_device(FILE *f, const char *who, const struct imp_calib_intrin
         fprintf(f, "  RMS %.4f px, worst %.4f px (view %d, point %d)\n", in->rms_px, in->worst_px,
                 in->worst_view, in->worst_point);
         if (in->ceres_refined)
-                fprintf(f, "  refined by Ceres (robust loss): %d outlier point%s dropped\n", in->n_outliers,
+                fprintf(f, "  refined by Ceres (robust loss%s): %d outlier point%s dropped\n",
+                        in->joint_refined ? ", jointly with the other device" : "", in->n_outliers,
                         in->n_outliers == 1 ? "" : "s");
         fprintf(f, "  projection uncertainty (1σ%s): %.3f px at the centre, %.3f px at a corner\n",
                 in->ceres_refined ? ", mrcal-style" : "", in->proj_unc_centre_px, in->proj_unc_corner_px);
@@ -134,6 +172,17 @@ void imp_calib_procam_print(const struct imp_calib_procam *r, FILE *f) {
                         s->R[3 * i + 2], s->t[i]);
         fprintf(f, "  baseline %.3f (board square units)\n",
                 sqrt(s->t[0] * s->t[0] + s->t[1] * s->t[1] + s->t[2] * s->t[2]));
+        if (s->have_std)
+                fprintf(f, "  1σ: rotation (%.4f %.4f %.4f)°, translation (%.3f %.3f %.3f)\n", s->r_std_deg[0],
+                        s->r_std_deg[1], s->r_std_deg[2], s->t_std[0], s->t_std[1], s->t_std[2]);
+        if (r->joint.used)
+                fprintf(f, "joint refinement (both devices, board poses, pose): %s after %d iterations, "
+                        "RMS camera %.4f, projector %.4f px, outliers %d + %d\n",
+                        r->joint.converged ? "converged" : "not converged", r->joint.iterations,
+                        r->joint.rms_camera_px, r->joint.rms_projector_px, r->joint.outliers_camera,
+                        r->joint.outliers_projector);
+        else if (r->joint.why_not_used[0])
+                fprintf(f, "joint refinement not used: %s\n", r->joint.why_not_used);
         if (r->have_world) {
                 const double *R = r->world_R, *t = r->world_t;
                 double C[3];
@@ -158,6 +207,11 @@ static void pinhole_from(struct imp_pinhole *m, const struct imp_calib_intrinsic
         m->p1 = in->dist[2];
         m->p2 = in->dist[3];
         m->k3 = in->dist[4];
+}
+
+/* Declared in calib-camera.h (the camera-only calibration's rig output). */
+void imp_calib_intrinsics_to_pinhole(const struct imp_calib_intrinsics *in, struct imp_pinhole *m) {
+        pinhole_from(m, in);
 }
 
 int imp_calib_procam_save_rig(const struct imp_calib_procam *r, double mm_per_unit, const char *path,

@@ -3,6 +3,7 @@
  * conversion to the rig model. Pure C, no OpenCV; usable from C++ (extern "C").
  * Units: pixels for image quantities, the board's square unit for translations. */
 #pragma once
+#include <float.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdbool.h>
@@ -93,15 +94,54 @@ struct imp_calib_intrinsics {
          * projection uncertainty is then mrcal's (poses compensating the intrinsics). */
         bool ceres_refined;
         int n_outliers;                         /* points dropped by the refinement */
+        /* From the joint camera + projector refinement (ceres-procam.h): std, cov and the
+         * projection uncertainty are blocks of the joint covariance. */
+        bool joint_refined;
 };
+
+/* σ(fx), σ(fy) inflated to |f| (100 %) in std and cov, when no view tilts the board enough
+ * (IMP_CALIB_MIN_TILT_DEG): the local covariance cannot be trusted there. */
+static inline void imp_calib_inflate_focal(struct imp_calib_intrinsics *in) {
+        for (int i = 0; i < 2; i++) {
+                double f = fabs(i ? in->fy : in->fx), sd = in->std[i] > DBL_MIN ? in->std[i] : DBL_MIN;
+                double s = (f > sd ? f : sd) / sd;
+                in->std[i] *= s;
+                for (int k = 0; k < IMP_CALIB_N_INTR; k++) {
+                        in->cov[i * IMP_CALIB_N_INTR + k] *= s;
+                        in->cov[k * IMP_CALIB_N_INTR + i] *= s;
+                }
+        }
+}
 
 struct imp_calib_stereo {
         /* Camera → projector: X_proj = R · X_cam + t (t in square units). */
         double R[9];                            /* row-major */
         double t[3];
-        double rms_px;                          /* stereoCalibrate's RMS, both devices */
+        double rms_px;                          /* RMS over both devices' points (stereoCalibrate's,
+                                                   or the joint fit's over its inliers) */
         double worst_view_rms_px;               /* worst per-view RMS (either device) */
         int worst_view;
+        /* 1σ of the pose, from the joint refinement's covariance (have_std false without it):
+         * rotation as the Rodrigues vector's components in degrees, translation in square
+         * units; cov is the 6×6 block (r in rad, t) in the same convention as the intrinsics. */
+        bool have_std;
+        double r_std_deg[3], t_std[3];
+        double cov[36];
+};
+
+/* The joint refinement of both devices, the board poses and the camera → projector pose
+ * (pipeline/cv/ceres-procam.h), as run by the procam calibration. */
+struct imp_calib_joint {
+        bool attempted;                         /* run (built with Ceres, not disabled, and the
+                                                   per-device fits determine the intrinsics) */
+        bool used;                              /* camera, projector, stereo come from it */
+        bool converged;                         /* Ceres reported convergence */
+        int iterations;
+        double rms_camera_px, rms_projector_px; /* over the inliers */
+        double rms_px;                          /* both devices */
+        int outliers_camera, outliers_projector;
+        bool k3_fixed_camera, k3_fixed_projector;
+        char why_not_used[IMP_CALIB_WARNING_LEN];   /* when !used and it was not disabled */
 };
 
 struct imp_calib_capture {
@@ -137,6 +177,9 @@ struct imp_calib_procam_opts {
         /* OpenCV's calibrateCamera only, no Ceres refinement (which runs by default when
          * impasto is built with Ceres, on views that determine the focal length). */
         bool opencv_only;
+        /* Skip the joint refinement (camera, projector and their pose in one problem); the
+         * devices are then refined one by one and the pose is stereoCalibrate's. */
+        bool no_joint;
 };
 static inline void imp_calib_procam_opts_default(struct imp_calib_procam_opts *o) {
         *o = (struct imp_calib_procam_opts) { .proj_w = 1024, .proj_h = 768, .board_cols = 9,
@@ -154,6 +197,7 @@ typedef int (*imp_calib_frame_loader)(void *user, int capture, int index, struct
 struct imp_calib_procam {
         struct imp_calib_intrinsics camera, projector;
         struct imp_calib_stereo stereo;
+        struct imp_calib_joint joint;
         /* With opts.reference: the camera's pose in the canvas frame, X_cam = R·X_world + t
          * (t in square units), from the reference view, and that view's RMS residual. */
         bool have_world;

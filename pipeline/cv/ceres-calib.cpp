@@ -11,31 +11,15 @@
 #include "ceres-calib.h"
 #ifdef IMPASTO_HAVE_CERES
 #include <ceres/ceres.h>
-#include <ceres/rotation.h>
+#include "ceres-common.hpp"
 #endif
 
 #ifdef IMPASTO_HAVE_CERES
 namespace {
 
-constexpr int NI = IMP_CALIB_N_INTR;    /* fx fy cx cy k1 k2 p1 p2 k3 */
-constexpr int NP = 6;                   /* Rodrigues r (3), t (3) */
-/* Median of the norm of a 2-D isotropic Gaussian residual is σ·√(2 ln 2). */
-const double RAYLEIGH_MEDIAN = std::sqrt(2.0 * std::log(2.0));
-
-/* OpenCV's projection (projectPoints with 5 distortion terms) of board point X. */
-template <typename T>
-void project(const T *in, const T *pose, const T X[3], T out[2]) {
-        T p[3];
-        ceres::AngleAxisRotatePoint(pose, X, p);
-        for (int k = 0; k < 3; k++)
-                p[k] += pose[3 + k];
-        T x = p[0] / p[2], y = p[1] / p[2], r2 = x * x + y * y;
-        T rad = T(1) + r2 * (in[4] + r2 * (in[5] + r2 * in[8]));
-        T xd = x * rad + T(2) * in[6] * x * y + in[7] * (r2 + T(2) * x * x);
-        T yd = y * rad + in[6] * (r2 + T(2) * y * y) + T(2) * in[7] * x * y;
-        out[0] = in[0] * xd + in[2];
-        out[1] = in[1] * yd + in[3];
-}
+using imp_ceres::NI;
+using imp_ceres::NP;
+using imp_ceres::project;
 
 struct corner_cost {
         double X[3], u, v;
@@ -86,20 +70,9 @@ void build(bundle &b, ceres::Problem &pb, ceres::LossFunction *loss, bool fix_k3
 
 int solve(bundle &b, const struct imp_ceres_calib_opts *o, bool robust, int *iterations) {
         ceres::Problem pb;
-        ceres::LossFunction *loss = nullptr;
-        if (robust && o->loss == IMP_CERES_LOSS_HUBER)
-                loss = new ceres::HuberLoss(o->loss_scale_px);
-        else if (robust && o->loss == IMP_CERES_LOSS_CAUCHY)
-                loss = new ceres::CauchyLoss(o->loss_scale_px);
+        ceres::LossFunction *loss = robust ? imp_ceres::make_loss(o->loss, o->loss_scale_px) : nullptr;
         build(b, pb, loss, o->fix_k3);
-        ceres::Solver::Options so;
-        so.linear_solver_type = ceres::DENSE_SCHUR;     /* intrinsics ⟂ independent poses */
-        so.max_num_iterations = o->max_iterations > 0 ? o->max_iterations : 200;
-        so.function_tolerance = 1e-12;
-        so.parameter_tolerance = 1e-12;
-        so.gradient_tolerance = 1e-14;
-        so.num_threads = 1;
-        so.logging_type = ceres::SILENT;
+        ceres::Solver::Options so = imp_ceres::solver_options(o->max_iterations);
         ceres::Solver::Summary sum;
         ceres::Solve(so, &pb, &sum);
         *iterations += (int) sum.iterations.size();
@@ -111,10 +84,7 @@ int reject(bundle &b, const struct imp_ceres_calib_opts *o) {
         std::vector<double> e(b.pts.size());
         for (size_t i = 0; i < b.pts.size(); i++)
                 e[i] = b.residual(b.pts[i]);
-        std::vector<double> s = e;
-        std::nth_element(s.begin(), s.begin() + (long) s.size() / 2, s.end());
-        double sigma = s[s.size() / 2] / RAYLEIGH_MEDIAN;
-        double limit = std::max(o->outlier_sigmas * sigma, o->outlier_min_px);
+        double limit = imp_ceres::outlier_limit(e, o);
         int n = 0;
         for (size_t i = 0; i < b.pts.size(); i++)
                 if (e[i] > limit) {
@@ -131,81 +101,33 @@ int reject(bundle &b, const struct imp_ceres_calib_opts *o) {
  * differences) and C their full covariance; returns √λmax(Σq). A shift of (cx, cy) that
  * the poses compensate therefore does not count, unlike the intrinsics-only figure. */
 double mrcal_uncertainty(const bundle &b, const std::vector<double> &C, double qx, double qy, double range) {
-        const double in0[NI] = { b.intr[0], b.intr[1], b.intr[2], b.intr[3], b.intr[4], b.intr[5],
-                                 b.intr[6], b.intr[7], b.intr[8] };
-        cv::Mat K = (cv::Mat_<double>(3, 3) << in0[0], 0, in0[2], 0, in0[1], in0[3], 0, 0, 1);
-        cv::Mat D = (cv::Mat_<double>(1, 5) << in0[4], in0[5], in0[6], in0[7], in0[8]);
-        std::vector<cv::Point2d> q{ { qx, qy } }, n;
-        cv::undistortPoints(q, n, K, D, cv::noArray(), cv::noArray(),
-                            cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 100, 1e-14));
-        const double pc[3] = { range * n[0].x, range * n[0].y, range };
-        const int M = b.n_views, P = NI + NP * M;
+        double pc[3];
+        imp_ceres::unproject(b.intr, qx, qy, range, pc);
+        const int M = b.n_views;
         std::vector<double> board((size_t) 3 * M);      /* pc in each board's frame */
-        for (int v = 0; v < M; v++) {
-                const double *pose = &b.poses[NP * (size_t) v];
-                double d[3] = { pc[0] - pose[3], pc[1] - pose[4], pc[2] - pose[5] }, ir[3] = { -pose[0], -pose[1], -pose[2] };
-                ceres::AngleAxisRotatePoint(ir, d, &board[3 * (size_t) v]);
-        }
-        std::vector<double> theta((size_t) P);
-        std::copy(in0, in0 + NI, theta.begin());
-        std::copy(b.poses.begin(), b.poses.end(), theta.begin() + NI);
-        auto F = [&](const std::vector<double> &th, double out[2]) {
+        for (int v = 0; v < M; v++)
+                imp_ceres::pose_inverse_apply(&b.poses[NP * (size_t) v], pc, &board[3 * (size_t) v]);
+        std::vector<double> theta(b.intr, b.intr + NI);
+        theta.insert(theta.end(), b.poses.begin(), b.poses.end());
+        return imp_ceres::propagate(theta, C, [&](const std::vector<double> &th, double out[2]) {
                 double mean[3] = { 0, 0, 0 };
                 for (int v = 0; v < M; v++) {
-                        const double *pose = &th[NI + NP * (size_t) v];
                         double p[3];
-                        ceres::AngleAxisRotatePoint(pose, &board[3 * (size_t) v], p);
+                        imp_ceres::pose_apply(&th[NI + NP * (size_t) v], &board[3 * (size_t) v], p);
                         for (int k = 0; k < 3; k++)
-                                mean[k] += (p[k] + pose[3 + k]) / M;
+                                mean[k] += p[k] / M;
                 }
                 const double zero[NP] = { 0, 0, 0, 0, 0, 0 };
                 project(th.data(), zero, mean, out);
-        };
-        std::vector<double> J((size_t) 2 * P);
-        for (int k = 0; k < P; k++) {
-                double h = 1e-6 * std::max(std::fabs(theta[k]), 1.0), a[2], c[2];
-                std::vector<double> t = theta;
-                t[k] = theta[k] + h;
-                F(t, a);
-                t[k] = theta[k] - h;
-                F(t, c);
-                J[k] = (a[0] - c[0]) / (2 * h);
-                J[P + k] = (a[1] - c[1]) / (2 * h);
-        }
-        double S[3] = { 0, 0, 0 };      /* Sxx, Sxy, Syy */
-        for (int i = 0; i < P; i++)
-                for (int j = 0; j < P; j++) {
-                        double c = C[(size_t) i * P + j];
-                        S[0] += J[i] * c * J[j];
-                        S[1] += J[i] * c * J[P + j];
-                        S[2] += J[P + i] * c * J[P + j];
-                }
-        double tr = 0.5 * (S[0] + S[2]), det = S[0] * S[2] - S[1] * S[1];
-        double lmax = tr + std::sqrt(std::max(tr * tr - det, 0.0));
-        return std::sqrt(std::max(lmax, 0.0));
+        });
 }
 
 /* Residual statistics over the inliers, covariance of all parameters, std, σ and the
  * projection uncertainty into r. Returns false when Ceres finds the Jacobian rank
  * deficient (r's std/cov then untouched). */
 bool assess(bundle &b, const struct imp_ceres_calib_opts *o, struct imp_calib_intrinsics *r) {
-        double sse = 0, worst = -1;
-        int N = 0;
-        for (size_t i = 0; i < b.pts.size(); i++) {
-                if (!b.inlier[i])
-                        continue;
-                double e = b.residual(b.pts[i]);
-                sse += e * e;
-                N++;
-                if (e > worst) {
-                        worst = e;
-                        r->worst_view = b.pts[i].view;
-                        r->worst_point = b.pts[i].index;
-                }
-        }
-        r->n_points = N;
-        r->rms_px = std::sqrt(sse / std::max(N, 1));
-        r->worst_px = std::max(worst, 0.0);
+        const double sse = imp_ceres::residual_stats(b, [&](size_t i) { return b.inlier[i] != 0; }, r);
+        const int N = r->n_points;
         const int M = b.n_views, n_intr = o->fix_k3 ? NI - 1 : NI, P = NI + NP * M;
         const int dof = N - (n_intr + NP * M);     /* OpenCV's convention, see calib.h */
         const double sigma2 = sse / std::max(dof, 1);
@@ -245,12 +167,7 @@ bool assess(bundle &b, const struct imp_ceres_calib_opts *o, struct imp_calib_in
         return true;
 }
 
-bool finite_all(const double *v, size_t n) {
-        for (size_t i = 0; i < n; i++)
-                if (!std::isfinite(v[i]))
-                        return false;
-        return true;
-}
+using imp_ceres::finite_all;
 
 int refine_cpp(const struct imp_calib_view *views, int n_views, const struct imp_ceres_calib_opts *o,
                struct imp_calib_intrinsics *io, double *io_rvecs, double *io_tvecs, uint8_t *ret_inlier,

@@ -18,6 +18,7 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/structured_light.hpp>
 #include "ceres-calib.h"
+#include "ceres-procam.h"
 #include "cv-calib.h"
 #include "cv-graycode.h"
 
@@ -224,14 +225,7 @@ int intrinsics_cpp(const struct imp_calib_view *views, int n_views, int width, i
         }
         if (r.max_tilt_deg < IMP_CALIB_MIN_TILT_DEG) {
                 r.flags |= IMP_CALIB_FOCAL_UNDETERMINED;
-                for (int i = 0; i < 2; i++) {
-                        double f = i ? r.fy : r.fx, s = std::max(std::fabs(f), r.std[i]) / std::max(r.std[i], DBL_MIN);
-                        r.std[i] *= s;
-                        for (int k = 0; k < IMP_CALIB_N_INTR; k++) {
-                                r.cov[i * IMP_CALIB_N_INTR + k] *= s;
-                                r.cov[k * IMP_CALIB_N_INTR + i] *= s;
-                        }
-                }
+                imp_calib_inflate_focal(&r);
         }
         r.proj_unc_centre_px = projection_uncertainty(K, D, r.cov, (width - 1) / 2.0, (height - 1) / 2.0);
         r.proj_unc_corner_px = projection_uncertainty(K, D, r.cov, 0.0, 0.0);
@@ -670,12 +664,14 @@ int world_pose(const struct imp_calib_procam_opts *o, const std::vector<double> 
  * IMP_CALIB_K3_MIN_FOV_DEG. Then, built with Ceres and unless opts.opencv_only, the
  * robust bundle refinement (ceres-calib.h) — skipped on views that do not determine the
  * focal length (the flags and inflated σ of the OpenCV fit stand), and with a warning
- * (keeping OpenCV's result) when it fails. */
+ * (keeping OpenCV's result) when it fails. rv, tv: the board poses of the result. */
 int device_intrinsics(const std::vector<struct imp_calib_view> &v, int w, int h,
                       const struct imp_calib_procam_opts *o, const char *who, struct imp_calib_procam *res,
-                      struct imp_calib_intrinsics *ret, struct imp_error *err) {
+                      struct imp_calib_intrinsics *ret, std::vector<double> &rv, std::vector<double> &tv,
+                      struct imp_error *err) {
         const int n = (int) v.size();
-        std::vector<double> rv((size_t) 3 * n), tv((size_t) 3 * n);
+        rv.assign((size_t) 3 * n, 0.0);
+        tv.assign((size_t) 3 * n, 0.0);
         int r = imp_cv_calib_intrinsics_fit(v.data(), n, w, h,
                                             o->k3 == IMP_CALIB_K3_FIT ? 0u : (unsigned) IMP_CALIB_FIT_FIX_K3,
                                             ret, rv.data(), tv.data(), err);
@@ -710,6 +706,76 @@ int device_intrinsics(const std::vector<struct imp_calib_view> &v, int w, int h,
         imp_calib_intrinsics_assess(&refined);
         *ret = refined;
         return 0;
+}
+
+/* The joint refinement falls back to the per-device results when it fits a device worse than
+ * this (RMS over its inliers against the device's own refinement): sharing the board poses
+ * costs a little RMS when both fits are right, much more when the devices disagree about
+ * the boards (mislabelled corners, a moved board, a wrong projector coordinate map). */
+constexpr double JOINT_WORSE_RMS_RATIO = 1.25;
+constexpr double JOINT_WORSE_RMS_PX = 0.02;
+
+/* Camera, projector and their pose in one problem (ceres-procam.h), started from the
+ * per-device results, their board poses (camera) and stereoCalibrate's pose. Its values
+ * replace those unless it fails or fits a device clearly worse; then a warning says why and
+ * the per-device + stereoCalibrate values stand. */
+int joint_refine(const struct imp_calib_view *vc, const struct imp_calib_view *vp, int n,
+                 struct imp_calib_procam *res, std::vector<double> rv, std::vector<double> tv) {
+        struct imp_calib_joint *j = &res->joint;
+        const unsigned undetermined = IMP_CALIB_FOCAL_UNDETERMINED | IMP_CALIB_FEW_VIEWS | IMP_CALIB_RANK_DEFICIENT;
+        if ((res->camera.flags | res->projector.flags) & undetermined) {
+                /* The joint fit flags such views too, but it wanders along the unobservable
+                 * direction first (test-calib-joint-stability); the per-device result with its
+                 * flags and inflated σ is the more useful answer. */
+                copy_str(j->why_not_used, sizeof j->why_not_used, "not run: the per-device fits say the views "
+                         "do not determine the intrinsics (see the flags)");
+                return 0;
+        }
+        j->attempted = true;
+        struct imp_ceres_calib_opts co;
+        imp_ceres_calib_opts_default(&co);
+        struct imp_calib_intrinsics cam = res->camera, proj = res->projector;
+        struct imp_calib_stereo st = res->stereo;
+        struct imp_ceres_procam_report rep = {};
+        struct imp_error cerr = {};
+        int r = imp_ceres_procam_refine(vc, vp, n, &co, &cam, &proj, &st, rv.data(), tv.data(), &rep, &cerr);
+        if (r < 0) {
+                copy_str(j->why_not_used, sizeof j->why_not_used, cerr.msg);
+                imp_calib_warn(res, "%s; keeping the per-device calibration and stereoCalibrate's pose", cerr.msg);
+                return 0;
+        }
+        j->converged = rep.converged;
+        j->iterations = rep.iterations;
+        j->rms_camera_px = cam.rms_px;
+        j->rms_projector_px = proj.rms_px;
+        j->rms_px = st.rms_px;
+        j->outliers_camera = rep.n_outliers_cam;
+        j->outliers_projector = rep.n_outliers_proj;
+        j->k3_fixed_camera = cam.k3_fixed;
+        j->k3_fixed_projector = proj.k3_fixed;
+        const struct imp_calib_intrinsics *alone[2] = { &res->camera, &res->projector }, *joint[2] = { &cam, &proj };
+        for (int d = 0; d < 2; d++)
+                if (joint[d]->rms_px > JOINT_WORSE_RMS_RATIO * alone[d]->rms_px + JOINT_WORSE_RMS_PX) {
+                        char why[IMP_CALIB_WARNING_LEN];
+                        snprintf(why, sizeof why, "joint refinement fits the %s at %.3f px RMS against %.3f px "
+                                 "alone (limit %.2f × + %.2f px)", d ? "projector" : "camera", joint[d]->rms_px,
+                                 alone[d]->rms_px, JOINT_WORSE_RMS_RATIO, JOINT_WORSE_RMS_PX);
+                        copy_str(j->why_not_used, sizeof j->why_not_used, why);
+                        imp_calib_warn(res, "%s; keeping the per-device calibration and stereoCalibrate's "
+                                       "pose", why);
+                        return 0;
+                }
+        if (!rep.converged)
+                imp_calib_warn(res, "joint refinement stopped after %d iterations without converging; its "
+                               "result is used", rep.iterations);
+        if (rep.n_outliers_cam + rep.n_outliers_proj > 0)
+                imp_calib_warn(res, "joint refinement: %d camera and %d projector points dropped as outliers",
+                               rep.n_outliers_cam, rep.n_outliers_proj);
+        res->camera = cam;
+        res->projector = proj;
+        res->stereo = st;
+        j->used = true;
+        return 1;
 }
 
 int procam_cpp(const char *const *dirs, int n_dirs, const source &src, const struct imp_calib_procam_opts *o,
@@ -768,16 +834,20 @@ int procam_cpp(const char *const *dirs, int n_dirs, const source &src, const str
                 vp.push_back({ (int) p.proj.size() / 2, p.obj_p.data(), p.proj.data() });
                 vcp.push_back({ (int) p.cam_p.size() / 2, p.obj_p.data(), p.cam_p.data() });
         }
-        int r = device_intrinsics(vc, cam_w, cam_h, o, "camera", res.get(), &res->camera, err);
+        std::vector<double> rv, tv, prv, ptv;
+        int r = device_intrinsics(vc, cam_w, cam_h, o, "camera", res.get(), &res->camera, rv, tv, err);
         if (r < 0)
                 return imp_error_prefix(err, "camera: ");
-        r = device_intrinsics(vp, o->proj_w, o->proj_h, o, "projector", res.get(), &res->projector, err);
+        r = device_intrinsics(vp, o->proj_w, o->proj_h, o, "projector", res.get(), &res->projector, prv, ptv,
+                              err);
         if (r < 0)
                 return imp_error_prefix(err, "projector: ");
         r = imp_cv_calib_stereo(vcp.data(), vp.data(), (int) vp.size(), &res->camera, &res->projector,
                                 &res->stereo, err);
         if (r < 0)
                 return r;
+        if (!o->opencv_only && !o->no_joint && imp_ceres_calib_available())
+                joint_refine(vc.data(), vp.data(), (int) vc.size(), res.get(), rv, tv);
         res->reference = -1;
         if (o->reference >= 0) {
                 r = world_pose(o, ref_corners, res.get(), err);
@@ -842,5 +912,51 @@ extern "C" int imp_cv_calib_procam(const char *const *dirs, int n_dirs,
                 return imp_error_set(err, -ENOMEM, "procam calibration: out of memory");
         } catch (const cv::Exception &e) {
                 return imp_error_set(err, -EINVAL, "procam calibration: %s", e.what());
+        }
+}
+
+/* ---- one device on its own (camera-only calibration, cv-calib-camera.cpp) ---- */
+
+extern "C" int imp_cv_calib_device(const struct imp_calib_view *views, int n_views, int width, int height,
+                                   int k3, bool opencv_only, const char *who,
+                                   struct imp_calib_intrinsics *ret,
+                                   char (*ret_warnings)[IMP_CALIB_WARNING_LEN], int max_warnings,
+                                   int *ret_n_warnings, struct imp_error *err) {
+        if (!views || n_views < 1 || width < 1 || height < 1 || !who || !ret || max_warnings < 0 ||
+            (max_warnings > 0 && (!ret_warnings || !ret_n_warnings)))
+                return imp_error_set(err, -EINVAL, "calibration: bad arguments");
+        try {
+                std::unique_ptr<struct imp_calib_procam> sink(new struct imp_calib_procam());
+                struct imp_calib_procam_opts o;
+                imp_calib_procam_opts_default(&o);
+                o.k3 = k3;
+                o.opencv_only = opencv_only;
+                std::vector<struct imp_calib_view> v(views, views + n_views);
+                struct imp_calib_intrinsics in = {};
+                std::vector<double> rv, tv;
+                int r = device_intrinsics(v, width, height, &o, who, sink.get(), &in, rv, tv, err);
+                if (r < 0)
+                        return r;
+                for (int i = 0; max_warnings > 0 && i < sink->n_warnings && *ret_n_warnings < max_warnings; i++)
+                        copy_str(ret_warnings[(*ret_n_warnings)++], IMP_CALIB_WARNING_LEN, sink->warnings[i]);
+                *ret = in;
+                return 0;
+        } catch (const std::bad_alloc &) {
+                return imp_error_set(err, -ENOMEM, "calibration: out of memory");
+        } catch (const cv::Exception &e) {
+                return imp_error_set(err, -EDOM, "calibration: %s", e.what());
+        }
+}
+
+extern "C" int imp_cv_calib_procam_joint(const struct imp_calib_view *cam, const struct imp_calib_view *proj,
+                                         int n_views, const double *rvecs, const double *tvecs,
+                                         struct imp_calib_procam *io) {
+        if (!cam || !proj || n_views < 1 || !rvecs || !tvecs || !io)
+                return -EINVAL;
+        try {
+                return joint_refine(cam, proj, n_views, io, std::vector<double>(rvecs, rvecs + 3 * n_views),
+                                    std::vector<double>(tvecs, tvecs + 3 * n_views));
+        } catch (const std::bad_alloc &) {
+                return -ENOMEM;
         }
 }

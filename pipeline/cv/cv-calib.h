@@ -55,6 +55,18 @@ int imp_cv_calib_stereo(const struct imp_calib_view *views_a, const struct imp_c
                         const struct imp_calib_intrinsics *b, struct imp_calib_stereo *ret,
                         struct imp_error *err);
 
+/* The joint refinement step of the procedure (ceres-procam.h), on io's per-device results
+ * (io->camera, io->projector: each refined alone) and stereoCalibrate's io->stereo, with the
+ * camera's board poses rvecs / tvecs (3·n_views each) and the views both fits used (proj[v]:
+ * the corners of view v with a projector coordinate). Returns 1 when the joint values replaced
+ * io's camera, projector and stereo (io->joint says how it went); 0 when io keeps its values
+ * — the per-device fits flag the views as undetermined, the joint solve failed, or it fits a
+ * device clearly worse (RMS above 1.25 × alone + 0.02 px: the devices disagree about the
+ * boards) — with io->joint.why_not_used and, but for the first case, a warning in io;
+ * -EINVAL / -ENOMEM. Does not check that Ceres is available (-EOPNOTSUPP becomes a warning). */
+int imp_cv_calib_procam_joint(const struct imp_calib_view *cam, const struct imp_calib_view *proj, int n_views,
+                              const double *rvecs, const double *tvecs, struct imp_calib_procam *io);
+
 /* The whole procedure on capture directories DIR/graycode_00.png … graycode_NN.png
  * (NN+1 = Gray-code frames + white + black, OpenCV's order). A capture whose board is not
  * found, or with fewer than 3 corners mapped, is skipped with a warning in ret; fewer than
@@ -71,6 +83,17 @@ int imp_cv_calib_procam(const char *const *dirs, int n_dirs, const struct imp_ca
 int imp_cv_calib_procam_source(const char *const *names, int n, imp_calib_frame_loader load, void *user,
                                const struct imp_calib_procam_opts *opts, struct imp_calib_procam *ret,
                                struct imp_error *err);
+
+/* One device's intrinsics from planar views, as the procam procedure computes the camera's
+ * (calibrateCamera with opts.k3 — IMP_CALIB_K3_AUTO, _FIT or _FIX — then, built with Ceres
+ * and unless opencv_only, the robust refinement on views that determine the focal length);
+ * used by the camera-only calibration (cv-calib-camera.h). Its warnings (prefixed `who`)
+ * are appended to ret_warnings while *ret_n_warnings < max_warnings. Errors as
+ * imp_cv_calib_intrinsics_fit; ret untouched on failure. */
+int imp_cv_calib_device(const struct imp_calib_view *views, int n_views, int width, int height, int k3,
+                        bool opencv_only, const char *who, struct imp_calib_intrinsics *ret,
+                        char (*ret_warnings)[IMP_CALIB_WARNING_LEN], int max_warnings, int *ret_n_warnings,
+                        struct imp_error *err);
 
 #ifdef __cplusplus
 }

@@ -5,7 +5,11 @@
  * 0.199 px, stereo RMS 0.308 px, |t| 677.8 units; thresholds below leave ~2x headroom.
  * With Ceres (the default when built with it): 6 camera and 2 projector corners dropped as
  * outliers, camera RMS 0.187 px (worst 0.78), projector 0.166 px, stereo 0.288 px, fx moves
- * by 2σ (3452.5 → 3424.5 ± 9.5 px; the dropped corners had pulled it). */
+ * by 2σ (3452.5 → 3424.5 ± 9.5 px; the dropped corners had pulled it).
+ * Joint refinement (the default since 2026-11-22; the above is --no-joint): 5 camera and 3
+ * projector corners dropped, camera RMS 0.203 px, projector 0.166 px, both 0.185 px (stereo
+ * with stereoCalibrate 0.288), camera fx 3435.0 ± 4.9, projector fx 1888.7 ± 3.6 px (σ about
+ * halved), |t| 674.1 ± (0.6, 1.5, 5.3) units. */
 #include <errno.h>
 #include <sys/stat.h>
 #include "calib.h"
@@ -91,25 +95,56 @@ int main(void) {
                                    R[3 * a + 2] * R[3 * b + 2], a == b, 1e-9);
         CHECK_GE(R[8], 0.9);
 
-        /* OpenCV alone: all points kept; the refinement agrees with it within 3σ and fits the
-         * points it kept more closely; mrcal's projection uncertainty (poses compensating the
-         * principal point) is far below the intrinsics-only bound at the image centre. */
+        /* OpenCV alone: all points kept. Each device refined alone (--no-joint) agrees with it
+         * within 3σ and fits the points it kept more closely; mrcal's projection uncertainty
+         * (poses compensating the principal point) is far below the intrinsics-only bound at the
+         * image centre. The joint refinement (the default) agrees with the per-device one within
+         * 3σ, with smaller σ (shared board poses), and fits both devices with one set of board
+         * poses and the pose better than stereoCalibrate did with every corner. */
         if (imp_ceres_calib_available()) {
-                static struct imp_calib_procam ro;
+                static struct imp_calib_procam ro, rn;
                 struct imp_calib_procam_opts oo = o;
                 oo.opencv_only = true;
                 CHECK_OK(imp_cv_calib_procam(dirs, 5, &oo, &ro, &err));
                 CHECK(!ro.camera.ceres_refined);
+                CHECK(!ro.joint.attempted && !ro.joint.used);
                 CHECK_INT_EQ(ro.camera.n_points, 315);
                 CHECK_INT_EQ(ro.camera.n_outliers, 0);
+                oo.opencv_only = false;
+                oo.no_joint = true;
+                CHECK_OK(imp_cv_calib_procam(dirs, 5, &oo, &rn, &err));
+                CHECK(rn.camera.ceres_refined && !rn.camera.joint_refined && !rn.joint.attempted);
+                CHECK(!rn.stereo.have_std);
                 for (int i = 0; i < 4; i++) {
-                        CHECK_NEAR((&r.camera.fx)[i], (&ro.camera.fx)[i], 3 * ro.camera.std[i]);
-                        CHECK_NEAR((&r.projector.fx)[i], (&ro.projector.fx)[i], 3 * ro.projector.std[i]);
+                        CHECK_NEAR((&rn.camera.fx)[i], (&ro.camera.fx)[i], 3 * ro.camera.std[i]);
+                        CHECK_NEAR((&rn.projector.fx)[i], (&ro.projector.fx)[i], 3 * ro.projector.std[i]);
+                        CHECK_NEAR((&r.camera.fx)[i], (&rn.camera.fx)[i], 3 * rn.camera.std[i]);
+                        CHECK_NEAR((&r.projector.fx)[i], (&rn.projector.fx)[i], 3 * rn.projector.std[i]);
+                        CHECK_LE(r.camera.std[i], rn.camera.std[i]);
+                        CHECK_LE(r.projector.std[i], rn.projector.std[i]);
                 }
-                CHECK_LE(r.camera.rms_px, ro.camera.rms_px);
-                CHECK_LE(r.projector.rms_px, ro.projector.rms_px);
+                CHECK_LE(rn.camera.rms_px, ro.camera.rms_px);
+                CHECK_LE(rn.projector.rms_px, ro.projector.rms_px);
+                CHECK_LE(rn.camera.worst_px, 1.5);
+                CHECK_LE(rn.camera.proj_unc_centre_px, 0.2 * ro.camera.proj_unc_centre_px);
+
+                CHECK(r.joint.attempted && r.joint.used && r.joint.converged);
+                CHECK(r.camera.joint_refined && r.projector.joint_refined);
+                /* Sharing the board poses costs each device little RMS (limit of the fallback). */
+                CHECK_LE(r.camera.rms_px, 1.25 * rn.camera.rms_px + 0.02);
+                CHECK_LE(r.projector.rms_px, 1.25 * rn.projector.rms_px + 0.02);
+                CHECK_LE(r.stereo.rms_px, rn.stereo.rms_px);
+                CHECK_LE(r.stereo.worst_view_rms_px, rn.stereo.worst_view_rms_px);
                 CHECK_LE(r.camera.worst_px, 1.5);
-                CHECK_LE(r.camera.proj_unc_centre_px, 0.2 * ro.camera.proj_unc_centre_px);
+                CHECK(r.stereo.have_std);
+                for (int i = 0; i < 3; i++) {
+                        CHECK(r.stereo.r_std_deg[i] > 0 && r.stereo.r_std_deg[i] < 1.0);
+                        CHECK(r.stereo.t_std[i] > 0 && r.stereo.t_std[i] < 0.05 * tn);
+                        /* The pose moves within 3σ of its own uncertainty from stereoCalibrate's. */
+                        CHECK_NEAR(r.stereo.t[i], rn.stereo.t[i], 3 * r.stereo.t_std[i]);
+                }
+                CHECK_INT_EQ(r.camera.n_points + r.joint.outliers_camera, 315);
+                CHECK_INT_EQ(r.joint.outliers_camera, r.camera.n_outliers);
         }
 
         /* JSON carries the fields the CLI promises. */
@@ -119,6 +154,15 @@ int main(void) {
         CHECK(json_is_real(json_object_get(json_object_get(json_object_get(j, "projector"), "std"), "fy")));
         CHECK_INT_EQ(json_array_size(json_object_get(json_object_get(j, "stereo"), "rotation")), 9);
         CHECK_INT_EQ(json_array_size(json_object_get(j, "captures")), 5);
+        if (imp_ceres_calib_available()) {
+                json_t *jt = json_object_get(j, "joint");
+                CHECK(json_is_true(json_object_get(jt, "used")));
+                CHECK(json_is_real(json_object_get(json_object_get(jt, "rms_px"), "projector")));
+                CHECK_INT_EQ(json_array_size(json_object_get(jt, "refined")), 6);
+                CHECK_INT_EQ(json_array_size(json_object_get(json_object_get(json_object_get(j, "stereo"), "std"),
+                                                             "translation")), 3);
+                CHECK_STR_EQ(json_string_value(json_object_get(json_object_get(j, "camera"), "refinement")), "joint");
+        }
         json_decref(j);
 
         /* rig.json round trip. */
