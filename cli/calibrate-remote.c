@@ -2,7 +2,7 @@
  * `calibration.list` and `calibration.show` commands of proto/PROTOCOL.md), dispatched from
  * cli/cmd-calibrate.c. The daemon captures the routine's plan as a session, runs the offline
  * routine on the set and keeps the result as a new calibration version.
- *   calibrate start ROUTINE [--plan FILE] [--name NAME] [--arg KEY=VALUE]... [--follow] [--json]
+ *   calibrate start ROUTINE [--plan FILE] [--name NAME] [--arg KEY[=VALUE]]... [--follow] [--json]
  *   calibrate list [--limit N] [--json]
  *   calibrate show VERSION [--json]
  * --follow prints the capture's progress and the calibration's states until it is done
@@ -23,14 +23,18 @@
 
 static void usage(FILE *f) {
         fprintf(f, "usage: impasto calibrate start camera|procam|lights|radiometric [--plan FILE] [--name NAME]\n"
-                   "                        [--arg KEY=VALUE]... [--follow] [--json] [--socket PATH]\n"
+                   "                        [--arg KEY[=VALUE]]... [--follow] [--json] [--socket PATH]\n"
                    "       impasto calibrate list [--limit N] [--json] [--socket PATH]\n"
                    "       impasto calibrate show VERSION [--json] [--socket PATH]\n"
                    "  on the daemon: captures the routine's plan (default: its plan from the daemon's plan\n"
                    "  directories), runs the routine on the set and stores a new calibration version.\n"
-                   "  --arg: a routine parameter (radiometric: camera, roi; lights: spheres, camera,\n"
-                   "         plane_z_mm, white, dome; camera/procam: board, square, projector, ...);\n"
-                   "         VALUE is read as JSON when it parses (3, [1,2]), else as a string\n");
+                   "  --arg: a routine parameter (radiometric: camera, roi; lights: sphere_radius or\n"
+                   "         spheres, sphere_cut, hemispheres, sessions, plane_z_mm, camera, white, dome;\n"
+                   "         camera/procam: board, square, projector, sessions, reference, ...); VALUE is\n"
+                   "         read as JSON when it parses (3, [1,2], [\"ID@20\"]), else as a string; KEY\n"
+                   "         alone is KEY=true (hemispheres)\n"
+                   "  e.g.   calibrate start lights --arg sphere_radius=10 --arg sphere_cut=7\n"
+                   "         --arg 'sessions=[\"ID1@20\",\"ID2@40\"]' --arg 'dome=[30,20,0,500]'\n");
 }
 
 struct follow {
@@ -120,9 +124,11 @@ static void on_event(void *userdata, const struct imp_proto_message *m) {
         fflush(stdout);
 }
 
-/* KEY=VALUE → args[KEY]: JSON when VALUE parses as JSON, else the string. */
+/* KEY=VALUE → args[KEY]: JSON when VALUE parses as JSON, else the string; KEY alone → true. */
 static int add_arg(json_t *args, const char *kv) {
         const char *eq = strchr(kv, '=');
+        if (!eq && kv[0] && strlen(kv) < 64)
+                return json_object_set_new(args, kv, json_true()) < 0 ? -ENOMEM : 0;
         if (!eq || eq == kv || !eq[1]) {
                 log_error("--arg: expected KEY=VALUE, got '%s'", kv);
                 return -EINVAL;

@@ -24,6 +24,7 @@
 #define CALIB_FIGURES_MAX 64            /* scalars kept from a report */
 #define CALIB_ARG_MAX 1024              /* bytes of one routine parameter */
 #define IMP_CALIB_MAX_SETS 30           /* earlier sessions joining a calibration (board poses) */
+#define IMP_CALIB_MAX_MM 1000.0         /* lengths and board heights, in mm (a dome is ~500 mm) */
 #define EXIT_ROUTINE_USAGE 2            /* the routine's exit codes that another attempt cannot fix */
 #define EXIT_ROUTINE_BAD_INPUT 3
 
@@ -33,14 +34,20 @@ static const char *const state_names[] = { "capturing", "queued", "running", "do
  * one option. */
 enum arg_kind {
         ARG_VALUE,                      /* a value, passed as it is (arg_text()) */
+        ARG_MM,                         /* a length in mm, |v| <= IMP_CALIB_MAX_MM */
+        ARG_MM_POSITIVE,                /* a length in mm, 0 < v <= IMP_CALIB_MAX_MM */
+        ARG_FLAG,                       /* true: the option alone; false: nothing */
         ARG_SESSION,                    /* a completed session of this daemon: its set directory */
         ARG_MORE_SETS,                  /* completed sessions whose sets join the routine's own */
+        ARG_MORE_SETS_AT,               /* the same as "ID@Z", Z the board height in mm: OPTION DIR@Z each */
 };
 
 struct routine_arg {
         const char *key, *option;       /* option NULL: ARG_MORE_SETS, the sets follow --sets SET */
-        bool required;
+        bool required;                  /* with alt: this one or alt */
         enum arg_kind kind;
+        const char *alt;                /* never both; see required */
+        const char *needs;              /* given only together with this one */
 };
 
 struct routine {
@@ -54,8 +61,16 @@ struct routine {
 static const struct routine_arg radiometric_args[] = {
         { "camera", "--camera", false }, { "roi", "--roi", false }, {},
 };
+/* The mirrors detected in each set (sphere_radius, with sphere_cut or hemispheres), or their
+ * positions given (spheres, one set only). Sets at other board heights (sessions, "ID@Z")
+ * add the vertical baseline the low rings need (docs/calibration-lights.md). */
 static const struct routine_arg lights_args[] = {
-        { "spheres", "--spheres", true }, { "camera", "--camera", false }, { "plane_z_mm", "--plane-z", false },
+        { "sphere_radius", "--sphere-radius", true, ARG_MM_POSITIVE, "spheres" },
+        { "spheres", "--spheres", true, ARG_VALUE, "sphere_radius" },
+        { "sphere_cut", "--sphere-cut", false, ARG_MM, "hemispheres", "sphere_radius" },
+        { "hemispheres", "--hemispheres", false, ARG_FLAG, NULL, "sphere_radius" },
+        { "sessions", "--set", false, ARG_MORE_SETS_AT, NULL, "sphere_radius" },
+        { "plane_z_mm", "--plane-z", false, ARG_MM }, { "camera", "--camera", false },
         { "white", "--white", false }, { "dome", "--dome", false }, {},
 };
 static const struct routine_arg procam_args[] = {
@@ -126,42 +141,120 @@ static int arg_text(const json_t *v, char *buf, size_t size) {
         return 0;
 }
 
-/* A session id as a routine parameter: the set of a completed session of this daemon. */
-static const char *session_set(struct daemon *d, const json_t *v) {
-        struct session *s = json_is_string(v) ? session_find(d, json_string_value(v)) : NULL;
-        return s && s->state == SESSION_COMPLETED ? s->dir : NULL;
+/* A session as a routine parameter: "ID", or for ARG_MORE_SETS_AT "ID@Z" (Z the board height
+ * of its capture in mm; session ids are tokens, without '@'). The id goes to id; the set
+ * of the completed session of this daemon to *ret_dir. -EINVAL: not of that shape; -ERANGE:
+ * Z is not a height; -ENOENT: no completed session of that id. */
+static int session_ref(struct daemon *d, const struct routine_arg *a, const json_t *v, char *id, size_t size,
+                       const char **ret_dir, double *ret_z) {
+        const char *s = json_string_value(v), *at = NULL;
+        if (!s)
+                return -EINVAL;
+        double z = 0;
+        if (a->kind == ARG_MORE_SETS_AT) {
+                char *end;
+                if (!(at = strrchr(s, '@')))
+                        return -EINVAL;
+                z = strtod(at + 1, &end);
+                if (end == at + 1 || *end || !isfinite(z) || fabs(z) > IMP_CALIB_MAX_MM)
+                        return -ERANGE;
+        }
+        size_t n = at ? (size_t) (at - s) : strlen(s);
+        if (n == 0 || n >= size)
+                return -EINVAL;
+        memcpy(id, s, n);
+        id[n] = 0;
+        struct session *ses = session_find(d, id);
+        if (!ses || ses->state != SESSION_COMPLETED)
+                return -ENOENT;
+        *ret_dir = ses->dir;
+        *ret_z = z;
+        return 0;
 }
 
 static int check_sessions(struct daemon *d, const struct routine_arg *a, const json_t *v, const char *field,
                           struct imp_proto_error *perr) {
-        size_t i, n = a->kind == ARG_MORE_SETS ? json_array_size(v) : 1;
-        if (a->kind == ARG_MORE_SETS && (!json_is_array(v) || n == 0 || n > IMP_CALIB_MAX_SETS))
+        bool list = a->kind != ARG_SESSION, at = a->kind == ARG_MORE_SETS_AT;
+        const char *shape = at ? "\"ID@Z\": a completed session of this daemon and the board height of its "
+                                 "capture in mm" : "a session id";
+        size_t i, n = list ? json_array_size(v) : 1;
+        if (list && (!json_is_array(v) || n == 0 || n > IMP_CALIB_MAX_SETS))
                 return imp_proto_error_set(perr, IMP_PROTO_E_BAD_ARGUMENT, EINVAL, field,
-                                           "expected a list of 1 to %d session ids", IMP_CALIB_MAX_SETS);
+                                           "expected a list of 1 to %d %s", IMP_CALIB_MAX_SETS,
+                                           at ? "\"ID@Z\" strings (a completed session, its board height in mm)"
+                                              : "session ids");
+        char ids[IMP_CALIB_MAX_SETS][128];
         for (i = 0; i < n; i++) {
-                const json_t *e = a->kind == ARG_MORE_SETS ? json_array_get(v, i) : v;
-                if (!session_set(d, e))
-                        return imp_proto_error_set(perr, IMP_PROTO_E_BAD_ARGUMENT, EINVAL, field,
-                                                   "%s is not a completed session of this daemon",
-                                                   json_is_string(e) ? json_string_value(e) : "(not a string)");
+                const json_t *e = list ? json_array_get(v, i) : v;
+                const char *dir, *s = json_is_string(e) ? json_string_value(e) : "(not a string)";
+                double z;
+                char ef[128];
+                if (list)
+                        snprintf(ef, sizeof ef, "%.100s[%zu]", field, i);
+                else
+                        snprintf(ef, sizeof ef, "%.100s", field);
+                int r = session_ref(d, a, e, ids[i], sizeof ids[i], &dir, &z);
+                if (r == -ERANGE)
+                        return imp_proto_error_set(perr, IMP_PROTO_E_BAD_ARGUMENT, EINVAL, ef,
+                                                   "%.200s: the board height after '@' must be a number of mm from "
+                                                   "%g to %g", s, -IMP_CALIB_MAX_MM, IMP_CALIB_MAX_MM);
+                if (r == -EINVAL)
+                        return imp_proto_error_set(perr, IMP_PROTO_E_BAD_ARGUMENT, EINVAL, ef, "%.200s: expected %s",
+                                                   s, shape);
+                if (r < 0)
+                        return imp_proto_error_set(perr, IMP_PROTO_E_BAD_ARGUMENT, EINVAL, ef,
+                                                   "%s is not a completed session of this daemon", ids[i]);
+                for (size_t k = 0; k < i; k++)
+                        if (!strcmp(ids[k], ids[i]))
+                                return imp_proto_error_set(perr, IMP_PROTO_E_BAD_ARGUMENT, EINVAL, ef,
+                                                           "%s is listed twice", ids[i]);
         }
         return 0;
 }
 
+static int check_value(struct daemon *d, const struct routine_arg *a, const json_t *v, const char *field,
+                       struct imp_proto_error *perr) {
+        char text[CALIB_ARG_MAX];
+        double x = json_number_value(v);
+        switch (a->kind) {
+        case ARG_MM:
+        case ARG_MM_POSITIVE:
+                if (!json_is_number(v) || !isfinite(x) || fabs(x) > IMP_CALIB_MAX_MM ||
+                    (a->kind == ARG_MM_POSITIVE && !(x > 0)))
+                        return imp_proto_error_set(perr, IMP_PROTO_E_BAD_ARGUMENT, EINVAL, field,
+                                                   "expected a number of mm %s %g", a->kind == ARG_MM ?
+                                                   "from -1000 to" : "above 0, at most", IMP_CALIB_MAX_MM);
+                return 0;
+        case ARG_FLAG:
+                if (!json_is_boolean(v))
+                        return imp_proto_error_set(perr, IMP_PROTO_E_BAD_ARGUMENT, EINVAL, field,
+                                                   "expected true or false");
+                return 0;
+        case ARG_VALUE:
+                if (arg_text(v, text, sizeof text) < 0)
+                        return imp_proto_error_set(perr, IMP_PROTO_E_BAD_ARGUMENT, EINVAL, field,
+                                                   "expected a string, a number or a list of numbers (or of "
+                                                   "lists of numbers), at most %d bytes", CALIB_ARG_MAX - 1);
+                return 0;
+        default:
+                return check_sessions(d, a, v, field, perr);
+        }
+}
+
+static bool arg_given(const json_t *args, const char *key) {
+        const json_t *v = key ? json_object_get(args, key) : NULL;
+        return v && !json_is_false(v);
+}
+
+/* Each parameter on its own, then the rules between them: required (this one or its alt),
+ * never both of a pair, needs. */
 static int check_args(struct daemon *d, const struct routine *rt, const json_t *args, struct imp_proto_error *perr) {
         const char *key;
         json_t *v;
-        char text[CALIB_ARG_MAX];
+        char field[96];
         json_object_foreach((json_t *) args, key, v) {
-                char field[96];
                 snprintf(field, sizeof field, "args.args.%.60s", key);
                 const struct routine_arg *a = routine_arg_find(rt, key);
-                if (a && a->kind != ARG_VALUE) {
-                        int r = check_sessions(d, a, v, field, perr);
-                        if (r < 0)
-                                return r;
-                        continue;
-                }
                 if (!a) {
                         char known[256] = "";
                         for (const struct routine_arg *a = rt->args; a->key; a++)
@@ -170,19 +263,34 @@ static int check_args(struct daemon *d, const struct routine *rt, const json_t *
                         return imp_proto_error_set(perr, IMP_PROTO_E_BAD_ARGUMENT, EINVAL, field,
                                                    "unknown parameter of the %s routine (known: %s)", rt->name, known);
                 }
-                if (arg_text(v, text, sizeof text) < 0)
-                        return imp_proto_error_set(perr, IMP_PROTO_E_BAD_ARGUMENT, EINVAL, field,
-                                                   "expected a string, a number or a list of numbers (or of "
-                                                   "lists of numbers), at most %d bytes", CALIB_ARG_MAX - 1);
+                int r = check_value(d, a, v, field, perr);
+                if (r < 0)
+                        return r;
         }
-        for (const struct routine_arg *a = rt->args; a->key; a++)
-                if (a->required && !json_object_get(args, a->key)) {
-                        char field[96];
-                        snprintf(field, sizeof field, "args.args.%s", a->key);
+        for (const struct routine_arg *a = rt->args; a->key; a++) {
+                bool given = arg_given(args, a->key);
+                snprintf(field, sizeof field, "args.args.%s", a->key);
+                if (a->required && !given && !arg_given(args, a->alt))
+                        return a->alt ? imp_proto_error_set(perr, IMP_PROTO_E_BAD_ARGUMENT, EINVAL, field,
+                                                            "missing; the %s routine needs %s or %s (%s or %s of "
+                                                            "`impasto calibrate %s`)", rt->name, a->key, a->alt,
+                                                            a->option, routine_arg_find(rt, a->alt)->option, rt->tool)
+                                      : imp_proto_error_set(perr, IMP_PROTO_E_BAD_ARGUMENT, EINVAL, field,
+                                                            "missing; the %s routine needs it (%s of `impasto "
+                                                            "calibrate %s`)", rt->name, a->option, rt->tool);
+                if (given && arg_given(args, a->alt))
                         return imp_proto_error_set(perr, IMP_PROTO_E_BAD_ARGUMENT, EINVAL, field,
-                                                   "missing; the %s routine needs it (%s of `impasto calibrate %s`)",
-                                                   rt->name, a->option, rt->tool);
-                }
+                                                   "given together with %s: give one of the two", a->alt);
+                if (given && a->needs && !arg_given(args, a->needs))
+                        return imp_proto_error_set(perr, IMP_PROTO_E_BAD_ARGUMENT, EINVAL, field,
+                                                   "only together with %s, which is not given", a->needs);
+        }
+        /* the board cuts the spheres between their bottom and their top */
+        const json_t *cut = json_object_get(args, "sphere_cut"), *radius = json_object_get(args, "sphere_radius");
+        if (cut && radius && !(fabs(json_number_value(cut)) < json_number_value(radius)))
+                return imp_proto_error_set(perr, IMP_PROTO_E_BAD_ARGUMENT, EINVAL, "args.args.sphere_cut",
+                                           "the board cuts the spheres this far above their centres: expected "
+                                           "less than sphere_radius (%g mm) either way", json_number_value(radius));
         return 0;
 }
 
@@ -359,36 +467,59 @@ static int spawn(struct calibration *c) {
         calib_path(c, "report.json.tmp", report, sizeof report);
         calib_path(c, "routine.log", logf, sizeof logf);
         /* argv before the fork: the child only execs */
-        enum { MAX_ARGV = 96 };
+        enum { MAX_ARGV = 128, MAX_OPTION_ARGV = 40 };  /* options after the sets: --json, --out, values */
         const char *argv[MAX_ARGV];
-        static char values[16][CALIB_ARG_MAX];
-        int n = 0, nv = 0;
+        static char values[16][CALIB_ARG_MAX], sets_at[IMP_CALIB_MAX_SETS][PATH_MAX + 32];
+        int n = 0, nv = 0, ns = 0;
         argv[n++] = d->calibrate_cmd;
         argv[n++] = "calibrate";
         argv[n++] = rt->tool;
         argv[n++] = rt->set_option;
         argv[n++] = c->set_dir;
-        const json_t *more = json_object_get(c->args, "sessions");
-        size_t i;
-        json_t *e;
-        json_array_foreach(more, i, e) {
-                const char *dir = session_set(d, e);
-                if (!dir || n + 1 >= MAX_ARGV / 2)
-                        return -ENOENT;
-                argv[n++] = dir;
+        const char *key;
+        json_t *v;
+        /* the sets of earlier sessions: after this capture's on --sets SET…, or OPTION DIR@Z each */
+        json_object_foreach(c->args, key, v) {
+                const struct routine_arg *a = routine_arg_find(rt, key);
+                size_t i;
+                json_t *e;
+                if (!a || (a->kind != ARG_MORE_SETS && a->kind != ARG_MORE_SETS_AT))
+                        continue;
+                json_array_foreach(v, i, e) {
+                        char id[128];
+                        const char *dir;
+                        double z;
+                        if (session_ref(d, a, e, id, sizeof id, &dir, &z) < 0 || ns == IMP_CALIB_MAX_SETS ||
+                            n + 2 > MAX_ARGV - MAX_OPTION_ARGV)
+                                return -ENOENT;
+                        if (a->kind == ARG_MORE_SETS) {
+                                argv[n++] = dir;
+                                continue;
+                        }
+                        snprintf(sets_at[ns], sizeof sets_at[ns], "%s@%.10g", dir, z);
+                        argv[n++] = a->option;
+                        argv[n++] = sets_at[ns++];
+                }
         }
         argv[n++] = "--json";
         argv[n++] = "--out";
         argv[n++] = out;
-        const char *key;
-        json_t *v;
         json_object_foreach(c->args, key, v) {
                 const struct routine_arg *a = routine_arg_find(rt, key);
-                if (a && a->kind == ARG_MORE_SETS)
+                if (a && (a->kind == ARG_MORE_SETS || a->kind == ARG_MORE_SETS_AT))
                         continue;
-                const char *set = a && a->kind == ARG_SESSION ? session_set(d, v) : NULL;
-                if (!a || nv == (int) ARRAY_SIZE(values) || n + 3 > MAX_ARGV ||
-                    (a->kind == ARG_SESSION ? !set : arg_text(v, values[nv], CALIB_ARG_MAX) < 0))
+                if (!a || nv == (int) ARRAY_SIZE(values) || n + 3 > MAX_ARGV)
+                        return -EINVAL;
+                if (a->kind == ARG_FLAG) {
+                        if (json_is_true(v))
+                                argv[n++] = a->option;
+                        continue;
+                }
+                char id[128];
+                const char *set = NULL;
+                double z;
+                if (a->kind == ARG_SESSION ? session_ref(d, a, v, id, sizeof id, &set, &z) < 0
+                                           : arg_text(v, values[nv], CALIB_ARG_MAX) < 0)
                         return -EINVAL;
                 argv[n++] = a->option;
                 argv[n++] = set ? set : values[nv++];

@@ -30,9 +30,11 @@ if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WI
   add_dependencies(test-daemon-fulldisk impastod)
   set_tests_properties(test-daemon-fulldisk PROPERTIES RESOURCE_LOCK gvcp)
 endif()
-# - test-daemon-calibrate-lights: the daemon calibrates the 48 dome lights of the served
-#   lights-spheres scene (Modbus TCP 15897) and the result is compared with the truth. About
-#   3 minutes, mostly rendering: slow.
+# - test-daemon-calibrate-lights: the daemon calibrates the 48 dome lights from the mirror
+#   target captured at three board heights (lights-target-raised and -mid as sessions, then
+#   lights-target by `calibrate start lights` with mirror detection and the two sessions at
+#   40 and 20 mm; Modbus TCP 15897), compared with the truth. 2 to 7
+#   minutes (110 s at load 2, 397 s at load 10-12 on 2 cores), mostly rendering: slow.
 # - test-daemon-calibrate-camera: camera (and projector) calibration through the daemon from
 #   four board poses (target-3, -8, -10 captured as sessions, target-0 by `calibrate camera`
 #   as the canvas reference; Modbus TCP 15898), compared with the truth. About 5 minutes,

@@ -6,7 +6,9 @@
 # calibration version 1, which is then in force: the next scan's set names version 1 and
 # carries the calibrated sensor. The daemon is SIGKILLed while the routine runs and restarted:
 # the routine runs again (attempt 2) and the calibration still ends done. Also: routine
-# parameters checked (args.args.KEY), and plan paths confined to the plan directories
+# parameters checked (args.args.KEY; the lights routine's detection parameters and earlier
+# sessions at board heights, "ID@Z", each refused naming the field; valid ones reach the
+# routine as --set SET@Z), and plan paths confined to the plan directories
 # (/etc/passwd, a symlink out of the plan directory, a directory, a file the client itself
 # cannot read), each refused naming the path.
 # Usage: daemon-calibrate.sh BUILD_DIR SOURCE_DIR MODBUS_PORT
@@ -40,8 +42,16 @@ start_daemon
 check "unknown routine parameter: exit 3" [ $rc -eq 3 ]
 check "unknown routine parameter named" grep -q "args.args.lens" "$tmp/e"
 "$imp" calibrate start lights --socket "$sock" >"$tmp/o" 2>"$tmp/e"; rc=$?
-check "lights without spheres: exit 3 naming args.args.spheres" \
-  sh -c "[ $rc -eq 3 ] && grep -q 'args.args.spheres' '$tmp/e'"
+check "lights with neither sphere_radius nor spheres: exit 3 naming args.args.sphere_radius" \
+  sh -c "[ $rc -eq 3 ] && grep -q 'args.args.sphere_radius' '$tmp/e'"
+"$imp" calibrate start lights --arg sphere_radius=10 --arg hemispheres --arg sphere_cut=7 --socket "$sock" \
+  >"$tmp/o" 2>"$tmp/e"; rc=$?
+check "the client passes --arg hemispheres as true (refused with sphere_cut, naming it)" \
+  sh -c "[ $rc -eq 3 ] && grep -q 'together with hemispheres.*(args.args.sphere_cut)' '$tmp/e'"
+"$imp" calibrate start lights --arg sphere_radius=10 --arg 'sessions=["nosuch@20"]' --socket "$sock" \
+  >"$tmp/o" 2>"$tmp/e"; rc=$?
+check "the client passes sessions as a list (an unknown one refused, naming it)" \
+  sh -c "[ $rc -eq 3 ] && grep -q 'nosuch is not a completed session.*(args.args.sessions\[0\])' '$tmp/e'"
 "$imp" scan start /etc/passwd --socket "$sock" >"$tmp/o" 2>"$tmp/e"; rc=$?
 check "/etc/passwd refused (exit 3), naming it and the plan directories" \
   sh -c "[ $rc -eq 3 ] && grep -q '/etc/passwd: not a plan of this daemon' '$tmp/e' && grep -q '$tmp/plans' '$tmp/e'"
@@ -118,6 +128,57 @@ check "status names calibration 1" [ "$(jget "$tmp/status.json" 'j["rig"]["calib
 "$imp" calibrate list --socket "$sock" --json >"$tmp/list.json"
 check "calibrate list: version 1 in force" [ "$(jget "$tmp/list.json" 'j["current"]["version"]')" = 1 ]
 
+# ---- bad lights parameters, each refused with an error object naming the field (raw, so that
+# the error object itself is seen); $session is a completed session of this daemon. Valid ones
+# get past the parameters to the plan (none for lights here: not_found args.plan).
+python3 - "$sock" "$session" >"$tmp/lights-args.json" <<'PY'
+import json, socket, sys
+s = socket.socket(socket.AF_UNIX); s.connect(sys.argv[1]); f = s.makefile("rw")
+f.readline()
+done = sys.argv[2]
+cases = [{}, {"spheres": "13,12,9,0;47,12,9,0", "sphere_radius": 10},
+         {"sphere_radius": 10, "sessions": ["20200101-000000-nosuch@20"]},
+         {"sphere_radius": 10, "sessions": [done + "@2O"]}, {"sphere_radius": 10, "sessions": [done + "@1e6"]},
+         {"sphere_radius": 10, "sessions": [done]}, {"sphere_radius": 10, "sessions": [done + "@20", done + "@40"]},
+         {"sphere_radius": 10, "plane_z_mm": "high"}, {"sphere_radius": -1},
+         {"spheres": "13,12,9,0", "sessions": [done + "@20"]}, {"sphere_radius": 10, "sphere_cut": 12},
+         {"sphere_radius": 10, "sphere_cut": 7, "hemispheres": True}, {"sphere_radius": 10, "hemispheres": "yes"},
+         {"sphere_radius": 10, "sessions": "%s@20" % done},
+         {"sphere_radius": 10, "sphere_cut": 7, "plane_z_mm": 0, "sessions": [done + "@20"], "dome": [30, 20, 0, 500]}]
+out = []
+for i, a in enumerate(cases):
+    f.write(json.dumps({"id": i, "cmd": "calibrate", "args": {"routine": "lights", "args": a}}) + "\n"); f.flush()
+    out.append(json.loads(f.readline()).get("error") or {})
+print(json.dumps(out, indent=1))
+PY
+lights_err() {   # lights_err CASE CODE FIELD MESSAGE-PART
+  check "lights case $1 refused: $2 naming $3" python3 -c '
+import json, sys
+e = json.load(open(sys.argv[1]))[int(sys.argv[2])]
+ok = e.get("code") == sys.argv[3] and e.get("field") == sys.argv[4] and sys.argv[5] in e.get("message", "")
+print("   ", e.get("code"), e.get("field"), e.get("message"))
+sys.exit(not ok)' "$tmp/lights-args.json" "$@"
+}
+lights_err 0 bad_argument args.args.sphere_radius "needs sphere_radius or spheres"
+lights_err 1 bad_argument args.args.sphere_radius "together with spheres"
+lights_err 2 bad_argument "args.args.sessions[0]" "nosuch is not a completed session"
+lights_err 3 bad_argument "args.args.sessions[0]" "board height after '@'"
+lights_err 4 bad_argument "args.args.sessions[0]" "board height after '@'"
+lights_err 5 bad_argument "args.args.sessions[0]" 'expected "ID@Z"'
+lights_err 6 bad_argument "args.args.sessions[1]" "listed twice"
+lights_err 7 bad_argument args.args.plane_z_mm "number of mm"
+lights_err 8 bad_argument args.args.sphere_radius "above 0"
+lights_err 9 bad_argument args.args.sessions "only together with sphere_radius"
+lights_err 10 bad_argument args.args.sphere_cut "less than sphere_radius"
+lights_err 11 bad_argument args.args.sphere_cut "together with hemispheres"
+lights_err 12 bad_argument args.args.hemispheres "true or false"
+lights_err 13 bad_argument args.args.sessions "expected a list"
+lights_err 14 not_found args.plan "lights.cfg"
+"$imp" status --socket "$sock" --json >"$tmp/status-after.json" 2>"$tmp/e"; rc=$?
+check "the daemon keeps serving after the refusals" [ $rc -eq 0 ]
+"$imp" calibrate list --socket "$sock" --json >"$tmp/list.json"
+check "none of them started a calibration" [ "$(jget "$tmp/list.json" 'len(j["calibrations"])')" = 1 ]
+
 # ---- a later scan references it and carries the calibrated sensor
 "$imp" scan start "$tmp/plans/sweep.cfg" --name after --wait --socket "$sock" --json >"$tmp/scan.json" 2>"$tmp/e"; rc=$?
 check "a scan after the calibration completes" [ $rc -eq 0 ]
@@ -133,5 +194,19 @@ check "--follow printed the capture progress and the figures" \
   sh -c "grep -q 'capture .*48/48 frames' '$tmp/follow.txt' && grep -q 'calibration 2 (radiometric): done' '$tmp/follow.txt' && grep -q 'sensor.gain_e_per_dn' '$tmp/follow.txt'"
 "$imp" calibrate list --socket "$sock" --json >"$tmp/list.json"
 check "version 2 is now in force" [ "$(jget "$tmp/list.json" 'j["current"]["version"]')" = 2 ]
+
+# ---- lights with detection and an earlier session at 20 mm: the daemon hands the routine
+# --set THIS --set SET@20 (a flat white board has no mirrors: the routine then refuses)
+"$imp" calibrate start lights --plan "$tmp/plans/sweep.cfg" --arg sphere_radius=10 --arg sphere_cut=7 \
+  --arg "sessions=[\"$session@20\"]" --arg plane_z_mm=0 --json --socket "$sock" >"$tmp/lights.json" 2>"$tmp/e"; rc=$?
+check "calibrate start lights with a session at 20 mm: exit 0" [ $rc -eq 0 ]
+check "calibration 3 fails (no mirrors on a flat board)" [ "$(calibrate_wait 3 300)" = failed ]
+check "with the routine's own reason" grep -q "no mirror sphere found" "$tmp/show.json"
+check "the routine got this capture, the session's set at 20 mm and the detection parameters" sh -c "
+  grep -q -- ' calibrate lights --set $tmp/state/sessions/[^ ]* --set $tmp/state/sessions/$session@20 --json ' \
+    '$tmp/state/calibrations/3/routine.log' && grep -q -- ' --sphere-radius 10 ' '$tmp/state/calibrations/3/routine.log' &&
+  grep -q -- ' --sphere-cut 7 ' '$tmp/state/calibrations/3/routine.log'"
+"$imp" calibrate list --socket "$sock" --json >"$tmp/list.json"
+check "version 2 stays in force" [ "$(jget "$tmp/list.json" 'j["current"]["version"]')" = 2 ]
 
 lib_finish

@@ -68,6 +68,25 @@ daemon_start() {
   echo "FAIL: impastod did not answer"; cat "$tmp/impastod.log"; exit 1
 }
 
+# rig_stop: stops impastod and the served rig (before serving another scene).
+rig_stop() {
+  kill -TERM "$daemon_pid" "$serve_pid" 2>/dev/null
+  wait "$daemon_pid" "$serve_pid" 2>/dev/null
+  daemon_pid="" serve_pid=""
+}
+
+# capture_scene SCENE SEED PLAN NAME TIMEOUT_S: the board "moved" to SCENE: serves it, captures
+# PLAN as an ordinary session NAME (impastod with --calibrate-cmd $imp, state kept in
+# $tmp/state), stops both; checks that the session completed and leaves its id in $captured.
+capture_scene() {
+  serve_start "$1" "$2"
+  daemon_start --calibrate-cmd "$imp" --retries 10
+  "$imp" scan start "$3" --name "$4" --json --socket "$sock" >"$tmp/$4.json" 2>"$tmp/e"
+  captured=$(jget "$tmp/$4.json" 'j["session"]')
+  check "$4 captured ($(basename "$1"))" [ "$(session_wait "$captured" "$5")" = completed ]
+  rig_stop
+}
+
 # A capture that paused on a device fault (a grab timing out while a loaded machine renders
 # slowly) is resumed, as an operator would, up to 5 times per wait.
 resume_if_paused() {   # resume_if_paused SESSION
@@ -78,13 +97,13 @@ resume_if_paused() {   # resume_if_paused SESSION
   "$imp" scan resume "$1" --socket "$sock" >/dev/null 2>&1
 }
 
-# session_wait SESSION TIMEOUT_S: prints the final state (completed, aborted, failed) or the
-# last one seen at the timeout.
+# session_wait SESSION TIMEOUT_S: prints the final state (completed, aborted, failed), paused
+# when it stays paused after 5 resumes, or the last state seen at the timeout.
 session_wait() {
   local end=$(( $(date +%s) + $2 )) st="" resumes=0
   while [ "$(date +%s)" -lt "$end" ]; do
     st=$("$imp" scan show "$1" --json --socket "$sock" 2>/dev/null | python3 -c 'import json,sys; print(json.load(sys.stdin)["state"])' 2>/dev/null)
-    case "$st" in completed|aborted|failed) break;; esac
+    case "$st" in completed|aborted|failed) break;; paused) [ "$resumes" -lt 5 ] || break;; esac
     resume_if_paused "$1"
     sleep 1
   done
