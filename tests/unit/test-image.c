@@ -184,23 +184,69 @@ static void test_tiff_roundtrip(void) {
         static const enum imp_pixel_type types[] = { IMP_PIX_U8, IMP_PIX_U16, IMP_PIX_F32 };
         for (size_t t = 0; t < ARRAY_SIZE(types); t++)
                 for (int ch = 1; ch <= 4; ch++)
-                        for (size_t s = 0; s < ARRAY_SIZE(sizes); s++) {
+                        for (size_t s = 0; s < 2 * ARRAY_SIZE(sizes); s++) {
+                                /* the second round: imp_tiff_write_fast, the capture frames' writer */
+                                bool fast = s >= ARRAY_SIZE(sizes);
                                 _cleanup_image_ struct imp_image *a = NULL, *b = NULL;
                                 static char unset[] = "unset";
                                 char *desc = unset;
                                 struct imp_error err = { 0 };
                                 const char *p = tmp_path("rt.tiff");
-                                CHECK_OK(imp_image_new(sizes[s][0], sizes[s][1], ch, types[t], &a));
+                                const int *sz = sizes[s % ARRAY_SIZE(sizes)];
+                                CHECK_OK(imp_image_new(sz[0], sz[1], ch, types[t], &a));
                                 fill_pattern(a, (unsigned) (ch + 10 * s + 100 * t));
-                                CHECK_OK(imp_tiff_write(p, a, NULL, &err));
+                                CHECK_OK(fast ? imp_tiff_write_fast(p, a, NULL, &err) : imp_tiff_write(p, a, NULL, &err));
                                 CHECK_OK(imp_tiff_read(p, &b, &desc, &err));
                                 CHECK(desc == NULL);
                                 if (desc != unset)
                                         free(desc);
-                                CHECK_MSG(b && same_pixels(a, b), "TIFF %s %d channels %dx%d differs (%s)",
-                                          imp_pixel_type_name(types[t]), ch, sizes[s][0], sizes[s][1],
+                                CHECK_MSG(b && same_pixels(a, b), "TIFF%s %s %d channels %dx%d differs (%s)",
+                                          fast ? " (fast)" : "", imp_pixel_type_name(types[t]), ch, sz[0], sz[1],
                                           err.msg);
                         }
+}
+
+/* Frames as the capture set stores them (imp_tiff_write_fast): another reader sees Zstandard
+ * and the horizontal predictor, and libtiff's own decoder gives back every sample of a
+ * camera-like frame (ramps, noise, full scale, several strips). */
+static void test_tiff_fast_frame(void) {
+        if (!TIFFIsCODECConfigured(COMPRESSION_ZSTD))
+                return;         /* the writer falls back to deflate: covered above */
+        _cleanup_image_ struct imp_image *a = NULL;
+        struct imp_error err = { 0 };
+        const char *p = tmp_path("frame.tif");
+        CHECK_OK(imp_image_new(640, 480, 1, IMP_PIX_U16, &a));
+        uint32_t st = 12345;
+        for (int y = 0; y < 480; y++)
+                for (int x = 0; x < 640; x++) {
+                        st = st * 1664525u + 1013904223u;
+                        int v = 20 * x + 7 * y + (int) (st >> 26) - 32;
+                        imp_image_u16(a, x, y)[0] = (uint16_t) (x == 5 ? 65535 : v < 0 ? 0 : v > 65535 ? 65535 : v);
+                }
+        CHECK_OK(imp_tiff_write_fast(p, a, "{\"seq\":1}", &err));
+        TIFF *tif = TIFFOpen(p, "r");
+        CHECK(tif != NULL);
+        if (!tif)
+                return;
+        uint16_t comp = 0, pred = 0;
+        CHECK(TIFFGetField(tif, TIFFTAG_COMPRESSION, &comp));
+        CHECK(TIFFGetField(tif, TIFFTAG_PREDICTOR, &pred));
+        CHECK_INT_EQ(comp, COMPRESSION_ZSTD);
+        CHECK_INT_EQ(pred, PREDICTOR_HORIZONTAL);
+        CHECK(TIFFNumberOfStrips(tif) > 1);
+        _cleanup_free_ uint16_t *row = malloc((size_t) TIFFScanlineSize(tif));
+        int bad = 0;
+        for (uint32_t y = 0; row && y < 480; y++) {
+                if (TIFFReadScanline(tif, row, y, 0) < 0) {
+                        bad++;
+                        continue;
+                }
+                for (int x = 0; x < 640; x++)
+                        bad += row[x] != imp_image_u16(a, x, (int) y)[0];
+        }
+        CHECK(row != NULL);
+        CHECK_INT_EQ(bad, 0);
+        TIFFClose(tif);
 }
 
 static void test_tiff_description(void) {
@@ -466,6 +512,7 @@ int main(void) {
         test_png_16bit_is_big_endian();
         test_png_palette();
         test_tiff_roundtrip();
+        test_tiff_fast_frame();
         test_tiff_description();
         test_exr_float_roundtrip();
         test_exr_half_roundtrip();
