@@ -92,6 +92,11 @@ static const struct acc_config configs[] = {
           .hard = true },
         { "lean", "column code only, no inverses, phase 4x1, 12 lights", BASE, .axes = 1, .inverse = false,
           .lights = 12, .quick = true, .hard = true },
+        /* below lean: the cheapest plans that still fuse phase heights with dome normals */
+        { "lean3", "column code only, no inverses, phase 3x1, 12 lights", BASE, .axes = 1, .inverse = false,
+          .phase_steps = 3, .lights = 12, .quick = true, .hard = true },
+        { "lean8", "column code only, no inverses, phase 3x1, 8 lights", BASE, .axes = 1, .inverse = false,
+          .phase_steps = 3, .lights = 8, .quick = true, .hard = true },
         { "mid", "phase 4x2, 2 SL exposures, 24 lights", BASE, .phase_periods = 2, .sl_exposures = EXP_MID | EXP_LONG,
           .hard = true },
         { "rich", "phase 12x2, 3 SL exposures, 48 lights x 2 exposures", BASE, .phase_steps = 12, .phase_periods = 2,
