@@ -44,6 +44,10 @@ struct dev_camera {
         /* Streamed runs (session.c): false from `stream = false;` in the rig config, or once
          * the camera could not free-run (no TriggerMode, no frame free running). */
         bool stream;
+        /* The serial the camera had when first opened: a reopen (after a fault) that finds
+         * another camera at the address is refused, so that a set never mixes two cameras'
+         * frames. Kept for the daemon's lifetime (restart impastod after swapping cameras). */
+        char serial[64];
 };
 
 struct dev_dome {

@@ -172,6 +172,16 @@ static int open_camera(struct dev_camera *cam, const struct imp_rig *rig, unsign
         struct imp_camera_info info;
         if ((r = imp_camera_get_info(cam->cam, &info)) < 0)
                 goto fail;
+        if (cam->serial[0] && strcmp(cam->serial, info.serial)) {
+                imp_camera_close(cam->cam);
+                cam->cam = NULL;
+                cam->state = DEV_FAULT;
+                snprintf(cam->detail, sizeof cam->detail,
+                         "%s at %s is now serial %s, not %s as when impastod opened it: refused (restart "
+                         "impastod after changing cameras)", cam->backend, cam->address, info.serial, cam->serial);
+                return imp_error_set(err, -EXDEV, "camera %s: %s", cam->name, cam->detail);
+        }
+        snprintf(cam->serial, sizeof cam->serial, "%s", info.serial);
         /* The calibrated geometry is the frame size; 16 bits when the camera has them. */
         if (model && (r = imp_camera_set_roi(cam->cam, 0, 0, (unsigned) model->model.width,
                                              (unsigned) model->model.height)) < 0)

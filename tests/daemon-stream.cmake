@@ -11,3 +11,12 @@ if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WI
       TIMEOUT 120 RESOURCE_LOCK gvcp)
   endif()
 endif()
+# - test-daemon-replug: the camera unplugged mid-capture (streamed run, then triggered
+#   sweep), the session pauses with a fault, the camera comes back, resume completes the set
+#   frame for frame (Modbus TCP 15902).
+if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WITH_MODBUS)
+  impasto_test(test-daemon-replug LABELS integration fault LIBS impasto_proto impasto_pipeline impasto_emu
+               TIMEOUT 240)
+  add_dependencies(test-daemon-replug impastod)
+  set_tests_properties(test-daemon-replug PROPERTIES RESOURCE_LOCK gvcp)
+endif()
