@@ -177,8 +177,8 @@ static int open_camera(struct dev_camera *cam, const struct imp_rig *rig, unsign
                 cam->cam = NULL;
                 cam->state = DEV_FAULT;
                 snprintf(cam->detail, sizeof cam->detail,
-                         "%s at %s is now serial %s, not %s as when impastod opened it: refused (restart "
-                         "impastod after changing cameras)", cam->backend, cam->address, info.serial, cam->serial);
+                         "%.31s at %.64s: serial %.32s, not %.32s (the camera impastod opened first); restart "
+                         "impastod after changing cameras", cam->backend, cam->address, info.serial, cam->serial);
                 return imp_error_set(err, -EXDEV, "camera %s: %s", cam->name, cam->detail);
         }
         snprintf(cam->serial, sizeof cam->serial, "%s", info.serial);
