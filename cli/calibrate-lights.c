@@ -9,6 +9,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "calib-lights.h"
+#include "calib-lights-joint.h"
 #include "calib-radiometric.h"
 #include "calibrate-ext.h"
 #include "captureset.h"
@@ -56,13 +57,15 @@ struct lights_args {
         double white[4];              /* x0, y0, x1, y1 on the canvas; x1 < x0 → none */
         double dome[4];               /* centre x, y, z and radius mm; radius 0 → not given */
         bool json, lp_near_field;
+        bool no_joint;                /* --no-joint: per-light triangulation only */
+        double held_z_sigma_mm;       /* --board-sigma: 1σ of a board height (mirror centre z); 0 → default */
 };
 
 static void usage_lights(FILE *f) {
         fprintf(f, "usage: impasto calibrate lights --set DIR[@Z] [--set DIR[@Z]...] (--sphere-radius R | --spheres\n"
                    "                                \"X,Y,R[,Z];...\") [--sphere-cut H | --hemispheres] [--camera NAME]\n"
                    "                                [--rig RIG.json] [--plane-z MM (0)] [--white X0,Y0,X1,Y1]\n"
-                   "                                [--dome CX,CY,CZ,R]"
+                   "                                [--dome CX,CY,CZ,R] [--no-joint] [--board-sigma MM]\n"
                    "                                [--lp OUT.lp] [--lp-near-field] [--json] [--out RIG.json]\n"
                    "       impasto calibrate lights --import-lp IN.lp [--rig RIG.json | --set DIR] [--dome CX,CY,CZ,R]\n"
                    "                                --out RIG.json\n"
@@ -80,6 +83,10 @@ static void usage_lights(FILE *f) {
                    "             (default: every lit canvas pixel off the spheres and their shadows)\n"
                    "  --dome:    the dome's centre and radius (mm): each light is also put where its\n"
                    "             direction from the centre meets the dome (constrained estimate)\n"
+                   "  --no-joint: skip the joint refinement of all lights and mirror centres from the\n"
+                   "             highlights they share (default: refine; docs/calibration-lights.md)\n"
+                   "  --board-sigma: 1σ of each capture's board height, i.e. of the mirror centres'\n"
+                   "             heights, in the joint refinement (default 0.001 mm: the heights held)\n"
                    "  --import-lp: write the positions of an RTI .lp file into a copy of the rig (standard\n"
                    "             files are directions: put at --dome's radius from its centre)\n");
 }
@@ -567,6 +574,13 @@ struct light_result {
         struct imp_light_intensity li;
         int n_highlights, n_saturated;
         double o[MAX_RAYS][3], d[MAX_RAYS][3], sg[MAX_RAYS];
+        /* the highlights behind the rays, for the joint refinement */
+        double px[MAX_RAYS][2], spx[MAX_RAYS];
+        int mirror[MAX_RAYS];             /* index into the flattened mirrors of all captures */
+        bool hsat[MAX_RAYS];
+        bool have_joint;
+        struct imp_light_estimate tri;    /* per-light triangulation (est is the joint one when have_joint) */
+        int n_outliers;                   /* highlights the joint refinement rejected */
 };
 
 /* The highlight of one light on one sphere: from the longest exposure whose highlight is
@@ -592,7 +606,7 @@ static int sphere_highlight(const struct capture *cp, struct imp_image *const *f
 }
 
 /* Adds the reflected rays of every sphere of a capture for light frame lf to lr. */
-static int capture_rays(const struct capture *cp, const struct light_frame *lf, struct light_result *lr,
+static int capture_rays(const struct capture *cp, int mirror0, const struct light_frame *lf, struct light_result *lr,
                         struct imp_error *err) {
         struct imp_image *frames[MAX_EXPOSURES] = { 0 };
         int r = 0;
@@ -610,6 +624,10 @@ static int capture_rays(const struct capture *cp, const struct light_frame *lf, 
                 if (imp_lights_reflect(&cp->cam->model, &cp->sph[s], h.px, h.sigma_px, lr->o[n], lr->d[n], &lr->sg[n]) < 0)
                         continue;
                 lr->n_saturated += h.saturated;
+                memcpy(lr->px[n], h.px, sizeof h.px);
+                lr->spx[n] = h.sigma_px;
+                lr->hsat[n] = h.saturated;
+                lr->mirror[n] = mirror0 + s;
                 lr->n_highlights++;
         }
         for (int e = 0; e < lf->n; e++)
@@ -656,6 +674,70 @@ static void onto_dome(const double dome[4], const struct imp_light_estimate *est
         ret->sigma_mm = sqrt(IMP_MAX(tr / 2 + sqrt(disc), 0.0));
 }
 
+/* The joint refinement's outcome, for the report. */
+struct joint_out {
+        bool done;
+        struct imp_joint_report rep;
+        int mirror0[MAX_SETS];            /* first flattened mirror index of each capture */
+        struct imp_joint_centre c[MAX_SETS * MAX_SPHERES];
+};
+
+/* Every located light and every mirror of every capture refined together from the highlights
+ * (pipeline/calib-lights-joint.c); the per-light triangulation is kept in lr->tri. */
+static int joint_refine(const struct lights_args *a, const struct capture *caps, int n_caps, struct light_result *res,
+                        int n, struct joint_out *jo) {
+        static struct imp_joint_mirror mir[MAX_SETS * MAX_SPHERES];
+        int nm = 0, no = 0, r;
+        for (int c = 0; c < n_caps; c++) {
+                jo->mirror0[c] = nm;
+                for (int s = 0; s < caps[c].n_spheres; s++)
+                        mir[nm++] = (struct imp_joint_mirror) { .cam = &caps[c].cam->model, .sphere = caps[c].sph[s] };
+        }
+        for (int i = 0; i < n; i++)
+                no += res[i].have_pos ? res[i].n_highlights : 0;
+        _cleanup_free_ struct imp_joint_obs *obs = calloc((size_t) no + 1, sizeof *obs);
+        _cleanup_free_ struct imp_light_estimate *in = calloc((size_t) n + 1, sizeof *in);
+        _cleanup_free_ struct imp_light_estimate *out = calloc((size_t) n + 1, sizeof *out);
+        _cleanup_free_ bool *outlier = calloc((size_t) no + 1, sizeof *outlier);
+        if (!obs || !in || !out || !outlier)
+                return -ENOMEM;
+        no = 0;
+        for (int i = 0; i < n; i++) {
+                const struct light_result *lr = &res[i];
+                in[i] = lr->est;
+                for (int k = 0; lr->have_pos && k < lr->n_highlights; k++)
+                        obs[no++] = (struct imp_joint_obs) { .light = i, .mirror = lr->mirror[k], .px = { lr->px[k][0],
+                                                             lr->px[k][1] }, .sigma_px = lr->spx[k], .saturated = lr->hsat[k] };
+        }
+        struct imp_joint_opts opts = { .held_z_sigma_mm = a->held_z_sigma_mm };
+        if ((r = imp_lights_joint_refine(n, in, nm, mir, no, obs, &opts, out, jo->c, NULL, outlier, &jo->rep)) < 0)
+                return r;
+        for (int k = 0; k < no; k++)
+                res[obs[k].light].n_outliers += outlier[k];
+        for (int i = 0; i < n; i++) {
+                struct light_result *lr = &res[i];
+                if (!lr->have_pos)
+                        continue;
+                lr->tri = lr->est;
+                lr->est = out[i];
+                lr->have_joint = true;
+        }
+        jo->done = true;
+        const struct imp_joint_report *rp = &jo->rep;
+        log_info("joint refinement: %d highlights, %d outliers, %d iterations; RMS %.4f → %.4f px (σ scale %.2f); "
+                 "mirror centres moved %.2f µm RMS, %.2f µm max; cond %.3g, from the highlights alone %.3g", rp->n_obs,
+                 rp->n_outliers, rp->iterations, rp->rms_px_before, rp->rms_px_after, rp->scale,
+                 1000 * rp->centre_shift_rms_mm, 1000 * rp->centre_shift_max_mm, rp->cond, rp->cond_data);
+        if (rp->flags & IMP_JOINT_NOT_CONVERGED)
+                log_warning("joint refinement: not converged in %d iterations, using its last values", rp->iterations);
+        if (rp->flags & IMP_JOINT_WEAK_CENTRES)
+                log_warning("joint refinement: the highlights alone do not determine the mirror centres (cond %.3g): "
+                            "they stay near their silhouette fits", rp->cond_data);
+        if (rp->flags & IMP_JOINT_ILL_CONDITIONED)
+                log_warning("joint refinement: ill-conditioned (cond %.3g)", rp->cond);
+        return 0;
+}
+
 static json_t *estimate_json(const struct imp_light_estimate *e) {
         const double *c = e->cov_mm2;
         return json_pack("{s:[f, f, f], s:f, s:[f, f, f, f, f, f, f, f, f]}", "pos_mm", e->pos_mm[0], e->pos_mm[1],
@@ -679,6 +761,14 @@ static json_t *light_json(const struct light_result *lr) {
                         "saturated", !!(e->flags & IMP_LIGHT_SATURATED), "behind", !!(e->flags & IMP_LIGHT_BEHIND)));
                 if (lr->have_dome)
                         json_object_set_new(j, "dome", estimate_json(&lr->dome));
+                if (lr->have_joint) {
+                        json_t *jt = estimate_json(&lr->tri);
+                        json_object_set_new(jt, "rms_mm", json_real(lr->tri.rms_mm));
+                        json_object_set_new(jt, "cond", json_real(lr->tri.cond));
+                        json_object_set_new(jt, "ill_conditioned", json_boolean(lr->tri.flags & IMP_LIGHT_ILL_CONDITIONED));
+                        json_object_set_new(j, "triangulated", jt);
+                        json_object_set_new(j, "joint_outliers", json_integer(lr->n_outliers));
+                }
         }
         if (lr->have_intensity) {
                 json_object_set_new(j, "intensity", json_real(lr->li.intensity));
@@ -749,8 +839,21 @@ static int write_outputs(const struct lights_args *a, const struct imp_rig *set_
         return ret;
 }
 
+static json_t *joint_json(const struct joint_out *jo) {
+        const struct imp_joint_report *r = &jo->rep;
+        return json_pack("{s:i, s:i, s:i, s:i, s:i, s:i, s:f, s:f, s:f, s:f, s:i, s:f, s:f, s:f, s:f, s:f, s:f, s:{s:b, s:b, s:b}}",
+                         "iterations", r->iterations, "passes", r->passes, "highlights", r->n_obs, "outliers", r->n_outliers,
+                         "lights", r->n_lights, "mirrors", r->n_mirrors, "rms_px_before", r->rms_px_before,
+                         "rms_px_after", r->rms_px_after, "chi2_before", r->chi2_before, "chi2_after", r->chi2_after,
+                         "dof", r->dof, "residual_scale", r->scale, "cov_scale", r->cov_scale, "cond", r->cond,
+                         "cond_data", r->cond_data, "centre_shift_rms_mm", r->centre_shift_rms_mm,
+                         "centre_shift_max_mm", r->centre_shift_max_mm, "flags", "not_converged",
+                         !!(r->flags & IMP_JOINT_NOT_CONVERGED), "weak_centres", !!(r->flags & IMP_JOINT_WEAK_CENTRES),
+                         "ill_conditioned", !!(r->flags & IMP_JOINT_ILL_CONDITIONED));
+}
+
 static void report_lights(const struct lights_args *a, const struct capture *caps, int n_caps,
-                          const struct light_result *res, int n) {
+                          const struct light_result *res, int n, const struct joint_out *jo) {
         if (a->json) {
                 json_t *j = json_object(), *js = json_array(), *jl = json_array();
                 for (int c = 0; c < n_caps; c++)
@@ -762,11 +865,21 @@ static void report_lights(const struct lights_args *a, const struct capture *cap
                                         "image_centre_px", sp->image_centre_px[0], sp->image_centre_px[1],
                                         "image_radius_px", sp->image_radius_px, "edge_rms_px", sp->rms_px,
                                         "edge_points", sp->n_edge));
+                                if (jo->done) {
+                                        const struct imp_joint_centre *jc = &jo->c[jo->mirror0[c] + s];
+                                        json_t *e = json_array_get(js, json_array_size(js) - 1);
+                                        json_object_set_new(e, "joint_centre_mm", json_pack("[f, f, f]", jc->centre_mm[0],
+                                                            jc->centre_mm[1], jc->centre_mm[2]));
+                                        json_object_set_new(e, "joint_centre_sigma_mm", json_real(jc->sigma_mm));
+                                        json_object_set_new(e, "joint_shift_mm", json_real(jc->shift_mm));
+                                }
                         }
                 for (int i = 0; i < n; i++)
                         json_array_append_new(jl, light_json(&res[i]));
                 json_object_set_new(j, "spheres", js);
                 json_object_set_new(j, "lights", jl);
+                if (jo->done)
+                        json_object_set_new(j, "joint", joint_json(jo));
                 json_dumpf(j, stdout, JSON_INDENT(2) | JSON_REAL_PRECISION(10));
                 fputc('\n', stdout);
                 json_decref(j);
@@ -780,6 +893,13 @@ static void report_lights(const struct lights_args *a, const struct capture *cap
                                sp->centre_sigma_mm, sp->image_centre_px[0], sp->image_centre_px[1], sp->image_radius_px,
                                sp->rms_px);
                 }
+        if (jo->done)
+                printf("joint refinement: %d highlights (%d outliers), %d lights, %d mirrors, %d iterations; RMS %.4f → "
+                       "%.4f px; centres moved %.2f µm RMS, %.2f µm max; cond %.3g (highlights alone %.3g)%s\n",
+                       jo->rep.n_obs, jo->rep.n_outliers, jo->rep.n_lights, jo->rep.n_mirrors, jo->rep.iterations,
+                       jo->rep.rms_px_before, jo->rep.rms_px_after, 1000 * jo->rep.centre_shift_rms_mm,
+                       1000 * jo->rep.centre_shift_max_mm, jo->rep.cond, jo->rep.cond_data,
+                       jo->rep.flags & IMP_JOINT_WEAK_CENTRES ? ", WEAK CENTRES" : "");
         for (int i = 0; i < n; i++) {
                 const struct light_result *lr = &res[i];
                 printf("light %3d:", lr->id);
@@ -820,10 +940,10 @@ static int run_lights(const struct lights_args *a) {
         for (int i = 0; i < n; i++)
                 res[i].id = rig0->lights[i].id;
         /* rays of every light from every capture, pooled */
-        for (int c = 0; c < n_caps; c++)
+        for (int c = 0, m0 = 0; c < n_caps; m0 += caps[c].n_spheres, c++)
                 for (int i = 0; i < caps[c].n_lf; i++) {
                         struct light_result *lr = &res[caps[c].lf[i].light];
-                        if ((r = capture_rays(&caps[c], &caps[c].lf[i], lr, &err)) < 0) {
+                        if ((r = capture_rays(&caps[c], m0, &caps[c].lf[i], lr, &err)) < 0) {
                                 log_error("calibrate lights: light %d: %s", lr->id, err.msg[0] ? err.msg : strerror(-r));
                                 ret = 1;
                                 goto out;
@@ -843,6 +963,18 @@ static int run_lights(const struct lights_args *a) {
                 lr->have_pos = true;
                 if (lr->n_saturated)
                         lr->est.flags |= IMP_LIGHT_SATURATED, n_sat++;
+        }
+        static struct joint_out joint;
+        joint.done = false;
+        if (!a->no_joint && (r = joint_refine(a, caps, n_caps, res, n, &joint)) < 0) {
+                log_error_errno(r, "calibrate lights: joint refinement failed");
+                ret = 1;
+                goto out;
+        }
+        for (int i = 0; i < n; i++) {
+                struct light_result *lr = &res[i];
+                if (!lr->have_pos)
+                        continue;
                 if (lr->est.flags & IMP_LIGHT_ILL_CONDITIONED) {
                         n_ill++;
                         log_warning("light %d: rays nearly parallel (cond %.3g, %d rays): its range is not determined "
@@ -885,7 +1017,7 @@ static int run_lights(const struct lights_args *a) {
         }
         if (n_ill)
                 log_warning("%d of %d lights ill-conditioned", n_ill, n);
-        report_lights(a, caps, n_caps, res, n);
+        report_lights(a, caps, n_caps, res, n, &joint);
         ret = write_outputs(a, rig0, c0, res);
 out:
         for (int c = 0; c < n_caps + (n_caps < a->n_sets); c++)
@@ -948,6 +1080,10 @@ static int lights_main(int argc, char **argv, struct lights_args *a) {
                         a->lp_near_field = true;
                         continue;
                 }
+                if (!strcmp(o, "--no-joint")) {
+                        a->no_joint = true;
+                        continue;
+                }
                 if (!strcmp(o, "--hemispheres")) {
                         a->sphere_cut_mm = 0;
                         continue;
@@ -981,6 +1117,11 @@ static int lights_main(int argc, char **argv, struct lights_args *a) {
                 } else if (!strcmp(o, "--sphere-cut")) {
                         if (parse_list(o, val, &a->sphere_cut_mm, 1, 1, &n) < 0)
                                 return EXIT_USAGE;
+                } else if (!strcmp(o, "--board-sigma")) {
+                        if (parse_list(o, val, &a->held_z_sigma_mm, 1, 1, &n) < 0 || !(a->held_z_sigma_mm > 0)) {
+                                log_error("--board-sigma: expected a 1σ > 0 mm");
+                                return EXIT_USAGE;
+                        }
                 } else if (!strcmp(o, "--plane-z")) {
                         if (parse_list(o, val, &a->plane_z_mm, 1, 1, &n) < 0)
                                 return EXIT_USAGE;

@@ -372,10 +372,10 @@ static double edge_residual(const double O[3], const double d[3], const double C
         return dist - r;
 }
 
-/* Gauss–Newton on the edge residuals; np = 2 holds C_z. ret_sigma: √λmax of the centre's
- * covariance (JᵀJ)⁻¹ · rms² at the solution. */
+/* Gauss–Newton on the edge residuals; np = 2 holds C_z. ret_cov: the centre's covariance
+ * (JᵀJ)⁻¹ · rms² at the solution (zz = 0 when C_z is held), ret_sigma: its √λmax. */
 static int fit_centre(const double (*d)[3], int n, const double O[3], double r, int np, double cut, double C[3],
-                      double *ret_rms, double *ret_sigma) {
+                      double *ret_rms, double *ret_sigma, double ret_cov[9]) {
         for (int it = 0; it < FIT_MAX_ITER; it++) {
                 double JtJ[9] = { 0 }, Jtr[3] = { 0 }, ss = 0;
                 for (int i = 0; i < n; i++) {
@@ -404,9 +404,11 @@ static int fit_centre(const double (*d)[3], int n, const double O[3], double r, 
                 if (sqrt(sn) < FIT_STEP_TOL_MM) {
                         if (np == 2)
                                 Ji[8] = 0;
-                        double l[3], V[9];
+                        double l[3], V[9], s2 = ss / IMP_MAX(n - np, 1);
                         eig3(Ji, l, V);
-                        *ret_sigma = sqrt(IMP_MAX(l[2], 0.0) * ss / IMP_MAX(n - np, 1));
+                        *ret_sigma = sqrt(IMP_MAX(l[2], 0.0) * s2);
+                        for (int k = 0; k < 9; k++)
+                                ret_cov[k] = Ji[k] * s2;
                         return 0;
                 }
         }
@@ -452,12 +454,14 @@ int imp_lights_sphere_fit(const struct imp_pinhole *cam, const struct imp_frame_
                 s = radius_mm * 0.5 * (cam->fx + cam->fy) / rho;
         for (int k = 0; k < 3; k++)
                 C[k] = O[k] + s * d0[k];
-        double rms = 0, csig = 0;
-        int r = fit_centre((const double (*)[3]) dirs, ne, O, radius_mm, on_plane ? 2 : 3, cut_mm, C, &rms, &csig);
+        double rms = 0, csig = 0, ccov[9] = { 0 };
+        int r = fit_centre((const double (*)[3]) dirs, ne, O, radius_mm, on_plane ? 2 : 3, cut_mm, C, &rms, &csig, ccov);
         if (r < 0 || !isfinite(C[0] + C[1] + C[2]))
                 return imp_error_set(err, -EDOM, "sphere fit: the centre fit did not converge");
-        struct imp_sphere out = { .radius_mm = radius_mm, .n_edge = ne, .centre_sigma_mm = csig, .cut_mm = cut_mm };
+        struct imp_sphere out = { .radius_mm = radius_mm, .n_edge = ne, .centre_sigma_mm = csig, .cut_mm = cut_mm,
+                                  .centre_z_held = on_plane };
         memcpy(out.centre_mm, C, sizeof C);
+        memcpy(out.centre_cov_mm2, ccov, sizeof ccov);
         /* a cut sphere's outline is mostly its rim: the image disc is centred on the rim's centre */
         double Cv[3] = { C[0], C[1], C[2] + (isfinite(cut_mm) ? cut_mm : 0) };
         if (!imp_pinhole_project(cam, Cv, out.image_centre_px))

@@ -24,6 +24,9 @@ struct imp_sphere {
         double image_radius_px;       /* mean apparent radius of the silhouette */
         double rms_px;                /* RMS of the silhouette edge residuals, pixels */
         double centre_sigma_mm;       /* 1σ of the fitted centre (worst direction, fit covariance) */
+        double centre_cov_mm2[9];     /* the fit's covariance of the centre, row-major (zz = 0 when held);
+                                       * all 0: unknown, centre_sigma_mm isotropic is used */
+        bool centre_z_held;           /* C_z was given (centre_z_mm), not fitted */
         int n_edge;                   /* edge points used */
         double cut_mm;                /* the sphere exists above z = C_z + cut_mm only; NAN: whole */
 };
