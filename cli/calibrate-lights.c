@@ -78,7 +78,8 @@ static void usage_lights(FILE *f) {
                    "             --hemispheres; 0 < H < R: spherical caps, convex mirrors); default: balls\n"
                    "  --spheres: positions instead of detection (one set): centre (X, Y), radius R,\n"
                    "             centre height Z (default R), mm\n"
-                   "  --rig:     camera model and sensor from this file instead of the set's rig.json\n"
+                   "  --rig:     camera model and sensor from this file instead of the set's rig.json;\n"
+                   "             --out writes a copy of this rig with the lights replaced\n"
                    "  --white:   canvas rectangle (mm) of the white target for the intensities (first set)\n"
                    "             (default: every lit canvas pixel off the spheres and their shadows)\n"
                    "  --dome:    the dome's centre and radius (mm): each light is also put where its\n"
@@ -93,9 +94,11 @@ static void usage_lights(FILE *f) {
 
 static void usage_radiometric(FILE *f) {
         fprintf(f, "usage: impasto calibrate radiometric --set DIR [--camera NAME] [--roi X,Y,W,H]\n"
-                   "                                     [--json] [--out RIG.json]\n"
+                   "                                     [--json] [--out RIG.json [--rig BASE.json]]\n"
                    "  the set: pairs of equal frames (same exposure, gain, light, pattern) at rising\n"
-                   "  exposures, and dark frames (those at the shortest dark exposure are used)\n");
+                   "  exposures, and dark frames (those at the shortest dark exposure are used)\n"
+                   "  --out:     the set's rig with the camera's sensor replaced; with --rig, a copy of\n"
+                   "             BASE.json instead (its camera of the same name gets the sensor)\n");
 }
 
 
@@ -791,16 +794,26 @@ static int lp_centre(const struct imp_rig_camera *cam, double plane_z, double re
         return 0;
 }
 
-static int write_outputs(const struct lights_args *a, const struct imp_rig *set_rig, const struct capture *cp,
-                         const struct light_result *res) {
+/* The estimates (indexed like set_rig's lights) go into a copy of `base` (--rig, else the
+ * set's rig), matched by light id: the other devices are the base's. */
+static int write_outputs(const struct lights_args *a, const struct imp_rig *base, const struct imp_rig *set_rig,
+                         const struct capture *cp, const struct light_result *res) {
         struct imp_error err = {};
         struct imp_rig rig;
-        if (imp_rig_copy(set_rig, &rig) < 0) {
+        _cleanup_free_ int *map = calloc((size_t) set_rig->n_lights + 1, sizeof *map);
+        if (!map || imp_rig_copy(base, &rig) < 0) {
                 log_error("calibrate lights: out of memory");
                 return 1;
         }
+        for (int i = 0; i < set_rig->n_lights; i++)
+                if ((map[i] = rig_light_index(&rig, set_rig->lights[i].id)) < 0) {
+                        log_error("calibrate lights: the rig of --rig has no light %d (the sets' rig has)",
+                                  set_rig->lights[i].id);
+                        imp_rig_free(&rig);
+                        return EXIT_BADINPUT;
+                }
         for (int i = 0; i < set_rig->n_lights; i++) {
-                struct imp_rig_light *L = &rig.lights[i];
+                struct imp_rig_light *L = &rig.lights[map[i]];
                 if (res[i].have_pos)
                         memcpy(L->pos_mm, res[i].have_dome ? res[i].dome.pos_mm : res[i].est.pos_mm, sizeof L->pos_mm);
                 if (res[i].have_intensity) {
@@ -822,7 +835,7 @@ static int write_outputs(const struct lights_args *a, const struct imp_rig *set_
                         return log_error("calibrate lights: out of memory"), 1;
                 }
                 for (int i = 0; i < cp->n_lf; i++) {
-                        L[i] = rig.lights[cp->lf[i].light];
+                        L[i] = rig.lights[map[cp->lf[i].light]];
                         const char *file = imp_captureset_record(cp->cs, cp->lf[i].index[0])->file;
                         const char *slash = strrchr(file, '/');
                         names[i] = slash ? slash + 1 : file;
@@ -1018,7 +1031,7 @@ static int run_lights(const struct lights_args *a) {
         if (n_ill)
                 log_warning("%d of %d lights ill-conditioned", n_ill, n);
         report_lights(a, caps, n_caps, res, n, &joint);
-        ret = write_outputs(a, rig0, c0, res);
+        ret = write_outputs(a, a->rig ? &file_rig : rig0, rig0, c0, res);
 out:
         for (int c = 0; c < n_caps + (n_caps < a->n_sets); c++)
                 capture_free(&caps[c]);
@@ -1188,7 +1201,8 @@ static void free_frames(struct imp_image **v, int n) {
                 imp_image_free(v[i]);
 }
 
-static int run_radiometric(const char *set, const char *camera, const int roi[4], bool json, const char *out) {
+static int run_radiometric(const char *set, const char *camera, const int roi[4], bool json, const char *out,
+                           const char *base) {
         struct imp_error err = {};
         _cleanup_(imp_captureset_closep) struct imp_captureset *cs = NULL;
         int r = imp_captureset_open(set, &cs, &err);
@@ -1280,11 +1294,24 @@ static int run_radiometric(const char *set, const char *camera, const int roi[4]
         ret = 0;
         if (out) {
                 struct imp_rig copy;
-                if (imp_rig_copy(rig, &copy) < 0) {
+                int bi = ci;
+                if (base) {
+                        if (imp_rig_load(base, &copy, &err) < 0) {
+                                log_error("calibrate radiometric: %s", err.msg);
+                                ret = EXIT_BADINPUT;
+                                goto out;
+                        }
+                        if ((bi = camera_index(&copy, cam)) < 0) {
+                                log_error("calibrate radiometric: no camera '%s' in %s", cam, base);
+                                imp_rig_free(&copy);
+                                ret = EXIT_BADINPUT;
+                                goto out;
+                        }
+                } else if (imp_rig_copy(rig, &copy) < 0) {
                         ret = 1;
                         goto out;
                 }
-                struct imp_sensor *s = &copy.cameras[ci].sensor;
+                struct imp_sensor *s = &copy.cameras[bi].sensor;
                 s->black_level_dn = res.sensor.black_level_dn;
                 s->gain_e_per_dn = res.sensor.gain_e_per_dn;
                 s->read_noise_e = res.sensor.read_noise_e;
@@ -1302,7 +1329,7 @@ out:
 }
 
 int imp_calibrate_radiometric_main(int argc, char **argv) {
-        const char *set = NULL, *camera = NULL, *out = NULL;
+        const char *set = NULL, *camera = NULL, *out = NULL, *base = NULL;
         int roi[4] = { 0, 0, 0, 0 };
         bool json = false;
         for (int i = 1; i < argc; i++) {
@@ -1324,6 +1351,8 @@ int imp_calibrate_radiometric_main(int argc, char **argv) {
                         camera = val;
                 else if (!strcmp(o, "--out"))
                         out = val;
+                else if (!strcmp(o, "--rig"))
+                        base = val;
                 else if (!strcmp(o, "--roi")) {
                         double v[4];
                         int n;
@@ -1344,5 +1373,9 @@ int imp_calibrate_radiometric_main(int argc, char **argv) {
                 log_error("calibrate radiometric: --set is required");
                 return usage_radiometric(stderr), EXIT_USAGE;
         }
-        return run_radiometric(set, camera, roi, json, out);
+        if (base && !out) {
+                log_error("calibrate radiometric: --rig is the base of --out: give --out too");
+                return usage_radiometric(stderr), EXIT_USAGE;
+        }
+        return run_radiometric(set, camera, roi, json, out, base);
 }

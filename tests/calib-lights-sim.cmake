@@ -3,5 +3,5 @@
 # 40 mm) and a noisy flat-white, runs `impasto calibrate lights|radiometric` (sphere
 # detection, per-light triangulation and the joint refinement, free and dome-constrained,
 # .lp export and import), compares with the simulator's truth. About 8 minutes on 2 loaded cores, mostly rendering the
-# 3 × 48 light frames at 0.02 mm pitch: slow.
+# 3 × 56 light frames at 0.02 mm pitch: slow.
 impasto_test(test-calib-lights-sim LABELS slow integration LIBS impasto_pipeline TIMEOUT 1800)

@@ -30,7 +30,7 @@ if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WI
   add_dependencies(test-daemon-fulldisk impastod)
   set_tests_properties(test-daemon-fulldisk PROPERTIES RESOURCE_LOCK gvcp)
 endif()
-# - test-daemon-calibrate-lights: the daemon calibrates the 48 dome lights from the mirror
+# - test-daemon-calibrate-lights: the daemon calibrates the 56 dome lights from the mirror
 #   target captured at three board heights (lights-target-raised and -mid as sessions, then
 #   lights-target by `calibrate start lights` with mirror detection and the two sessions at
 #   40 and 20 mm; Modbus TCP 15897), compared with the truth. 2 to 7
