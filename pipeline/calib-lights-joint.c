@@ -40,26 +40,6 @@ struct pre {
         bool ok;                      /* the ray meets the mirror (at the current centre) */
 };
 
-/* First intersection of the ray (O, u) with the sphere (C, r), the reflected direction. */
-static bool reflect_ray(const double O[3], const double u[3], const double C[3], double r, double P[3], double d[3]) {
-        double w[3] = { O[0] - C[0], O[1] - C[1], O[2] - C[2] };
-        double b = dot3(w, u), disc = b * b - (dot3(w, w) - r * r);
-        if (!(disc >= 0))
-                return false;
-        double t = -b - sqrt(disc), n[3];
-        for (int k = 0; k < 3; k++) {
-                P[k] = O[k] + t * u[k];
-                n[k] = (P[k] - C[k]) / r;
-        }
-        double un = dot3(u, n);
-        for (int k = 0; k < 3; k++)
-                d[k] = u[k] - 2 * un * n[k];
-        double l = norm3(d);
-        for (int k = 0; k < 3; k++)
-                d[k] /= l;
-        return true;
-}
-
 /* G⁺ = (GᵀG)⁻¹Gᵀ of G = ∂d/∂px at centre C: maps a small change of the reflected direction
  * to the pixel shift that would cause it. */
 static bool pixel_inverse(struct pre *p, const double C[3], double r) {
@@ -73,7 +53,7 @@ static bool pixel_inverse(struct pre *p, const double C[3], double r) {
                         double l = norm3(u);
                         for (int k = 0; k < 3; k++)
                                 u[k] /= l;
-                        if (!reflect_ray(p->O, u, C, r, P, dd[s]))
+                        if (!imp_lights_reflect_ray(p->O, u, C, r, P, dd[s]))
                                 return false;
                 }
                 for (int k = 0; k < 3; k++)
@@ -94,7 +74,7 @@ static bool pixel_inverse(struct pre *p, const double C[3], double r) {
 static bool residual(const struct pre *p, const struct imp_joint_obs *o, const double X[3], const double C[3],
                      double r, double res[2], double *ret_dist, bool *ret_behind) {
         double P[3], d[3];
-        if (!reflect_ray(p->O, p->u, C, r, P, d))
+        if (!imp_lights_reflect_ray(p->O, p->u, C, r, P, d))
                 return false;
         double v[3] = { X[0] - P[0], X[1] - P[1], X[2] - P[2] }, lv = norm3(v), s = dot3(v, d), e[3];
         if (!(lv > 0))
@@ -493,7 +473,7 @@ static void light_result(const struct problem *pb, int l, const struct imp_light
                 double P[3], d[3];
                 if (o->light != l || pb->out[i] ||
                     !residual(&pb->pre[i], o, X, C, pb->mir[o->mirror].sphere.radius_mm, r, &dist, &behind) ||
-                    !reflect_ray(pb->pre[i].O, pb->pre[i].u, C, pb->mir[o->mirror].sphere.radius_mm, P, d))
+                    !imp_lights_reflect_ray(pb->pre[i].O, pb->pre[i].u, C, pb->mir[o->mirror].sphere.radius_mm, P, d))
                         continue;
                 for (int a = 0; a < 3; a++)
                         for (int b = 0; b < 3; b++)

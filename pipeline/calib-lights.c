@@ -575,26 +575,31 @@ int imp_lights_highlight(const struct imp_frame_view *v, const struct imp_sphere
 
 /* ---- reflection ---- */
 
-static bool reflect_px(const struct imp_pinhole *cam, const struct imp_sphere *s, const double px[2],
-                       double P[3], double dr[3]) {
-        double O[3], d[3];
-        imp_pinhole_ray_world(cam, px, O, d);
-        double w[3] = { O[0] - s->centre_mm[0], O[1] - s->centre_mm[1], O[2] - s->centre_mm[2] };
-        double b = dot3(w, d), c = dot3(w, w) - s->radius_mm * s->radius_mm, disc = b * b - c;
+bool imp_lights_reflect_ray(const double O[3], const double u[3], const double C[3], double r, double P[3],
+                            double d[3]) {
+        double w[3] = { O[0] - C[0], O[1] - C[1], O[2] - C[2] };
+        double b = dot3(w, u), c = dot3(w, w) - r * r, disc = b * b - c;
         if (!(disc >= 0))
                 return false;
         double t = -b - sqrt(disc), n[3];
         for (int k = 0; k < 3; k++) {
-                P[k] = O[k] + t * d[k];
-                n[k] = (P[k] - s->centre_mm[k]) / s->radius_mm;
+                P[k] = O[k] + t * u[k];
+                n[k] = (P[k] - C[k]) / r;
         }
-        double dn = dot3(d, n);
+        double un = dot3(u, n);
         for (int k = 0; k < 3; k++)
-                dr[k] = d[k] - 2 * dn * n[k];
-        double l = norm3(dr);
+                d[k] = u[k] - 2 * un * n[k];
+        double l = norm3(d);
         for (int k = 0; k < 3; k++)
-                dr[k] /= l;
+                d[k] /= l;
         return true;
+}
+
+static bool reflect_px(const struct imp_pinhole *cam, const struct imp_sphere *s, const double px[2],
+                       double P[3], double dr[3]) {
+        double O[3], d[3];
+        imp_pinhole_ray_world(cam, px, O, d);
+        return imp_lights_reflect_ray(O, d, s->centre_mm, s->radius_mm, P, dr);
 }
 
 int imp_lights_reflect(const struct imp_pinhole *cam, const struct imp_sphere *s, const double px[2],

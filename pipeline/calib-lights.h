@@ -91,6 +91,11 @@ struct imp_highlight {
 int imp_lights_highlight(const struct imp_frame_view *v, const struct imp_sphere *s, double saturation,
                          struct imp_highlight *ret);
 
+/* The ray O + t·u (u a unit vector) meets the sphere (C, r) first at ret_P and leaves it
+ * reflected along the unit direction ret_d. false, outputs untouched, when it misses. */
+bool imp_lights_reflect_ray(const double O[3], const double u[3], const double C[3], double r, double ret_P[3],
+                            double ret_d[3]);
+
 /* The reflected ray of a highlight: camera ray through px → first intersection with the
  * sphere → reflection about the sphere normal. ret_sigma_rad (may be NULL) is the angular
  * 1σ of the reflected direction for a centroid 1σ of sigma_px (numerical derivative),
