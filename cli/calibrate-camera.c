@@ -27,7 +27,7 @@
 static void usage(FILE *f) {
         fprintf(f, "usage: impasto calibrate camera (--images DIR|FILE... | --sets SET...) --board COLSxROWS\n"
                    "                                --square MM [--camera NAME] [--k3 auto|fit|fix]\n"
-                   "                                [--min-views N (3)] [--opencv-only] [--json] [--out RIG.json]\n"
+                   "                                [--k2 auto|fit|fix] [--min-views N (3)] [--opencv-only] [--json] [--out RIG.json]\n"
                    "  --images: chessboard images (PNG, TIFF, EXR; colour is reduced to luma); a directory\n"
                    "            stands for its *.png, *.tif(f), *.exr files in name order.\n"
                    "  --sets:   capture sets; from each, camera NAME's white projector frame, else its\n"
@@ -35,6 +35,8 @@ static void usage(FILE *f) {
                    "  COLSxROWS counts inner corners; MM is the square side (the poses' unit).\n"
                    "  --camera: the camera to read from the sets and to write in RIG.json (default: the\n"
                    "            first; \"camera0\" for images).\n"
+                   "  --k3, --k2: fit the distortion term, hold it at 0 (fix), or auto: k3 is held below a\n"
+                   "            20° diagonal field of view, k2 below 20° too (docs/calibration.md).\n"
                    "  --min-views: fewer views with the board is an error; below 3 the result is\n"
                    "            flagged few_views with inflated uncertainties.\n"
                    "  --out:    rig.json: the first set's rig (or a one-camera rig) with the camera's\n"
@@ -112,15 +114,16 @@ static int parse_args(int argc, char **argv, struct camera_args *a) {
                                 return -EINVAL;
                         }
                         a->o.min_views = (int) v;
-                } else if (!strcmp(o, "--k3")) {
-                        static const char *const k3[] = { [IMP_CALIB_K3_AUTO] = "auto", [IMP_CALIB_K3_FIT] = "fit",
-                                                          [IMP_CALIB_K3_FIX] = "fix" };
-                        a->o.k3 = -1;
+                } else if (!strcmp(o, "--k3") || !strcmp(o, "--k2")) {
+                        static const char *const mode[] = { [IMP_CALIB_K3_AUTO] = "auto", [IMP_CALIB_K3_FIT] = "fit",
+                                                            [IMP_CALIB_K3_FIX] = "fix" };
+                        int *dst = !strcmp(o, "--k3") ? &a->o.k3 : &a->o.k2;
+                        *dst = -1;
                         for (int k = 0; k < 3; k++)
-                                if (!strcmp(val, k3[k]))
-                                        a->o.k3 = k;
-                        if (a->o.k3 < 0) {
-                                log_error("--k3: expected auto, fit or fix, got '%s'", val);
+                                if (!strcmp(val, mode[k]))
+                                        *dst = k;
+                        if (*dst < 0) {
+                                log_error("%s: expected auto, fit or fix, got '%s'", o, val);
                                 return -EINVAL;
                         }
                 } else if (!strcmp(o, "--camera")) {

@@ -174,9 +174,9 @@ void imp_calib_camera_print(const struct imp_calib_camera *r, FILE *f) {
         fprintf(f, "camera (%dx%d, %d views, %d points):\n", in->width, in->height, in->n_views, in->n_points);
         fprintf(f, "  fx %10.3f ± %.3f   fy %10.3f ± %.3f px (1σ)\n", in->fx, in->std[0], in->fy, in->std[1]);
         fprintf(f, "  cx %10.3f ± %.3f   cy %10.3f ± %.3f px\n", in->cx, in->std[2], in->cy, in->std[3]);
-        fprintf(f, "  k1 %.5f ± %.5f  k2 %.5f ± %.5f  p1 %.6f ± %.6f  p2 %.6f ± %.6f  k3 %.5f%s\n",
-                in->dist[0], in->std[4], in->dist[1], in->std[5], in->dist[2], in->std[6], in->dist[3],
-                in->std[7], in->dist[4], in->k3_fixed ? " (held fixed)" : "");
+        fprintf(f, "  k1 %.5f ± %.5f  k2 %.5f%s ± %.5f  p1 %.6f ± %.6f  p2 %.6f ± %.6f  k3 %.5f%s\n",
+                in->dist[0], in->std[4], in->dist[1], in->k2_fixed ? " (held fixed)" : "", in->std[5],
+                in->dist[2], in->std[6], in->dist[3], in->std[7], in->dist[4], in->k3_fixed ? " (held fixed)" : "");
         fprintf(f, "  RMS %.4f px, worst %.4f px (view %d, point %d), largest board tilt %.1f°\n", in->rms_px,
                 in->worst_px, in->worst_view, in->worst_point, in->max_tilt_deg);
         if (in->ceres_refined)

@@ -29,6 +29,7 @@ struct imp_calib_camera_opts {
         int board_cols, board_rows;             /* inner corners */
         double square;                          /* square side; translations in this unit */
         int k3;                                 /* IMP_CALIB_K3_AUTO (default), _FIT, _FIX */
+        int k2;                                 /* the same values (calib.h, IMP_CALIB_K2_MIN_FOV_DEG) */
         bool opencv_only;                       /* no Ceres refinement */
         /* Fewer usable views than this is an error (-EDOM); default IMP_CALIB_MIN_VIEWS.
          * Lower values let a 1- or 2-view calibration through, flagged few_views, with the
@@ -37,7 +38,7 @@ struct imp_calib_camera_opts {
 };
 static inline void imp_calib_camera_opts_default(struct imp_calib_camera_opts *o) {
         *o = (struct imp_calib_camera_opts) { .board_cols = 9, .board_rows = 7, .square = 1.0,
-                                              .k3 = IMP_CALIB_K3_AUTO, .min_views = IMP_CALIB_MIN_VIEWS };
+                                              .k3 = IMP_CALIB_K3_AUTO, .k2 = IMP_CALIB_K3_AUTO, .min_views = IMP_CALIB_MIN_VIEWS };
 }
 
 struct imp_calib_camera_view {

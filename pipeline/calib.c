@@ -32,8 +32,9 @@ static json_t *flags_json(unsigned f) {
 
 json_t *imp_calib_intrinsics_to_json(const struct imp_calib_intrinsics *in) {
         const double *s = in->std;
-        json_t *std = json_pack("{s:f, s:f, s:f, s:f, s:o, s:b}", "fx", s[0], "fy", s[1], "cx", s[2],
-                                "cy", s[3], "dist", doubles(s + 4, 5), "k3_fixed", in->k3_fixed);
+        json_t *std = json_pack("{s:f, s:f, s:f, s:f, s:o, s:b, s:b}", "fx", s[0], "fy", s[1], "cx", s[2],
+                                "cy", s[3], "dist", doubles(s + 4, 5), "k3_fixed", in->k3_fixed, "k2_fixed",
+                                in->k2_fixed);
         json_t *cov = doubles(in->cov, IMP_CALIB_N_INTR * IMP_CALIB_N_INTR);
         json_t *unc = json_pack("{s:f, s:f}", "centre_px", in->proj_unc_centre_px,
                                 "corner_px", in->proj_unc_corner_px);
@@ -71,6 +72,10 @@ static json_t *joint_json(const struct imp_calib_procam *r) {
                 json_array_append_new(held, json_string("camera k3"));
         if (jt->k3_fixed_projector)
                 json_array_append_new(held, json_string("projector k3"));
+        if (jt->k2_fixed_camera)
+                json_array_append_new(held, json_string("camera k2"));
+        if (jt->k2_fixed_projector)
+                json_array_append_new(held, json_string("projector k2"));
         json_t *o = json_pack("{s:b, s:b, s:b, s:i, s:{s:f, s:f, s:f}, s:{s:i, s:i}, s:o, s:o}",
                               "attempted", jt->attempted, "used", jt->used, "converged", jt->converged,
                               "iterations", jt->iterations, "rms_px", "camera", jt->rms_camera_px,
@@ -138,8 +143,9 @@ static void print_device(FILE *f, const char *who, const struct imp_calib_intrin
                 in->std[1]);
         fprintf(f, "  cx %10.3f ± %.3f   cy %10.3f ± %.3f px\n", in->cx, in->std[2], in->cy,
                 in->std[3]);
-        fprintf(f, "  k1 %.5f  k2 %.5f  p1 %.6f  p2 %.6f  k3 %.5f%s\n", in->dist[0], in->dist[1],
-                in->dist[2], in->dist[3], in->dist[4], in->k3_fixed ? " (held fixed)" : "");
+        fprintf(f, "  k1 %.5f  k2 %.5f%s  p1 %.6f  p2 %.6f  k3 %.5f%s\n", in->dist[0], in->dist[1],
+                in->k2_fixed ? " (held fixed)" : "", in->dist[2], in->dist[3], in->dist[4],
+                in->k3_fixed ? " (held fixed)" : "");
         fprintf(f, "  largest board tilt %.1f°\n", in->max_tilt_deg);
         fprintf(f, "  RMS %.4f px, worst %.4f px (view %d, point %d)\n", in->rms_px, in->worst_px,
                 in->worst_view, in->worst_point);

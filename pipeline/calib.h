@@ -58,6 +58,11 @@ enum {
          * 13°) does not determine the 6th-order term, which then soaks up noise and the
          * principal point (k3 = 145 against a true 0 on the simulated rig). */
         IMP_CALIB_FIT_FIX_K3 = 1u << 0,
+        /* Hold k2 at 0 too (CALIB_FIX_K2): on the 16° demo camera k2 came out at −0.98 ± 1.6
+         * against a true 0.02, harmless where the boards were but 0.2–0.4 px wrong beyond them,
+         * in the corners of the view where the light calibration's mirrors sit (docs/calibration.md,
+         * "Distortion terms a narrow lens cannot determine"). */
+        IMP_CALIB_FIT_FIX_K2 = 1u << 1,
 };
 enum { IMP_CALIB_K3_AUTO = 0, IMP_CALIB_K3_FIT, IMP_CALIB_K3_FIX };
 /* Below this diagonal field of view (first estimated with k3 = 0) IMP_CALIB_K3_AUTO keeps k3
@@ -65,6 +70,11 @@ enum { IMP_CALIB_K3_AUTO = 0, IMP_CALIB_K3_FIT, IMP_CALIB_K3_FIX };
  * fitted, k3 came out at 145 and −252 against a true 0), and the term cannot be told apart
  * from k1, k2. Wider devices (the real captures' 27° camera, 37° projector) fit it. */
 #define IMP_CALIB_K3_MIN_FOV_DEG        20.0
+/* Below this diagonal field of view IMP_CALIB_K3_AUTO in opts.k2 holds k2 at 0 as well: at
+ * the corner of a 16° view r⁴ = 4e-4, so k2 moves a point by f·r⁵ = 0.3 px per unit of k2 —
+ * a typical long lens's k2 (|k2| ≲ 0.1) by ≲ 0.03 px, while fitted from boards that never
+ * fill the view it wandered by ±1.6 (1σ). The bias held: |k2|·f·r_c⁵ at the corner. */
+#define IMP_CALIB_K2_MIN_FOV_DEG        20.0
 
 /* A calibrated pinhole device with Brown–Conrady distortion (OpenCV's model). */
 struct imp_calib_intrinsics {
@@ -72,6 +82,7 @@ struct imp_calib_intrinsics {
         double fx, fy, cx, cy;                  /* pixels */
         double dist[5];                         /* k1 k2 p1 p2 k3 */
         bool k3_fixed;                          /* k3 held at 0, not estimated (std, cov 0) */
+        bool k2_fixed;                          /* k2 likewise (IMP_CALIB_FIT_FIX_K2) */
         double rms_px;                          /* RMS reprojection error over all points */
         double worst_px;                        /* largest single point residual */
         int worst_view, worst_point;            /* where it is */
@@ -140,7 +151,7 @@ struct imp_calib_joint {
         double rms_camera_px, rms_projector_px; /* over the inliers */
         double rms_px;                          /* both devices */
         int outliers_camera, outliers_projector;
-        bool k3_fixed_camera, k3_fixed_projector;
+        bool k3_fixed_camera, k3_fixed_projector, k2_fixed_camera, k2_fixed_projector;
         char why_not_used[IMP_CALIB_WARNING_LEN];   /* when !used and it was not disabled */
 };
 
@@ -174,6 +185,9 @@ struct imp_calib_procam_opts {
         /* k3 of both devices: IMP_CALIB_K3_AUTO (0, the default) holds it at 0 for a device
          * whose diagonal field of view is below IMP_CALIB_K3_MIN_FOV_DEG, fits it otherwise. */
         int k3;
+        /* k2 of both devices, the same values: IMP_CALIB_K3_AUTO holds it at 0 below
+         * IMP_CALIB_K2_MIN_FOV_DEG; _FIT fits it; _FIX holds it at 0. */
+        int k2;
         /* OpenCV's calibrateCamera only, no Ceres refinement (which runs by default when
          * impasto is built with Ceres, on views that determine the focal length). */
         bool opencv_only;

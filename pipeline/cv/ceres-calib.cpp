@@ -53,7 +53,7 @@ struct bundle {
 
 /* The problem over the inliers; loss may be null (plain least squares). The problem owns
  * the cost functions and the (shared) loss. */
-void build(bundle &b, ceres::Problem &pb, ceres::LossFunction *loss, bool fix_k3) {
+void build(bundle &b, ceres::Problem &pb, ceres::LossFunction *loss, bool fix_k3, bool fix_k2) {
         for (size_t i = 0; i < b.pts.size(); i++) {
                 if (!b.inlier[i])
                         continue;
@@ -64,14 +64,19 @@ void build(bundle &b, ceres::Problem &pb, ceres::LossFunction *loss, bool fix_k3
                 pb.AddResidualBlock(new ceres::AutoDiffCostFunction<corner_cost, 2, NI, NP>(c), loss, b.intr,
                                     &b.poses[NP * (size_t) p.view]);
         }
+        std::vector<int> fixed;
+        if (fix_k2)
+                fixed.push_back(5);
         if (fix_k3)
-                pb.SetManifold(b.intr, new ceres::SubsetManifold(NI, { NI - 1 }));
+                fixed.push_back(NI - 1);
+        if (!fixed.empty())
+                pb.SetManifold(b.intr, new ceres::SubsetManifold(NI, fixed));
 }
 
 int solve(bundle &b, const struct imp_ceres_calib_opts *o, bool robust, int *iterations) {
         ceres::Problem pb;
         ceres::LossFunction *loss = robust ? imp_ceres::make_loss(o->loss, o->loss_scale_px) : nullptr;
-        build(b, pb, loss, o->fix_k3);
+        build(b, pb, loss, o->fix_k3, o->fix_k2);
         ceres::Solver::Options so = imp_ceres::solver_options(o->max_iterations);
         ceres::Solver::Summary sum;
         ceres::Solve(so, &pb, &sum);
@@ -128,13 +133,13 @@ double mrcal_uncertainty(const bundle &b, const std::vector<double> &C, double q
 bool assess(bundle &b, const struct imp_ceres_calib_opts *o, struct imp_calib_intrinsics *r) {
         const double sse = imp_ceres::residual_stats(b, [&](size_t i) { return b.inlier[i] != 0; }, r);
         const int N = r->n_points;
-        const int M = b.n_views, n_intr = o->fix_k3 ? NI - 1 : NI, P = NI + NP * M;
+        const int M = b.n_views, n_intr = NI - o->fix_k3 - o->fix_k2, P = NI + NP * M;
         const int dof = N - (n_intr + NP * M);     /* OpenCV's convention, see calib.h */
         const double sigma2 = sse / std::max(dof, 1);
         r->sigma_px = std::sqrt(sigma2);
 
         ceres::Problem pb;
-        build(b, pb, nullptr, o->fix_k3);
+        build(b, pb, nullptr, o->fix_k3, o->fix_k2);
         std::vector<const double *> blocks{ b.intr };
         for (int v = 0; v < M; v++)
                 blocks.push_back(&b.poses[NP * (size_t) v]);
@@ -196,6 +201,7 @@ int refine_cpp(const struct imp_calib_view *views, int n_views, const struct imp
 
         struct imp_ceres_calib_opts oo = *o;
         oo.fix_k3 = o->fix_k3 || io->k3_fixed;
+        oo.fix_k2 = o->fix_k2 || io->k2_fixed;
         const bool robust = oo.loss != IMP_CERES_LOSS_NONE;
         if (solve(b, &oo, robust, &rep.iterations) < 0)
                 return imp_error_set(err, -EDOM, "ceres refinement: the solver gave no usable solution");
@@ -224,6 +230,7 @@ int refine_cpp(const struct imp_calib_view *views, int n_views, const struct imp
         r.cy = b.intr[3];
         std::copy(b.intr + 4, b.intr + NI, r.dist);
         r.k3_fixed = oo.fix_k3;
+        r.k2_fixed = oo.fix_k2;
         rep.covariance_ok = assess(b, &oo, &r);
         if (!rep.covariance_ok)
                 r.flags |= IMP_CALIB_RANK_DEFICIENT;
@@ -232,6 +239,8 @@ int refine_cpp(const struct imp_calib_view *views, int n_views, const struct imp
                 return imp_error_set(err, -EDOM, "ceres refinement: non-finite uncertainty");
         if (oo.fix_k3)
                 r.std[NI - 1] = 0;
+        if (oo.fix_k2)
+                r.std[5] = 0;
         *io = r;
         for (int v = 0; v < n_views; v++)
                 for (int k = 0; k < 3; k++) {

@@ -25,6 +25,7 @@ struct imp_ceres_calib_opts {
         double outlier_sigmas;
         double outlier_min_px;
         bool fix_k3;                    /* hold k3 where it is (a narrow field of view) */
+        bool fix_k2;                    /* hold k2 where it is (a narrower one, calib.h) */
         int max_iterations;
 };
 static inline void imp_ceres_calib_opts_default(struct imp_ceres_calib_opts *o) {
@@ -43,7 +44,7 @@ struct imp_ceres_calib_report {
 /* True when built with Ceres. */
 bool imp_ceres_calib_available(void);
 
-/* Refines *io (width, height, fx … dist, k3_fixed read; everything else written) and the
+/* Refines *io (width, height, fx … dist, k3_fixed, k2_fixed read; everything else written) and the
  * per-view poses io_rvecs / io_tvecs (3·n_views each, OpenCV's convention X_cam = R X + t),
  * in place, on views (calib.h). Fills in io: rms_px, worst_*, n_points (inliers), std, cov
  * (σ² (JᵀJ)⁻¹ of the inliers, OpenCV's σ² = Σr² / (N − P) with N points), sigma_px,

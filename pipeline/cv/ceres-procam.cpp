@@ -64,7 +64,7 @@ struct joint {
         const struct imp_calib_view *views[2];
         int M;
         double intr[2][NI];
-        bool fix_k3[2];
+        bool fix_k3[2], fix_k2[2];
         double ext[NP];
         std::vector<double> poses;              /* NP per view */
         std::vector<obs> pts;                   /* camera points, then projector points */
@@ -104,9 +104,15 @@ void build(joint &b, ceres::Problem &pb, ceres::LossFunction *loss[2], bool mani
                                                     new proj_cost{ { X[0], X[1], X[2] }, m[0], m[1], b.w[PROJ] }),
                                             loss[PROJ], b.intr[PROJ], pose, b.ext);
         }
-        for (int d = 0; manifolds && d < 2; d++)
-                if (b.fix_k3[d] && pb.HasParameterBlock(b.intr[d]))
-                        pb.SetManifold(b.intr[d], new ceres::SubsetManifold(NI, { NI - 1 }));
+        for (int d = 0; manifolds && d < 2; d++) {
+                std::vector<int> fixed;
+                if (b.fix_k2[d])
+                        fixed.push_back(5);
+                if (b.fix_k3[d])
+                        fixed.push_back(NI - 1);
+                if (!fixed.empty() && pb.HasParameterBlock(b.intr[d]))
+                        pb.SetManifold(b.intr[d], new ceres::SubsetManifold(NI, fixed));
+        }
 }
 
 int solve(joint &b, const struct imp_ceres_calib_opts *o, bool *converged, int *iterations) {
@@ -158,7 +164,7 @@ double rms(const joint &b, int dev, bool all) {
 }
 
 /* σ_w² (JᵀWJ)⁻¹ over all parameters (layout OFF_*), P_all × P_all with zero rows and columns
- * for held k3; *deficient when eigenvalues were floored or there are no degrees of freedom. */
+ * for held k3 and k2; *deficient when eigenvalues were floored or there are no degrees of freedom. */
 std::vector<double> covariance(joint &b, bool *deficient, double *ret_s2) {
         ceres::Problem pb;
         ceres::LossFunction *none[2] = { nullptr, nullptr };
@@ -169,7 +175,8 @@ std::vector<double> covariance(joint &b, bool *deficient, double *ret_s2) {
         const int P_all = OFF_POSES + NP * b.M;
         std::vector<int> col;                   /* estimated parameter → layout index */
         for (int k = 0; k < P_all; k++)
-                if (!((k == OFF_CAM + NI - 1 && b.fix_k3[CAM]) || (k == OFF_PROJ + NI - 1 && b.fix_k3[PROJ])))
+                if (!((k == OFF_CAM + NI - 1 && b.fix_k3[CAM]) || (k == OFF_PROJ + NI - 1 && b.fix_k3[PROJ]) ||
+                      (k == OFF_CAM + 5 && b.fix_k2[CAM]) || (k == OFF_PROJ + 5 && b.fix_k2[PROJ])))
                         col.push_back(k);
         for (double *blk : blocks)              /* a block no residual uses (no projector points) */
                 if (!pb.HasParameterBlock(blk))
@@ -342,6 +349,7 @@ void intrinsics_from(const joint &b, int dev, struct imp_calib_intrinsics *r) {
         r->cy = b.intr[dev][3];
         std::copy(b.intr[dev] + 4, b.intr[dev] + NI, r->dist);
         r->k3_fixed = b.fix_k3[dev];
+        r->k2_fixed = b.fix_k2[dev];
 }
 
 /* Stereo figures: pose, RMS over both devices, worst per-view RMS, σ of the pose. */
@@ -396,6 +404,7 @@ int refine_cpp(const struct imp_calib_view *cam, const struct imp_calib_view *pr
                                        in[d]->dist[2], in[d]->dist[3], in[d]->dist[4] };
                 std::copy(s, s + NI, b.intr[d]);
                 b.fix_k3[d] = in[d]->k3_fixed;
+                b.fix_k2[d] = in[d]->k2_fixed;
         }
         cv::Mat rv;
         cv::Rodrigues(cv::Mat(3, 3, CV_64F, io_stereo->R), rv);

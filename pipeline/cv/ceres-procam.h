@@ -26,12 +26,12 @@ struct imp_ceres_procam_report {
         bool rank_deficient;            /* normal matrix floored: σ are placeholders */
 };
 
-/* Refines, in place, io_cam and io_proj (width, height, fx … dist, k3_fixed read), the per-view
+/* Refines, in place, io_cam and io_proj (width, height, fx … dist, k3_fixed, k2_fixed read), the per-view
  * board poses io_rvecs / io_tvecs (3·n_views each, X_cam = R X_board + t) and io_stereo's R, t
  * (X_proj = R X_cam + t), on cam[v] (every corner the camera found in view v) and proj[v] (the
  * corners with a projector coordinate; board points in the same board frame).
  *
- * Parameterisation: 9 intrinsics per device (OpenCV's order; k3 held where k3_fixed), Rodrigues
+ * Parameterisation: 9 intrinsics per device (OpenCV's order; k3, k2 held where k3_fixed, k2_fixed), Rodrigues
  * vector + translation per pose. Residuals: camera corner − projection of R_v X + t_v; projector
  * corner − projection of R (R_v X + t_v) + t, each weighted by 1/σ of its device. Solve:
  * Levenberg–Marquardt with opts' loss (scale in pixels for both devices), then opts' outlier

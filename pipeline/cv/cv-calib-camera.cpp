@@ -64,7 +64,7 @@ int fit(const struct imp_calib_view *views, int width, int height, const struct 
                 if (io->views[i].used)
                         used.push_back(views[i]);
         io->n_warnings = n_warnings_before;
-        int r = imp_cv_calib_device(used.data(), (int) used.size(), width, height, o->k3, o->opencv_only,
+        int r = imp_cv_calib_device(used.data(), (int) used.size(), width, height, o->k3, o->k2, o->opencv_only,
                                     "camera", &io->camera, io->warnings, IMP_CALIB_MAX_WARNINGS,
                                     &io->n_warnings, err);
         if (r < 0)

@@ -68,9 +68,13 @@ std::vector<cv::Point2f> img_points(const struct imp_calib_view &v) {
  * deficient and eigenvalues had to be floored. Also fills rms, worst residual, σ. */
 bool covariance(const std::vector<std::vector<cv::Point3f>> &obj,
                 const std::vector<std::vector<cv::Point2f>> &img, const cv::Mat &K, const cv::Mat &D,
-                const std::vector<cv::Mat> &rv, const std::vector<cv::Mat> &tv, int n_intr,
+                const std::vector<cv::Mat> &rv, const std::vector<cv::Mat> &tv, unsigned fit,
                 struct imp_calib_intrinsics *out) {
-        const int M = (int) obj.size(), P = n_intr + 6 * M;
+        std::vector<int> est;                   /* the estimated intrinsics, OpenCV's order */
+        for (int c = 0; c < IMP_CALIB_N_INTR; c++)
+                if (!((c == 5 && (fit & IMP_CALIB_FIT_FIX_K2)) || (c == 8 && (fit & IMP_CALIB_FIT_FIX_K3))))
+                        est.push_back(c);
+        const int n_intr = (int) est.size(), M = (int) obj.size(), P = n_intr + 6 * M;
         int N = 0;
         for (const auto &o : obj)
                 N += (int) o.size();
@@ -94,7 +98,7 @@ bool covariance(const std::vector<std::vector<cv::Point3f>> &obj,
                                 const double *jr = jac.ptr<double>((int) (2 * i + k));
                                 double *Jr = J.ptr<double>(row + (int) (2 * i + k));
                                 for (int c = 0; c < n_intr; c++)
-                                        Jr[c] = jr[6 + c];          /* f(2) c(2) dist(4 or 5) */
+                                        Jr[c] = jr[6 + est[c]];     /* f(2) c(2) dist(3 to 5) */
                                 for (int c = 0; c < 6; c++)
                                         Jr[n_intr + 6 * v + c] = jr[c];   /* r(3) t(3) */
                         }
@@ -133,12 +137,11 @@ bool covariance(const std::vector<std::vector<cv::Point3f>> &obj,
                 inv_e.at<double>(i) = 1.0 / e;
         }
         cv::Mat cov = evecs.t() * cv::Mat::diag(inv_e) * evecs;
-        for (int a = 0; a < IMP_CALIB_N_INTR; a++)
-                for (int b = 0; b < IMP_CALIB_N_INTR; b++)
-                        out->cov[a * IMP_CALIB_N_INTR + b] =
-                                a < n_intr && b < n_intr ? sigma2 * cov.at<double>(a, b) *
-                                                                   scale.at<double>(a) * scale.at<double>(b)
-                                                         : 0.0;
+        std::fill(out->cov, out->cov + IMP_CALIB_N_INTR * IMP_CALIB_N_INTR, 0.0);   /* fixed: 0 */
+        for (int a = 0; a < n_intr; a++)
+                for (int b = 0; b < n_intr; b++)
+                        out->cov[est[a] * IMP_CALIB_N_INTR + est[b]] =
+                                sigma2 * cov.at<double>(a, b) * scale.at<double>(a) * scale.at<double>(b);
         return deficient;
 }
 
@@ -171,10 +174,10 @@ int intrinsics_cpp(const struct imp_calib_view *views, int n_views, int width, i
         cv::Mat K, D, stdI, stdE, perView;
         std::vector<cv::Mat> rv, tv;
         double rms;
-        const bool fix_k3 = fit & IMP_CALIB_FIT_FIX_K3;
+        const bool fix_k3 = fit & IMP_CALIB_FIT_FIX_K3, fix_k2 = fit & IMP_CALIB_FIT_FIX_K2;
         try {
                 rms = cv::calibrateCamera(obj, img, cv::Size(width, height), K, D, rv, tv, stdI, stdE,
-                                          perView, fix_k3 ? cv::CALIB_FIX_K3 : 0,
+                                          perView, (fix_k3 ? cv::CALIB_FIX_K3 : 0) | (fix_k2 ? cv::CALIB_FIX_K2 : 0),
                                           cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS,
                                                            100, DBL_EPSILON));
         } catch (const cv::Exception &e) {
@@ -205,7 +208,8 @@ int intrinsics_cpp(const struct imp_calib_view *views, int n_views, int width, i
                 r.dist[i] = D.at<double>(0, i);
         r.n_views = n_views;
         r.k3_fixed = fix_k3;
-        if (covariance(obj, img, K, D, rv, tv, fix_k3 ? IMP_CALIB_N_INTR - 1 : IMP_CALIB_N_INTR, &r))
+        r.k2_fixed = fix_k2;
+        if (covariance(obj, img, K, D, rv, tv, fit, &r))
                 r.flags |= IMP_CALIB_RANK_DEFICIENT;
         /* OpenCV's own std (same σ² and J up to scaling); ours where it is not finite. */
         stdI.convertTo(stdI, CV_64F);
@@ -214,7 +218,7 @@ int intrinsics_cpp(const struct imp_calib_view *views, int n_views, int width, i
                 double mine = std::sqrt(std::max(r.cov[i * IMP_CALIB_N_INTR + i], 0.0));
                 if (!std::isfinite(s) || (r.flags & IMP_CALIB_RANK_DEFICIENT))
                         s = mine;
-                r.std[i] = fix_k3 && i == IMP_CALIB_N_INTR - 1 ? 0.0 : s;   /* fixed: not estimated */
+                r.std[i] = (fix_k3 && i == 8) || (fix_k2 && i == 5) ? 0.0 : s;   /* fixed: not estimated */
         }
         /* Tilt of each board: angle between its normal (R's third column) and the axis. */
         for (int v = 0; v < n_views; v++) {
@@ -659,9 +663,10 @@ int world_pose(const struct imp_calib_procam_opts *o, const std::vector<double> 
         return 0;
 }
 
-/* Intrinsics of one device with opts.k3 (calib.h): k3 held at 0 first; with
+/* Intrinsics of one device with opts.k3 and opts.k2 (calib.h): k3 held at 0 first; with
  * IMP_CALIB_K3_AUTO refitted with k3 when that estimate's diagonal field of view reaches
- * IMP_CALIB_K3_MIN_FOV_DEG. Then, built with Ceres and unless opts.opencv_only, the
+ * IMP_CALIB_K3_MIN_FOV_DEG, and with k2 held at 0 when it stays below
+ * IMP_CALIB_K2_MIN_FOV_DEG. Then, built with Ceres and unless opts.opencv_only, the
  * robust bundle refinement (ceres-calib.h) — skipped on views that do not determine the
  * focal length (the flags and inflated σ of the OpenCV fit stand), and with a warning
  * (keeping OpenCV's result) when it fails. rv, tv: the board poses of the result. */
@@ -672,15 +677,20 @@ int device_intrinsics(const std::vector<struct imp_calib_view> &v, int w, int h,
         const int n = (int) v.size();
         rv.assign((size_t) 3 * n, 0.0);
         tv.assign((size_t) 3 * n, 0.0);
-        int r = imp_cv_calib_intrinsics_fit(v.data(), n, w, h,
-                                            o->k3 == IMP_CALIB_K3_FIT ? 0u : (unsigned) IMP_CALIB_FIT_FIX_K3,
-                                            ret, rv.data(), tv.data(), err);
+        const unsigned first = (o->k3 == IMP_CALIB_K3_FIT ? 0u : (unsigned) IMP_CALIB_FIT_FIX_K3) |
+                               (o->k2 == IMP_CALIB_K3_FIX ? (unsigned) IMP_CALIB_FIT_FIX_K2 : 0u);
+        int r = imp_cv_calib_intrinsics_fit(v.data(), n, w, h, first, ret, rv.data(), tv.data(), err);
         if (r < 0)
                 return r;
         double hx = 0.5 * w / ret->fx, hy = 0.5 * h / ret->fy;
         double fov = 2 * std::atan(std::sqrt(hx * hx + hy * hy)) * 180 / M_PI;
-        if (o->k3 == IMP_CALIB_K3_AUTO && fov >= IMP_CALIB_K3_MIN_FOV_DEG) {
-                r = imp_cv_calib_intrinsics_fit(v.data(), n, w, h, 0u, ret, rv.data(), tv.data(), err);
+        unsigned fit = first;
+        if (o->k3 == IMP_CALIB_K3_AUTO && fov >= IMP_CALIB_K3_MIN_FOV_DEG)
+                fit &= ~(unsigned) IMP_CALIB_FIT_FIX_K3;
+        if (o->k2 == IMP_CALIB_K3_AUTO && fov < IMP_CALIB_K2_MIN_FOV_DEG)
+                fit |= IMP_CALIB_FIT_FIX_K2;
+        if (fit != first) {
+                r = imp_cv_calib_intrinsics_fit(v.data(), n, w, h, fit, ret, rv.data(), tv.data(), err);
                 if (r < 0)
                         return r;
         }
@@ -753,6 +763,8 @@ int joint_refine(const struct imp_calib_view *vc, const struct imp_calib_view *v
         j->outliers_projector = rep.n_outliers_proj;
         j->k3_fixed_camera = cam.k3_fixed;
         j->k3_fixed_projector = proj.k3_fixed;
+        j->k2_fixed_camera = cam.k2_fixed;
+        j->k2_fixed_projector = proj.k2_fixed;
         const struct imp_calib_intrinsics *alone[2] = { &res->camera, &res->projector }, *joint[2] = { &cam, &proj };
         for (int d = 0; d < 2; d++)
                 if (joint[d]->rms_px > JOINT_WORSE_RMS_RATIO * alone[d]->rms_px + JOINT_WORSE_RMS_PX) {
@@ -918,7 +930,7 @@ extern "C" int imp_cv_calib_procam(const char *const *dirs, int n_dirs,
 /* ---- one device on its own (camera-only calibration, cv-calib-camera.cpp) ---- */
 
 extern "C" int imp_cv_calib_device(const struct imp_calib_view *views, int n_views, int width, int height,
-                                   int k3, bool opencv_only, const char *who,
+                                   int k3, int k2, bool opencv_only, const char *who,
                                    struct imp_calib_intrinsics *ret,
                                    char (*ret_warnings)[IMP_CALIB_WARNING_LEN], int max_warnings,
                                    int *ret_n_warnings, struct imp_error *err) {
@@ -930,6 +942,7 @@ extern "C" int imp_cv_calib_device(const struct imp_calib_view *views, int n_vie
                 struct imp_calib_procam_opts o;
                 imp_calib_procam_opts_default(&o);
                 o.k3 = k3;
+                o.k2 = k2;
                 o.opencv_only = opencv_only;
                 std::vector<struct imp_calib_view> v(views, views + n_views);
                 struct imp_calib_intrinsics in = {};

@@ -43,7 +43,8 @@ int imp_cv_calib_intrinsics(const struct imp_calib_view *views, int n_views, int
                             struct imp_calib_intrinsics *ret, double *ret_rvecs, double *ret_tvecs,
                             struct imp_error *err);
 /* The same with IMP_CALIB_FIT_* flags (calib.h): IMP_CALIB_FIT_FIX_K3 holds k3 at 0
- * (CALIB_FIX_K3) and leaves it out of the covariance (ret->k3_fixed; std and cov of k3 0). */
+ * (CALIB_FIX_K3) and leaves it out of the covariance (ret->k3_fixed; std and cov of k3 0);
+ * IMP_CALIB_FIT_FIX_K2 likewise k2 (CALIB_FIX_K2, ret->k2_fixed). */
 int imp_cv_calib_intrinsics_fit(const struct imp_calib_view *views, int n_views, int width, int height,
                                 unsigned fit, struct imp_calib_intrinsics *ret, double *ret_rvecs,
                                 double *ret_tvecs, struct imp_error *err);
@@ -85,13 +86,13 @@ int imp_cv_calib_procam_source(const char *const *names, int n, imp_calib_frame_
                                struct imp_error *err);
 
 /* One device's intrinsics from planar views, as the procam procedure computes the camera's
- * (calibrateCamera with opts.k3 — IMP_CALIB_K3_AUTO, _FIT or _FIX — then, built with Ceres
+ * (calibrateCamera with opts.k3 and k2 — IMP_CALIB_K3_AUTO, _FIT or _FIX — then, built with Ceres
  * and unless opencv_only, the robust refinement on views that determine the focal length);
  * used by the camera-only calibration (cv-calib-camera.h). Its warnings (prefixed `who`)
  * are appended to ret_warnings while *ret_n_warnings < max_warnings. Errors as
  * imp_cv_calib_intrinsics_fit; ret untouched on failure. */
 int imp_cv_calib_device(const struct imp_calib_view *views, int n_views, int width, int height, int k3,
-                        bool opencv_only, const char *who, struct imp_calib_intrinsics *ret,
+                        int k2, bool opencv_only, const char *who, struct imp_calib_intrinsics *ret,
                         char (*ret_warnings)[IMP_CALIB_WARNING_LEN], int max_warnings, int *ret_n_warnings,
                         struct imp_error *err);
 
