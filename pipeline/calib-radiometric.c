@@ -186,12 +186,12 @@ double imp_radiometric_dn_to_value(const struct imp_sensor *s, double exposure_u
         return denom > 0 ? (dn - s->black_level_dn) * e_per_dn / denom : 0;
 }
 
-/* Σ n^{1/γ} − ½·count over all samples. */
-static double gamma_residual(const double *n, size_t count, double gamma) {
-        double s = 0, inv = 1 / gamma;
+/* Σ c^γ over all samples, from ln c (−∞ where c = 0). Decreasing in γ. */
+static double gamma_model(const double *ln_c, size_t count, double gamma) {
+        double s = 0;
         for (size_t i = 0; i < count; i++)
-                s += pow(n[i], inv);
-        return s / count - 0.5;
+                s += exp(gamma * ln_c[i]);
+        return s;
 }
 
 int imp_radiometric_projector_gamma(const struct imp_image *white, const struct imp_image *black,
@@ -203,34 +203,50 @@ int imp_radiometric_projector_gamma(const struct imp_image *white, const struct 
                 if (!same_shape(white, steps[k]))
                         return -EINVAL;
         size_t cap = (size_t) white->width * white->height * n_steps, cnt = 0;
-        _cleanup_free_ double *n = malloc(cap * sizeof *n);
-        if (!n)
+        _cleanup_free_ double *ln_c = malloc(cap * sizeof *ln_c);
+        _cleanup_free_ double *n = malloc((size_t) n_steps * sizeof *n);
+        if (!ln_c || !n)
                 return -ENOMEM;
+        double data = 0;   /* Σ n_k */
         int npx = 0;
         for (int y = 0; y < white->height; y++)
                 for (int x = 0; x < white->width; x++) {
                         double w = imp_image_get(white, x, y, 0), b = imp_image_get(black, x, y, 0);
                         if (!(w - b > min_contrast))
                                 continue;
-                        for (int k = 0; k < n_steps; k++)
-                                n[cnt++] = IMP_CLAMP((imp_image_get(steps[k], x, y, 0) - b) / (w - b), 0.0, 1.0);
+                        /* the phase from the first Fourier coefficient of the n_k (N-step phase
+                         * shifting): c^γ is even about the crest, so its fundamental keeps
+                         * the pattern's phase for any γ (up to the aliased harmonics N ± 1) */
+                        double s = 0, c = 0;
+                        for (int k = 0; k < n_steps; k++) {
+                                n[k] = (imp_image_get(steps[k], x, y, 0) - b) / (w - b);
+                                double a = 2 * M_PI * k / n_steps;
+                                s += n[k] * sin(a);
+                                c += n[k] * cos(a);
+                                data += n[k];
+                        }
+                        double theta = atan2(-s, c);
+                        for (int k = 0; k < n_steps; k++) {
+                                double ck = 0.5 + 0.5 * cos(theta + 2 * M_PI * k / n_steps);
+                                ln_c[cnt++] = ck > 0 ? log(ck) : -INFINITY;
+                        }
                         npx++;
                 }
         if (npx == 0)
                 return -ENOENT;
-        double lo = GAMMA_LO, hi = GAMMA_HI, flo = gamma_residual(n, cnt, lo), fhi = gamma_residual(n, cnt, hi);
+        double lo = GAMMA_LO, hi = GAMMA_HI;
         int r = 0;
         double g;
-        if (!(flo < 0)) {
+        if (!(gamma_model(ln_c, cnt, lo) > data)) {
                 g = lo;
                 r = 1;
-        } else if (!(fhi > 0)) {
+        } else if (!(gamma_model(ln_c, cnt, hi) < data)) {
                 g = hi;
                 r = 1;
         } else {
                 for (int it = 0; it < GAMMA_ITERS; it++) {
                         double mid = 0.5 * (lo + hi);
-                        if (gamma_residual(n, cnt, mid) < 0)
+                        if (gamma_model(ln_c, cnt, mid) > data)
                                 lo = mid;
                         else
                                 hi = mid;

@@ -77,12 +77,17 @@ int imp_radiometric_ptc(const struct imp_ptc_input *in, struct imp_ptc_result *r
 double imp_radiometric_dn_to_value(const struct imp_sensor *s, double exposure_us, double gain_db, double dn);
 
 /* Projector gamma from phase-shift frames of one period: per camera pixel with white −
- * black > min_contrast, n_k = (I_k − black)/(white − black) = ((1 + cos(φ + 2πk/N))/2)^γ for
- * the projector model emitted = b + (1 − b)·value^γ (b cancels). Since the N shifts are
- * uniform, mean_k n_k^{1/γ} = ½ exactly; γ solves that for all pixels pooled (the left side
- * grows with γ: bisection on [0.3, 5], 60 steps). N ≥ 3. Returns 0, or 1 (a flag, not an
- * error) with *ret_gamma the nearer bound when the root lies outside; -ENOENT when no
- * pixel has contrast, -EINVAL for bad arguments (then the outputs are untouched). */
+ * black > min_contrast, n_k = (I_k − black)/(white − black) = c_k^γ with c_k = (1 + cos(θ +
+ * 2πk/N))/2, for the projector model emitted = b + (1 − b)·value^γ (b, the camera's gain and
+ * black level, ambient light and albedo cancel). θ per pixel from the first Fourier
+ * coefficient of the n_k, the N-step phase-shifting phase (c^γ is even about the crest, so
+ * its fundamental keeps the phase). γ solves Σ n_k = Σ c_k^γ over all kept pixels and steps:
+ * the data enter linearly, so zero-mean pixel noise does not bias γ (the former estimator,
+ * mean_k n_k^{1/γ} = ½, did: n^{1/γ} is steepest in the pattern's troughs, −0.5 % on the
+ * demo target). The right side falls with γ: bisection on [0.3, 5], 60 steps. N ≥ 3.
+ * Returns 0, or 1 (a flag, not an error) with *ret_gamma the nearer bound when the root
+ * lies outside; -ENOENT when no pixel has contrast, -EINVAL for bad arguments, -ENOMEM
+ * (then the outputs are untouched). */
 int imp_radiometric_projector_gamma(const struct imp_image *white, const struct imp_image *black,
                                     const struct imp_image *const *steps, int n_steps, double min_contrast,
                                     double *ret_gamma, int *ret_pixels);

@@ -8,33 +8,15 @@
 # Usage: calibrate-rig-chain.sh BUILD_DIR SOURCE_DIR
 set -u
 bin=$1 src=$2
-imp=$bin/cli/impasto
-[ -x "$imp" ] || { echo "skip: $imp not built"; exit 77; }
-command -v python3 >/dev/null || { echo "skip: no python3"; exit 77; }
-tmp=$(mktemp -d "${TMPDIR:-/tmp}/impasto-rig-chain.XXXXXX")
-trap 'rm -rf "$tmp"' EXIT
-fails=0
-check() {
-  local what=$1; shift
-  if "$@"; then echo "ok   $what"; else echo "FAIL $what"; fails=$((fails + 1)); fi
-}
+NAME=rig-chain
+. "$src/tests/integration/lib-check.sh"
 sed 's/effects = \["direct"\];/effects = ["direct", "noise"];/' "$src/config/scenes/flat-white.cfg" >"$tmp/scene.cfg"
 grep -q '"noise"' "$tmp/scene.cfg" || { echo "FAIL flat-white.cfg no longer has the shape this test edits"; exit 1; }
 "$imp" sim render --scene "$tmp/scene.cfg" --plan "$src/config/plans/photon-transfer.cfg" --out "$tmp/ptc" \
   --threads 2 --quiet >"$tmp/render.log" 2>&1 || { cat "$tmp/render.log"; echo "FAIL sim render"; exit 1; }
 # BASE: the set's rig with markers (another focal length, projector gamma, a light moved and
 # a wrong sensor gain that the estimate must replace); NOCAM: its camera renamed.
-python3 - "$tmp/ptc/rig.json" "$tmp/base.json" "$tmp/nocam.json" <<'PY'
-import json, sys
-r = json.load(open(sys.argv[1]))
-r["cameras"][0]["model"]["fx"] = 1234.5
-r["cameras"][0]["sensor"]["gain_e_per_dn"] = 9.9
-r["projector"]["gamma"] = 2.9
-r["lights"][0]["pos_mm"] = [1.0, 2.0, 3.0]
-json.dump(r, open(sys.argv[2], "w"))
-r["cameras"][0]["name"] = "other"
-json.dump(r, open(sys.argv[3], "w"))
-PY
+marked_base "$tmp/ptc/rig.json" "$tmp/base.json" "$tmp/nocam.json"
 "$imp" calibrate radiometric --set "$tmp/ptc" --rig "$tmp/base.json" --out "$tmp/out.json" >"$tmp/o" 2>"$tmp/e"
 check "radiometric --rig BASE --out: exit 0" [ $? -eq 0 ]
 "$imp" calibrate radiometric --set "$tmp/ptc" --out "$tmp/own.json" >"$tmp/o" 2>"$tmp/e"
@@ -62,5 +44,4 @@ check "a BASE without the set's camera: refused (exit $rc), named, nothing writt
   sh -c "[ $rc -ne 0 ] && grep -q \"no camera 'cam0'\" '$tmp/e' && [ ! -e '$tmp/bad.json' ]"
 "$imp" calibrate radiometric --set "$tmp/ptc" --rig "$tmp/base.json" >"$tmp/o" 2>"$tmp/e"
 check "--rig without --out: usage error (exit 2)" [ $? -eq 2 ]
-[ $fails -eq 0 ] || { echo "$fails check(s) failed"; exit 1; }
-echo "all checks passed"
+finish
