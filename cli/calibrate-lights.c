@@ -1203,6 +1203,8 @@ int imp_calibrate_lights_main(int argc, char **argv) {
 #define GAMMA_BIN_MAX 8               /* … and at most this many pixels a side */
 #define GAMMA_CONTRAST_FRAC 0.25      /* pixels kept: white − black above this × … */
 #define GAMMA_CONTRAST_QUANTILE 0.99  /* … this quantile of white − black over the frame */
+#define GAMMA_CONTRAST_MIN_SNR 5.0    /* … which must exceed the noise of white − black this many times
+                                         (pure noise: ¼ of its 99th percentile is 0.8 σ) */
 #define GAMMA_CLIP_FRAC_MAX 0.001     /* an exposure whose white frame clips more is passed over */
 #define GAMMA_BLOCKS 8                /* gamma_sigma: the spread of GAMMA_BLOCKS² block estimates */
 #define GAMMA_BLOCK_MIN_PX 16         /* a block needs this many kept bins */
@@ -1502,18 +1504,33 @@ static int gamma_bin(struct imp_image *const *img, int n, double min_contrast, i
 }
 
 /* The contrast threshold: GAMMA_CONTRAST_FRAC of the GAMMA_CONTRAST_QUANTILE of white −
- * black over the frame (robust to a few hot pixels). */
-static int contrast_threshold(const struct imp_image *white, const struct imp_image *black, double *ret) {
-        size_t n = (size_t) white->width * white->height;
-        _cleanup_free_ float *c = malloc(n * sizeof *c);
-        if (!c)
+ * black over the frame (robust to a few hot pixels). -ENOENT (*ret and *ret_noise set) when
+ * that threshold is within GAMMA_CONTRAST_MIN_SNR of the noise of white − black, estimated
+ * as 1.4826·MAD of horizontal neighbours' differences / √2 (which a smooth signal leaves
+ * alone): the projector does not light the target (a relative threshold alone would keep
+ * the brightest noise). */
+static int contrast_threshold(const struct imp_image *white, const struct imp_image *black, double *ret,
+                              double *ret_noise) {
+        const int w = white->width, h = white->height;
+        size_t n = (size_t) w * h, m = 0;
+        _cleanup_free_ float *c = malloc(n * sizeof *c), *dd = malloc(n * sizeof *dd);
+        if (!c || !dd)
                 return -ENOMEM;
-        for (int y = 0; y < white->height; y++)
-                for (int x = 0; x < white->width; x++)
-                        c[(size_t) y * white->width + x] = *imp_image_f32(white, x, y) - *imp_image_f32(black, x, y);
+        for (int y = 0; y < h; y++)
+                for (int x = 0; x < w; x++) {
+                        float d = *imp_image_f32(white, x, y) - *imp_image_f32(black, x, y);
+                        c[(size_t) y * w + x] = d;
+                        if (x > 0)
+                                dd[m++] = fabsf(d - c[(size_t) y * w + x - 1]);
+                }
         qsort(c, n, sizeof *c, cmp_float);
         *ret = GAMMA_CONTRAST_FRAC * c[(size_t) (GAMMA_CONTRAST_QUANTILE * (double) (n - 1))];
-        return 0;
+        *ret_noise = 0;
+        if (m > 0) {
+                qsort(dd, m, sizeof *dd, cmp_float);
+                *ret_noise = 1.4826 * dd[m / 2] / M_SQRT2;
+        }
+        return *ret > GAMMA_CONTRAST_MIN_SNR * *ret_noise ? 0 : -ENOENT;
 }
 
 /* The spread of per-block estimates: the frame cut into GAMMA_BLOCKS × GAMMA_BLOCKS blocks,
@@ -1676,9 +1693,18 @@ static int measure_gamma(const char *set, const char *camera, double sensor_blac
                 goto out;
         }
         /* unbinned, for the phase gradient; then binned (docs/calibration-lights.md) */
-        if ((g.clipped_px = gamma_images(raw, n, 1, clip_dn, img)) < 0 ||
-            contrast_threshold(img[0], img[1], &g.min_contrast_dn) < 0 ||
-            gamma_bin(img, n, g.min_contrast_dn, &g.bin) < 0) {
+        double noise_dn;
+        if ((g.clipped_px = gamma_images(raw, n, 1, clip_dn, img)) < 0) {
+                ret_code = 1;
+                goto out;
+        }
+        if ((r = contrast_threshold(img[0], img[1], &g.min_contrast_dn, &noise_dn)) == -ENOENT) {
+                log_error("calibrate radiometric: %s: white - black reaches %.1f DN (its 99th percentile) against "
+                          "a noise of %.1f DN: the projector does not light the target (or the scene renders no "
+                          "projector light)", set, g.min_contrast_dn / GAMMA_CONTRAST_FRAC, noise_dn);
+                goto out;
+        }
+        if (r < 0 || gamma_bin(img, n, g.min_contrast_dn, &g.bin) < 0) {
                 ret_code = 1;
                 goto out;
         }
@@ -1686,7 +1712,7 @@ static int measure_gamma(const char *set, const char *camera, double sensor_blac
                 free_frames(img, n);
                 memset(img, 0, sizeof img);
                 if ((r = gamma_images(raw, n, g.bin, clip_dn, img)) < 0 ||
-                    (r = contrast_threshold(img[0], img[1], &g.min_contrast_dn)) < 0) {
+                    (r = contrast_threshold(img[0], img[1], &g.min_contrast_dn, &noise_dn)) < 0) {
                         ret_code = 1;
                         goto out;
                 }

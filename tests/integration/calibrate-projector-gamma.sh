@@ -95,6 +95,15 @@ sed -e 's/white = true;/white = false;/' -e 's/black = true;/black = false;/' "$
 grep -q 'white = false;' "$tmp/nowb.cfg" || { echo "FAIL $plan no longer has the shape this test edits"; exit 1; }
 render "$tmp/s2.2.cfg" "$tmp/nophase.cfg" "$tmp/nophase"
 render "$tmp/s2.2.cfg" "$tmp/nowb.cfg" "$tmp/nowb"
+# a scene that renders no projector light: every frame is noise around the sensor's black
+sed 's/"projector", //' "$tmp/s2.2.cfg" >"$tmp/nolight.cfg"
+grep -q '"projector"' "$tmp/nolight.cfg" && { echo "FAIL $scene no longer has the shape this test edits"; exit 1; }
+render "$tmp/nolight.cfg" "$plan" "$tmp/nolight"
+"$imp" calibrate radiometric --projector-set "$tmp/nolight" --rig "$tmp/base2.2.json" --out "$tmp/bad.json" \
+  >"$tmp/o" 2>"$tmp/e"
+rc=$?
+check "no projector light: exit 3 (got $rc), said so with the contrast against the noise, nothing written" \
+  sh -c "[ $rc -eq 3 ] && grep -q 'against a noise of .* DN: the projector does not light the target' '$tmp/e' && [ ! -e '$tmp/bad.json' ]"
 "$imp" calibrate radiometric --projector-set "$tmp/nophase" --rig "$tmp/base2.2.json" --out "$tmp/bad.json" \
   >"$tmp/o" 2>"$tmp/e"
 rc=$?
