@@ -22,14 +22,15 @@
 #define PROGRESS_INTERVAL_S 1.0
 
 static void usage(FILE *f) {
-        fprintf(f, "usage: impasto calibrate start camera|procam|lights|radiometric [--plan FILE] [--name NAME]\n"
-                   "                        [--arg KEY[=VALUE]]... [--follow] [--json] [--socket PATH]\n"
+        fprintf(f, "usage: impasto calibrate start camera|procam|lights|radiometric|projector-gamma [--plan FILE]\n"
+                   "                        [--name NAME] [--arg KEY[=VALUE]]... [--follow] [--json] [--socket PATH]\n"
                    "       impasto calibrate list [--limit N] [--json] [--socket PATH]\n"
                    "       impasto calibrate show VERSION [--json] [--socket PATH]\n"
                    "  on the daemon: captures the routine's plan (default: its plan from the daemon's plan\n"
                    "  directories), runs the routine on the set and stores a new calibration version.\n"
-                   "  --arg: a routine parameter (radiometric: camera, roi; lights: sphere_radius or\n"
-                   "         spheres, sphere_cut, hemispheres, sessions, plane_z_mm, camera, white, dome;\n"
+                   "  --arg: a routine parameter (radiometric: camera, roi; projector-gamma: camera;\n"
+                   "         lights: sphere_radius or spheres, sphere_cut, hemispheres, sessions,\n"
+                   "         plane_z_mm, camera, white, dome;\n"
                    "         camera/procam: board, square, projector, sessions, reference, ...); VALUE is\n"
                    "         read as JSON when it parses (3, [1,2], [\"ID@20\"]), else as a string; KEY\n"
                    "         alone is KEY=true (hemispheres)\n"

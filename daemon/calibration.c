@@ -27,6 +27,7 @@
 #define IMP_CALIB_MAX_MM 1000.0         /* lengths and board heights, in mm (a dome is ~500 mm) */
 #define EXIT_ROUTINE_USAGE 2            /* the routine's exit codes that another attempt cannot fix */
 #define EXIT_ROUTINE_BAD_INPUT 3
+#define EXIT_ROUTINE_UNDETERMINED 6     /* projector gamma outside the search's bounds */
 
 static const char *const state_names[] = { "capturing", "queued", "running", "done", "failed" };
 
@@ -54,12 +55,15 @@ struct routine {
         const char *name;
         const char *tool;               /* impasto calibrate TOOL */
         const char *plan;               /* the default plan, looked up in the plan directories */
-        const char *set_option;         /* "--set" or "--sets" */
+        const char *set_option;         /* "--set", "--sets" or "--projector-set" */
         const struct routine_arg *args;
 };
 
 static const struct routine_arg radiometric_args[] = {
         { "camera", "--camera", false }, { "roi", "--roi", false }, {},
+};
+static const struct routine_arg gamma_args[] = {
+        { "camera", "--camera", false }, {},
 };
 /* The mirrors detected in each set (sphere_radius, with sphere_cut or hemispheres), or their
  * positions given (spheres, one set only). Sets at other board heights (sessions, "ID@Z")
@@ -89,6 +93,8 @@ static const struct routine routines[] = {
         { "procam", "procam", "target.cfg", "--sets", procam_args },
         { "lights", "lights", "lights.cfg", "--set", lights_args },
         { "radiometric", "radiometric", "photon-transfer.cfg", "--set", radiometric_args },
+        /* the projector's gamma and black level: a white board under phase shifts */
+        { "projector-gamma", "radiometric", "projector-gamma.cfg", "--projector-set", gamma_args },
 };
 
 static const struct routine *routine_find(const char *name) {
@@ -692,7 +698,7 @@ static void schedule(struct daemon *d, uint64_t delay_us) {
 /* A failed attempt: again while attempts remain, unless the routine said the input is wrong. */
 static void attempt_failed(struct calibration *c, int exit_code, const char *why) {
         bool final = exit_code == EXIT_ROUTINE_USAGE || exit_code == EXIT_ROUTINE_BAD_INPUT ||
-                     c->attempts >= c->max_attempts;
+                     exit_code == EXIT_ROUTINE_UNDETERMINED || c->attempts >= c->max_attempts;
         if (final) {
                 fail(c, "%.900s (attempt %d of %d)", why, c->attempts, c->max_attempts);
                 return;

@@ -96,7 +96,8 @@ const char *imp_proto_role_name(enum imp_proto_role role) {
 
 /* ---- The command table ---- */
 
-static const char *const calibrate_routines[] = { "camera", "procam", "lights", "radiometric", NULL };
+static const char *const calibrate_routines[] = { "camera", "procam", "lights", "radiometric", "projector-gamma",
+                                                  NULL };
 const char *const imp_proto_event_types[] = { "progress", "frame", "device", "fault", "done", "job", "calibration",
                                                NULL };
 

@@ -4,7 +4,8 @@
 # daemon capture the photon-transfer plan (from its --plan-dir) as a session, run
 # `impasto calibrate radiometric` on the set as its own durable job and store the result as
 # calibration version 1, which is then in force: the next scan's set names version 1 and
-# carries the calibrated sensor. The daemon is SIGKILLed while the routine runs and restarted:
+# carries the calibrated sensor; `calibrate start projector-gamma` then estimates the
+# projector's gamma and black level on top of it (version 3, keeping version 2's sensor). The daemon is SIGKILLed while the routine runs and restarted:
 # the routine runs again (attempt 2) and the calibration still ends done. Also: routine
 # parameters checked (args.args.KEY; the lights routine's detection parameters and earlier
 # sessions at board heights, "ID@Z", each refused naming the field; valid ones reach the
@@ -18,12 +19,13 @@ build=$1 src=$2 port=$3
 lib_init calibrate
 chmod 755 "$tmp"
 
-# ---- the emulated rig: flat-white with the noise effect, the sensor of config/scenes/flat-white.cfg
-sed 's/effects = \["direct"\];/effects = ["direct", "noise"];/' "$src/config/scenes/flat-white.cfg" >"$tmp/flat-noise.cfg"
+# ---- the emulated rig: flat-white with the noise and projector effects (the projector-gamma
+# routine needs its light), the sensor of config/scenes/flat-white.cfg
+sed 's/effects = \["direct"\];/effects = ["direct", "noise", "projector"];/' "$src/config/scenes/flat-white.cfg" >"$tmp/flat-noise.cfg"
 grep -q '"noise"' "$tmp/flat-noise.cfg" || { echo "FAIL: flat-white.cfg changed shape"; exit 1; }
 serve_start "$tmp/flat-noise.cfg" 3
 mkdir -p "$tmp/plans"
-cp "$src/config/plans/photon-transfer.cfg" "$tmp/plans/"
+cp "$src/config/plans/photon-transfer.cfg" "$src/config/plans/projector-gamma.cfg" "$tmp/plans/"
 printf 'dome = { lights = [0, 1]; exposures_us = [2000.0]; };\n' >"$tmp/plans/sweep.cfg"
 # a wrapper around the offline routines: waits on its first run so that the daemon can be
 # killed while the routine runs
@@ -195,18 +197,34 @@ check "--follow printed the capture progress and the figures" \
 "$imp" calibrate list --socket "$sock" --json >"$tmp/list.json"
 check "version 2 is now in force" [ "$(jget "$tmp/list.json" 'j["current"]["version"]')" = 2 ]
 
+# ---- the projector's gamma and black level (a white board under phase shifts), on top of
+# version 2: the routine writes a copy of the set's rig, which carries version 2's sensor
+"$imp" calibrate start projector-gamma --follow --socket "$sock" >"$tmp/follow-gamma.txt" 2>&1; rc=$?
+check "calibrate start projector-gamma --follow: exit 0 when done" [ $rc -eq 0 ]
+check "the routine ran calibrate radiometric --projector-set on the capture" \
+  grep -q -- ' calibrate radiometric --projector-set [^ ]* --json ' "$tmp/state/calibrations/3/routine.log"
+check "version 3 carries the estimated gamma (true 2.2) and black level (true 0.01), and version 2's sensor" \
+  python3 - "$tmp/state/calibrations/3/rig.json" "$tmp/state/calibrations/2/rig.json" "$tmp/state/calibrations/3/report.json" <<'PY'
+import json, sys
+r3, r2, rep = (json.load(open(p)) for p in sys.argv[1:4])
+g, b = r3["projector"]["gamma"], r3["projector"]["black_level"]
+print("  gamma %.4f ± %.4f, black level %.5f" % (g, rep["projector"]["gamma_sigma"], b))
+sys.exit(0 if abs(g / 2.2 - 1) < 0.005 and abs(b - 0.01) < 0.002 and abs(g - rep["projector"]["gamma"]) < 1e-8 * g
+         and r3["cameras"][0]["sensor"] == r2["cameras"][0]["sensor"] else 1)
+PY
+
 # ---- lights with detection and an earlier session at 20 mm: the daemon hands the routine
 # --set THIS --set SET@20 (a flat white board has no mirrors: the routine then refuses)
 "$imp" calibrate start lights --plan "$tmp/plans/sweep.cfg" --arg sphere_radius=10 --arg sphere_cut=7 \
   --arg "sessions=[\"$session@20\"]" --arg plane_z_mm=0 --json --socket "$sock" >"$tmp/lights.json" 2>"$tmp/e"; rc=$?
 check "calibrate start lights with a session at 20 mm: exit 0" [ $rc -eq 0 ]
-check "calibration 3 fails (no mirrors on a flat board)" [ "$(calibrate_wait 3 300)" = failed ]
+check "calibration 4 fails (no mirrors on a flat board)" [ "$(calibrate_wait 4 300)" = failed ]
 check "with the routine's own reason" grep -q "no mirror sphere found" "$tmp/show.json"
 check "the routine got this capture, the session's set at 20 mm and the detection parameters" sh -c "
   grep -q -- ' calibrate lights --set $tmp/state/sessions/[^ ]* --set $tmp/state/sessions/$session@20 --json ' \
-    '$tmp/state/calibrations/3/routine.log' && grep -q -- ' --sphere-radius 10 ' '$tmp/state/calibrations/3/routine.log' &&
-  grep -q -- ' --sphere-cut 7 ' '$tmp/state/calibrations/3/routine.log'"
+    '$tmp/state/calibrations/4/routine.log' && grep -q -- ' --sphere-radius 10 ' '$tmp/state/calibrations/4/routine.log' &&
+  grep -q -- ' --sphere-cut 7 ' '$tmp/state/calibrations/4/routine.log'"
 "$imp" calibrate list --socket "$sock" --json >"$tmp/list.json"
-check "version 2 stays in force" [ "$(jget "$tmp/list.json" 'j["current"]["version"]')" = 2 ]
+check "version 3 stays in force" [ "$(jget "$tmp/list.json" 'j["current"]["version"]')" = 3 ]
 
 lib_finish

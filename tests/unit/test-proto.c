@@ -127,7 +127,7 @@ static const struct {
         { "{\"id\":7,\"cmd\":\"session.list\",\"args\":{\"limit\":\"5\"}}", 1, -EINVAL, IMP_PROTO_E_BAD_ARGUMENT,
           "args.limit", "got a string", "7" },
         { "{\"id\":7,\"cmd\":\"calibrate\",\"args\":{\"routine\":\"lens\"}}", 1, -EINVAL, IMP_PROTO_E_BAD_ARGUMENT,
-          "args.routine", "expected one of camera, procam, lights, radiometric", "7" },
+          "args.routine", "expected one of camera, procam, lights, radiometric, projector-gamma", "7" },
         { "{\"id\":7,\"cmd\":\"calibrate\",\"args\":{\"routine\":\"camera\",\"args\":[1]}}", 1, -EINVAL,
           IMP_PROTO_E_BAD_ARGUMENT, "args.args", "expected an object", "7" },
         { "{\"id\":7,\"cmd\":\"subscribe\",\"args\":{\"events\":\"progress\"}}", 1, -EINVAL, IMP_PROTO_E_BAD_ARGUMENT,
