@@ -1,7 +1,7 @@
 /* `impasto calibrate camera`: one camera's intrinsics and distortion from chessboard
  * images (folders or files: PNG, TIFF, EXR) and/or capture sets (one lit frame each),
  * dispatched from cli/cmd-calibrate.c. Detection and the fit are the procam calibration's
- * (pipeline/cv/cv-calib-camera.h); see docs/calibration.md. */
+ * (pipeline/calib/cv/cv-calib-camera.h); see docs/calibration.md. */
 #define _GNU_SOURCE
 #include <dirent.h>
 #include <errno.h>

@@ -3,7 +3,7 @@
  * the set's rig.json and an RTI .lp file; `impasto calibrate radiometric`: the camera's
  * photon transfer from a set of flat-field pairs and dark frames, and the projector's gamma
  * from white, black and phase-shift frames of a flat target. The numerics live in
- * pipeline/calib-lights.c and pipeline/calib-radiometric.c; see docs/calibration-lights.md. */
+ * pipeline/calib/calib-lights.c and pipeline/calib/calib-radiometric.c; see docs/calibration-lights.md. */
 #include <errno.h>
 #include <math.h>
 #include <stdio.h>
@@ -698,7 +698,7 @@ struct joint_out {
 };
 
 /* Every located light and every mirror of every capture refined together from the highlights
- * (pipeline/calib-lights-joint.c); the per-light triangulation is kept in lr->tri. */
+ * (pipeline/calib/calib-lights-joint.c); the per-light triangulation is kept in lr->tri. */
 static int joint_refine(const struct lights_args *a, const struct capture *caps, int n_caps, struct light_result *res,
                         int n, struct joint_out *jo) {
         static struct imp_joint_mirror mir[MAX_SETS * MAX_SPHERES];

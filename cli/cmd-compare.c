@@ -1,5 +1,5 @@
 /* `impasto compare COPY_DIR --truth TRUTH_DIR [--json]`: accuracy of a digital copy
- * against the simulator's ground truth (pipeline/compare.h and compare-appearance.h say how
+ * against the simulator's ground truth (pipeline/eval/compare.h and compare-appearance.h say how
  * each figure is made). Appearance figures only when the copy has rho_d.exr; nan_count is
  * then over every EXR of the copy. */
 #include <errno.h>

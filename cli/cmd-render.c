@@ -1,6 +1,6 @@
 /* `impasto render COPY_DIR --view X,Y,Z[,TX,TY,TZ] --light X,Y,Z --out FILE.png|.exr
  *  [--mode bump|relief|adaptive] [--size WxH] [--fov DEG] [--shadows]`: a picture of a digital
- * copy with the hybrid bump/relief renderer (pipeline/relief-render.h, seed §5).
+ * copy with the hybrid bump/relief renderer (pipeline/appearance/relief-render.h, seed §5).
  *
  * Everything is in the copy's canvas frame (mm; texel (i, j) at (i·pitch, j·pitch), z out of
  * the paint): the copy is rendered with canvas_to_world = identity. The view is a pinhole at

@@ -14,9 +14,7 @@
 #include "plan.h"
 #include "protocol.h"
 #include "rig.h"
-#ifdef IMPASTOD_HAVE_PROJECTOR
 #include "projector.h"
-#endif
 
 #define DAEMON_MAX_CAMERAS 4
 #define DAEMON_DEVICE_TIMEOUT_MS 3000
@@ -61,9 +59,7 @@ struct dev_dome {
 struct dev_projector {
         bool configured;
         char name[32], backend[32], address[128];
-#ifdef IMPASTOD_HAVE_PROJECTOR
         struct imp_projector *proj;
-#endif
         enum dev_state state;
         char detail[256];
 };

@@ -139,10 +139,8 @@ void rigcfg_close_devices(struct rigcfg *rc) {
         }
         imp_dome_close(rc->dome.dome);
         rc->dome.dome = NULL;
-#ifdef IMPASTOD_HAVE_PROJECTOR
         imp_projector_close(rc->projector.proj);
         rc->projector.proj = NULL;
-#endif
 }
 
 void rigcfg_free(struct rigcfg *rc) {
@@ -221,7 +219,6 @@ static int open_dome(struct dev_dome *dd, struct imp_error *err) {
         return 0;
 }
 
-#ifdef IMPASTOD_HAVE_PROJECTOR
 static int open_projector(struct dev_projector *dp, struct imp_error *err) {
         int r = imp_projector_open(dp->backend, dp->address, DAEMON_DEVICE_TIMEOUT_MS, &dp->proj);
         if (r < 0) {
@@ -237,7 +234,6 @@ static int open_projector(struct dev_projector *dp, struct imp_error *err) {
                  info.width, info.height);
         return 0;
 }
-#endif
 
 int rigcfg_open_devices(struct rigcfg *rc, const struct imp_rig *rig, struct imp_error *err) {
         int first = 0, r;
@@ -257,27 +253,17 @@ int rigcfg_open_devices(struct rigcfg *rc, const struct imp_rig *rig, struct imp
                         first = r;
         if (rc->dome.configured && !rc->dome.dome && (r = open_dome(&rc->dome, first ? &e : err)) < 0 && !first)
                 first = r;
-#ifdef IMPASTOD_HAVE_PROJECTOR
         if (rc->projector.configured && !rc->projector.proj &&
             (r = open_projector(&rc->projector, first ? &e : err)) < 0 && !first)
                 first = r;
-#else
-        if (rc->projector.configured) {
-                rc->projector.state = DEV_ABSENT;
-                snprintf(rc->projector.detail, sizeof rc->projector.detail,
-                         "this impastod was built without projector support");
-        }
-#endif
         return first;
 }
 
 void rigcfg_safe_state(struct rigcfg *rc) {
         if (rc->dome.dome)
                 (void) imp_dome_all_off(rc->dome.dome);
-#ifdef IMPASTOD_HAVE_PROJECTOR
         if (rc->projector.proj)
                 (void) imp_projector_dark(rc->projector.proj);
-#endif
 }
 
 json_t *rigcfg_devices_json(struct rigcfg *rc) {

@@ -375,7 +375,6 @@ static int setup_frame(struct session *s, const struct imp_frame_record *rec, ui
         }
         s->current_tile = rec->tile;
         int want = rec->pattern.kind == IMP_PAT_NONE ? -1 : pattern_index(s, &rec->pattern);
-#ifdef IMPASTOD_HAVE_PROJECTOR
         if (rc->projector.proj && want != s->shown_pattern) {
                 r = want < 0 ? imp_projector_dark(rc->projector.proj)
                              : imp_projector_show(rc->projector.proj, (unsigned) want);
@@ -385,7 +384,6 @@ static int setup_frame(struct session *s, const struct imp_frame_record *rec, ui
                 }
                 changed = true;
         }
-#endif
         s->shown_pattern = want;
         if (rc->dome.dome) {
                 r = rec->light >= 0 ? imp_dome_set_light(rc->dome.dome, (unsigned) rec->light,
@@ -703,7 +701,6 @@ static int begin_capture(struct session *s, struct imp_proto_error *perr) {
                 return imp_proto_error_set(perr, IMP_PROTO_E_DEVICE, -r, NULL, "%s", e.msg);
         forget_exposures(d->rigcfg);
         if (s->n_patterns > 0) {
-#ifdef IMPASTOD_HAVE_PROJECTOR
                 if (!d->rigcfg->projector.proj)
                         return imp_proto_error_set(perr, IMP_PROTO_E_INVALID_PLAN, EINVAL, "args.plan",
                                                    "%s: the plan projects patterns but the rig has no projector",
@@ -713,11 +710,6 @@ static int begin_capture(struct session *s, struct imp_proto_error *perr) {
                         return imp_proto_error_set(perr, IMP_PROTO_E_DEVICE, -r, d->rigcfg->projector.name,
                                                    "projector %s: uploading %u patterns: %s",
                                                    d->rigcfg->projector.name, s->n_patterns, strerror(-r));
-#else
-                return imp_proto_error_set(perr, IMP_PROTO_E_INVALID_PLAN, EOPNOTSUPP, "args.plan",
-                                           "%s: the plan projects patterns but this impastod has no projector support",
-                                           s->plan_path);
-#endif
         }
         if (!s->writer && (r = store_writer_new(d->event, s->cs, on_stored, s, &s->writer)) < 0)
                 return imp_proto_error_set(perr, IMP_PROTO_E_INTERNAL, -r, NULL, "starting the store writer: %s",

@@ -1,4 +1,4 @@
-/* The daemon's state directory: sessions/<id>/ is a capture set (pipeline/captureset.h)
+/* The daemon's state directory: sessions/<id>/ is a capture set (pipeline/model/captureset.h)
  * plus session.json (plan, name, state, times, faults), written atomically at every state
  * change; jobs/ holds the job files. Free space checks for the capture store, and its
  * writer thread (below). */

@@ -24,13 +24,13 @@ struct imp_process_options {
         bool btf_no_shadow_test;      /* no ray casting on the heightfield: self-shadowed
                                          and hidden samples are kept */
         bool photometric_normals;     /* refine the heightfield normals by photometric
-                                         stereo on the dome sweep (pipeline/photometric.h)
+                                         stereo on the dome sweep (pipeline/appearance/photometric.h)
                                          when it has >= 8 fitted lights; the BTF fit and
                                          heightfield.exr's nx, ny use the refined normals.
                                          Default true; false: the geometric normals */
         bool fuse_heights;            /* with photometric normals: heights from the
                                          triangulated positions (low frequencies) and the
-                                         normals (high ones), pipeline/fuse.h; copy.json
+                                         normals (high ones), pipeline/geometry/fuse.h; copy.json
                                          stages.fusion. Default true */
         int shadow_fill_px;           /* with photometric normals and fusion: canvas texels
                                          in projector shadow between the measured canvas and

@@ -9,7 +9,7 @@
 #include <string.h>
 #include "json-util.h"
 #include "protocol.h"
-#include "../pipeline/version.h"   /* IMPASTO_VERSION_STRING only */
+#include "version.h"   /* IMPASTO_VERSION_STRING only */
 
 /* ---- Errors ---- */
 

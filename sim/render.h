@@ -8,7 +8,7 @@
  * renderer is created; an effect not listed costs nothing — no rays, no random draws.
  *
  * Conventions:
- * - Radiance: V = E · cos θl · f(v, l) (pipeline/lafortune.h), E = intensity ·
+ * - Radiance: V = E · cos θl · f(v, l) (pipeline/model/lafortune.h), E = intensity ·
  *   (1000 / d)² · cos^p(angle to the LED axis) · colour; projector E = intensity ·
  *   (1000 / d)² · (black + (1 − black) · value^gamma), white light.
  * - Mono sensors see the Rec. 709 luminance 0.2126 R + 0.7152 G + 0.0722 B of the RGB

@@ -1,4 +1,4 @@
-# Dome light and radiometric calibration (pipeline/calib-lights.c, pipeline/calib-radiometric.c,
+# Dome light and radiometric calibration (pipeline/calib/calib-lights.c, pipeline/calib/calib-radiometric.c,
 # issue #8). Synthetic frames made in the tests with the simulator's models; no OpenCV.
 impasto_test(test-calib-radiometric LIBS impasto_pipeline TIMEOUT 60)
 impasto_test(test-calib-lights LIBS impasto_pipeline TIMEOUT 60)

@@ -1,5 +1,5 @@
 # Config, JSON, rig model and capture sets (pipeline/core/conf.c, json-util.c,
-# pipeline/rig.c, pipeline/captureset.c).
+# pipeline/model/rig.c, pipeline/model/captureset.c).
 impasto_test(test-conf)
 impasto_test(test-json-util)
 impasto_test(test-rig LIBS impasto_pipeline)

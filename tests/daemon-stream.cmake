@@ -5,11 +5,9 @@ if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WI
   impasto_test(test-daemon-stream LABELS integration LIBS impasto_proto impasto_pipeline impasto_emu TIMEOUT 120)
   add_dependencies(test-daemon-stream impastod)
   set_tests_properties(test-daemon-stream PROPERTIES RESOURCE_LOCK gvcp)
-  if(EXISTS ${CMAKE_CURRENT_SOURCE_DIR}/unit/test-daemon-kill.c)    # target from daemon.cmake
-    add_test(NAME test-daemon-kill-repeat COMMAND test-daemon-kill repeat)
-    set_tests_properties(test-daemon-kill-repeat PROPERTIES LABELS "integration;fault;slow" SKIP_RETURN_CODE 77
-      TIMEOUT 120 RESOURCE_LOCK gvcp)
-  endif()
+  add_test(NAME test-daemon-kill-repeat COMMAND test-daemon-kill repeat)   # target from daemon.cmake
+  set_tests_properties(test-daemon-kill-repeat PROPERTIES LABELS "integration;fault;slow" SKIP_RETURN_CODE 77
+    TIMEOUT 120 RESOURCE_LOCK gvcp)
 endif()
 # - test-daemon-replug: the camera unplugged mid-capture (streamed run, then triggered
 #   sweep), the session pauses with a fault, the camera comes back, resume completes the set

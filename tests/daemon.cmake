@@ -3,9 +3,6 @@
 # process on a temporary socket and state directory, driven through the shared codec.
 if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WITH_MODBUS)
   foreach(t session kill hostile)
-    if(NOT EXISTS ${CMAKE_CURRENT_SOURCE_DIR}/unit/test-daemon-${t}.c)
-      continue()
-    endif()
     if(t STREQUAL "session")
       set(labels integration)
     else()

@@ -5,7 +5,7 @@ impasto_test(test-triangulate LIBS impasto_pipeline)
 impasto_test(test-heightfield LIBS impasto_pipeline)
 impasto_test(test-boxes LIBS impasto_pipeline)
 impasto_test(test-geometry-stability LABELS stability LIBS impasto_pipeline)
-# Heights from positions and normals (pipeline/fuse.c, Nehab et al. 2005): synthetic
+# Heights from positions and normals (pipeline/geometry/fuse.c, Nehab et al. 2005): synthetic
 # surfaces with a known answer.
 impasto_test(test-fuse LIBS impasto_pipeline)
 # Projector-shadow fill (heightfield.h shadow_fill_px, fuse.h mask value 2): synthetic

@@ -1,2 +1,2 @@
-# Photometric normal refinement from the dome sweep (pipeline/photometric.c, issue #4).
+# Photometric normal refinement from the dome sweep (pipeline/appearance/photometric.c, issue #4).
 impasto_test(test-photometric LIBS impasto_pipeline)

@@ -1,4 +1,4 @@
-# Structured-light decoding (pipeline/structured-light.c) and the OpenCV comparison.
+# Structured-light decoding (pipeline/geometry/structured-light.c) and the OpenCV comparison.
 impasto_test(test-sl-decode LIBS impasto_pipeline)
 impasto_test(test-sl-stability LABELS stability LIBS impasto_pipeline)
 if(TARGET impasto_cv)

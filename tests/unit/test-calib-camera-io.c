@@ -1,4 +1,4 @@
-/* The C half of the camera-only calibration (pipeline/calib-camera.c), no OpenCV, so it
+/* The C half of the camera-only calibration (pipeline/calib/calib-camera.c), no OpenCV, so it
  * runs under ASan: input images to 8-bit grey (u16, float, colour; flat images refused),
  * the choice of a capture set's calibration frame (white > dome > other lit; never dark),
  * the rig.json output (with and without a base rig) and the JSON of a result. */

@@ -1,4 +1,4 @@
-/* Degenerate joint refinements (pipeline/calib-lights-joint.c): one board height and two
+/* Degenerate joint refinements (pipeline/calib/calib-lights-joint.c): one board height and two
  * mirrors 10 mm apart, nearly collinear with every light (rays ~1° apart); two mirrors at the
  * same place (exactly parallel rays); a light seen once; a saturated highlight. Every result
  * finite, the lights flagged IMP_LIGHT_ILL_CONDITIONED / FEW_RAYS with σ inflated to the

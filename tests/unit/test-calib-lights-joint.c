@@ -1,4 +1,4 @@
-/* Joint refinement of lights and mirror centres (pipeline/calib-lights-joint.c) on synthetic
+/* Joint refinement of lights and mirror centres (pipeline/calib/calib-lights-joint.c) on synthetic
  * highlights, no rendering: the geometry of config/scenes/lights-target.cfg (camera 1400×1000,
  * f 6000 px, 450 mm above the board; five r = 10 mm mirrors at the view's corners and centre,
  * at three board heights 0/20/40 mm; 48 lights on a 500 mm dome, rings 15/35/60°). Each

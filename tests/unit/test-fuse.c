@@ -1,4 +1,4 @@
-/* Heights from positions and normals (pipeline/fuse.h) on synthetic surfaces with a known
+/* Heights from positions and normals (pipeline/geometry/fuse.h) on synthetic surfaces with a known
  * answer: a relief of 3 mm undulations plus 0.2 mm grooves (4 texels per period, the
  * demo's bristle grooves) on a tilted plane, its normals the central differences of the
  * exact heights, the positions the exact heights plus 5 µm noise. */

@@ -1,4 +1,4 @@
-/* Multi-resolution view-dependent texture (pipeline/multires.c, seed 003 §4–7) on views
+/* Multi-resolution view-dependent texture (pipeline/appearance/multires.c, seed 003 §4–7) on views
  * rendered here with exact projection of a known texture on the plane z = 0 (pixels are
  * area averages over their footprint): an overview at 1000 mm over the whole 200×150 mm
  * canvas, four tilted close-ups at 250 mm overlapping by 8 mm, a strip seen only by the

@@ -1,4 +1,4 @@
-/* Photometric normals (pipeline/photometric.h): synthetic texels under a 48-light
+/* Photometric normals (pipeline/appearance/photometric.h): synthetic texels under a 48-light
  * near-field dome with known normals tilted up to 40°, ρd 0.2–0.8, a small mirror lobe
  * (ρs 0.05, k 10) and 1 % noise, seen through the local frame of a geometric normal that
  * is off by a few degrees; the degenerate cases keep the geometric normal with a flag. */

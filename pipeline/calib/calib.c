@@ -1,5 +1,5 @@
 /* Projector–camera calibration results: JSON, a readable summary and rig.json output.
- * The numbers come from the OpenCV shim (pipeline/cv/cv-calib.h); nothing here fits. */
+ * The numbers come from the OpenCV shim (pipeline/calib/cv/cv-calib.h); nothing here fits. */
 #include <errno.h>
 #include <math.h>
 #include <stdlib.h>

@@ -6,7 +6,7 @@
 #ifdef __cplusplus
 extern "C" {
 #endif
-#include "../calib-camera.h"
+#include "calib-camera.h"
 
 /* Calibrates from views[0 .. io->n_views): io->views[i] (name, found, why) is filled by the
  * caller, views[i] holds view i's board corners when io->views[i].found (board frame,

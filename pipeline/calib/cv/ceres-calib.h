@@ -11,7 +11,7 @@
 #ifdef __cplusplus
 extern "C" {
 #endif
-#include "../calib.h"
+#include "calib.h"
 
 enum imp_ceres_loss { IMP_CERES_LOSS_NONE = 0, IMP_CERES_LOSS_HUBER, IMP_CERES_LOSS_CAUCHY };
 

@@ -1,7 +1,7 @@
 /* Camera-only calibration (`impasto calibrate camera`, issue #8): intrinsics and
  * distortion of one camera from chessboard views, with per-view residuals, views rejected
  * as outliers and the warnings. The fit itself is the OpenCV/Ceres code of the procam
- * calibration (pipeline/cv/cv-calib-camera.h); this half is pure C: input images to 8-bit
+ * calibration (pipeline/calib/cv/cv-calib-camera.h); this half is pure C: input images to 8-bit
  * grey, a capture set's calibration frame, JSON, a readable summary and rig.json output. */
 #pragma once
 #include "calib.h"

@@ -1,6 +1,6 @@
 /* Camera-only calibration, the C half (calib-camera.h): input images and capture-set frames
  * to 8-bit grey, the result's JSON and summary, and its rig.json. The fit lives in
- * pipeline/cv/cv-calib-camera.cpp. */
+ * pipeline/calib/cv/cv-calib-camera.cpp. */
 #include <errno.h>
 #include <math.h>
 #include <stdarg.h>

@@ -12,7 +12,7 @@
 extern "C" {
 #endif
 #include "image.h"
-#include "../calib.h"
+#include "calib.h"
 
 /* Inner chessboard corners (cols × rows, row-major from the first found corner) on a u8
  * grey image, refined by cornerSubPix. ret_px: 2·cols·rows doubles, untouched on failure.

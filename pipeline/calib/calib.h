@@ -1,5 +1,5 @@
 /* Projector–camera calibration results (Moreno & Taubin 2012): the C-side structs the
- * OpenCV shim (pipeline/cv/cv-calib.h) fills, their JSON form, a readable summary and the
+ * OpenCV shim (pipeline/calib/cv/cv-calib.h) fills, their JSON form, a readable summary and the
  * conversion to the rig model. Pure C, no OpenCV; usable from C++ (extern "C").
  * Units: pixels for image quantities, the board's square unit for translations. */
 #pragma once
@@ -100,7 +100,7 @@ struct imp_calib_intrinsics {
         double proj_unc_centre_px, proj_unc_corner_px;
         double max_tilt_deg;                    /* largest board tilt from fronto-parallel */
         unsigned flags;                         /* IMP_CALIB_* */
-        /* Refined by Ceres after OpenCV's estimate (pipeline/cv/ceres-calib.h): robust loss,
+        /* Refined by Ceres after OpenCV's estimate (pipeline/calib/cv/ceres-calib.h): robust loss,
          * outliers dropped (rms, worst, n_points, std, cov over the inliers), and the
          * projection uncertainty is then mrcal's (poses compensating the intrinsics). */
         bool ceres_refined;
@@ -141,7 +141,7 @@ struct imp_calib_stereo {
 };
 
 /* The joint refinement of both devices, the board poses and the camera → projector pose
- * (pipeline/cv/ceres-procam.h), as run by the procam calibration. */
+ * (pipeline/calib/cv/ceres-procam.h), as run by the procam calibration. */
 struct imp_calib_joint {
         bool attempted;                         /* run (built with Ceres, not disabled, and the
                                                    per-device fits determine the intrinsics) */
@@ -293,7 +293,7 @@ json_t *imp_calib_intrinsics_to_json(const struct imp_calib_intrinsics *in);
 json_t *imp_calib_procam_to_json(const struct imp_calib_procam *r);
 /* Readable summary. */
 void imp_calib_procam_print(const struct imp_calib_procam *r, FILE *f);
-/* Writes a rig.json (pipeline/rig.h) with one camera "camera0" at the world origin and
+/* Writes a rig.json (pipeline/model/rig.h) with one camera "camera0" at the world origin and
  * the projector "projector" posed by the stereo result. Translations are in the board's
  * square unit; rig.json expects mm, so pass square_mm_per_unit (1 when squares are in mm). */
 int imp_calib_procam_save_rig(const struct imp_calib_procam *r, double mm_per_unit,
@@ -308,7 +308,7 @@ struct imp_rig;
 int imp_calib_procam_rig(const struct imp_calib_procam *r, double mm_per_unit, const struct imp_rig *base,
                          struct imp_rig *ret, struct imp_error *err);
 
-/* ---- capture sets as calibration input (pipeline/captureset.h) ---- */
+/* ---- capture sets as calibration input (pipeline/model/captureset.h) ---- */
 
 /* Capture sets holding, for one camera, Gray code on both axes with inverses (bits as
  * OpenCV uses for the projector: ⌈log2 w⌉, ⌈log2 h⌉), white and black, all at the first

@@ -4,7 +4,7 @@
  * view-dependent colour per cell, the fill/filter rules, hat-function reconstruction, and
  * the EXR pyramid on disk. Library code: no logging. See docs/multires.md.
  *
- * Canvas frame (pipeline/rig.h): x along the width, y along the height, z out of the paint.
+ * Canvas frame (pipeline/model/rig.h): x along the width, y along the height, z out of the paint.
  * For this stage the canvas is the plane z = 0 over [0, width_mm] × [0, height_mm].
  *
  * Cells: layer L splits the canvas into square cells of side base_cell_mm / 2^L, cell (i, j)

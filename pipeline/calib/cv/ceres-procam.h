@@ -13,7 +13,7 @@
 #ifdef __cplusplus
 extern "C" {
 #endif
-#include "../calib.h"
+#include "calib.h"
 #include "ceres-calib.h"
 
 struct imp_ceres_procam_report {
