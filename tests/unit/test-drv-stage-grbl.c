@@ -1,0 +1,51 @@
+/* The "grbl" stage backend through the imp_stage wrapper against the GRBL 1.1 emulator on
+ * a pseudo-terminal (sim/emu/emu-grbl.c): moves and read-back, soft limits, the faults of
+ * stage-scenarios.h, and what is GRBL's own: the banner at open, alarms that lock it until
+ * a reset, feed hold then reset as the soft-stop. */
+#include "unit/stage-scenarios.h"
+
+#define TIMEOUT_MS 300
+
+/* Soft-stop is a feed hold, then a reset once the hold is complete: the reset must not
+ * come during the motion (that would be ALARM:3, position lost). */
+static void test_hold_then_reset(struct imp_stage *s, struct imp_emu_stage *emu) {
+        unsigned resets = imp_emu_stage_n_resets(emu);
+        double t[3] = { 150, 0, 0 };
+        CHECK_OK(imp_stage_move_to(s, t, IMP_STAGE_XY));
+        usleep(100000);
+        CHECK_OK(imp_stage_soft_stop(s));
+        CHECK_INT_EQ(imp_emu_stage_n_resets(emu), resets + 1);
+        struct imp_stage_status st;
+        CHECK_OK(imp_stage_get_status(s, &st));
+        CHECK_INT_EQ(st.fault, IMP_STAGE_FAULT_NONE);
+        CHECK_INT_EQ(st.fault_code, 0);
+        CHECK(imp_emu_stage_homed(emu));
+        move_ok(s, 0, 0, 0, IMP_STAGE_XY);
+}
+
+int main(void) {
+        struct imp_emu_stage_config cfg = { .travel_mm = { 400, 300, 50 } };
+        _cleanup_(imp_emu_stage_freep) struct imp_emu_stage *emu = NULL;
+        int r = imp_emu_stage_grbl_new(&cfg, &emu);
+        CHECK_OK(r);
+        if (r < 0)
+                return TEST_DONE();
+        _cleanup_(imp_stage_closep) struct imp_stage *s = NULL;
+        char addr[128];
+        snprintf(addr, sizeof addr, "%s;baud=115200;timeout_ms=%d", imp_emu_stage_device(emu), TIMEOUT_MS);
+        r = imp_stage_open("grbl", addr, 0, &s);
+        CHECK_MSG(r == 0, "open %s: %s", addr, strerror(-r));
+        if (r < 0)
+                return TEST_DONE();
+        CHECK_INT_EQ(imp_emu_stage_n_resets(emu), 1);  /* open resets once, for a known state */
+        /* GRBL: ALARM:1 raised with no switch pressed (noise on the limit input) is a hard
+         * limit all the same: locked until a reset, position lost. */
+        const struct stage_expect x = {
+                .alarm_code = 1, .alarm_fault = IMP_STAGE_FAULT_LIMIT, .alarm_loses_position = true,
+                .limit_code = 1,
+        };
+        /* A silent controller: one status query of TIMEOUT_MS. */
+        run_stage_scenarios(s, emu, &cfg, &x, 1.0);
+        test_hold_then_reset(s, emu);
+        return TEST_DONE();
+}
