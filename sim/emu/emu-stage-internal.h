@@ -58,6 +58,7 @@ struct imp_emu_stage {
         pthread_mutex_t lock;           /* everything below and the protocol's state */
         struct emu_motion motion;
         bool stall, mute;
+        double arrive_short_mm;
         unsigned n_moves, n_resets;
 };
 

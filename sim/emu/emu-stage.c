@@ -121,6 +121,10 @@ static enum emu_event advance_locked(struct imp_emu_stage *e) {
         if (f < 1)
                 return EMU_EVENT_NONE;
         enum emu_event ev = m->phase == EMU_PHASE_HOMING ? EMU_EVENT_HOMED : EMU_EVENT_ARRIVED;
+        if (ev == EMU_EVENT_ARRIVED)
+                for (unsigned a = 0; a < e->cfg.n_axes; a++)
+                        if (m->target_mm[a] != m->start_mm[a])
+                                m->pos_mm[a] -= copysign(e->arrive_short_mm, m->target_mm[a] - m->start_mm[a]);
         if (ev == EMU_EVENT_HOMED)
                 m->homed = true;
         m->phase = EMU_PHASE_IDLE;
@@ -204,6 +208,12 @@ void imp_emu_stage_lose_position(struct imp_emu_stage *e) {
 void imp_emu_stage_stall(struct imp_emu_stage *e, bool stall) {
         pthread_mutex_lock(&e->lock);
         e->stall = stall;
+        pthread_mutex_unlock(&e->lock);
+}
+
+void imp_emu_stage_arrive_short(struct imp_emu_stage *e, double short_mm) {
+        pthread_mutex_lock(&e->lock);
+        e->arrive_short_mm = short_mm;
         pthread_mutex_unlock(&e->lock);
 }
 

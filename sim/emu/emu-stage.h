@@ -49,6 +49,9 @@ void imp_emu_stage_lose_position(struct imp_emu_stage *emu);
 /* While on, a move stops at 90 % of its way and stays "moving" (a stalled or hunting axis):
  * it never settles. Homing is not affected. */
 void imp_emu_stage_stall(struct imp_emu_stage *emu, bool stall);
+/* Moves end short_mm before their target on each moving axis and report "in position"
+ * all the same (a servo with a loose in-position window, backlash); 0 turns it off. */
+void imp_emu_stage_arrive_short(struct imp_emu_stage *emu, double short_mm);
 /* While on, the controller reads requests and answers none (hung firmware). */
 void imp_emu_stage_mute(struct imp_emu_stage *emu, bool mute);
 

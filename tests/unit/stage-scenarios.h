@@ -251,6 +251,21 @@ static void test_never_settles(struct imp_stage *s, struct imp_emu_stage *emu) {
         move_ok(s, 40, 0, 0, IMP_STAGE_XY);
 }
 
+/* The controller says "in position" short of the target: the read-back decides. */
+static void test_off_target(struct imp_stage *s, struct imp_emu_stage *emu) {
+        move_ok(s, 10, 10, 0, IMP_STAGE_XYZ);
+        imp_emu_stage_arrive_short(emu, 0.05);
+        double t[3] = { 20, 10, 0 };
+        struct imp_stage_status st = {};
+        CHECK_OK(imp_stage_move_to(s, t, IMP_STAGE_XY));
+        CHECK_ERR(imp_stage_wait_settled(s, 1000, &st), -ETIMEDOUT);
+        CHECK_STR_CONTAINS(imp_stage_last_error(s), "(idle off target), stopped at (x 19.950,y 10.000,z 0.000) mm");
+        CHECK(st.flags & IMP_STAGE_IN_POSITION);
+        CHECK_NEAR(st.position_mm[0], 19.95, TOL_MM);
+        imp_emu_stage_arrive_short(emu, 0);
+        move_ok(s, 30, 10, 0, IMP_STAGE_XY);
+}
+
 static void test_soft_stop(struct imp_stage *s, struct imp_emu_stage *emu) {
         move_ok(s, 0, 0, 0, IMP_STAGE_XYZ);
         double t[3] = { 200, 0, 0 };
@@ -282,5 +297,6 @@ static void run_stage_scenarios(struct imp_stage *s, struct imp_emu_stage *emu, 
         test_lost_position(s, emu);
         test_timeout(s, emu, timeout_max_s);
         test_never_settles(s, emu);
+        test_off_target(s, emu);
         test_soft_stop(s, emu);
 }
