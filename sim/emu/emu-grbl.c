@@ -299,7 +299,9 @@ static void take_byte_locked(struct imp_emu_stage *e, char c) {
                         g->line[g->line_len++] = c;
                 return;
         }
-        if (g->q_len < QUEUE_LINES) {
+        if (e->lose_requests) {
+                e->lose_requests--;
+        } else if (g->q_len < QUEUE_LINES) {
                 char *slot = g->queue[(g->q_head + g->q_len++) % QUEUE_LINES];
                 memcpy(slot, g->line, g->line_len);
                 slot[g->line_len] = 0;

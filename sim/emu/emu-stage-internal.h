@@ -59,6 +59,7 @@ struct imp_emu_stage {
         struct emu_motion motion;
         bool stall, mute;
         double arrive_short_mm;
+        unsigned lose_requests;
         unsigned n_moves, n_resets;
 };
 

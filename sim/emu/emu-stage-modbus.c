@@ -181,7 +181,7 @@ static int check_write(const struct imp_emu_stage *e, unsigned addr, uint16_t v)
 static void serve_request(struct imp_emu_stage *e, const uint8_t *q, int len) {
         struct mb_server *s = e->proto_state;
         pthread_mutex_lock(&e->lock);
-        if (e->mute) {
+        if (e->mute || (e->lose_requests && e->lose_requests-- > 0)) {
                 pthread_mutex_unlock(&e->lock);
                 return;
         }

@@ -217,6 +217,12 @@ void imp_emu_stage_arrive_short(struct imp_emu_stage *e, double short_mm) {
         pthread_mutex_unlock(&e->lock);
 }
 
+void imp_emu_stage_lose_requests(struct imp_emu_stage *e, unsigned n) {
+        pthread_mutex_lock(&e->lock);
+        e->lose_requests = n;
+        pthread_mutex_unlock(&e->lock);
+}
+
 void imp_emu_stage_mute(struct imp_emu_stage *e, bool mute) {
         pthread_mutex_lock(&e->lock);
         e->mute = mute;

@@ -52,6 +52,9 @@ void imp_emu_stage_stall(struct imp_emu_stage *emu, bool stall);
 /* Moves end short_mm before their target on each moving axis and report "in position"
  * all the same (a servo with a loose in-position window, backlash); 0 turns it off. */
 void imp_emu_stage_arrive_short(struct imp_emu_stage *emu, double short_mm);
+/* The next n requests (Modbus) or command lines (GRBL; real-time characters still act) are
+ * lost on the way: neither run nor answered. */
+void imp_emu_stage_lose_requests(struct imp_emu_stage *emu, unsigned n);
 /* While on, the controller reads requests and answers none (hung firmware). */
 void imp_emu_stage_mute(struct imp_emu_stage *emu, bool mute);
 

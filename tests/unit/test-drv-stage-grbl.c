@@ -23,6 +23,25 @@ static void test_hold_then_reset(struct imp_stage *s, struct imp_emu_stage *emu)
         move_ok(s, 0, 0, 0, IMP_STAGE_XY);
 }
 
+/* A line lost on the way: its "ok" never comes. The move fails after the timeout, and the
+ * next line must not take a later "ok" for its own: the backend resets at rest to count
+ * answers afresh, and the position stays known. */
+static void test_lost_line(struct imp_stage *s, struct imp_emu_stage *emu) {
+        move_ok(s, 10, 10, 0, IMP_STAGE_XY);
+        unsigned moves = imp_emu_stage_n_moves(emu), resets = imp_emu_stage_n_resets(emu);
+        imp_emu_stage_lose_requests(emu, 1);
+        double t[3] = { 20, 10, 0 };
+        CHECK_ERR(imp_stage_move_to(s, t, IMP_STAGE_XY), -ETIMEDOUT);
+        CHECK_STR_CONTAINS(imp_stage_last_error(s), "no answer to G90G1X20.000Y10.000F12000 within 300 ms");
+        CHECK_INT_EQ(imp_emu_stage_n_moves(emu), moves);
+        move_ok(s, 20, 10, 0, IMP_STAGE_XY);
+        CHECK_INT_EQ(imp_emu_stage_n_moves(emu), moves + 1);
+        CHECK_INT_EQ(imp_emu_stage_n_resets(emu), resets + 1);
+        struct imp_stage_status st;
+        CHECK_OK(imp_stage_get_status(s, &st));
+        CHECK(st.flags & IMP_STAGE_HOMED);
+}
+
 int main(void) {
         struct imp_emu_stage_config cfg = { .travel_mm = { 400, 300, 50 } };
         _cleanup_(imp_emu_stage_freep) struct imp_emu_stage *emu = NULL;
@@ -47,5 +66,6 @@ int main(void) {
         /* A silent controller: one status query of TIMEOUT_MS. */
         run_stage_scenarios(s, emu, &cfg, &x, 1.0);
         test_hold_then_reset(s, emu);
+        test_lost_line(s, emu);
         return TEST_DONE();
 }

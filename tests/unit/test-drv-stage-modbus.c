@@ -7,6 +7,17 @@
 #define TIMEOUT_MS 100
 #define RETRIES 2
 
+/* A request lost on the way is sent again by the link (docs/dome-registers.md, "Client
+ * policy"): the move happens once, and nothing reaches the caller. */
+static void test_lost_request(struct imp_stage *s, struct imp_emu_stage *emu) {
+        move_ok(s, 10, 10, 0, IMP_STAGE_XY);
+        unsigned moves = imp_emu_stage_n_moves(emu);
+        imp_emu_stage_lose_requests(emu, 1);
+        move_ok(s, 20, 10, 0, IMP_STAGE_XY);
+        CHECK_INT_EQ(imp_emu_stage_n_moves(emu), moves + 1);
+        CHECK_STR_EQ(imp_stage_last_error(s), "");
+}
+
 int main(void) {
         struct imp_emu_stage_config cfg = { .port = PORT, .travel_mm = { 400, 300, 50 } };
         _cleanup_(imp_emu_stage_freep) struct imp_emu_stage *emu = NULL;
@@ -31,5 +42,6 @@ int main(void) {
         };
         /* A silent controller: RETRIES attempts of TIMEOUT_MS plus a 10 ms backoff. */
         run_stage_scenarios(s, emu, &cfg, &x, 1.0);
+        test_lost_request(s, emu);
         return TEST_DONE();
 }
