@@ -1,4 +1,4 @@
-# Motion stage drivers against their emulators: Modbus TCP on 127.0.0.1:15861 (run inside a
+# Motion stage drivers against their emulators: Modbus TCP on 127.0.0.1:15861 and 15862 (run inside a
 # private network namespace when others test at once), GRBL on a pseudo-terminal.
 if(TARGET impasto_emu)
   if(IMPASTO_WITH_MODBUS)

@@ -103,6 +103,13 @@ static void test_moves(struct imp_stage *s, struct imp_emu_stage *emu) {
                         CHECK_GE(stage_now_s() - t0, 0.9 * sqrt(d) / SPEED_MM_S);
                 }
         }
+        /* x and z without y: y stays (the Modbus backend writes two separate runs). */
+        move_ok(s, 5, 0, 3, IMP_STAGE_XYZ);
+        move_ok(s, 12, 77, 9, IMP_STAGE_X | IMP_STAGE_Z);
+        double y[3];
+        imp_emu_stage_position(emu, y);
+        CHECK_NEAR(y[1], 0, TOL_MM);
+        CHECK_NEAR(y[2], 9, TOL_MM);
         /* x and y only: z stays where it was. */
         move_ok(s, 0, 0, 7, IMP_STAGE_XYZ);
         move_ok(s, 30, 15, 99, IMP_STAGE_XY);
@@ -207,6 +214,8 @@ static void test_lost_position(struct imp_stage *s, struct imp_emu_stage *emu) {
         double t[3] = { 40, 40, 0 };
         CHECK_ERR(imp_stage_move_to(s, t, IMP_STAGE_XY), -EIO);
         CHECK_STR_CONTAINS(imp_stage_last_error(s), "position lost");
+        CHECK_ERR(imp_stage_home(s), -EIO);      /* homing too waits for the clear */
+        CHECK_STR_CONTAINS(imp_stage_last_error(s), "home: position lost latched");
         recover_lost(s, emu);
 }
 
@@ -270,6 +279,12 @@ static void test_soft_stop(struct imp_stage *s, struct imp_emu_stage *emu) {
         move_ok(s, 0, 0, 0, IMP_STAGE_XYZ);
         double t[3] = { 200, 0, 0 };
         CHECK_OK(imp_stage_move_to(s, t, IMP_STAGE_XY));
+        /* One move at a time. */
+        unsigned n0 = imp_emu_stage_n_moves(emu);
+        double u[3] = { 100, 50, 0 };
+        CHECK_ERR(imp_stage_move_to(s, u, IMP_STAGE_XY), -EBUSY);
+        CHECK_STR_CONTAINS(imp_stage_last_error(s), "still moving");
+        CHECK_INT_EQ(imp_emu_stage_n_moves(emu), n0);
         usleep(200000);
         CHECK_OK(imp_stage_soft_stop(s));
         double a[3], b[3];

@@ -42,6 +42,25 @@ static void test_lost_line(struct imp_stage *s, struct imp_emu_stage *emu) {
         CHECK(st.flags & IMP_STAGE_HOMED);
 }
 
+/* A 2-axis gantry (";axes=2"): z is not part of any move. */
+static void test_two_axes(struct imp_stage **s, struct imp_emu_stage *emu) {
+        imp_stage_close(*s);
+        *s = NULL;
+        char addr[128];
+        snprintf(addr, sizeof addr, "%s;timeout_ms=%d;axes=2", imp_emu_stage_device(emu), TIMEOUT_MS);
+        CHECK_OK(imp_stage_open("grbl", addr, 0, s));
+        if (!*s)
+                return;
+        struct imp_stage_info info;
+        CHECK_OK(imp_stage_get_info(*s, &info));
+        CHECK_INT_EQ(info.n_axes, 2);
+        double t[3] = { 10, 10, 5 };
+        CHECK_ERR(imp_stage_move_to(*s, t, IMP_STAGE_XYZ), -EINVAL);
+        CHECK_STR_CONTAINS(imp_stage_last_error(*s), "axis mask 0x7 on a 2-axis stage");
+        home_ok(*s, emu);
+        move_ok(*s, 10, 10, 0, IMP_STAGE_XY);
+}
+
 int main(void) {
         struct imp_emu_stage_config cfg = { .travel_mm = { 400, 300, 50 } };
         _cleanup_(imp_emu_stage_freep) struct imp_emu_stage *emu = NULL;
@@ -67,5 +86,6 @@ int main(void) {
         run_stage_scenarios(s, emu, &cfg, &x, 1.0);
         test_hold_then_reset(s, emu);
         test_lost_line(s, emu);
+        test_two_axes(&s, emu);
         return TEST_DONE();
 }
