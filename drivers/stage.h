@@ -77,7 +77,8 @@ struct imp_stage_ops {
         /* Start a move of the axes in mask to target_mm (absolute) at speed_mm_s. */
         int (*move_to)(void *state, const double target_mm[IMP_STAGE_MAX_AXES], unsigned mask,
                        double speed_mm_s);
-        /* Start the homing cycle of every axis; on success the position is 0 on each. */
+        /* Start the homing cycle of every axis; on success the position is known (0 where
+         * the controller sets its origin at home). */
         int (*home)(void *state);
         /* Position, flags, latched fault and limit switches. */
         int (*get_status)(void *state, struct imp_stage_status *ret_status);

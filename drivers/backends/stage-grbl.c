@@ -5,8 +5,10 @@
  * soft-stop a feed hold '!' then, once the hold is complete, a soft reset (Ctrl-X), which
  * GRBL documents as keeping the position; clear_fault a reset where the alarm locks GRBL
  * (ALARM:1, ALARM:2) and "$X". Position is known only after a "$H" through this handle:
- * GRBL does not say whether it was homed before we connected. Machine coordinates are
- * expected in 0..travel ($130..$132), i.e. GRBL built with HOMING_FORCE_SET_ORIGIN. */
+ * GRBL does not say whether it was homed before we connected. Stage coordinates are
+ * 0..travel ($130..$132): GRBL's machine coordinates where it was built with
+ * HOMING_FORCE_SET_ORIGIN, else (";space=negative", GRBL's default) machine −travel..0,
+ * shifted by the travel. */
 #include <fcntl.h>
 #include <math.h>
 #include <poll.h>
@@ -35,11 +37,12 @@ struct grbl {
         char device[128];
         unsigned timeout_ms, hold_timeout_ms, n_axes;
         double travel_mm[IMP_STAGE_MAX_AXES];
+        bool negative_space;            /* machine coordinates −travel..0 */
         char rx[512];
         size_t rx_len;
         /* What the controller told us. */
         enum grbl_state state;
-        double mpos_mm[IMP_STAGE_MAX_AXES];
+        double mpos_mm[IMP_STAGE_MAX_AXES];     /* stage coordinates of the last report */
         unsigned pins;                  /* limit pins X Y Z of the last report */
         unsigned pending_ok;            /* lines sent whose "ok"/"error" has not come */
         int line_error;                 /* error:N of the last answered line, 0 = ok */
@@ -217,7 +220,7 @@ static int parse_report(struct grbl *g, const char *l) {
                         if (sscanf(field + 5, "%lf,%lf,%lf", &v[0], &v[1], &v[2]) != 3)
                                 return -EBADMSG;
                         for (unsigned a = 0; a < IMP_STAGE_MAX_AXES; a++)
-                                g->mpos_mm[a] = v[a];
+                                g->mpos_mm[a] = v[a] + (g->negative_space ? g->travel_mm[a] : 0);
                         have_pos = true;
                 } else if (strncmp(field, "Pn:", 3) == 0)
                         for (const char *c = field + 3; *c && *c != '|' && *c != '>'; c++)
@@ -414,6 +417,18 @@ static int read_travel(struct grbl *g) {
         }
 }
 
+/* ";space=positive" (default) or ";space=negative". */
+static int parse_space(const char *address, bool *ret_negative) {
+        char v[16];
+        int r = address_option(address, "space", v, sizeof v);
+        if (r == -ENOENT)
+                return 0;
+        if (r < 0 || (strcmp(v, "positive") != 0 && strcmp(v, "negative") != 0))
+                return -EINVAL;
+        *ret_negative = strcmp(v, "negative") == 0;
+        return 0;
+}
+
 static int grbl_open(const char *address, unsigned timeout_ms, void **ret_state) {
         struct grbl *g = calloc(1, sizeof *g);
         if (!g)
@@ -429,6 +444,8 @@ static int grbl_open(const char *address, unsigned timeout_ms, void **ret_state)
                        (r = address_option_uint(address, "hold_timeout_ms", 1, 600000, &g->hold_timeout_ms)) < 0 ||
                        (r = address_option_uint(address, "axes", 2, IMP_STAGE_MAX_AXES, &g->n_axes)) < 0))
                 goto fail;
+        if (r >= 0)
+                r = parse_space(address, &g->negative_space);
         if (r < 0 || (r = open_line(g, baud)) < 0)
                 goto fail;
         /* A reset gives a known state and proves it is GRBL (the banner). */
@@ -459,7 +476,8 @@ static int grbl_move_to(void *state, const double target_mm[IMP_STAGE_MAX_AXES],
         int n = snprintf(line, sizeof line, "G90G1");
         for (unsigned a = 0; a < g->n_axes; a++)
                 if (mask & (1u << a))
-                        n += snprintf(line + n, sizeof line - (size_t) n, "%c%.3f", "XYZ"[a], target_mm[a]);
+                        n += snprintf(line + n, sizeof line - (size_t) n, "%c%.3f", "XYZ"[a],
+                                      target_mm[a] - (g->negative_space ? g->travel_mm[a] : 0));
         snprintf(line + n, sizeof line - (size_t) n, "F%.0f", speed_mm_s * MM_S_TO_MM_MIN);
         int r = command(g, line);
         if (r >= 0) {
@@ -560,7 +578,7 @@ static const char *grbl_last_error(void *state) {
 
 const struct imp_stage_ops imp_stage_grbl_ops = {
         .name = "grbl",
-        .open = grbl_open,                      /* "/dev/ttyUSB0[;baud=N][;timeout_ms=N][;hold_timeout_ms=N][;axes=2|3]" */
+        .open = grbl_open,                      /* "/dev/ttyUSB0[;baud=N][;timeout_ms=N][;axes=2|3][;space=negative]…" */
         .close = grbl_close,                    /* closes the line; no reset */
         .get_info = grbl_get_info,              /* axes from the address, travel from $130..$132 */
         .move_to = grbl_move_to,                /* "G90G1X..Y..F..", waits for its "ok" (queued, not done) */

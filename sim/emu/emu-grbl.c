@@ -124,9 +124,16 @@ static void grbl_lose_position_locked(struct imp_emu_stage *e) {
         say_locked(e, GRBL_BANNER GRBL_MSG_LOCKED);
 }
 
+/* Machine coordinate of a physical position on axis a (the axes' own frame is 0..travel). */
+static double mpos(const struct imp_emu_stage *e, unsigned a, double pos_mm) {
+        return e->cfg.grbl_negative_space ? pos_mm - e->cfg.travel_mm[a] : pos_mm;
+}
+
 static void report_locked(struct imp_emu_stage *e) {
         struct grbl *g = e->proto_state;
-        const double *p = e->motion.pos_mm;
+        double p[IMP_EMU_STAGE_MAX_AXES] = { 0 };
+        for (unsigned a = 0; a < e->cfg.n_axes; a++)
+                p[a] = mpos(e, a, e->motion.pos_mm[a]);
         unsigned pins = emu_motion_limits_locked(e);
         char pn[8] = "";
         size_t k = 0;
@@ -134,8 +141,7 @@ static void report_locked(struct imp_emu_stage *e) {
                 if (pins & (1u << a))
                         pn[k++] = "XYZ"[a];
         bool running = g->state == ST_RUN || g->state == ST_HOME || g->state == ST_HOLD_DECEL;
-        say_locked(e, "<%s|MPos:%.3f,%.3f,%.3f|FS:%.0f,0%s%s>\r\n", state_names[g->state], p[0], p[1],
-                   e->cfg.n_axes > 2 ? p[2] : 0.0, running ? e->motion.speed_mm_s * 60 : 0.0,
+        say_locked(e, "<%s|MPos:%.3f,%.3f,%.3f|FS:%.0f,0%s%s>\r\n", state_names[g->state], p[0], p[1], p[2], running ? e->motion.speed_mm_s * 60 : 0.0,
                    k ? "|Pn:" : "", pn);
 }
 
@@ -257,7 +263,7 @@ static int gcode_locked(struct imp_emu_stage *e, const char *l) {
         for (unsigned a = 0; a < IMP_EMU_STAGE_MAX_AXES; a++) {
                 target[a] = e->motion.pos_mm[a];
                 if (mask & (1u << a))
-                        target[a] = g->relative ? target[a] + xyz[a] : xyz[a];
+                        target[a] = g->relative ? target[a] + xyz[a] : xyz[a] - mpos(e, a, 0);
                 if (a < e->cfg.n_axes && (target[a] < 0 || target[a] > e->cfg.travel_mm[a])) {
                         say_locked(e, "ok\r\n");        /* the line was taken, then the planner refused it */
                         raise_alarm_locked(e, ALARM_SOFT_LIMIT);

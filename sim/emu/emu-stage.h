@@ -16,6 +16,9 @@ struct imp_emu_stage_config {
         double travel_mm[IMP_EMU_STAGE_MAX_AXES];      /* default 400 × 300 × 50 mm */
         double home_speed_mm_s;         /* homing runs to 0 at this speed, default 400 */
         double rapid_speed_mm_s;        /* GRBL G0 rate ($110), default 500 */
+        /* GRBL as built by default (no HOMING_FORCE_SET_ORIGIN): machine coordinates run
+         * −travel..0; homing (toward the minimum here) ends at MPos −travel. */
+        bool grbl_negative_space;
 };
 
 struct imp_emu_stage;
@@ -25,7 +28,8 @@ struct imp_emu_stage;
 int imp_emu_stage_modbus_new(const struct imp_emu_stage_config *cfg, struct imp_emu_stage **ret_emu);
 /* A GRBL 1.1 controller on a pseudo-terminal: clients open imp_emu_stage_device() as their
  * serial port. Machine coordinates 0..travel after homing (GRBL built with
- * HOMING_FORCE_SET_ORIGIN); homing enabled, so it powers up locked in Alarm.
+ * HOMING_FORCE_SET_ORIGIN) unless cfg->grbl_negative_space; homing enabled, so it powers
+ * up locked in Alarm.
  * Caller frees with imp_emu_stage_free(). */
 int imp_emu_stage_grbl_new(const struct imp_emu_stage_config *cfg, struct imp_emu_stage **ret_emu);
 void imp_emu_stage_free(struct imp_emu_stage *emu);

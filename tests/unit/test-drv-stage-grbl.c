@@ -61,6 +61,44 @@ static void test_two_axes(struct imp_stage **s, struct imp_emu_stage *emu) {
         move_ok(*s, 10, 10, 0, IMP_STAGE_XY);
 }
 
+/* Stock GRBL (machine space −travel..0): with ";space=negative" the stage frame is 0..travel
+ * again; without it the first move runs into GRBL's soft limit (ALARM:2). */
+static void test_negative_space(void) {
+        struct imp_emu_stage_config cfg = { .travel_mm = { 400, 300, 50 }, .grbl_negative_space = true };
+        _cleanup_(imp_emu_stage_freep) struct imp_emu_stage *emu = NULL;
+        CHECK_OK(imp_emu_stage_grbl_new(&cfg, &emu));
+        if (!emu)
+                return;
+        char addr[128];
+        snprintf(addr, sizeof addr, "%s;timeout_ms=%d;space=negative", imp_emu_stage_device(emu), TIMEOUT_MS);
+        _cleanup_(imp_stage_closep) struct imp_stage *s = NULL;
+        CHECK_OK(imp_stage_open("grbl", addr, 0, &s));
+        if (!s)
+                return;
+        home_ok(s, emu);
+        move_ok(s, 10, 20, 5, IMP_STAGE_XYZ);
+        double truth[3];
+        imp_emu_stage_position(emu, truth);
+        CHECK_NEAR(truth[0], 10, TOL_MM);
+        CHECK_NEAR(truth[1], 20, TOL_MM);
+        imp_stage_close(TAKE_PTR(s));
+
+        snprintf(addr, sizeof addr, "%s;timeout_ms=%d", imp_emu_stage_device(emu), TIMEOUT_MS);
+        CHECK_OK(imp_stage_open("grbl", addr, 0, &s));
+        if (!s)
+                return;
+        struct imp_stage_status st = {};
+        CHECK_OK(imp_stage_home(s));
+        CHECK_OK(imp_stage_wait_settled(s, SETTLE_MS, &st));
+        CHECK_NEAR(st.position_mm[0], -400, TOL_MM);
+        double t[3] = { 10, 20, 0 };
+        CHECK_OK(imp_stage_move_to(s, t, IMP_STAGE_XY));
+        CHECK_ERR(imp_stage_wait_settled(s, SETTLE_MS, &st), -EIO);
+        CHECK_INT_EQ(st.fault, IMP_STAGE_FAULT_TRAVEL);
+        CHECK_INT_EQ(st.fault_code, 2);
+        CHECK(imp_stage_get_status(s, &st) == 0 && (st.flags & IMP_STAGE_HOMED));  /* ALARM:2 keeps it */
+}
+
 int main(void) {
         struct imp_emu_stage_config cfg = { .travel_mm = { 400, 300, 50 } };
         _cleanup_(imp_emu_stage_freep) struct imp_emu_stage *emu = NULL;
@@ -87,5 +125,6 @@ int main(void) {
         test_hold_then_reset(s, emu);
         test_lost_line(s, emu);
         test_two_axes(&s, emu);
+        test_negative_space();
         return TEST_DONE();
 }
