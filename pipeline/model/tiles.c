@@ -194,13 +194,13 @@ int imp_tile_plan_check_limits(const struct imp_tile_plan *p, const double min_m
         return 0;
 }
 
+static double move_len(const struct imp_tile *a, const struct imp_tile *b);
+
 double imp_tile_plan_path_mm(const struct imp_tile_plan *p) {
         double len = 0;
         size_t n = imp_tile_plan_count(p);
-        for (size_t i = 1; i < n; i++) {
-                const double *a = p->tiles[i - 1].stage_mm, *b = p->tiles[i].stage_mm;
-                len += sqrt((b[0] - a[0]) * (b[0] - a[0]) + (b[1] - a[1]) * (b[1] - a[1]) + (b[2] - a[2]) * (b[2] - a[2]));
-        }
+        for (size_t i = 1; i < n; i++)
+                len += move_len(&p->tiles[i - 1], &p->tiles[i]);
         return len;
 }
 
@@ -209,6 +209,42 @@ double imp_tile_plan_move_s(const struct imp_tile_plan *p, double speed_mm_s, do
         if (n < 2 || !(speed_mm_s > 0))
                 return 0;
         return imp_tile_plan_path_mm(p) / speed_mm_s + (double) (n - 1) * settle_s;
+}
+
+static double move_len(const struct imp_tile *a, const struct imp_tile *b) {
+        const double *u = a->stage_mm, *v = b->stage_mm;
+        return sqrt((v[0] - u[0]) * (v[0] - u[0]) + (v[1] - u[1]) * (v[1] - u[1]) + (v[2] - u[2]) * (v[2] - u[2]));
+}
+
+#define ESTIMATE_MAX_WORKERS 256
+
+int imp_tile_plan_estimate(const struct imp_tile_plan *p, const struct imp_tile_cost *c, struct imp_tile_estimate *ret) {
+        if (!p || !c || !ret)
+                return -EINVAL;
+        if (!(c->bytes >= 0 && isfinite(c->bytes) && c->capture_s >= 0 && isfinite(c->capture_s) &&
+              c->process_s >= 0 && isfinite(c->process_s) && c->speed_mm_s > 0 && isfinite(c->speed_mm_s) &&
+              c->settle_s >= 0 && isfinite(c->settle_s)) || c->workers < 1 || c->workers > ESTIMATE_MAX_WORKERS)
+                return -EINVAL;
+        size_t n = imp_tile_plan_count(p);
+        double free_at[ESTIMATE_MAX_WORKERS] = { 0 };
+        double captured = 0, end = 0;
+        for (size_t i = 0; i < n; i++) {
+                if (i > 0)
+                        captured += move_len(&p->tiles[i - 1], &p->tiles[i]) / c->speed_mm_s + c->settle_s;
+                captured += c->capture_s;
+                unsigned w = 0;         /* the worker free first */
+                for (unsigned k = 1; k < c->workers; k++)
+                        if (free_at[k] < free_at[w])
+                                w = k;
+                free_at[w] = fmax(free_at[w], captured) + c->process_s;
+                end = fmax(end, free_at[w]);
+        }
+        *ret = (struct imp_tile_estimate) {
+                .tiles = n, .frames = n * c->frames, .bytes = (double) n * c->bytes,
+                .move_s = imp_tile_plan_move_s(p, c->speed_mm_s, c->settle_s),
+                .capture_s = captured, .process_s = (double) n * c->process_s, .wall_s = end,
+        };
+        return 0;
 }
 
 /* ---- the plan file's group ------------------------------------------------------------------ */

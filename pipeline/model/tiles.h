@@ -100,3 +100,29 @@ double imp_tile_plan_path_mm(const struct imp_tile_plan *p);
 /* Time the gantry spends moving between tiles: each move's length at speed_mm_s plus
  * settle_s per move (n − 1 moves), s. Acceleration is folded into settle_s. */
 double imp_tile_plan_move_s(const struct imp_tile_plan *p, double speed_mm_s, double settle_s);
+
+/* What one tile costs, the same for every tile (the per-tile scan plan is one plan). */
+struct imp_tile_cost {
+        size_t frames;                  /* frames captured per tile */
+        double bytes;                   /* bytes written per tile (frames and manifest) */
+        double capture_s;               /* capture time of one tile, moves excluded */
+        double process_s;               /* processing time of one tile on one worker */
+        unsigned workers;               /* tiles processed at once, ≥ 1 */
+        double speed_mm_s, settle_s;    /* the gantry, as imp_tile_plan_move_s() */
+};
+
+struct imp_tile_estimate {
+        size_t tiles, frames;
+        double bytes;
+        double move_s;                  /* gantry moves between tiles */
+        double capture_s;               /* moves + every tile's capture, back to back */
+        double process_s;               /* Σ processing, worker-seconds */
+        double wall_s;                  /* start of the first capture to the end of the last
+                                         * processing, processing overlapping capture: a
+                                         * tile is handed to a free worker once captured */
+};
+
+/* Whole-painting figures from per-tile costs, the overlap of capture and processing played
+ * through tile by tile in scan order. -EINVAL for a negative or non-finite cost or no worker. */
+int imp_tile_plan_estimate(const struct imp_tile_plan *p, const struct imp_tile_cost *cost,
+                           struct imp_tile_estimate *ret);

@@ -294,6 +294,39 @@ static void test_conf(void) {
         }
 }
 
+/* Capture and processing overlap: the wall time is the capture plus the last tile's
+ * processing when a worker keeps up, and grows with the processing when it does not. */
+static void test_estimate(void) {
+        _cleanup_(imp_tile_plan_freep) struct imp_tile_plan *p = make(300, 200, 60, 40, 0.2, IMP_TILE_ORDER_ROWS);
+        if (!p)
+                return;
+        double path = 6 * 5 * 48.0 + 5 * 32.0;
+        struct imp_tile_cost c = { .frames = 120, .bytes = 2e9, .capture_s = 60, .process_s = 30, .workers = 1,
+                                   .speed_mm_s = 50, .settle_s = 1 };
+        struct imp_tile_estimate e;
+        CHECK_OK(imp_tile_plan_estimate(p, &c, &e));
+        CHECK_INT_EQ(e.tiles, 36);
+        CHECK_INT_EQ(e.frames, 36 * 120);
+        CHECK_NEAR(e.bytes, 72e9, 1);
+        CHECK_NEAR(e.move_s, path / 50 + 35, 1e-6);
+        CHECK_NEAR(e.capture_s, 36 * 60 + path / 50 + 35, 1e-6);
+        CHECK_NEAR(e.process_s, 36 * 30, 1e-6);
+        CHECK_NEAR(e.wall_s, e.capture_s + 30, 1e-6);   /* the worker keeps up */
+        /* Processing slower than capture: the worker is the bottleneck from the first tile. */
+        c.process_s = 100;
+        CHECK_OK(imp_tile_plan_estimate(p, &c, &e));
+        CHECK_NEAR(e.wall_s, 60 + 36 * 100, 1e-6);
+        /* Two workers keep up again (each has 2 tiles' capture time, > 100 s, per tile). */
+        c.workers = 2;
+        CHECK_OK(imp_tile_plan_estimate(p, &c, &e));
+        CHECK_NEAR(e.wall_s, e.capture_s + 100, 1e-6);
+        c.workers = 0;
+        CHECK_ERR(imp_tile_plan_estimate(p, &c, &e), -EINVAL);
+        c.workers = 1;
+        c.capture_s = NAN;
+        CHECK_ERR(imp_tile_plan_estimate(p, &c, &e), -EINVAL);
+}
+
 int main(void) {
         test_defaults();
         test_exact_fit();
@@ -304,5 +337,6 @@ int main(void) {
         test_targets();
         test_bad_options();
         test_conf();
+        test_estimate();
         return TEST_DONE();
 }
