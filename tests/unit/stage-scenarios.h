@@ -301,6 +301,21 @@ static void test_soft_stop(struct imp_stage *s, struct imp_emu_stage *emu) {
         move_ok(s, 5, 5, 0, IMP_STAGE_XY);
 }
 
+/* Closing the handle while the gantry moves stops it: nothing runs on unattended. */
+static void test_close_stops(struct imp_stage **s, struct imp_emu_stage *emu) {
+        move_ok(*s, 0, 0, 0, IMP_STAGE_XY);
+        double t[3] = { 200, 0, 0 };
+        CHECK_OK(imp_stage_move_to(*s, t, IMP_STAGE_XY));
+        usleep(100000);
+        imp_stage_close(TAKE_PTR(*s));
+        double a[3], b[3];
+        imp_emu_stage_position(emu, a);
+        usleep(200000);
+        imp_emu_stage_position(emu, b);
+        CHECK(a[0] > 1 && a[0] < 150);
+        CHECK_NEAR(b[0], a[0], 1e-9);
+}
+
 static void run_stage_scenarios(struct imp_stage *s, struct imp_emu_stage *emu, const struct imp_emu_stage_config *cfg,
                                 const struct stage_expect *x, double timeout_max_s) {
         test_open(s, cfg);

@@ -126,5 +126,6 @@ int main(void) {
         test_lost_line(s, emu);
         test_two_axes(&s, emu);
         test_negative_space();
+        test_close_stops(&s, emu);
         return TEST_DONE();
 }

@@ -61,5 +61,6 @@ int main(void) {
         run_stage_scenarios(s, emu, &cfg, &x, 1.0);
         test_lost_request(s, emu);
         test_not_a_stage();
+        test_close_stops(&s, emu);
         return TEST_DONE();
 }
