@@ -9,10 +9,13 @@ if(IMPASTO_WITH_ARAVIS)
 endif()
 if(IMPASTO_WITH_MODBUS)
   target_sources(impasto_drivers PRIVATE ${IMP_BACKEND_DIR}/dome-modbus.c
-                 ${IMP_BACKEND_DIR}/modbus-link.c ${IMP_BACKEND_DIR}/projector-modbus.c)
+                 ${IMP_BACKEND_DIR}/modbus-link.c ${IMP_BACKEND_DIR}/projector-modbus.c
+                 ${IMP_BACKEND_DIR}/stage-modbus.c)
   target_link_libraries(impasto_drivers PUBLIC PkgConfig::MODBUS_PKG)
   target_compile_definitions(impasto_drivers PUBLIC IMPASTO_HAVE_MODBUS=1)
 endif()
+# Stage "grbl": G-code over a serial line, termios only (docs/drivers.md, "Motion stage").
+target_sources(impasto_drivers PRIVATE ${IMP_BACKEND_DIR}/stage-grbl.c)
 if(IMPASTO_WITH_GPIOD)
   target_sources(impasto_drivers PRIVATE ${IMP_BACKEND_DIR}/dome-gpiod.c)
   target_link_libraries(impasto_drivers PUBLIC PkgConfig::GPIOD_PKG)

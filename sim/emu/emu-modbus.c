@@ -17,6 +17,7 @@
 #include <time.h>
 #include <unistd.h>
 #include "emu.h"
+#include "emu-modbus-pdu.h"
 
 /* Register map, version 1 (docs/dome-registers.md). */
 #define REG_MAGIC       0x0000
@@ -220,24 +221,6 @@ static int check_write(struct imp_emu_modbus *e, unsigned addr, uint16_t v) {
         return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
 }
 
-/* Decode a write request into (addr, n, values). Returns n, 0 for a non-write. */
-static unsigned decode_write(const uint8_t *q, int hl, unsigned *addr, uint16_t *vals, unsigned max) {
-        uint8_t fc = q[hl];
-        *addr = (unsigned) q[hl + 1] << 8 | q[hl + 2];
-        if (fc == MODBUS_FC_WRITE_SINGLE_REGISTER) {
-                vals[0] = (uint16_t) (q[hl + 3] << 8 | q[hl + 4]);
-                return 1;
-        }
-        if (fc == MODBUS_FC_WRITE_MULTIPLE_REGISTERS) {
-                unsigned n = (unsigned) q[hl + 3] << 8 | q[hl + 4];
-                n = IMP_MIN(n, max);
-                for (unsigned i = 0; i < n; i++)
-                        vals[i] = (uint16_t) (q[hl + 6 + 2 * i] << 8 | q[hl + 7 + 2 * i]);
-                return n;
-        }
-        return 0;
-}
-
 static struct imp_pattern proj_desc_locked(struct imp_emu_modbus *e, unsigned i) {
         const uint16_t *d = &e->map->tab_registers[REG_PROJ_DESC0 + i * PROJ_DESC_STRIDE];
         return (struct imp_pattern) {
@@ -367,7 +350,7 @@ static void serve_request(struct imp_emu_modbus *e, int slot, const uint8_t *q, 
         update_locked(e);
         unsigned addr;
         uint16_t vals[128];
-        unsigned n = decode_write(q, hl, &addr, vals, ARRAY_SIZE(vals));
+        unsigned n = emu_modbus_decode_write(q, hl, &addr, vals, ARRAY_SIZE(vals));
         for (unsigned i = 0; i < n; i++) {
                 int exc = check_write(e, addr + i, vals[i]);
                 if (!exc)

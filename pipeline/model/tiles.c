@@ -1,0 +1,314 @@
+/* Tile plans (tiles.h): even spacing with at least the asked overlap, serpentine order,
+ * per-tile stage targets and height offsets. Pure arithmetic, no I/O but the conf group. */
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+#include "tiles.h"
+
+struct imp_tile_plan {
+        struct imp_tile_options opt;
+        unsigned cols, rows;
+        double step_mm[2];
+        struct imp_tile *tiles;         /* scan order */
+        double *correction_mm;          /* per grid cell, row-major */
+};
+
+void imp_tile_options_default(struct imp_tile_options *ret) {
+        *ret = (struct imp_tile_options) { .overlap = IMP_TILES_DEFAULT_OVERLAP, .order = IMP_TILE_ORDER_ROWS };
+}
+
+static int check_options(const struct imp_tile_options *o, struct imp_error *err) {
+        static const char axis[2] = { 'x', 'y' };
+        for (int a = 0; a < 2; a++) {
+                if (!(isfinite(o->extent_mm[a]) && o->extent_mm[a] > 0))
+                        return imp_error_set(err, -EINVAL, "tiles: extent_mm %c: expected a number > 0, got %g",
+                                             axis[a], o->extent_mm[a]);
+                if (!(isfinite(o->fov_mm[a]) && o->fov_mm[a] > 0))
+                        return imp_error_set(err, -EINVAL, "tiles: fov_mm %c: expected a number > 0, got %g",
+                                             axis[a], o->fov_mm[a]);
+                if (!isfinite(o->origin_mm[a]))
+                        return imp_error_set(err, -EINVAL, "tiles: origin_mm %c: expected a finite number", axis[a]);
+        }
+        if (!(o->overlap >= 0 && o->overlap <= IMP_TILES_MAX_OVERLAP))
+                return imp_error_set(err, -EINVAL, "tiles: overlap: expected 0..%g (a fraction of the field), got %g",
+                                     IMP_TILES_MAX_OVERLAP, o->overlap);
+        if (o->order != IMP_TILE_ORDER_ROWS && o->order != IMP_TILE_ORDER_COLUMNS)
+                return imp_error_set(err, -EINVAL, "tiles: order: expected rows or columns, got %d", (int) o->order);
+        if (!isfinite(o->z_mm))
+                return imp_error_set(err, -EINVAL, "tiles: z_mm: expected a finite number");
+        for (int i = 0; i < 4; i++)
+                if (!isfinite(o->corner_z_mm[i]))
+                        return imp_error_set(err, -EINVAL, "tiles: corner_z_mm[%d]: expected a finite number", i);
+        return 0;
+}
+
+/* Tiles along one axis and their spacing (0 for a single tile). */
+static unsigned axis_count(double extent, double fov, double overlap, double *ret_step) {
+        if (extent <= fov) {
+                *ret_step = 0;
+                return 1;
+        }
+        /* A hair of slack so that an exact fit (240 / 48) does not round up to one more tile. */
+        double n = 1 + ceil((extent - fov) / (fov * (1 - overlap)) - 1e-9);
+        *ret_step = (extent - fov) / (n - 1);
+        return n > IMP_TILES_MAX ? IMP_TILES_MAX + 1 : (unsigned) n;
+}
+
+static double axis_center(double extent, double fov, double step, unsigned i) {
+        return step > 0 ? fov / 2 + step * i : extent / 2;
+}
+
+/* The corners' bilinear surface at (x, y) of the painting frame. */
+static double corner_surface(const struct imp_tile_options *o, double x, double y) {
+        double u = IMP_CLAMP(x / o->extent_mm[0], 0.0, 1.0), v = IMP_CLAMP(y / o->extent_mm[1], 0.0, 1.0);
+        const double *c = o->corner_z_mm;
+        return (1 - u) * (1 - v) * c[0] + u * (1 - v) * c[1] + (1 - u) * v * c[2] + u * v * c[3];
+}
+
+/* Grid cell of scan position k: serpentine along the fast axis. */
+static void scan_cell(const struct imp_tile_plan *p, unsigned k, unsigned *ret_col, unsigned *ret_row) {
+        bool rows = p->opt.order == IMP_TILE_ORDER_ROWS;
+        unsigned fast_n = rows ? p->cols : p->rows;
+        unsigned slow = k / fast_n, fast = k % fast_n;
+        if (slow % 2)
+                fast = fast_n - 1 - fast;
+        *ret_col = rows ? fast : slow;
+        *ret_row = rows ? slow : fast;
+}
+
+static void fill_tile(struct imp_tile_plan *p, unsigned k) {
+        const struct imp_tile_options *o = &p->opt;
+        struct imp_tile *t = &p->tiles[k];
+        unsigned col, row;
+        scan_cell(p, k, &col, &row);
+        double cx = axis_center(o->extent_mm[0], o->fov_mm[0], p->step_mm[0], col);
+        double cy = axis_center(o->extent_mm[1], o->fov_mm[1], p->step_mm[1], row);
+        double z_off = corner_surface(o, cx, cy) + p->correction_mm[(size_t) row * p->cols + col];
+        *t = (struct imp_tile) {
+                .index = k, .col = col, .row = row,
+                .center_mm = { cx, cy },
+                .rect_mm = { cx - o->fov_mm[0] / 2, cy - o->fov_mm[1] / 2, cx + o->fov_mm[0] / 2, cy + o->fov_mm[1] / 2 },
+                .z_offset_mm = z_off,
+                .stage_mm = { o->origin_mm[0] + cx, o->origin_mm[1] + cy, o->z_mm + z_off },
+        };
+}
+
+int imp_tile_plan_new(const struct imp_tile_options *o, struct imp_tile_plan **ret, struct imp_error *err) {
+        if (!o || !ret)
+                return -EINVAL;
+        int r = check_options(o, err);
+        if (r < 0)
+                return r;
+        _cleanup_(imp_tile_plan_freep) struct imp_tile_plan *p = calloc(1, sizeof *p);
+        if (!p)
+                return -ENOMEM;
+        p->opt = *o;
+        p->cols = axis_count(o->extent_mm[0], o->fov_mm[0], o->overlap, &p->step_mm[0]);
+        p->rows = axis_count(o->extent_mm[1], o->fov_mm[1], o->overlap, &p->step_mm[1]);
+        if ((uint64_t) p->cols * p->rows > IMP_TILES_MAX)
+                return imp_error_set(err, -E2BIG, "tiles: %u × %u tiles for %g × %g mm at a %g × %g mm field: more than %d",
+                                     p->cols, p->rows, o->extent_mm[0], o->extent_mm[1], o->fov_mm[0], o->fov_mm[1],
+                                     IMP_TILES_MAX);
+        size_t n = (size_t) p->cols * p->rows;
+        p->tiles = calloc(n, sizeof *p->tiles);
+        p->correction_mm = calloc(n, sizeof *p->correction_mm);
+        if (!p->tiles || !p->correction_mm)
+                return -ENOMEM;
+        for (unsigned k = 0; k < n; k++)
+                fill_tile(p, k);
+        *ret = TAKE_PTR(p);
+        return 0;
+}
+
+void imp_tile_plan_free(struct imp_tile_plan *p) {
+        if (!p)
+                return;
+        free(p->tiles);
+        free(p->correction_mm);
+        free(p);
+}
+
+const struct imp_tile_options *imp_tile_plan_options(const struct imp_tile_plan *p) {
+        return &p->opt;
+}
+
+size_t imp_tile_plan_count(const struct imp_tile_plan *p) {
+        return p ? (size_t) p->cols * p->rows : 0;
+}
+
+const struct imp_tile *imp_tile_plan_tile(const struct imp_tile_plan *p, size_t i) {
+        return p && i < imp_tile_plan_count(p) ? &p->tiles[i] : NULL;
+}
+
+/* Scan position of grid cell (col, row): scan_cell inverted. */
+static size_t scan_index(const struct imp_tile_plan *p, unsigned col, unsigned row) {
+        bool rows = p->opt.order == IMP_TILE_ORDER_ROWS;
+        unsigned fast_n = rows ? p->cols : p->rows;
+        unsigned slow = rows ? row : col, fast = rows ? col : row;
+        if (slow % 2)
+                fast = fast_n - 1 - fast;
+        return (size_t) slow * fast_n + fast;
+}
+
+const struct imp_tile *imp_tile_plan_at(const struct imp_tile_plan *p, unsigned col, unsigned row) {
+        if (!p || col >= p->cols || row >= p->rows)
+                return NULL;
+        return &p->tiles[scan_index(p, col, row)];
+}
+
+void imp_tile_plan_grid(const struct imp_tile_plan *p, unsigned *ret_cols, unsigned *ret_rows) {
+        *ret_cols = p->cols;
+        *ret_rows = p->rows;
+}
+
+void imp_tile_plan_spacing(const struct imp_tile_plan *p, double ret_step_mm[2], double ret_overlap[2]) {
+        for (int a = 0; a < 2; a++) {
+                ret_step_mm[a] = p->step_mm[a];
+                ret_overlap[a] = p->step_mm[a] > 0 ? 1 - p->step_mm[a] / p->opt.fov_mm[a] : 0;
+        }
+}
+
+int imp_tile_plan_set_z_correction(struct imp_tile_plan *p, unsigned col, unsigned row, double z_mm) {
+        if (!p || col >= p->cols || row >= p->rows)
+                return -ERANGE;
+        if (!isfinite(z_mm))
+                return -EINVAL;
+        p->correction_mm[(size_t) row * p->cols + col] = z_mm;
+        fill_tile(p, (unsigned) scan_index(p, col, row));
+        return 0;
+}
+
+int imp_tile_plan_check_limits(const struct imp_tile_plan *p, const double min_mm[3], const double max_mm[3],
+                               struct imp_error *err) {
+        size_t n = imp_tile_plan_count(p);
+        for (size_t i = 0; i < n; i++) {
+                const struct imp_tile *t = &p->tiles[i];
+                for (int a = 0; a < 3; a++)
+                        if (!(t->stage_mm[a] >= min_mm[a] && t->stage_mm[a] <= max_mm[a]))
+                                return imp_error_set(err, -ERANGE,
+                                                     "tiles: tile %u (col %u, row %u): stage %c %.3f mm outside [%.3f, %.3f] mm",
+                                                     t->index, t->col, t->row, "xyz"[a], t->stage_mm[a], min_mm[a],
+                                                     max_mm[a]);
+        }
+        return 0;
+}
+
+static double move_len(const struct imp_tile *a, const struct imp_tile *b);
+
+double imp_tile_plan_path_mm(const struct imp_tile_plan *p) {
+        double len = 0;
+        size_t n = imp_tile_plan_count(p);
+        for (size_t i = 1; i < n; i++)
+                len += move_len(&p->tiles[i - 1], &p->tiles[i]);
+        return len;
+}
+
+double imp_tile_plan_move_s(const struct imp_tile_plan *p, double speed_mm_s, double settle_s) {
+        size_t n = imp_tile_plan_count(p);
+        if (n < 2 || !(speed_mm_s > 0))
+                return 0;
+        return imp_tile_plan_path_mm(p) / speed_mm_s + (double) (n - 1) * settle_s;
+}
+
+static double move_len(const struct imp_tile *a, const struct imp_tile *b) {
+        const double *u = a->stage_mm, *v = b->stage_mm;
+        return sqrt((v[0] - u[0]) * (v[0] - u[0]) + (v[1] - u[1]) * (v[1] - u[1]) + (v[2] - u[2]) * (v[2] - u[2]));
+}
+
+#define ESTIMATE_MAX_WORKERS 256
+
+int imp_tile_plan_estimate(const struct imp_tile_plan *p, const struct imp_tile_cost *c, struct imp_tile_estimate *ret) {
+        if (!p || !c || !ret)
+                return -EINVAL;
+        if (!(c->bytes >= 0 && isfinite(c->bytes) && c->capture_s >= 0 && isfinite(c->capture_s) &&
+              c->process_s >= 0 && isfinite(c->process_s) && c->speed_mm_s > 0 && isfinite(c->speed_mm_s) &&
+              c->settle_s >= 0 && isfinite(c->settle_s)) || c->workers < 1 || c->workers > ESTIMATE_MAX_WORKERS)
+                return -EINVAL;
+        size_t n = imp_tile_plan_count(p);
+        double free_at[ESTIMATE_MAX_WORKERS] = { 0 };
+        double captured = 0, end = 0;
+        for (size_t i = 0; i < n; i++) {
+                if (i > 0)
+                        captured += move_len(&p->tiles[i - 1], &p->tiles[i]) / c->speed_mm_s + c->settle_s;
+                captured += c->capture_s;
+                unsigned w = 0;         /* the worker free first */
+                for (unsigned k = 1; k < c->workers; k++)
+                        if (free_at[k] < free_at[w])
+                                w = k;
+                free_at[w] = fmax(free_at[w], captured) + c->process_s;
+                end = fmax(end, free_at[w]);
+        }
+        *ret = (struct imp_tile_estimate) {
+                .tiles = n, .frames = n * c->frames, .bytes = (double) n * c->bytes,
+                .move_s = imp_tile_plan_move_s(p, c->speed_mm_s, c->settle_s),
+                .capture_s = captured, .process_s = (double) n * c->process_s, .wall_s = end,
+        };
+        return 0;
+}
+
+/* ---- the plan file's group ------------------------------------------------------------------ */
+
+static int parse_options(const struct imp_conf *c, const config_setting_t *g, struct imp_tile_options *o,
+                         struct imp_error *err) {
+        static const char *const known[] = { "extent_mm", "fov_mm", "overlap", "order", "origin_mm", "z_mm",
+                                             "corner_z_mm", "z_corrections", NULL };
+        static const char *const orders[] = { "rows", "columns", NULL };
+        int order = IMP_TILE_ORDER_ROWS, r;
+        imp_tile_options_default(o);
+        if ((r = imp_conf_check_known(c, g, known, err)) < 0 ||
+            (r = imp_conf_get_doubles(c, g, "extent_mm", true, 2, o->extent_mm, 2, NULL, err)) < 0 ||
+            (r = imp_conf_get_doubles(c, g, "fov_mm", true, 2, o->fov_mm, 2, NULL, err)) < 0 ||
+            (r = imp_conf_get_double(c, g, "overlap", false, 0, IMP_TILES_MAX_OVERLAP, &o->overlap, err)) < 0 ||
+            (r = imp_conf_get_enum(c, g, "order", false, orders, &order, err)) < 0 ||
+            (r = imp_conf_get_doubles(c, g, "origin_mm", false, 2, o->origin_mm, 2, NULL, err)) < 0 ||
+            (r = imp_conf_get_double(c, g, "z_mm", false, -1e6, 1e6, &o->z_mm, err)) < 0 ||
+            (r = imp_conf_get_doubles(c, g, "corner_z_mm", false, 4, o->corner_z_mm, 4, NULL, err)) < 0)
+                return r;
+        o->order = (enum imp_tile_order) order;
+        return 0;
+}
+
+static int parse_corrections(const struct imp_conf *c, const config_setting_t *g, struct imp_tile_plan *p,
+                             struct imp_error *err) {
+        static const char *const known[] = { "tile", "z_mm", NULL };
+        config_setting_t *list = NULL;
+        int r = imp_conf_get_list(c, g, "z_corrections", false, &list, err);
+        if (r < 0 || !list)
+                return r;
+        for (int i = 0; i < config_setting_length(list); i++) {
+                config_setting_t *e = config_setting_get_elem(list, (unsigned) i);
+                double cell[2], z = 0;
+                if ((r = imp_conf_check_known(c, e, known, err)) < 0 ||
+                    (r = imp_conf_get_doubles(c, e, "tile", true, 2, cell, 2, NULL, err)) < 0 ||
+                    (r = imp_conf_get_double(c, e, "z_mm", true, -1e3, 1e3, &z, err)) < 0)
+                        return r;
+                if (cell[0] != floor(cell[0]) || cell[1] != floor(cell[1]) || cell[0] < 0 || cell[1] < 0 ||
+                    cell[0] >= p->cols || cell[1] >= p->rows)
+                        return imp_error_set(err, -EINVAL, "%s:%d: %s.tile: expected [col, row] inside the %u × %u grid, got [%g, %g]",
+                                             imp_conf_path(c), config_setting_source_line(e), imp_conf_setting_path(e),
+                                             p->cols, p->rows, cell[0], cell[1]);
+                (void) imp_tile_plan_set_z_correction(p, (unsigned) cell[0], (unsigned) cell[1], z);
+        }
+        return 0;
+}
+
+int imp_tile_plan_from_conf(const struct imp_conf *c, const config_setting_t *group, struct imp_tile_plan **ret,
+                            struct imp_error *err) {
+        if (!c || !group || !ret)
+                return -EINVAL;
+        struct imp_tile_options o;
+        int r = parse_options(c, group, &o, err);
+        if (r < 0)
+                return r;
+        _cleanup_(imp_tile_plan_freep) struct imp_tile_plan *p = NULL;
+        r = imp_tile_plan_new(&o, &p, err);
+        if (r < 0)
+                return imp_error_prefix(err, "%s:%d: %s: ", imp_conf_path(c), config_setting_source_line(group),
+                                        imp_conf_setting_path(group));
+        r = parse_corrections(c, group, p, err);
+        if (r < 0)
+                return r;
+        *ret = TAKE_PTR(p);
+        return 0;
+}
