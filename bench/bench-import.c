@@ -1,0 +1,125 @@
+/* Photometric import benches (docs/import.md):
+ *   bench-import export --scene FILE --out DIR [--exposure-us US]
+ *       renders the scene's dome sweep (DIR/capture, with truth-normals.exr) and writes it as
+ *       another rig would hand it over (DIR/stack: PNG + lights.lp + intensities.txt)
+ *   bench-import woodham --scene FILE --work DIR [--exposure-us US]
+ *       the same, then imports the stack and processes it twice — plain least-squares
+ *       Lambertian photometric stereo (Woodham 1980) and `--photometric-only` — and prints
+ *       both mean angular errors against the truth normals and their ratio. */
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+#include "bench-import-sim.h"
+#include "compare-normals.h"
+#include "import-photometric.h"
+#include "process-photometric.h"
+
+static double now_s(void) {
+        struct timespec ts;
+        clock_gettime(CLOCK_MONOTONIC, &ts);
+        return ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+static int export_stack(const char *scene, const char *work, double exposure_us, struct sim_export_info *info,
+                        struct imp_error *err) {
+        char cap[4200], stack[4200];
+        snprintf(cap, sizeof cap, "%s/capture", work);
+        snprintf(stack, sizeof stack, "%s/stack", work);
+        int r = sim_dome_capture(scene, exposure_us, cap, err);
+        if (r >= 0)
+                r = sim_export_stack(cap, stack, info, err);
+        return r;
+}
+
+/* Imports WORK/stack, processes it with `method`, compares with the truth. */
+static int run_method(const char *work, const struct sim_export_info *info, enum imp_po_method method,
+                      struct imp_normals_cmp *ret, double *ret_s, struct imp_error *err) {
+        char stack[2048], lp[4200], inten[4200], set[4200], copy[4200], truth[4200], mask[4200];
+        const char *name = method == IMP_PO_WOODHAM ? "woodham" : "robust";
+        snprintf(stack, sizeof stack, "%s/stack", work);
+        snprintf(lp, sizeof lp, "%s/lights.lp", stack);
+        snprintf(inten, sizeof inten, "%s/intensities.txt", stack);
+        snprintf(set, sizeof set, "%s/imported", work);
+        snprintf(copy, sizeof copy, "%s/copy-%s", work, name);
+        snprintf(truth, sizeof truth, "%s/capture/truth-normals.exr", work);
+        snprintf(mask, sizeof mask, "%s/capture/truth-mask.png", work);
+        struct imp_import_photometric_options io;
+        imp_import_photometric_options_default(&io);
+        io.images_dir = stack, io.lp_path = lp, io.intensities_path = inten;
+        io.pixel_mm = info->pixel_mm, io.camera_distance_mm = info->camera_distance_mm;
+        int r = 0;
+        if (method == IMP_PO_ROBUST || access(set, F_OK) != 0)
+                r = imp_import_photometric(&io, set, err);
+        struct imp_po_options po;
+        imp_po_options_default(&po);
+        po.method = method;
+        po.btf = po.heights = false;
+        double t0 = now_s();
+        if (r < 0 || (r = imp_process_photometric(set, copy, &po, err)) < 0)
+                return r;
+        *ret_s = now_s() - t0;
+        _cleanup_image_ struct imp_image *est = NULL, *tn = NULL, *mk = NULL;
+        if ((r = imp_normals_read(copy, &est, err)) < 0 || (r = imp_normals_read(truth, &tn, err)) < 0 ||
+            (r = imp_image_read(mask, &mk, err)) < 0)
+                return r;
+        r = imp_normals_compare(est, tn, mk, ret);
+        return r < 0 ? imp_error_set(err, r, "compare: %s", strerror(-r)) : 0;
+}
+
+static int woodham(const char *scene, const char *work, double exposure_us) {
+        struct imp_error err = {};
+        struct sim_export_info info;
+        struct imp_normals_cmp w, rb;
+        double tw = 0, tr = 0;
+        int r = export_stack(scene, work, exposure_us, &info, &err);
+        if (r >= 0)
+                r = run_method(work, &info, IMP_PO_ROBUST, &rb, &tr, &err);
+        if (r >= 0)
+                r = run_method(work, &info, IMP_PO_WOODHAM, &w, &tw, &err);
+        if (r < 0) {
+                fprintf(stderr, "bench-import: %s\n", err.msg[0] ? err.msg : strerror(-r));
+                return 1;
+        }
+        printf("scene %s: %d lights, %dx%d pixels (%.4f mm), %ld compared\n", scene, info.n_lights, info.width,
+               info.height, info.pixel_mm, rb.n);
+        printf("%-22s %9s %9s %9s %9s %9s %8s\n", "method", "mean_deg", "median", "p90", "<10deg", "<20deg", "seconds");
+        printf("%-22s %9.3f %9.3f %9.3f %9.4f %9.4f %8.2f\n", "woodham (plain LS)", w.mean_deg, w.median_deg,
+               w.p90_deg, w.within_10deg, w.within_20deg, tw);
+        printf("%-22s %9.3f %9.3f %9.3f %9.4f %9.4f %8.2f\n", "photometric-only", rb.mean_deg, rb.median_deg,
+               rb.p90_deg, rb.within_10deg, rb.within_20deg, tr);
+        printf("ratio woodham / photometric-only (mean): %.2f\n", rb.mean_deg > 0 ? w.mean_deg / rb.mean_deg : 0);
+        return 0;
+}
+
+int main(int argc, char **argv) {
+        const char *scene = NULL, *dir = NULL;
+        double exposure_us = 10000;
+        for (int i = 2; i + 1 < argc; i += 2) {
+                if (!strcmp(argv[i], "--scene"))
+                        scene = argv[i + 1];
+                else if (!strcmp(argv[i], "--out") || !strcmp(argv[i], "--work"))
+                        dir = argv[i + 1];
+                else if (!strcmp(argv[i], "--exposure-us"))
+                        exposure_us = atof(argv[i + 1]);
+        }
+        if (argc < 2 || !scene || !dir || !(exposure_us > 0)) {
+                fprintf(stderr, "usage: bench-import export|woodham --scene FILE --out|--work DIR [--exposure-us US]\n");
+                return 2;
+        }
+        if (!strcmp(argv[1], "woodham"))
+                return woodham(scene, dir, exposure_us);
+        struct imp_error err = {};
+        struct sim_export_info info;
+        int r = export_stack(scene, dir, exposure_us, &info, &err);
+        if (r < 0) {
+                fprintf(stderr, "bench-import: %s\n", err.msg[0] ? err.msg : strerror(-r));
+                return 1;
+        }
+        printf("impasto import photometric --images %s/stack --lights %s/stack/lights.lp --intensities "
+               "%s/stack/intensities.txt --pixel-size %.9g --camera-distance %.9g --out %s/imported\n",
+               dir, dir, dir, info.pixel_mm, info.camera_distance_mm, dir);
+        return 0;
+}
