@@ -1,0 +1,8 @@
+# Captures from other rigs (docs/import.md): the photometric import, --photometric-only and
+# compare-normals on synthetic stacks; the simulator round trip (export → import → process
+# gives the native set's normals).
+impasto_test(test-import LIBS impasto_pipeline)
+impasto_test(test-import-roundtrip LABELS integration TIMEOUT 600 LIBS impasto_pipeline impasto_sim
+  SOURCE unit/test-import-roundtrip.c)
+target_sources(test-import-roundtrip PRIVATE ${PROJECT_SOURCE_DIR}/bench/bench-import-sim.c)
+target_include_directories(test-import-roundtrip PRIVATE ${PROJECT_SOURCE_DIR}/bench)
