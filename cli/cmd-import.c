@@ -2,6 +2,7 @@
  *   impasto import photometric --images DIR --lights FILE.lp [--intensities FILE] [--mask MASK.png]
  *                              [--pixel-size MM] [--camera-distance MM] [--light-kind K] [--lp-unit MM]
  *                              --out CAPSET
+ *   impasto import sl --frames DIR --order opencv-graycode --projector WxH --calib RIG.json --out CAPSET
  * The parsing and writing are in pipeline/model/import-photometric.c. */
 #include <errno.h>
 #include <getopt.h>
@@ -11,6 +12,7 @@
 #include <string.h>
 #include "commands.h"
 #include "import-photometric.h"
+#include "import-sl.h"
 #include "log.h"
 
 #define EXIT_USAGE 2
@@ -31,7 +33,13 @@ static void usage(FILE *f) {
                    "  --light-kind K       auto (default): unit vectors are distant lights, vectors longer\n"
                    "                       than 1.5 are positions; directions: every row must be unit\n"
                    "  --lp-unit MM         millimetres per .lp position unit (default 1)\n"
-                   "  The images folder is only read.\n");
+                   "  The images folder is only read.\n"
+                   "usage: impasto import sl --frames DIR --order opencv-graycode --projector WxH\n"
+                   "                         --calib RIG.json --out CAPSET\n"
+                   "  The camera frames of OpenCV's GrayCodePattern sequence (column then row bit planes,\n"
+                   "  most significant first, each followed by its inverse; then white, black), in file\n"
+                   "  name order, with the rig.json of `impasto calibrate procam --out`, become a capture\n"
+                   "  set for `impasto process CAPSET --out DIR --range-only` (range.exr on the camera grid).\n");
 }
 
 static int positive_arg(const char *name, const char *arg, double *ret) {
@@ -98,6 +106,56 @@ static int run_photometric(int argc, char **argv) {
         return 0;
 }
 
+static int parse_wxh(const char *arg, int *w, int *h) {
+        char *end;
+        long a = strtol(arg, &end, 10), b = *end == 'x' ? strtol(end + 1, &end, 10) : 0;
+        if (*end || a < 2 || b < 2 || a > 65536 || b > 65536) {
+                log_error("--projector: expected WxH (2..65536 each), got '%s'", arg);
+                return -EINVAL;
+        }
+        *w = (int) a, *h = (int) b;
+        return 0;
+}
+
+static int run_sl(int argc, char **argv) {
+        struct imp_import_sl_options o = {};
+        const char *out = NULL, *order = NULL;
+        static const struct option longopts[] = {
+                { "frames", required_argument, NULL, 'f' }, { "order", required_argument, NULL, 'r' },
+                { "projector", required_argument, NULL, 'p' }, { "calib", required_argument, NULL, 'c' },
+                { "out", required_argument, NULL, 'o' }, { "help", no_argument, NULL, 'h' }, {}
+        };
+        int c;
+        optind = 1;
+        while ((c = getopt_long(argc, argv, "o:h", longopts, NULL)) >= 0)
+                switch (c) {
+                case 'f': o.frames_dir = optarg; break;
+                case 'r': order = optarg; break;
+                case 'c': o.calib_path = optarg; break;
+                case 'o': out = optarg; break;
+                case 'p': if (parse_wxh(optarg, &o.proj_width, &o.proj_height) < 0) return EXIT_USAGE; break;
+                case 'h': usage(stdout); return 0;
+                default: usage(stderr); return EXIT_USAGE;
+                }
+        if (optind != argc || !o.frames_dir || !o.calib_path || !out || !o.proj_width || !order) {
+                log_error("import sl: --frames, --order, --projector, --calib and --out are required");
+                usage(stderr);
+                return EXIT_USAGE;
+        }
+        if (strcmp(order, "opencv-graycode")) {
+                log_error("--order: expected opencv-graycode, got '%s'", order);
+                return EXIT_USAGE;
+        }
+        struct imp_error err = {};
+        int r = imp_import_sl(&o, out, &err);
+        if (r < 0) {
+                log_error("%s", err.msg[0] ? err.msg : strerror(-r));
+                return r == -ENOMEM || r == -EIO || r == -ENOSPC ? 1 : EXIT_BADINPUT;
+        }
+        printf("capture set written to %s\n", out);
+        return 0;
+}
+
 static int run(int argc, char **argv) {
         if (argc < 2 || !strcmp(argv[1], "--help") || !strcmp(argv[1], "-h")) {
                 usage(argc < 2 ? stderr : stdout);
@@ -105,13 +163,15 @@ static int run(int argc, char **argv) {
         }
         if (!strcmp(argv[1], "photometric"))
                 return run_photometric(argc - 1, argv + 1);
-        log_error("import: unknown source '%s' (expected photometric)", argv[1]);
+        if (!strcmp(argv[1], "sl"))
+                return run_sl(argc - 1, argv + 1);
+        log_error("import: unknown source '%s' (expected photometric or sl)", argv[1]);
         usage(stderr);
         return EXIT_USAGE;
 }
 
 const struct imp_command imp_cmd_import = {
         .name = "import",
-        .summary = "turn captures from other rigs (RTI/photometric stacks) into capture sets",
+        .summary = "turn captures from other rigs (RTI/photometric stacks, Gray-code sequences) into capture sets",
         .run = run,
 };
