@@ -6,3 +6,6 @@ impasto_test(test-import-roundtrip LABELS integration TIMEOUT 600 LIBS impasto_p
   SOURCE unit/test-import-roundtrip.c)
 target_sources(test-import-roundtrip PRIVATE ${PROJECT_SOURCE_DIR}/bench/bench-import-sim.c)
 target_include_directories(test-import-roundtrip PRIVATE ${PROJECT_SOURCE_DIR}/bench)
+# Gray-code sequences in OpenCV's order (import sl); the real capture part reads
+# ../shared/data/procam-graycode (skipped when absent) and decodes 1280x1024 frames.
+impasto_test(test-import-sl LABELS integration LIBS impasto_pipeline)
