@@ -78,6 +78,8 @@ static long folder_digest(const char *dir) {
         long sum = 0;
         struct dirent *e;
         while (d && (e = readdir(d))) {
+                if (e->d_name[0] == '.')
+                        continue;   /* "..": the test writes its bad files beside the folder */
                 char p[1024];
                 struct stat st;
                 snprintf(p, sizeof p, "%s/%s", dir, e->d_name);
