@@ -18,7 +18,7 @@
 static int write_truth(struct imp_render *rd, const struct imp_pinhole *m, const char *dir, struct imp_error *err) {
         _cleanup_image_ struct imp_image *n = NULL, *mask = NULL;
         int r;
-        if ((r = imp_image_new(m->width, m->height, 3, IMP_PIX_F32, &n)) < 0 ||
+        if ((r = imp_image_new(m->width, m->height, 4, IMP_PIX_F32, &n)) < 0 ||
             (r = imp_image_new(m->width, m->height, 1, IMP_PIX_U8, &mask)) < 0)
                 return imp_error_set(err, r, "truth: cannot allocate");
         for (int y = 0; y < m->height; y++)
@@ -26,15 +26,16 @@ static int write_truth(struct imp_render *rd, const struct imp_pinhole *m, const
                         double p[3], w[3], c[3];
                         float *o = imp_image_f32(n, x, y);
                         if (imp_render_view_point(rd, 0, x, y, p, w) < 0) {
-                                o[0] = o[1] = o[2] = NAN;
+                                o[0] = o[1] = o[2] = o[3] = NAN;
                                 continue;
                         }
                         for (int j = 0; j < 3; j++)
                                 c[j] = m->R[3 * j] * w[0] + m->R[3 * j + 1] * w[1] + m->R[3 * j + 2] * w[2];
                         o[0] = (float) c[0], o[1] = (float) -c[1], o[2] = (float) -c[2];
+                        o[3] = (float) p[2];   /* height above the canvas plane, mm */
                         *imp_image_u8(mask, x, y) = 255;
                 }
-        static const char *const names[] = { "nx", "ny", "nz" };
+        static const char *const names[] = { "nx", "ny", "nz", "height" };
         char path[4200];
         snprintf(path, sizeof path, "%s/truth-normals.exr", dir);
         if ((r = imp_exr_write(path, n, names, false, err)) < 0)

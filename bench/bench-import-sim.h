@@ -7,7 +7,8 @@
 #include "error.h"
 
 /* Renders every dome light of SCENE once (exposure_us) into a new capture set at DIR, and
- * DIR/truth-normals.exr (nx, ny, nz per camera pixel, image frame) with DIR/truth-mask.png
+ * DIR/truth-normals.exr (nx, ny, nz per camera pixel, image frame; height: the surface's z,
+ * mm) with DIR/truth-mask.png
  * (255 where the pixel sees the paint, not the frame). */
 int sim_dome_capture(const char *scene_path, double exposure_us, const char *dir, struct imp_error *err);
 
