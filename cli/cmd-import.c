@@ -10,9 +10,13 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include "commands.h"
 #include "import-photometric.h"
 #include "import-sl.h"
+#ifdef IMPASTO_HAVE_CV
+#include "cv-procam-xml.h"
+#endif
 #include "log.h"
 
 #define EXIT_USAGE 2
@@ -35,11 +39,13 @@ static void usage(FILE *f) {
                    "  --lp-unit MM         millimetres per .lp position unit (default 1)\n"
                    "  The images folder is only read.\n"
                    "usage: impasto import sl --frames DIR --order opencv-graycode --projector WxH\n"
-                   "                         --calib RIG.json --out CAPSET\n"
+                   "                         --calib RIG.json|CALIB.xml --out CAPSET\n"
                    "  The camera frames of OpenCV's GrayCodePattern sequence (column then row bit planes,\n"
                    "  most significant first, each followed by its inverse; then white, black), in file\n"
-                   "  name order, with the rig.json of `impasto calibrate procam --out`, become a capture\n"
-                   "  set for `impasto process CAPSET --out DIR --range-only` (range.exr on the camera grid).\n");
+                   "  name order, with the rig.json of `impasto calibrate procam --out` (or an OpenCV\n"
+                   "  XML/YAML file with cam_int, cam_dist, proj_int, proj_dist, rotation, translation,\n"
+                   "  as procam-calibration writes it), become a capture set for\n"
+                   "  `impasto process CAPSET --out DIR --range-only` (range.exr on the camera grid).\n");
 }
 
 static int positive_arg(const char *name, const char *arg, double *ret) {
@@ -147,7 +153,20 @@ static int run_sl(int argc, char **argv) {
                 return EXIT_USAGE;
         }
         struct imp_error err = {};
-        int r = imp_import_sl(&o, out, &err);
+        struct imp_rig xml_rig = {};
+        int r = 0;
+        const char *ext = strrchr(o.calib_path, '.');
+        if (ext && (!strcasecmp(ext, ".xml") || !strcasecmp(ext, ".yml") || !strcasecmp(ext, ".yaml"))) {
+#ifdef IMPASTO_HAVE_CV
+                r = imp_cv_procam_xml_rig(o.calib_path, &xml_rig, &err);
+                o.calib_rig = &xml_rig;
+#else
+                r = imp_error_set(&err, -EOPNOTSUPP, "%s: OpenCV XML/YAML needs impasto built with OpenCV", o.calib_path);
+#endif
+        }
+        if (r >= 0)
+                r = imp_import_sl(&o, out, &err);
+        imp_rig_free(&xml_rig);
         if (r < 0) {
                 log_error("%s", err.msg[0] ? err.msg : strerror(-r));
                 return r == -ENOMEM || r == -EIO || r == -ENOSPC ? 1 : EXIT_BADINPUT;

@@ -9,3 +9,6 @@ target_include_directories(test-import-roundtrip PRIVATE ${PROJECT_SOURCE_DIR}/b
 # Gray-code sequences in OpenCV's order (import sl); the real capture part reads
 # ../shared/data/procam-graycode (skipped when absent) and decodes 1280x1024 frames.
 impasto_test(test-import-sl LABELS integration LIBS impasto_pipeline)
+if(TARGET impasto_cv)
+  impasto_test(test-import-sl-xml LIBS impasto_pipeline impasto_cv)
+endif()

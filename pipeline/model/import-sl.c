@@ -81,9 +81,17 @@ static int list_frames(const char *dir, char **names, int max, int *ret_n, struc
 static int sl_rig(const struct imp_import_sl_options *o, int w, int h, int bits, struct imp_rig *ret,
                   struct imp_error *err) {
         struct imp_rig rig = {};
-        int r = imp_rig_load(o->calib_path, &rig, err);
+        int r = o->calib_rig ? imp_rig_copy(o->calib_rig, &rig) : imp_rig_load(o->calib_path, &rig, err);
         if (r < 0)
-                return r;
+                return o->calib_rig ? imp_error_set(err, r, "out of memory") : r;
+        if (o->calib_rig && rig.n_cameras >= 1 && rig.cameras[0].model.width == 0) {
+                rig.cameras[0].model.width = w;
+                rig.cameras[0].model.height = h;
+        }
+        if (o->calib_rig && rig.has_projector && rig.projector.model.width == 0) {
+                rig.projector.model.width = o->proj_width;
+                rig.projector.model.height = o->proj_height;
+        }
         if (rig.n_cameras < 1 || !rig.has_projector)
                 r = imp_error_set(err, -EINVAL, "%s: expected a camera and a projector (found %d cameras, %s projector)",
                                   o->calib_path, rig.n_cameras, rig.has_projector ? "a" : "no");
@@ -164,7 +172,7 @@ static int write_frames(const struct imp_import_sl_options *o, char *const *name
 }
 
 int imp_import_sl(const struct imp_import_sl_options *o, const char *out_dir, struct imp_error *err) {
-        if (!o || !o->frames_dir || !o->calib_path || !out_dir)
+        if (!o || !o->frames_dir || (!o->calib_path && !o->calib_rig) || !out_dir)
                 return imp_error_set(err, -EINVAL, "import sl: --frames, --calib and --out are needed");
         int want = imp_import_sl_frame_count(o->order, o->proj_width, o->proj_height);
         if (want < 0)

@@ -7,6 +7,7 @@
  * descriptors. Library code: no logging; errors name the file and what was expected. */
 #pragma once
 #include "error.h"
+#include "rig.h"
 
 enum imp_sl_order {
         IMP_SL_ORDER_OPENCV_GRAYCODE = 0,
@@ -17,7 +18,12 @@ struct imp_import_sl_options {
                                          name order */
         enum imp_sl_order order;
         int proj_width, proj_height;  /* the projector the patterns were made for */
-        const char *calib_path;       /* rig.json with a camera and a projector */
+        const char *calib_path;       /* rig.json with a camera and a projector (named in
+                                         messages also when calib_rig is given) */
+        const struct imp_rig *calib_rig; /* not NULL: this calibration instead of reading
+                                         calib_path (e.g. from OpenCV XML, cv-procam-xml.h);
+                                         device sizes 0 are taken from the frames and
+                                         proj_width × proj_height */
 };
 
 /* Number of frames of the sequence: 2·(⌈log2 W⌉ + ⌈log2 H⌉) + 2. */
