@@ -5,7 +5,11 @@
  *   bench-import woodham --scene FILE --work DIR [--exposure-us US]
  *       the same, then imports the stack and processes it twice — plain least-squares
  *       Lambertian photometric stereo (Woodham 1980) and `--photometric-only` — and prints
- *       both mean angular errors against the truth normals and their ratio. */
+ *       both mean angular errors against the truth normals and their ratio
+ *   bench-import native --capture SET --work DIR [--truth-normals FILE]
+ *       the standard `impasto process` (structured light + dome) and `--photometric-only`
+ *       on the same simulated capture set: their normals compared per camera pixel (the
+ *       copy's texel under the pixel's point on the canvas plane). */
 #include <errno.h>
 #include <math.h>
 #include <stdio.h>
@@ -17,12 +21,19 @@
 #include "compare-normals.h"
 #include "import-photometric.h"
 #include "heightfield.h"
+#include "json-util.h"
+#include "process.h"
 #include "process-photometric.h"
 
 static double now_s(void) {
         struct timespec ts;
         clock_gettime(CLOCK_MONOTONIC, &ts);
         return ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+static int cmp_deg(const void *a, const void *b) {
+        double x = *(const double *) a, y = *(const double *) b;
+        return (x > y) - (x < y);
 }
 
 static int export_stack(const char *scene, const char *work, double exposure_us, struct sim_export_info *info,
@@ -168,19 +179,123 @@ static int woodham(const char *scene, const char *work, double exposure_us) {
         return 0;
 }
 
+/* Normal of the standard copy under pixel (x, y), in the image frame; false off its mask. */
+static bool copy_normal_at(const struct imp_image *hf, int cnx, int cny, int cmask, const double c2w[16], double pitch,
+                           const struct imp_pinhole *cam, int x, int y, double ret[3]) {
+        double X[3], q[3];
+        if (!imp_po_pixel_point(cam, x, y, X))
+                return false;
+        for (int j = 0; j < 3; j++)   /* canvas = Rᵀ (X − t) */
+                q[j] = c2w[j] * (X[0] - c2w[3]) + c2w[4 + j] * (X[1] - c2w[7]) + c2w[8 + j] * (X[2] - c2w[11]);
+        int u = (int) lround(q[0] / pitch), v = (int) lround(q[1] / pitch);
+        if (u < 0 || v < 0 || u >= hf->width || v >= hf->height || !(imp_image_f32(hf, u, v)[cmask] > 0))
+                return false;
+        double nx = imp_image_f32(hf, u, v)[cnx], ny = imp_image_f32(hf, u, v)[cny];
+        double n[3] = { nx, ny, sqrt(fmax(0, 1 - nx * nx - ny * ny)) }, w[3], c[3];
+        for (int j = 0; j < 3; j++)
+                w[j] = c2w[4 * j] * n[0] + c2w[4 * j + 1] * n[1] + c2w[4 * j + 2] * n[2];
+        for (int j = 0; j < 3; j++)
+                c[j] = cam->R[3 * j] * w[0] + cam->R[3 * j + 1] * w[1] + cam->R[3 * j + 2] * w[2];
+        ret[0] = c[0], ret[1] = -c[1], ret[2] = -c[2];
+        return true;
+}
+
+/* Angle between unit a and b (b normalised here), degrees. */
+static double angle_deg(const float *a, const double *b) {
+        double dot = (a[0] * b[0] + a[1] * b[1] + a[2] * b[2]) / sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2]);
+        return acos(fmax(-1, fmin(1, dot))) * 180 / M_PI;
+}
+
+static int native(const char *capture, const char *work, const char *truth_path) {
+        char full[4200], po_dir[4200], path[4200];
+        snprintf(full, sizeof full, "%.4000s/copy-standard", work);
+        snprintf(po_dir, sizeof po_dir, "%.4000s/copy-photometric-only", work);
+        struct imp_error err = {};
+        struct imp_process_options o;
+        struct imp_po_options po;
+        imp_process_options_default(&o);
+        imp_po_options_default(&po);
+        po.btf = po.heights = false;
+        struct imp_po_dome d = {};
+        _cleanup_image_ struct imp_image *hf = NULL, *est = NULL, *truth = NULL;
+        char **names = NULL;
+        _cleanup_json_ json_t *cj = NULL;
+        snprintf(path, sizeof path, "%.4000s/heightfield.exr", full);
+        int r = imp_process_capture(capture, full, &o, &err);
+        if (r >= 0 && (r = imp_process_photometric(capture, po_dir, &po, &err)) >= 0 &&
+            (r = imp_exr_read(path, &hf, &names, &err)) >= 0 && (r = imp_normals_read(po_dir, &est, &err)) >= 0) {
+                snprintf(path, sizeof path, "%.4000s/copy.json", full);
+                r = imp_json_load(path, &cj, &err);
+        }
+        if (r >= 0)
+                r = imp_po_dome_load(capture, &d, &err);
+        if (r >= 0 && truth_path)
+                r = imp_normals_read(truth_path, &truth, &err);
+        if (r < 0) {
+                imp_strv_free(names);
+                fprintf(stderr, "bench-import: %s\n", err.msg[0] ? err.msg : strerror(-r));
+                return 1;
+        }
+        int cnx = imp_image_channel_index(names, "nx"), cny = imp_image_channel_index(names, "ny");
+        int cmask = imp_image_channel_index(names, "mask");
+        imp_strv_free(names);
+        double c2w[16], pitch = json_real_value(json_object_get(cj, "pitch_mm")), sum = 0;
+        for (int i = 0; i < 16; i++)
+                c2w[i] = json_number_value(json_array_get(json_object_get(cj, "canvas_to_world"), (size_t) i));
+        long n = 0;
+        double sum_std = 0, sum_po = 0;
+        _cleanup_free_ double *e = malloc((size_t) est->width * est->height * sizeof *e);
+        for (int y = 0; e && y < est->height; y++)
+                for (int x = 0; x < est->width; x++) {
+                        double nc[3];
+                        const float *p = imp_image_f32(est, x, y);
+                        if (!copy_normal_at(hf, cnx, cny, cmask, c2w, pitch, &d.camera.model, x, y, nc))
+                                continue;
+                        if (truth) {
+                                const float *t = imp_image_f32(truth, x, y);
+                                double pd[3] = { p[0], p[1], p[2] };
+                                if (!isfinite(t[0]))
+                                        continue;
+                                sum_std += angle_deg(t, nc);
+                                sum_po += angle_deg(t, pd);
+                        }
+                        e[n] = angle_deg(p, nc);
+                        sum += e[n++];
+                }
+        imp_po_dome_done(&d);
+        if (!e || n == 0) {
+                fprintf(stderr, "bench-import: no pixel in both copies\n");
+                return 1;
+        }
+        qsort(e, (size_t) n, sizeof *e, cmp_deg);
+        printf("standard process vs --photometric-only normals over %ld pixels: mean %.3f deg, median %.3f deg, "
+               "p90 %.3f deg\n", n, sum / n, e[n / 2], e[(size_t) (0.9 * (n - 1))]);
+        if (truth)
+                printf("against the truth over the same pixels: standard %.3f deg mean, photometric-only %.3f deg mean\n",
+                       sum_std / n, sum_po / n);
+        return 0;
+}
+
 int main(int argc, char **argv) {
-        const char *scene = NULL, *dir = NULL;
+        const char *scene = NULL, *dir = NULL, *capture = NULL, *truth = NULL;
         double exposure_us = 10000;
         for (int i = 2; i + 1 < argc; i += 2) {
                 if (!strcmp(argv[i], "--scene"))
                         scene = argv[i + 1];
                 else if (!strcmp(argv[i], "--out") || !strcmp(argv[i], "--work"))
                         dir = argv[i + 1];
+                else if (!strcmp(argv[i], "--truth-normals"))
+                        truth = argv[i + 1];
+                else if (!strcmp(argv[i], "--capture"))
+                        capture = argv[i + 1];
                 else if (!strcmp(argv[i], "--exposure-us"))
                         exposure_us = atof(argv[i + 1]);
         }
+        if (argc >= 2 && !strcmp(argv[1], "native") && capture && dir)
+                return native(capture, dir, truth);
         if (argc < 2 || !scene || !dir || !(exposure_us > 0)) {
-                fprintf(stderr, "usage: bench-import export|woodham --scene FILE --out|--work DIR [--exposure-us US]\n");
+                fprintf(stderr, "usage: bench-import export|woodham --scene FILE --out|--work DIR [--exposure-us US]\n"
+                                "       bench-import native --capture SET --work DIR [--truth-normals FILE]\n");
                 return 2;
         }
         if (!strcmp(argv[1], "woodham"))
