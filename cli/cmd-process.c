@@ -10,6 +10,8 @@
 #include "commands.h"
 #include "log.h"
 #include "process.h"
+#include "process-photometric.h"
+#include "process-range.h"
 
 static void progress_bar(void *userdata, const char *stage, size_t done, size_t total) {
         int width = 30, fill = total ? (int) (width * done / total) : width;
@@ -25,6 +27,11 @@ static void usage(FILE *f) {
                    "                       [--delta FRACTION] [--no-btf] [--holdout N] [--quiet]\n"
                    "                       [--no-photometric-normals] [--threads N] [--gray-only]\n"
                    "                       [--btf-iterations N] [--btf-robust-passes N] [--no-shadow-test]\n"
+                   "                       [--photometric-only | --range-only]\n"
+                   "  --photometric-only  dome frames alone (e.g. `impasto import photometric`): normals, albedo,\n"
+                   "                BTF and integrated heights on the pixel grid (docs/import.md)\n"
+                   "  --range-only  structured light alone (e.g. `impasto import sl`): range.exr on the\n"
+                   "                camera grid (docs/import.md)\n"
                    "  --holdout N   leave every Nth dome light out of the fit and report the\n"
                    "                re-render error on those lights in copy.json\n"
                    "  --no-photometric-normals  keep the geometric (structured-light) normals\n"
@@ -63,8 +70,10 @@ static int run(int argc, char **argv) {
                 { "btf-iterations", required_argument, NULL, 'I' },
                 { "btf-robust-passes", required_argument, NULL, 'R' },
                 { "no-shadow-test", no_argument, NULL, 'S' },
+                { "photometric-only", no_argument, NULL, 'O' }, { "range-only", no_argument, NULL, 'Z' },
                 { "help", no_argument, NULL, 'h' }, {}
         };
+        bool photometric_only = false, range_only = false;
         int c;
         while ((c = getopt_long(argc, argv, "o:h", longopts, NULL)) >= 0)
                 switch (c) {
@@ -93,6 +102,8 @@ static int run(int argc, char **argv) {
                 case 'G': o.sl_gray_only = true; break;
                 case 'S': o.btf_no_shadow_test = true; break;
                 case 'q': o.progress = NULL; break;
+                case 'O': photometric_only = true; break;
+                case 'Z': range_only = true; break;
                 case 'h': usage(stdout); return 0;
                 default: usage(stderr); return 2;
                 }
@@ -103,7 +114,13 @@ static int run(int argc, char **argv) {
         struct timespec t0, t1;
         clock_gettime(CLOCK_MONOTONIC, &t0);
         struct imp_error err = {};
-        int r = imp_process_capture(argv[optind], out, &o, &err);
+        struct imp_po_options po;
+        imp_po_options_default(&po);
+        po.btf = o.btf;
+        po.threads = o.threads;
+        int r = range_only ? imp_process_range(argv[optind], out, &err)
+                : photometric_only ? imp_process_photometric(argv[optind], out, &po, &err)
+                : imp_process_capture(argv[optind], out, &o, &err);
         if (r < 0) {
                 log_error("%s", err.msg[0] ? err.msg : strerror(-r));
                 return r == -EINVAL || r == -EBADMSG ? 3 : 1;
