@@ -17,6 +17,7 @@ layer_of() {
     pipeline/calib/cv/*) echo cv ;;
     pipeline/calib/*) echo calib ;;
     pipeline/eval/*) echo eval ;;
+    pipeline/export/*) echo export ;;
     pipeline/*) echo pipeline ;;
     drivers/*) echo drivers ;;
     proto/*) echo proto ;;
@@ -37,6 +38,7 @@ allowed() {
     calib) echo "core model" ;;
     cv) echo "core model calib" ;;
     eval) echo "core model geometry appearance" ;;
+    export) echo "core model geometry appearance" ;;
     pipeline) echo "core model geometry appearance calib cv eval" ;;
     drivers) echo "core model" ;;
     proto) echo "core model" ;;

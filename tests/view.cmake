@@ -1,0 +1,9 @@
+# `impasto view` (docs/viewer.md) and `impasto export` (docs/export.md).
+# The browser test drives Debian's headless chromium (SwiftShader WebGL2) through the
+# DevTools protocol against the copy test-appearance-demo leaves behind (CTest fixture);
+# it skips (77) only when chromium is not installed.
+add_test(NAME test-view-browser
+  COMMAND /usr/bin/python3 ${CMAKE_CURRENT_SOURCE_DIR}/view/test-view-browser.py
+          ${PROJECT_BINARY_DIR} ${PROJECT_BINARY_DIR}/tests/appearance-small/copy)
+set_tests_properties(test-view-browser PROPERTIES LABELS integration SKIP_RETURN_CODE 77 TIMEOUT 240
+  FIXTURES_REQUIRED appearance_copy)
