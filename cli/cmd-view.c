@@ -31,6 +31,7 @@
 
 struct view_state {
         const char *copy_dir;
+        int cell_px;                  /* > 0: relief boxes classified again at this size */
         struct imp_view_pack pack;    /* empty when the copy could not be read */
         char *copy_json;              /* the copy's copy.json, NULL when unreadable */
         size_t copy_json_size;
@@ -40,9 +41,10 @@ struct view_state {
 };
 
 static void usage(FILE *f) {
-        fprintf(f, "usage: impasto view COPY_DIR [--port N] [--bind ADDR] [--cache DIR | --no-cache]\n"
+        fprintf(f, "usage: impasto view COPY_DIR [--port N] [--bind ADDR] [--cache DIR | --no-cache] [--cell N]\n"
                    "  serves the copy to a browser at http://ADDR:N/ (default 127.0.0.1:%d; --port 0 picks a free port)\n"
-                   "  --cache DIR  where the converted textures are kept (default $XDG_CACHE_HOME/impasto/view)\n",
+                   "  --cache DIR  where the converted textures are kept (default $XDG_CACHE_HOME/impasto/view)\n"
+                   "  --cell N     classify the relief again into boxes of NxN texels (the box-size benchmark)\n",
                    VIEW_DEFAULT_PORT);
 }
 
@@ -63,6 +65,8 @@ static int load_pack(struct view_state *v, const char *cache_dir, struct imp_err
         int r = imp_view_pack_key(v->copy_dir, key, sizeof key, err);
         if (r < 0)
                 return r;
+        if (v->cell_px > 0)
+                snprintf(key + strlen(key), sizeof key - strlen(key), "-c%d", v->cell_px);
         if (cache_dir && *cache_dir) {
                 struct imp_error cerr = {};
                 if (imp_view_pack_cache_load(cache_dir, key, &v->pack, &cerr) >= 0) {
@@ -74,6 +78,8 @@ static int load_pack(struct view_state *v, const char *cache_dir, struct imp_err
         }
         struct imp_copy c;
         r = imp_copy_load(v->copy_dir, &c, err);
+        if (r >= 0 && v->cell_px > 0)
+                r = imp_copy_reclassify(&c, v->cell_px, err);
         if (r >= 0)
                 r = imp_view_pack_build(&c, &v->pack, err);
         imp_copy_done(&c);
@@ -265,9 +271,9 @@ static int run(int argc, char **argv) {
         static const struct option longopts[] = {
                 { "port", required_argument, NULL, 'p' }, { "bind", required_argument, NULL, 'b' },
                 { "cache", required_argument, NULL, 'c' }, { "no-cache", no_argument, NULL, 'n' },
-                { "help", no_argument, NULL, 'h' }, {}
+                { "cell", required_argument, NULL, 'C' }, { "help", no_argument, NULL, 'h' }, {}
         };
-        int c;
+        int c, cell = 0;
         while ((c = getopt_long(argc, argv, "p:b:h", longopts, NULL)) >= 0)
                 switch (c) {
                 case 'p': {
@@ -283,6 +289,16 @@ static int run(int argc, char **argv) {
                 case 'b': bind_addr = optarg; break;
                 case 'c': snprintf(cache, sizeof cache, "%s", optarg); break;
                 case 'n': cache[0] = 0; break;
+                case 'C': {
+                        char *end;
+                        long n = strtol(optarg, &end, 10);
+                        if (end == optarg || *end || n < 2 || n > 4096) {
+                                log_error("--cell: expected 2..4096 texels, got '%s'", optarg);
+                                return 2;
+                        }
+                        cell = (int) n;
+                        break;
+                }
                 case 'h': usage(stdout); return 0;
                 default: usage(stderr); return 2;
                 }
@@ -291,7 +307,7 @@ static int run(int argc, char **argv) {
                 usage(stderr);
                 return 2;
         }
-        struct view_state v = { .copy_dir = argv[optind] };
+        struct view_state v = { .copy_dir = argv[optind], .cell_px = cell };
         struct imp_error err = {};
         int r = load_pack(&v, cache, &err);
         if (r < 0) {

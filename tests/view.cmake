@@ -5,5 +5,5 @@
 add_test(NAME test-view-browser
   COMMAND /usr/bin/python3 ${CMAKE_CURRENT_SOURCE_DIR}/view/test-view-browser.py
           ${PROJECT_BINARY_DIR} ${PROJECT_BINARY_DIR}/tests/appearance-small/copy)
-set_tests_properties(test-view-browser PROPERTIES LABELS integration SKIP_RETURN_CODE 77 TIMEOUT 240
+set_tests_properties(test-view-browser PROPERTIES LABELS integration SKIP_RETURN_CODE 77 TIMEOUT 600
   FIXTURES_REQUIRED appearance_copy)

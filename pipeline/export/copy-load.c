@@ -7,6 +7,7 @@
 #include <string.h>
 #include <sys/stat.h>
 #include <unistd.h>
+#include "boxes.h"
 #include "copy-load.h"
 #include "image.h"
 #include "json-util.h"
@@ -206,4 +207,48 @@ void imp_copy_relief(const struct imp_copy *c, struct imp_relief_copy *ret) {
                 .n_boxes = c->n_boxes, .delta0_mm = c->plane_mm,
                 .canvas_to_world = { 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1 },
         };
+}
+
+int imp_copy_reclassify(struct imp_copy *c, int cell_px, struct imp_error *err) {
+        size_t n = (size_t) c->nx * c->ny;
+        double hmax = -INFINITY;
+        _cleanup_free_ float *h = malloc(sizeof *h * n);
+        if (!h)
+                return imp_error_set(err, -ENOMEM, "out of memory");
+        for (size_t k = 0; k < n; k++) {
+                h[k] = c->mask[k] ? c->height[k] : 0;
+                if (c->mask[k])
+                        hmax = IMP_MAX(hmax, (double) c->height[k]);
+        }
+        struct imp_heightfield hf = { .nx = c->nx, .ny = c->ny, .pitch_mm = c->pitch_mm, .height_mm = h,
+                                      .nx_ = c->normal_x, .ny_ = c->normal_y, .sigma_mm = c->sigma, .mask = c->mask };
+        struct imp_boxes_options opt;
+        imp_boxes_options_default(&opt);
+        opt.cell_px = cell_px;
+        if (hmax > c->h_ref_mm)          /* keep the copy's δ0 / H */
+                opt.delta_frac = IMP_CLAMP(c->delta0_mm / (hmax - c->h_ref_mm), 0.0, 1.0);
+        struct imp_boxes b = { 0 };
+        int r = imp_boxes_classify(&hf, &opt, &b);
+        if (r < 0)
+                return imp_error_set(err, r, "relief boxes of %d texels: %s", cell_px, strerror(-r));
+        struct imp_relief_box *nb = calloc(b.n_boxes ? b.n_boxes : 1, sizeof *nb);
+        if (!nb) {
+                imp_boxes_done(&b);
+                return imp_error_set(err, -ENOMEM, "out of memory");
+        }
+        for (size_t i = 0; i < b.n_boxes; i++) {
+                const struct imp_box *x = &b.boxes[i];
+                nb[i] = (struct imp_relief_box) { x->u0, x->v0, x->w, x->h, x->hmax_mm, x->umax, x->vmax };
+        }
+        free(c->boxes);
+        c->boxes = nb;
+        c->n_boxes = b.n_boxes;
+        c->h_ref_mm = b.h_ref_mm;
+        c->delta0_mm = b.delta0_mm;
+        c->plane_mm = b.h_ref_mm + b.delta0_mm;
+        for (size_t k = 0; k < n; k++)
+                if (!c->mask[k])
+                        c->height[k] = (float) c->plane_mm;
+        imp_boxes_done(&b);
+        return 0;
 }

@@ -39,3 +39,8 @@ void imp_copy_done(struct imp_copy *c);
 /* The copy as the hybrid renderer takes it (canvas frame: identity transform). Borrows c's
  * arrays. */
 void imp_copy_relief(const struct imp_copy *c, struct imp_relief_copy *ret);
+
+/* Classifies the relief again into boxes of cell_px texels (seed §4.3, imp_boxes_classify)
+ * with the copy's δ0 / H, replacing c's boxes, h_ref, δ0 and plane: for the benchmark of
+ * box sizes (seed Table 2). Returns 0 or a negative errno. */
+int imp_copy_reclassify(struct imp_copy *c, int cell_px, struct imp_error *err);

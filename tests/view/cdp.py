@@ -16,7 +16,7 @@ def find_chromium():
 class Browser:
     """One headless chromium with one page; call close()."""
 
-    def __init__(self, timeout=30):
+    def __init__(self, timeout=120):
         import websocket  # python3-websocket
         exe = find_chromium()
         if not exe:
@@ -63,7 +63,7 @@ class Browser:
             raise RuntimeError("page: %s" % r["exceptionDetails"])
         return r["result"].get("value")
 
-    def wait_for(self, expr, timeout=30):
+    def wait_for(self, expr, timeout=120):
         deadline = time.time() + timeout
         while time.time() < deadline:
             v = self.eval(expr)

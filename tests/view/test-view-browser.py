@@ -16,10 +16,11 @@ import cdp
 RMSE_MAX = 0.02          # of white, over the painting
 W, H = 320, 240
 fails = []
+T0 = time.time()
 
 
 def check(ok, what):
-    print(("ok   " if ok else "FAIL ") + what, flush=True)
+    print("%5.1f s %s%s" % (time.time() - T0, "ok   " if ok else "FAIL ", what), flush=True)
     if not ok:
         fails.append(what)
 
