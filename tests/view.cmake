@@ -7,3 +7,4 @@ add_test(NAME test-view-browser
           ${PROJECT_BINARY_DIR} ${PROJECT_BINARY_DIR}/tests/appearance-small/copy)
 set_tests_properties(test-view-browser PROPERTIES LABELS integration SKIP_RETURN_CODE 77 TIMEOUT 600
   FIXTURES_REQUIRED appearance_copy)
+impasto_test(test-view-pack LIBS impasto_export)
