@@ -8,3 +8,10 @@ add_test(NAME test-view-browser
 set_tests_properties(test-view-browser PROPERTIES LABELS integration SKIP_RETURN_CODE 77 TIMEOUT 600
   FIXTURES_REQUIRED appearance_copy)
 impasto_test(test-view-pack LIBS impasto_export)
+# Exports read back by libtiff and assimp (skipped from the build without assimp).
+pkg_check_modules(ASSIMP IMPORTED_TARGET assimp)
+if(ASSIMP_FOUND)
+  impasto_test(test-export LABELS integration LIBS impasto_export PkgConfig::ASSIMP PkgConfig::TIFF TIMEOUT 120)
+else()
+  message(WARNING "impasto: assimp not found: test-export (mesh read-back) is not built")
+endif()

@@ -1,0 +1,46 @@
+/* Exports of a digital copy for the tools conservators already use (docs/export.md).
+ * Library code: no logging; the copy is only read. Every writer names the file it could not
+ * write in err. Coordinates are the copy's canvas frame (texel (i, j) at (i·pitch, j·pitch),
+ * height z out of the paint, mm) unless a format says otherwise (glTF: metres). */
+#pragma once
+#include <stddef.h>
+#include <stdint.h>
+#include "copy-load.h"
+#include "error.h"
+
+/* A float32 TIFF heightmap: one sample per texel, row r = texel row j = r (the orientation
+ * of heightfield.exr), heights in mm, NaN off the mask; XResolution = YResolution =
+ * 10 / pitch_mm pixels per centimetre (ResolutionUnit 3), so the pixel size is exact to
+ * float precision; ImageDescription a JSON object (units, pitch_mm, h_ref_mm, nodata). */
+int imp_export_tiff_height(const struct imp_copy *c, const char *path, struct imp_error *err);
+
+/* A triangle mesh of the heightfield on a regular sub-grid of step texels (the step at
+ * which the full grid fits the triangle budget, or larger): vertices sit exactly on texels and carry the
+ * copy's height, normal and albedo there; cells with a corner off the mask are left out. */
+struct imp_mesh {
+        size_t n_vertices, n_triangles;
+        int step;                     /* texels between neighbouring vertices */
+        float *pos;                   /* 3 per vertex, mm, canvas frame */
+        float *normal;                /* 3 per vertex, unit */
+        float *uv;                    /* 2 per vertex: texel centre / grid size (glTF convention) */
+        uint8_t *rgb;                 /* 3 per vertex: ρd, sRGB-encoded, clamped */
+        int32_t *texel;               /* 2 per vertex: i, j */
+        uint32_t *tri;                /* 3 per triangle, counter-clockwise seen from +z */
+};
+int imp_mesh_build(const struct imp_copy *c, size_t max_triangles, struct imp_mesh *ret, struct imp_error *err);
+void imp_mesh_done(struct imp_mesh *m);
+
+/* Binary little-endian PLY: x y z nx ny nz (float), red green blue (uchar), faces as
+ * uchar-counted int lists; comments give the units and the pitch. */
+int imp_export_ply(const struct imp_mesh *m, const struct imp_copy *c, const char *path, struct imp_error *err);
+
+/* glTF 2.0 binary: the mesh in metres with normals and texture coordinates, a material with
+ * the albedo (ρd, sRGB PNG) as base colour and the copy's normals as a tangent-space normal
+ * map (tangent +x, bitangent +y: exact for a flat canvas, the mesh's tilt is not removed). */
+int imp_export_glb(const struct imp_mesh *m, const struct imp_copy *c, const char *path, struct imp_error *err);
+
+/* The texture maps: albedo.png (ρd, sRGB, 8 bit) and normal.png (RGB = (n + 1) / 2, 8 bit),
+ * copy-sized, row r = texel row j = r. Written into dir; also returned as PNG bytes when
+ * ret_* are not NULL (caller frees). */
+int imp_export_maps(const struct imp_copy *c, const char *dir, uint8_t **ret_albedo, size_t *ret_albedo_size,
+                    uint8_t **ret_normal, size_t *ret_normal_size, struct imp_error *err);
