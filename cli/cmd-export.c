@@ -3,6 +3,8 @@
  *   tiff-height  DIR/height.tif: float32 heightmap, mm, pixel size in the resolution tags
  *   ply          DIR/mesh.ply: binary PLY mesh with normals and albedo per vertex
  *   glb          DIR/mesh.glb (+ albedo.png, normal.png): glTF 2.0 with textures
+ *   lp           DIR/images/light-NNN.png, DIR/lights.lp, DIR/lights.dome: the raw dome stack of
+ *                --capture CAPSET for RTI tools (RelightLab, RTIBuilder), one exposure
  * Meshes are decimated to a regular sub-grid within the triangle budget (default 200000).
  * The copy is only read; DIR is created. */
 #include <errno.h>
@@ -20,7 +22,8 @@
 #define EXPORT_DEFAULT_TRIANGLES 200000
 
 static void usage(FILE *f) {
-        fprintf(f, "usage: impasto export COPY_DIR --to tiff-height|ply|glb --out DIR [--triangles N]\n");
+        fprintf(f, "usage: impasto export COPY_DIR --to tiff-height|ply|glb|lp --out DIR [--triangles N]\n"
+                   "                      [--capture CAPSET] [--exposure-index N]\n");
 }
 
 static int export_mesh(const struct imp_copy *c, const char *fmt, const char *out, size_t budget,
@@ -41,11 +44,13 @@ static int export_mesh(const struct imp_copy *c, const char *fmt, const char *ou
 }
 
 static int run(int argc, char **argv) {
-        const char *fmt = NULL, *out = NULL;
+        const char *fmt = NULL, *out = NULL, *capture = NULL;
+        int exposure_index = -1;
         size_t budget = EXPORT_DEFAULT_TRIANGLES;
         static const struct option longopts[] = {
                 { "to", required_argument, NULL, 't' }, { "out", required_argument, NULL, 'o' },
-                { "triangles", required_argument, NULL, 'n' }, { "help", no_argument, NULL, 'h' }, {}
+                { "triangles", required_argument, NULL, 'n' }, { "capture", required_argument, NULL, 'c' },
+                { "exposure-index", required_argument, NULL, 'e' }, { "help", no_argument, NULL, 'h' }, {}
         };
         int c;
         while ((c = getopt_long(argc, argv, "t:o:h", longopts, NULL)) >= 0)
@@ -62,6 +67,17 @@ static int run(int argc, char **argv) {
                         budget = (size_t) n;
                         break;
                 }
+                case 'c': capture = optarg; break;
+                case 'e': {
+                        char *end;
+                        long n = strtol(optarg, &end, 10);
+                        if (end == optarg || *end || n < 0 || n > 15) {
+                                log_error("--exposure-index: expected 0..15, got '%s'", optarg);
+                                return 2;
+                        }
+                        exposure_index = (int) n;
+                        break;
+                }
                 case 'h': usage(stdout); return 0;
                 default: usage(stderr); return 2;
                 }
@@ -70,8 +86,12 @@ static int run(int argc, char **argv) {
                 usage(stderr);
                 return 2;
         }
-        if (strcmp(fmt, "tiff-height") && strcmp(fmt, "ply") && strcmp(fmt, "glb")) {
-                log_error("--to: expected tiff-height, ply or glb, got '%s'", fmt);
+        if (strcmp(fmt, "tiff-height") && strcmp(fmt, "ply") && strcmp(fmt, "glb") && strcmp(fmt, "lp")) {
+                log_error("--to: expected tiff-height, ply, glb or lp, got '%s'", fmt);
+                return 2;
+        }
+        if (!strcmp(fmt, "lp") && !capture) {
+                log_error("--to lp: the dome stack comes from the capture set: give --capture CAPSET");
                 return 2;
         }
         int r = imp_mkdir_p(out, 0755);
@@ -94,6 +114,13 @@ static int run(int argc, char **argv) {
                 if (r >= 0)
                         printf("%s: %dx%d float32 heights in mm, %.6g mm per pixel\n", path, copy.nx, copy.ny,
                                copy.pitch_mm);
+        } else if (!strcmp(fmt, "lp")) {
+                struct imp_lp_summary sum;
+                r = imp_export_lp(&copy, capture, out, exposure_index, &sum, &err);
+                if (r >= 0)
+                        printf("%s/lights.lp: %zu lights, %dx%d 16-bit PNGs at exposure %d (%.0f µs), %.1f mm wide\n",
+                               out, sum.n_lights, sum.width, sum.height, sum.exposure_index, sum.exposure_us,
+                               sum.image_width_mm);
         } else
                 r = export_mesh(&copy, fmt, out, budget, &err);
         imp_copy_done(&copy);
@@ -106,6 +133,6 @@ static int run(int argc, char **argv) {
 
 const struct imp_command imp_cmd_export = {
         .name = "export",
-        .summary = "write a digital copy for other tools (TIFF heightmap, PLY, glTF)",
+        .summary = "write a digital copy for other tools (TIFF heightmap, PLY, glTF, RTI dome stack)",
         .run = run,
 };

@@ -77,6 +77,13 @@ static int load_grid(const char *dir, struct imp_copy *c, struct imp_error *err)
                 return imp_error_set(err, -EBADMSG, "%s: expected nx, ny in 1..%d and pitch_mm > 0, got %lldx%lld at %g",
                                      path, COPY_MAX_SIDE, nx, ny, pitch);
         c->nx = (int) nx, c->ny = (int) ny, c->pitch_mm = pitch;
+        static const double I[16] = { 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1 };
+        memcpy(c->canvas_to_world, I, sizeof I);
+        if ((r = imp_json_get_doubles(cj, "canvas_to_world", false, 16, c->canvas_to_world, path, err)) < 0)
+                return r;
+        for (int i = 0; i < 16; i++)
+                if (!isfinite(c->canvas_to_world[i]))
+                        return imp_error_set(err, -EBADMSG, "%s: canvas_to_world: expected finite numbers", path);
         return 0;
 }
 

@@ -14,6 +14,7 @@
 struct imp_copy {
         int nx, ny;                   /* texels */
         double pitch_mm;
+        double canvas_to_world[16];   /* copy.json, row-major; identity when absent */
         double h_ref_mm, delta0_mm;   /* boxes.json: reference height and the threshold above it */
         double plane_mm;              /* the bump plane h_ref + δ0, canvas frame (seed §5.1) */
         float *height;                /* nx·ny mm, canvas frame; off the mask: plane_mm */

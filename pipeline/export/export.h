@@ -44,3 +44,23 @@ int imp_export_glb(const struct imp_mesh *m, const struct imp_copy *c, const cha
  * ret_* are not NULL (caller frees). */
 int imp_export_maps(const struct imp_copy *c, const char *dir, uint8_t **ret_albedo, size_t *ret_albedo_size,
                     uint8_t **ret_normal, size_t *ret_normal_size, struct imp_error *err);
+
+/* The raw dome stack for RTI tools (RelightLab, RTIBuilder): from the capture set CAPSET
+ * (its first camera, first tile), one 16-bit PNG per dome light, linear (black level
+ * removed, the sensor's range stretched to 0..65535), all at one exposure: the longest at
+ * which no light's frame has more than 0.5 % of its pixels saturated (or exposure_index
+ * when >= 0). Writes DIR/images/light-NNN.png, DIR/lights.lp ("N", then "FILE x y z" per
+ * light: the unit direction from the canvas point at the image centre to the light) and
+ * DIR/lights.dome (Relight's dome JSON, "lights3d": positions in mm in the same frame:
+ * z the canvas normal towards the camera, x the image's right projected on the canvas,
+ * y = z × x; ledAdjust = mean intensity over the LED's, per channel). The copy gives the
+ * canvas plane (canvas_to_world and the bump plane). */
+struct imp_lp_summary {
+        size_t n_lights;
+        int exposure_index;
+        double exposure_us;
+        int width, height;
+        double image_width_mm;        /* the image's footprint on the canvas plane */
+};
+int imp_export_lp(const struct imp_copy *c, const char *capset_dir, const char *dir, int exposure_index,
+                  struct imp_lp_summary *ret, struct imp_error *err);
