@@ -29,7 +29,15 @@ def serve(impasto, copy, cell):
 
 def run_page(browser, url, query, timeout):
     browser.goto(url + "bench.html?" + query)
-    browser.wait_for("window.bench && (window.bench.done || window.bench.error)", timeout)
+    deadline, seen = time.time() + timeout, 0
+    while not browser.eval("window.bench && (window.bench.done || window.bench.error)"):
+        if time.time() > deadline:
+            sys.exit("bench page: not done after %g s" % timeout)
+        rows = browser.eval("window.bench ? window.bench.rows : []") or []
+        for r in rows[seen:]:
+            print("  %s" % r, file=sys.stderr, flush=True)
+        seen = len(rows)
+        time.sleep(1)
     err = browser.eval("window.bench.error")
     if err:
         sys.exit("bench page: " + err)
@@ -40,7 +48,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("build")
     ap.add_argument("copy")
-    ap.add_argument("--size", default="400x300")
+    ap.add_argument("--size", default="320x240")
     ap.add_argument("--secs", type=float, default=1.0)
     ap.add_argument("--cells", default="5,10,20,50,100")
     a = ap.parse_args()
@@ -49,7 +57,7 @@ def main():
     try:
         p, url = serve(impasto, a.copy, 0)
         try:
-            rows = run_page(browser, url, "table=1&size=%s&secs=%g" % (a.size, a.secs), 600)
+            rows = run_page(browser, url, "table=1&size=%s&secs=%g" % (a.size, a.secs), 3600)
         finally:
             p.terminate()
             p.wait()
@@ -70,7 +78,7 @@ def main():
         for cell in [int(c) for c in a.cells.split(",")]:
             p, url = serve(impasto, a.copy, cell)
             try:
-                t2[cell] = {r["angle"]: r for r in run_page(browser, url, "table=2&size=%s&secs=%g" % (a.size, a.secs), 600)}
+                t2[cell] = {r["angle"]: r for r in run_page(browser, url, "table=2&size=%s&secs=%g" % (a.size, a.secs), 1800)}
             finally:
                 p.terminate()
                 p.wait()

@@ -41,7 +41,7 @@ async function main() {
         r.finish();
         let n = 0;
         const t0 = performance.now();
-        while (performance.now() - t0 < secs * 1000 || n < 3) {
+        while (performance.now() - t0 < secs * 1000 || n < 2) {
           st = r.render(view, light, o);
           r.finish();
           n++;
