@@ -3,7 +3,8 @@
 in headless Chromium on SwiftShader (CPU), by technique × distance × view angle, and for the
 hybrid + adaptive renderer by box size. Absolute figures depend on the GPU (here: none), so
 docs/viewer.md compares ratios: hybrid + adaptive over relief mapping everywhere.
-Usage: bench/view-fps.py BUILD_DIR COPY_DIR [--size WxH] [--secs S] [--cells 5,10,20,50,100]"""
+Usage: bench/view-fps.py BUILD_DIR COPY_DIR [--size WxH] [--secs S] [--rounds R] [--cells 5,10,20,50,100]
+Each figure is the best of R interleaved rounds (the least disturbed on a shared machine)."""
 import argparse, os, subprocess, sys, time
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests", "view"))
@@ -51,13 +52,14 @@ def main():
     ap.add_argument("--size", default="320x240")
     ap.add_argument("--secs", type=float, default=1.0)
     ap.add_argument("--cells", default="5,10,20,50,100")
+    ap.add_argument("--rounds", type=int, default=3)
     a = ap.parse_args()
     impasto = os.path.join(a.build, "cli", "impasto")
     browser = cdp.Browser()
     try:
         p, url = serve(impasto, a.copy, 0)
         try:
-            rows = run_page(browser, url, "table=1&size=%s&secs=%g" % (a.size, a.secs), 3600)
+            rows = run_page(browser, url, "table=1&size=%s&secs=%g&rounds=%d" % (a.size, a.secs, a.rounds), 3600)
         finally:
             p.terminate()
             p.wait()
@@ -78,7 +80,7 @@ def main():
         for cell in [int(c) for c in a.cells.split(",")]:
             p, url = serve(impasto, a.copy, cell)
             try:
-                t2[cell] = {r["angle"]: r for r in run_page(browser, url, "table=2&size=%s&secs=%g" % (a.size, a.secs), 1800)}
+                t2[cell] = {r["angle"]: r for r in run_page(browser, url, "table=2&size=%s&secs=%g&rounds=%d" % (a.size, a.secs, a.rounds), 1800)}
             finally:
                 p.terminate()
                 p.wait()

@@ -8,7 +8,7 @@
  3. a corrupt copy: `impasto view` names the file on stderr and the page is the error page;
  4. only the server's own files are served: traversal attempts get 404 and no file bytes.
 Usage: test-view-browser.py BUILD_DIR COPY_DIR. Exit 77 only when chromium is absent."""
-import os, shutil, socket, subprocess, sys, tempfile, time, math
+import json, math, os, shutil, socket, subprocess, sys, tempfile, time, urllib.request
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import cdp
@@ -165,8 +165,6 @@ def main():
     p, url = start_view(impasto, copy, os.path.join(tmp, "view.log"))
     try:
         browser.viewport(W, H)
-        meta = browser.eval("fetch('%scopy/meta.json').then(r => r.json())" % url) if False else None
-        import json, urllib.request
         meta = json.load(urllib.request.urlopen(url + "copy/meta.json", timeout=10))
         p_mm = meta["pitch_mm"]
         cx, cy = 0.5 * (meta["nx"] - 1) * p_mm, 0.5 * (meta["ny"] - 1) * p_mm
