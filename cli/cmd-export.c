@@ -5,6 +5,8 @@
  *   glb          DIR/mesh.glb (+ albedo.png, normal.png): glTF 2.0 with textures
  *   lp           DIR/images/light-NNN.png, DIR/lights.lp, DIR/lights.dome: the raw dome stack of
  *                --capture CAPSET for RTI tools (RelightLab, RTIBuilder), one exposure
+ *   openlime     DIR/{kd,ks,normals,gloss}.dzi (+ _files/), DIR/openlime.json, refit-error.tif:
+ *                an OpenLIME BRDF layer, the Lafortune lobes refitted to its Ward model
  * Meshes are decimated to a regular sub-grid within the triangle budget (default 200000).
  * The copy is only read; DIR is created. */
 #include <errno.h>
@@ -22,7 +24,7 @@
 #define EXPORT_DEFAULT_TRIANGLES 200000
 
 static void usage(FILE *f) {
-        fprintf(f, "usage: impasto export COPY_DIR --to tiff-height|ply|glb|lp --out DIR [--triangles N]\n"
+        fprintf(f, "usage: impasto export COPY_DIR --to tiff-height|ply|glb|lp|openlime --out DIR [--triangles N]\n"
                    "                      [--capture CAPSET] [--exposure-index N]\n");
 }
 
@@ -86,8 +88,9 @@ static int run(int argc, char **argv) {
                 usage(stderr);
                 return 2;
         }
-        if (strcmp(fmt, "tiff-height") && strcmp(fmt, "ply") && strcmp(fmt, "glb") && strcmp(fmt, "lp")) {
-                log_error("--to: expected tiff-height, ply, glb or lp, got '%s'", fmt);
+        if (strcmp(fmt, "tiff-height") && strcmp(fmt, "ply") && strcmp(fmt, "glb") && strcmp(fmt, "lp") &&
+            strcmp(fmt, "openlime")) {
+                log_error("--to: expected tiff-height, ply, glb, lp or openlime, got '%s'", fmt);
                 return 2;
         }
         if (!strcmp(fmt, "lp") && !capture) {
@@ -121,6 +124,12 @@ static int run(int argc, char **argv) {
                         printf("%s/lights.lp: %zu lights, %dx%d 16-bit PNGs at exposure %d (%.0f µs), %.1f mm wide\n",
                                out, sum.n_lights, sum.width, sum.height, sum.exposure_index, sum.exposure_us,
                                sum.image_width_mm);
+        } else if (!strcmp(fmt, "openlime")) {
+                double med, p95;
+                r = imp_export_openlime(&copy, out, &med, &p95, &err);
+                if (r >= 0)
+                        printf("%s/openlime.json: BRDF layer %dx%d; Ward refit error (RMS / lobe RMS) median %.3f, "
+                               "95th percentile %.3f\n", out, copy.nx, copy.ny, med, p95);
         } else
                 r = export_mesh(&copy, fmt, out, budget, &err);
         imp_copy_done(&copy);
@@ -133,6 +142,6 @@ static int run(int argc, char **argv) {
 
 const struct imp_command imp_cmd_export = {
         .name = "export",
-        .summary = "write a digital copy for other tools (TIFF heightmap, PLY, glTF, RTI dome stack)",
+        .summary = "write a digital copy for other tools (TIFF heightmap, PLY, glTF, RTI stack, OpenLIME)",
         .run = run,
 };

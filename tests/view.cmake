@@ -10,8 +10,13 @@ set_tests_properties(test-view-browser PROPERTIES LABELS integration SKIP_RETURN
 impasto_test(test-view-pack LIBS impasto_export)
 # Exports read back by libtiff and assimp (skipped from the build without assimp).
 pkg_check_modules(ASSIMP IMPORTED_TARGET assimp)
+pkg_check_modules(VIPS IMPORTED_TARGET vips)
 if(ASSIMP_FOUND)
   impasto_test(test-export LABELS integration LIBS impasto_export PkgConfig::ASSIMP PkgConfig::TIFF TIMEOUT 120)
+  if(VIPS_FOUND)
+    target_link_libraries(test-export PRIVATE PkgConfig::VIPS)
+    target_compile_definitions(test-export PRIVATE IMPASTO_HAVE_VIPS=1)
+  endif()
 else()
   message(WARNING "impasto: assimp not found: test-export (mesh read-back) is not built")
 endif()

@@ -64,3 +64,28 @@ struct imp_lp_summary {
 };
 int imp_export_lp(const struct imp_copy *c, const char *capset_dir, const char *dir, int exposure_index,
                   struct imp_lp_summary *ret, struct imp_error *err);
+
+/* OpenLIME's isotropic Ward model (its ShaderBRDF): physical BRDF kd/π + ks·spec with
+ * spec = exp(−tan²θh / α²) / (4π α² √(cosθl cosθv)) and α = (1 − g·(G1 − G0) − G0)^4 from
+ * the gloss g in [0, 1], G0 = 1 − 0.5^¼, G1 = 1 − 0.01^¼ (α from 0.5 down to 0.01). */
+struct imp_ward_fit {
+        float ks[3];                  /* linear */
+        float gloss;                  /* [0, 1] */
+        float alpha;
+        float rel_error;              /* RMS residual / RMS of the Lafortune specular term,
+                                         cosine- and solid-angle-weighted; 0 without a lobe */
+};
+/* Refits the Lafortune specular lobe of b with the viewer on the normal (OpenLIME looks
+ * straight down), over light elevations 0..85°: kd = ρd, α on a gloss grid, ks by least
+ * squares for each α (the best α is the same for all channels since ρs only scales). */
+void imp_ward_refit(const struct imp_lafortune *b, struct imp_ward_fit *ret);
+double imp_ward_alpha(double gloss);
+
+/* An OpenLIME BRDF layer: the maps kd (ρd), ks, normals ((n + 1) / 2, y towards image
+ * up), gloss as 8-bit PNGs cut into deepzoom tiles by libvips (DIR/NAME.dzi and
+ * DIR/NAME_files/), DIR/refit-error.tif (float32 per texel), DIR/openlime.json (the layer's
+ * options: layout, channels, colour spaces, sizes, refit figures). ret_* (may be NULL)
+ * get the median and 95th percentile of the refit error over the mask. Returns -ENOTSUP
+ * when impasto was built without libvips. */
+int imp_export_openlime(const struct imp_copy *c, const char *dir, double *ret_err_median, double *ret_err_p95,
+                        struct imp_error *err);

@@ -7,6 +7,10 @@
  *    fits; every vertex on a texel with the copy's height within that texel's σ (in fact
  *    1e-5 mm), a unit normal agreeing with the copy's to 1e-3, the albedo colour within
  *    one 8-bit step (PLY); glTF in metres with both textures embedded as PNG;
+ *  - openlime: the Ward refit's reported error agrees with the residual recomputed here
+ *    from its ks and α (within 0.02), a sharper lobe refits to a higher gloss; the deepzoom
+ *    tiles read back by libvips hold the kd map (sRGB ρd within one 8-bit step), the
+ *    gloss map rises with the lobe exponent, the error map is finite on the mask;
  *  - a missing copy exits 3 naming it; an unknown format exits 2. */
 #include <assimp/cimport.h>
 #include <assimp/material.h>
@@ -16,7 +20,12 @@
 #include <sys/wait.h>
 #include <tiffio.h>
 #include "copy-synth.h"
+#include "export.h"
+#include "json-util.h"
 #include "test.h"
+#ifdef IMPASTO_HAVE_VIPS
+#include <vips/vips.h>
+#endif
 
 #define IMPASTO IMPASTO_BINARY_DIR "/cli/impasto"
 #define BUDGET 500
@@ -150,6 +159,93 @@ static void check_mesh(const char *path, double scale, bool colours) {
         aiReleaseImport(s);
 }
 
+/* The refit's claimed error against the residual of its own ks, α (Ward written here). */
+static void check_ward(void) {
+        double prev_gloss = -1;
+        for (double k = 5; k <= 80; k *= 2) {
+                struct imp_lafortune b = { .rho_d = { 0.5, 0.5, 0.5 }, .rho_s = { 0.3, 0.2, 0.1 }, .cx = -1, .cy = -1,
+                                           .cz = 1, .k = (float) k };
+                struct imp_ward_fit w;
+                imp_ward_refit(&b, &w);
+                double num = 0, den = 0, a = imp_ward_alpha(w.gloss);
+                for (int t = 0; t <= 85; t++) {
+                        double th = t * M_PI / 180, c = cos(th), wt = sin(th) + 1e-3, h = tan(th / 2);
+                        double ward = w.ks[0] * exp(-h * h / (a * a)) / (4 * M_PI * a * a * sqrt(c)) * c;
+                        double laf = b.rho_s[0] * pow(c, k) / M_PI * c;
+                        num += wt * (ward - laf) * (ward - laf);
+                        den += wt * laf * laf;
+                }
+                CHECK_NEAR(sqrt(num / den), w.rel_error, 0.02);
+                CHECK_LE(w.rel_error, 0.5);
+                CHECK_NEAR(w.ks[1] / w.ks[0], 0.2 / 0.3, 1e-5);   /* ρs only scales ks */
+                CHECK_GE(w.gloss, prev_gloss + 1e-6);             /* sharper lobe, glossier */
+                prev_gloss = w.gloss;
+        }
+}
+
+#ifdef IMPASTO_HAVE_VIPS
+/* Pixel (x, y) band b of a tile, through libvips. */
+static int tile_px(VipsImage *im, int x, int y, int b) {
+        double *v = NULL;
+        int n = 0;
+        if (vips_getpoint(im, &v, &n, x, y, NULL) || b >= n) {
+                g_free(v);
+                return -1;
+        }
+        int r = (int) v[b];
+        g_free(v);
+        return r;
+}
+
+static void check_openlime(const char *copy, const char *out) {
+        char cmd[2048], path[1024];
+        snprintf(cmd, sizeof cmd, "%s export %s --to openlime --out %s/ol", IMPASTO, copy, out);
+        CHECK_INT_EQ(run(cmd), 0);
+        struct imp_error err = {};
+        _cleanup_json_ json_t *j = NULL;
+        snprintf(path, sizeof path, "%s/ol/openlime.json", out);
+        CHECK_OK(imp_json_load(path, &j, &err));
+        CHECK_STR_EQ(json_string_value(json_object_get(json_object_get(j, "channels"), "gloss")), "gloss.dzi");
+        CHECK_INT_EQ(json_integer_value(json_object_get(j, "width")), COPY_SYNTH_NX);
+        if (VIPS_INIT("test-export"))
+                return;
+        /* 40 texels wide: the full-resolution level is 6 (2^6 >= 40), one 256-pixel tile */
+        snprintf(path, sizeof path, "%s/ol/kd_files/6/0_0.png", out);
+        VipsImage *kd = vips_image_new_from_file(path, NULL);
+        snprintf(path, sizeof path, "%s/ol/gloss_files/6/0_0.png", out);
+        VipsImage *gl = vips_image_new_from_file(path, NULL);
+        CHECK_MSG(kd && gl, "libvips cannot read the level-6 tiles: %s", vips_error_buffer());
+        if (kd && gl) {
+                CHECK_INT_EQ(vips_image_get_width(kd), COPY_SYNTH_NX);
+                CHECK_INT_EQ(vips_image_get_height(kd), COPY_SYNTH_NY);
+                size_t bad = 0;
+                for (int y = 1; y < COPY_SYNTH_NY - 1; y++)
+                        for (int x = 1; x < COPY_SYNTH_NX - 1; x++)
+                                for (int c = 0; c < 3; c++)
+                                        bad += abs(tile_px(kd, x, y, c) - (int) lround(255 * srgb(copy_synth_rho_d(x, y, c)))) > 1;
+                CHECK_INT_EQ(bad, 0);
+                CHECK_GE(tile_px(gl, 30, 15, 0), tile_px(gl, 5, 15, 0) + 1);   /* k 40 vs 15 */
+        }
+        if (kd)
+                g_object_unref(kd);
+        if (gl)
+                g_object_unref(gl);
+        snprintf(path, sizeof path, "%s/ol/refit-error.tif", out);
+        TIFF *t = TIFFOpen(path, "r");
+        CHECK(t != NULL);
+        size_t bad_e = 0;
+        float row[COPY_SYNTH_NX];
+        for (int y = 0; t && y < COPY_SYNTH_NY; y++) {
+                CHECK(TIFFReadScanline(t, row, (uint32_t) y, 0) >= 0);
+                for (int x = 0; x < COPY_SYNTH_NX; x++)
+                        bad_e += copy_synth_in(x, y) ? !(row[x] >= 0 && row[x] <= 0.5) : !isnan(row[x]);
+        }
+        CHECK_INT_EQ(bad_e, 0);
+        if (t)
+                TIFFClose(t);
+}
+#endif
+
 int main(void) {
         struct stat st;
         if (stat(IMPASTO, &st) < 0)
@@ -175,6 +271,13 @@ int main(void) {
         CHECK_INT_EQ(run(cmd), 0);
         snprintf(path, sizeof path, "%s/mesh.glb", out);
         check_mesh(path, 1000.0, false);   /* glTF is in metres */
+
+        check_ward();
+#ifdef IMPASTO_HAVE_VIPS
+        check_openlime(copy, out);
+#else
+        fprintf(stderr, "openlime: not checked (built without libvips)\n");
+#endif
 
         snprintf(cmd, sizeof cmd, "%s export %s/missing --to ply --out %s 2> %s/err.txt", IMPASTO, tmp, out, tmp);
         CHECK_INT_EQ(run(cmd), 3);
