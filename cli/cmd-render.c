@@ -15,6 +15,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "commands.h"
+#include "copy-load.h"
 #include "image.h"
 #include "json-util.h"
 #include "log.h"
@@ -54,141 +55,6 @@ static int parse_vec(const char *s, double *v, int n, int m) {
 static bool ends_with(const char *s, const char *suffix) {
         size_t a = strlen(s), b = strlen(suffix);
         return a >= b && !strcasecmp(s + a - b, suffix);
-}
-
-/* The copy's files loaded into a struct imp_relief_copy (canvas frame: identity transform). */
-struct loaded {
-        struct imp_relief_copy copy;
-        float *height, *nx, *ny;
-        struct imp_lafortune *brdf;
-        struct imp_relief_box *boxes;
-        double h_ref;
-};
-
-static void loaded_done(struct loaded *l) {
-        free(l->height);
-        free(l->nx);
-        free(l->ny);
-        free(l->brdf);
-        free(l->boxes);
-}
-
-static int read_exr(const char *dir, const char *file, const char *const *chans, int n, int w, int h,
-                    struct imp_image **ret, int *ret_c, struct imp_error *err) {
-        char path[4096];
-        snprintf(path, sizeof path, "%s/%s", dir, file);
-        char **names = NULL;
-        _cleanup_image_ struct imp_image *img = NULL;
-        int r = imp_exr_read(path, &img, &names, err);
-        if (r < 0)
-                return r;
-        for (int i = 0; i < n; i++)
-                if ((ret_c[i] = imp_image_channel_index(names, chans[i])) < 0) {
-                        imp_strv_free(names);
-                        return imp_error_set(err, -EBADMSG, "%s: channel \"%s\" missing", path, chans[i]);
-                }
-        imp_strv_free(names);
-        if (w > 0 && (img->width != w || img->height != h))
-                return imp_error_set(err, -EBADMSG, "%s: %dx%d, copy.json says %dx%d", path, img->width,
-                                     img->height, w, h);
-        *ret = TAKE_PTR(img);
-        return 0;
-}
-
-static float finite_or(double v, float dflt) {
-        return isfinite(v) ? (float) v : dflt;
-}
-
-static int load_copy(const char *dir, struct loaded *L, struct imp_error *err) {
-        char path[4096];
-        _cleanup_json_ json_t *cj = NULL, *bj = NULL;
-        snprintf(path, sizeof path, "%s/copy.json", dir);
-        int r = imp_json_load(path, &cj, err);
-        if (r < 0)
-                return r;
-        long long nx, ny;
-        double pitch;
-        if ((r = imp_json_get_int(cj, "nx", true, &nx, path, err)) < 0 ||
-            (r = imp_json_get_int(cj, "ny", true, &ny, path, err)) < 0 ||
-            (r = imp_json_get_double(cj, "pitch_mm", true, &pitch, path, err)) < 0)
-                return r;
-        if (nx < 1 || ny < 1 || nx > 1 << 20 || ny > 1 << 20 || !(pitch > 0))
-                return imp_error_set(err, -EBADMSG, "%s: bad grid %lldx%lld at pitch %g", path, nx, ny, pitch);
-        snprintf(path, sizeof path, "%s/boxes.json", dir);
-        if ((r = imp_json_load(path, &bj, err)) < 0)
-                return r;
-        double h_ref, delta0;
-        if ((r = imp_json_get_double(bj, "h_ref", true, &h_ref, path, err)) < 0 ||
-            (r = imp_json_get_double(bj, "delta0", true, &delta0, path, err)) < 0)
-                return r;
-
-        static const char *const HF[] = { "height", "nx", "ny", "mask" }, *const RGB[] = { "R", "G", "B" },
-                                 *const LOBE[] = { "cx", "cy", "cz", "k" };
-        _cleanup_image_ struct imp_image *hf = NULL, *rd = NULL, *rs = NULL, *lo = NULL;
-        int ch[4], cd[3], cs[3], cl[4];
-        if ((r = read_exr(dir, "heightfield.exr", HF, 4, (int) nx, (int) ny, &hf, ch, err)) < 0 ||
-            (r = read_exr(dir, "rho_d.exr", RGB, 3, (int) nx, (int) ny, &rd, cd, err)) < 0 ||
-            (r = read_exr(dir, "rho_s.exr", RGB, 3, (int) nx, (int) ny, &rs, cs, err)) < 0 ||
-            (r = read_exr(dir, "lobe.exr", LOBE, 4, (int) nx, (int) ny, &lo, cl, err)) < 0)
-                return r;
-
-        size_t n = (size_t) nx * ny;
-        L->height = malloc(n * sizeof(float));
-        L->nx = malloc(n * sizeof(float));
-        L->ny = malloc(n * sizeof(float));
-        L->brdf = calloc(n, sizeof *L->brdf);
-        if (!L->height || !L->nx || !L->ny || !L->brdf)
-                return imp_error_set(err, -ENOMEM, "out of memory");
-        /* Texels off the canvas mask get the bump plane and black paint: the renderer wants
-         * finite, non-negative values everywhere. */
-        float plane = (float) (h_ref + delta0);
-        for (int j = 0; j < ny; j++)
-                for (int i = 0; i < nx; i++) {
-                        size_t k = (size_t) j * nx + i;
-                        const float *p = imp_image_f32(hf, i, j);
-                        bool in = p[ch[3]] >= 0.5f && isfinite(p[ch[0]]);
-                        L->height[k] = in ? p[ch[0]] : plane;
-                        L->nx[k] = in ? finite_or(p[ch[1]], 0) : 0;
-                        L->ny[k] = in ? finite_or(p[ch[2]], 0) : 0;
-                        struct imp_lafortune *b = &L->brdf[k];
-                        const float *d = imp_image_f32(rd, i, j), *s = imp_image_f32(rs, i, j);
-                        const float *l = imp_image_f32(lo, i, j);
-                        for (int c = 0; c < 3; c++) {
-                                b->rho_d[c] = in ? fmaxf(finite_or(d[cd[c]], 0), 0) : 0;
-                                b->rho_s[c] = in ? fmaxf(finite_or(s[cs[c]], 0), 0) : 0;
-                        }
-                        b->cx = finite_or(l[cl[0]], -1), b->cy = finite_or(l[cl[1]], -1);
-                        b->cz = finite_or(l[cl[2]], 1), b->k = fmaxf(finite_or(l[cl[3]], 1), 0);
-                }
-
-        json_t *arr = json_object_get(bj, "boxes");
-        size_t nb = json_is_array(arr) ? json_array_size(arr) : 0;
-        L->boxes = calloc(nb ? nb : 1, sizeof *L->boxes);
-        if (!L->boxes)
-                return imp_error_set(err, -ENOMEM, "out of memory");
-        for (size_t b = 0; b < nb; b++) {
-                json_t *o = json_array_get(arr, b);
-                long long u0, v0, w, h, um, vm;
-                double hmax;
-                if ((r = imp_json_get_int(o, "u0", true, &u0, path, err)) < 0 ||
-                    (r = imp_json_get_int(o, "v0", true, &v0, path, err)) < 0 ||
-                    (r = imp_json_get_int(o, "w", true, &w, path, err)) < 0 ||
-                    (r = imp_json_get_int(o, "h", true, &h, path, err)) < 0 ||
-                    (r = imp_json_get_int(o, "umax", true, &um, path, err)) < 0 ||
-                    (r = imp_json_get_int(o, "vmax", true, &vm, path, err)) < 0 ||
-                    (r = imp_json_get_double(o, "hmax", true, &hmax, path, err)) < 0)
-                        return r;
-                L->boxes[b] = (struct imp_relief_box) { (int) u0, (int) v0, (int) w, (int) h, (float) hmax,
-                                                        (int) um, (int) vm };
-        }
-        L->h_ref = h_ref;
-        L->copy = (struct imp_relief_copy) {
-                .nx = (int) nx, .ny = (int) ny, .pitch_mm = pitch, .height_mm = L->height,
-                .normal_x = L->nx, .normal_y = L->ny, .brdf = L->brdf, .boxes = L->boxes, .n_boxes = nb,
-                .delta0_mm = plane,
-                .canvas_to_world = { 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1 },
-        };
-        return 0;
 }
 
 static uint8_t srgb8(double v) {
@@ -274,8 +140,8 @@ static int run(int argc, char **argv) {
         }
 
         struct imp_error err = {};
-        struct loaded L = {};
-        int r = load_copy(argv[optind], &L, &err);
+        struct imp_copy L;
+        int r = imp_copy_load(argv[optind], &L, &err);
         _cleanup_image_ struct imp_image *img = NULL, *o8 = NULL;
         struct imp_relief_scene *scene = NULL;
         int ret = 3;
@@ -283,13 +149,15 @@ static int run(int argc, char **argv) {
                 log_error("%s", err.msg[0] ? err.msg : strerror(-r));
                 goto out;
         }
-        r = imp_relief_scene_new(&L.copy, &scene);
+        struct imp_relief_copy copy;
+        imp_copy_relief(&L, &copy);
+        r = imp_relief_scene_new(&copy, &scene);
         if (r < 0) {
                 log_error("%s: the copy cannot be rendered: %s", argv[optind], strerror(-r));
                 goto out;
         }
-        double centre[3] = { 0.5 * (L.copy.nx - 1) * L.copy.pitch_mm, 0.5 * (L.copy.ny - 1) * L.copy.pitch_mm,
-                             L.copy.delta0_mm };
+        double centre[3] = { 0.5 * (copy.nx - 1) * copy.pitch_mm, 0.5 * (copy.ny - 1) * copy.pitch_mm,
+                             copy.delta0_mm };
         double target[3] = { centre[0], centre[1], centre[2] };
         if (n_view == 6)
                 memcpy(target, view + 3, sizeof target);
@@ -355,11 +223,11 @@ static int run(int argc, char **argv) {
                 goto out;
         }
         printf("%s: %dx%d, %zu pixels see the copy, %zu by relief mapping, %zu of %zu boxes drawn\n", out, W, H,
-               st.n_pixels_hit, st.n_pixels_relief, st.n_boxes_drawn, L.copy.n_boxes);
+               st.n_pixels_hit, st.n_pixels_relief, st.n_boxes_drawn, copy.n_boxes);
         ret = 0;
 out:
         imp_relief_scene_free(scene);
-        loaded_done(&L);
+        imp_copy_done(&L);
         return ret;
 }
 
