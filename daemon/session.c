@@ -129,18 +129,7 @@ static int pattern_index(const struct session *s, const struct imp_pattern *p) {
 }
 
 int plan_check(struct daemon *d, const char *path, struct imp_plan **ret, struct imp_proto_error *perr) {
-        if (!d->have_rig)
-                return imp_proto_error_set(perr, IMP_PROTO_E_BAD_STATE, ENODATA, NULL,
-                                           "the rig has no calibration (rig.json) loaded");
-        struct imp_error e = { 0 };
-        struct imp_plan *p = NULL;
-        int r = imp_plan_load(path, &d->rig, &p, &e);
-        if (r == -ENOENT && access(path, F_OK) < 0)
-                return imp_proto_error_set(perr, IMP_PROTO_E_NOT_FOUND, ENOENT, "args.plan", "%s", e.msg);
-        if (r < 0)
-                return imp_proto_error_set(perr, IMP_PROTO_E_INVALID_PLAN, -r, "args.plan", "%s", e.msg);
-        *ret = p;
-        return 0;
+        return plan_load_text(d, path, ret, NULL, perr);
 }
 
 /* ---- events ---------------------------------------------------------------------------- */
@@ -759,7 +748,8 @@ int session_start(struct daemon *d, const char *plan_path, const char *name, str
                 return imp_proto_error_set(perr, IMP_PROTO_E_BUSY, EBUSY, NULL, "session %s holds the rig (%s)",
                                            d->active->id, session_state_name(d->active->state));
         struct imp_plan *plan = NULL;
-        int r = plan_check(d, plan_path, &plan, perr);
+        _cleanup_free_ char *plan_text = NULL;
+        int r = plan_load_text(d, plan_path, &plan, &plan_text, perr);
         if (r < 0)
                 return r;
         struct session *s = calloc(1, sizeof *s);
@@ -796,7 +786,7 @@ int session_start(struct daemon *d, const char *plan_path, const char *name, str
         s->state = SESSION_PREPARING;
         rfc3339_now(s->started);
         struct imp_error e = { 0 };
-        if ((r = imp_captureset_create(s->dir, &s->rig, plan_path, &s->cs, &e)) < 0) {
+        if ((r = imp_captureset_create_with_plan(s->dir, &s->rig, plan_text, strlen(plan_text), &s->cs, &e)) < 0) {
                 session_free(s);
                 return imp_proto_error_set(perr, IMP_PROTO_E_IO, -r, NULL, "%s", e.msg);
         }
@@ -844,7 +834,10 @@ static int reopen(struct session *s, struct imp_proto_error *perr) {
         if (!s->plan) {
                 char p[PATH_MAX + 16];
                 snprintf(p, sizeof p, "%s/plan.cfg", s->dir);
-                if ((r = imp_plan_load(p, &s->rig, &s->plan, &e)) < 0)
+                _cleanup_free_ char *text = NULL;
+                if ((r = plan_read(p, &text, perr)) < 0)
+                        return r;
+                if ((r = imp_plan_load_string(text, p, &s->rig, &s->plan, &e)) < 0)
                         return imp_proto_error_set(perr, IMP_PROTO_E_INVALID_PLAN, -r, NULL, "%s", e.msg);
                 if ((r = collect_patterns(s)) < 0)
                         return imp_proto_error_set(perr, IMP_PROTO_E_INTERNAL, -r, NULL, "out of memory");

@@ -311,7 +311,8 @@ static int dir_usable(const char *dir, struct imp_error *err) {
         return 0;
 }
 
-static int copy_plan(const char *plan_path, const char *dst, struct imp_error *err) {
+/* The plan file's bytes (the set keeps a byte copy). */
+static int read_plan(const char *plan_path, char **ret, size_t *ret_size, struct imp_error *err) {
         _cleanup_fclose_ FILE *f = fopen(plan_path, "re");
         if (!f) {
                 int r = negative_errno();
@@ -330,7 +331,9 @@ static int copy_plan(const char *plan_path, const char *dst, struct imp_error *e
                 return imp_error_set(err, -EIO, "%s: read error", plan_path);
         fclose(mem);
         mem = NULL;
-        return imp_file_write_atomic(dst, buf, size, err);
+        *ret = TAKE_PTR(buf);
+        *ret_size = size;
+        return 0;
 }
 
 static int create_empty(const char *dir, const char *name, int flags, int *ret_fd,
@@ -354,6 +357,18 @@ static int create_empty(const char *dir, const char *name, int flags, int *ret_f
 
 int imp_captureset_create(const char *dir, const struct imp_rig *rig, const char *plan_path,
                           struct imp_captureset **ret, struct imp_error *err) {
+        _cleanup_free_ char *text = NULL;
+        size_t size = 0;
+        if (plan_path) {
+                int r = read_plan(plan_path, &text, &size, err);
+                if (r < 0)
+                        return r;
+        }
+        return imp_captureset_create_with_plan(dir, rig, text, size, ret, err);
+}
+
+int imp_captureset_create_with_plan(const char *dir, const struct imp_rig *rig, const char *plan_text,
+                                    size_t plan_size, struct imp_captureset **ret, struct imp_error *err) {
         _cleanup_(imp_captureset_closep) struct imp_captureset *cs = cs_new(dir);
         if (!cs)
                 return imp_error_set(err, -ENOMEM, "%s: out of memory", dir);
@@ -372,7 +387,7 @@ int imp_captureset_create(const char *dir, const struct imp_rig *rig, const char
         }
         if ((r = imp_rig_save(rig_path, rig, err)) < 0)
                 return r;
-        if (plan_path && (r = copy_plan(plan_path, plan_dst, err)) < 0)
+        if (plan_text && (r = imp_file_write_atomic(plan_dst, plan_text, plan_size, err)) < 0)
                 return r;
         if ((r = create_empty(dir, MANIFEST, O_APPEND, &cs->manifest_fd, err)) < 0 ||
             (r = create_empty(dir, "session.log", 0, NULL, err)) < 0)

@@ -31,6 +31,10 @@ struct imp_captureset;   /* opaque */
  * plan file (plan_path may be NULL). Caller closes with imp_captureset_close(). */
 int imp_captureset_create(const char *dir, const struct imp_rig *rig, const char *plan_path,
                           struct imp_captureset **ret, struct imp_error *err);
+/* The same with the plan's bytes given (plan_text NULL: no plan.cfg): a caller that has
+ * read and checked the plan already (impastod) keeps exactly what it checked. */
+int imp_captureset_create_with_plan(const char *dir, const struct imp_rig *rig, const char *plan_text,
+                                    size_t plan_size, struct imp_captureset **ret, struct imp_error *err);
 /* Opens an existing set for reading and appending. A torn last manifest line, a frame
  * file without a manifest line, or a leftover .tmp is repaired (dropped); a frame whose
  * checksum does not match is an error naming it. */
