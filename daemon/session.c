@@ -819,11 +819,38 @@ int session_pause(struct session *s, struct imp_proto_error *perr) {
         return 0;
 }
 
-/* Reopen the set (repairing a torn tail), reload rig and plan from it, check the records
+/* What a crash left in the set (a torn last line, a frame stored but not yet recorded, a
+ * .tmp) is moved into quarantine/ by the library's repair, each item logged and reported to
+ * the clients as a non-fatal fault: resuming is the operator's request (session.resume, or
+ * --resume), and nothing is deleted. */
+static int repair_for_resume(struct session *s, struct imp_proto_error *perr) {
+        struct imp_error e = { 0 };
+        json_t *report = NULL;
+        int r = imp_captureset_repair(s->dir, false, &report, &e);
+        if (r < 0)
+                return imp_proto_error_set(perr, IMP_PROTO_E_IO, -r, NULL, "%s", e.msg);
+        size_t i;
+        json_t *item;
+        json_array_foreach(report, i, item) {
+                char msg[1024];
+                snprintf(msg, sizeof msg, "resume: moved %s to %s: %s", json_string_value(json_object_get(item, "path")),
+                         json_string_value(json_object_get(item, "moved_to")),
+                         json_string_value(json_object_get(item, "reason")));
+                log_warning("session %s: %s", s->id, msg);
+                emit_fault(s, NULL, IMP_PROTO_E_IO, EUCLEAN, false, msg);
+        }
+        json_decref(report);
+        return 0;
+}
+
+/* Reopen the set (after repair_for_resume), reload rig and plan from it, check the records
  * already there against the plan: capture continues at the first missing seq. */
 static int reopen(struct session *s, struct imp_proto_error *perr) {
         struct imp_error e = { 0 };
-        int r = imp_captureset_open(s->dir, &s->cs, &e);
+        int r = repair_for_resume(s, perr);
+        if (r < 0)
+                return r;
+        r = imp_captureset_open(s->dir, &s->cs, &e);
         if (r < 0)
                 return imp_proto_error_set(perr, IMP_PROTO_E_IO, -r, NULL, "%s", e.msg);
         if (!s->have_rig) {
