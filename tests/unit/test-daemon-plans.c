@@ -13,12 +13,6 @@
 #define PORT 15917
 #define N_LIGHTS 4
 
-static double scale(void) {
-        const char *s = getenv("IMPASTO_TIMEOUT_SCALE");
-        double v = s ? atof(s) : 1.0;
-        return v >= 1.0 ? v : 1.0;
-}
-
 /* plan.validate of `plan` answered within `ms`: the error code (E_NONE when valid), its
  * message in msg; -1 when no answer came in time. */
 static int validate(struct tclient *c, const char *plan, unsigned ms, char *msg, size_t size) {
@@ -68,7 +62,7 @@ static const char *after_path(const char *msg) {
 int main(void) {
         struct harness h;
         h_setup(&h, PORT, N_LIGHTS);
-        const unsigned ms = (unsigned) (5000 * scale());
+        const unsigned ms = (unsigned) (5000 * test_timeout_scale());
         char plans[512], outside[512], p[1024], q[1024];
         snprintf(plans, sizeof plans, "%s/plans", h.dir);
         snprintf(outside, sizeof outside, "%s/outside", h.dir);
