@@ -119,6 +119,9 @@ struct session {
         char started[32], ended[32];
         enum session_state state;
         bool interrupted;               /* found running after a restart */
+        char damaged[512];              /* non-empty: session.json was unreadable (why); the
+                                           session is rebuilt from its set's manifest and plan
+                                           on resume, which writes session.json anew */
         struct imp_rig rig;             /* from the set's rig.json once open */
         bool have_rig;
         struct imp_plan *plan;

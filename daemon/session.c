@@ -907,6 +907,12 @@ int session_resume(struct session *s, struct imp_proto_error *perr) {
                 s->cs = NULL;
                 return r;
         }
+        if (s->damaged[0]) {
+                log_notice("session %s: rebuilt from its capture set's manifest and plan (%zu of %zu frames); "
+                           "session.json was: %s", s->id, s->n_frames, s->frames_total, s->damaged);
+                s->damaged[0] = 0;
+                save(s);
+        }
         char msg[512];
         uint64_t need = 0;
         for (size_t i = s->n_frames; i < s->frames_total; i++)
@@ -951,9 +957,18 @@ void session_shutdown(struct session *s) {
         s->cs = NULL;
 }
 
+/* A session whose session.json was unreadable says so: {"damaged": why}. */
+static json_t *with_damage(json_t *j, const struct session *s) {
+        if (j && s->damaged[0])
+                json_object_set_new(j, "damaged", json_string(s->damaged));
+        return j;
+}
+
 json_t *session_summary_json(const struct session *s) {
-        return json_pack("{s:s, s:s, s:s, s:s, s:I}", "session", s->id, "name", s->name, "state",
-                         session_state_name(s->state), "started", s->started, "frames", (json_int_t) s->n_frames);
+        return with_damage(json_pack("{s:s, s:s, s:s, s:s, s:I}", "session", s->id, "name", s->name, "state",
+                                     session_state_name(s->state), "started", s->started, "frames",
+                                     (json_int_t) s->n_frames),
+                           s);
 }
 
 json_t *session_show_json(const struct session *s) {
@@ -961,10 +976,10 @@ json_t *session_show_json(const struct session *s) {
         json_t *streamed = json_pack("{s:I, s:I, s:I, s:I, s:I}", "runs", (json_int_t) s->streamed.runs, "frames",
                                      (json_int_t) s->streamed.frames, "lost", (json_int_t) s->streamed.lost,
                                      "stale", (json_int_t) s->streamed.stale, "stops", (json_int_t) s->streamed.stops);
-        return json_pack("{s:s, s:s, s:s, s:s, s:s, s:s, s:s?, s:I, s:I, s:I, s:b, s:O, s:o}", "session", s->id,
+        return with_damage(json_pack("{s:s, s:s, s:s, s:s, s:s, s:s, s:s?, s:I, s:I, s:I, s:b, s:O, s:o}", "session", s->id,
                          "name", s->name, "state", session_state_name(s->state), "plan", s->plan_path, "path",
                          s->dir, "started", s->started, "ended", s->ended[0] ? s->ended : NULL, "step",
                          (json_int_t) s->n_frames, "steps", (json_int_t) s->frames_total, "frames",
                          (json_int_t) s->n_frames, "interrupted", s->interrupted, "faults", s->faults,
-                         "streamed", streamed);
+                         "streamed", streamed), s);
 }
