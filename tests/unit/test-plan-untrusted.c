@@ -42,18 +42,20 @@ static void test_include(const struct imp_rig *rig) {
         FILE *f = fopen(secret, "we");
         fputs("this is { not a plan\n", f);
         fclose(f);
-        static const char *const forms[] = { "@include \"%s\"\n", "  @include \"%s\"\ndome = { exposures_us = [1.0]; };\n",
-                                             "dome = { exposures_us = [1.0]; };\n@INCLUDE \"%s\"\n" };
+        /* the directive before, indented, after other settings, in capitals */
+        static const char *const before[] = { "", "  ", "dome = { exposures_us = [1.0]; };\n" };
+        static const char *const directive[] = { "@include", "@include", "@INCLUDE" };
+        static const char *const forms[] = { "plain", "indented", "capitals" };
         for (size_t i = 0; i < ARRAY_SIZE(forms); i++) {
                 char text[1024];
-                snprintf(text, sizeof text, forms[i], secret);
+                snprintf(text, sizeof text, "%s%s \"%s\"\n", before[i], directive[i], secret);
                 struct imp_plan *p;
                 struct imp_error e;
                 int r = load(rig, text, &p, &e);
-                CHECK_MSG(r == -EINVAL, "form %zu: %d (%s)", i, r, e.msg);
+                CHECK_MSG(r == -EINVAL, "%s: %d (%s)", forms[i], r, e.msg);
                 CHECK_STR_CONTAINS(e.msg, "@include");
                 CHECK_STR_CONTAINS(e.msg, "client.cfg:");
-                CHECK_MSG(!strstr(e.msg, "secret"), "form %zu names the included file: %s", i, e.msg);
+                CHECK_MSG(!strstr(e.msg, "secret"), "%s: names the included file: %s", forms[i], e.msg);
                 imp_plan_free(p);
         }
         /* The line of the directive is named. */
