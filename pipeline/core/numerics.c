@@ -190,3 +190,13 @@ int imp_quantile(double *v, size_t n, double q, double *ret) {
         *ret = imp_quantile_sorted(v, n, q);
         return 0;
 }
+
+double imp_phase_nstep(const double *I, int n) {
+        double s = 0, c = 0;
+        for (int k = 0; k < n; k++) {
+                double a = 2 * M_PI * k / n;
+                s += I[k] * sin(a);
+                c += I[k] * cos(a);
+        }
+        return atan2(-s, c);
+}

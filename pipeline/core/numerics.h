@@ -76,3 +76,10 @@ double imp_quantile_sorted(const double *v, size_t n, double q);
  * NaN, as imp_quantile_sorted(). -ENODATA when none is (n = 0 or all NaN), -EINVAL when q
  * is not within [0, 1]; *ret untouched then. */
 int imp_quantile(double *v, size_t n, double q, double *ret);
+
+/* ---- phase shifting ---- */
+
+/* The phase θ ∈ (−π, π] of N-step phase-shift samples I_k = A + B cos(θ + 2πk/n),
+ * k = 0 … n−1 (n ≥ 3): θ = atan2(−Σ I_k sin δ_k, Σ I_k cos δ_k), δ_k = 2πk/n, the phase of
+ * the samples' first Fourier coefficient (Malacara, Optical Shop Testing, §14.2). */
+double imp_phase_nstep(const double *I, int n);
