@@ -528,7 +528,7 @@ static int write_outputs(const struct lights_args *a, const struct imp_rig *base
                         log_error("calibrate lights: the rig of --rig has no light %d (the sets' rig has)",
                                   set_rig->lights[i].id);
                         imp_rig_free(&rig);
-                        return IMP_EXIT_BADINPUT;
+                        return IMP_EXIT_BAD_INPUT;
                 }
         for (int i = 0; i < set_rig->n_lights; i++) {
                 struct imp_rig_light *L = &rig.lights[map[i]];
@@ -768,8 +768,8 @@ static int run_lights(const struct lights_args *a) {
         struct imp_error err = {};
         struct imp_rig file_rig = {};
         if (a->rig && imp_rig_load(a->rig, &file_rig, &err) < 0)
-                return log_error("calibrate lights: %s", err.msg), IMP_EXIT_BADINPUT;
-        int ret = IMP_EXIT_BADINPUT, n_caps = 0;
+                return log_error("calibrate lights: %s", err.msg), IMP_EXIT_BAD_INPUT;
+        int ret = IMP_EXIT_BAD_INPUT, n_caps = 0;
         const struct imp_rig *rig0 = NULL;
         struct capture *caps = calloc(MAX_SETS, sizeof *caps);
         if (!caps) {
@@ -803,8 +803,8 @@ static int run_import_lp(const struct lights_args *a) {
         else if ((r = imp_captureset_open(a->sets[0].dir, &cs, &err)) >= 0)
                 r = imp_rig_copy(imp_captureset_rig(cs), &rig);
         if (r < 0)
-                return log_error("calibrate lights: %s", err.msg[0] ? err.msg : "out of memory"), IMP_EXIT_BADINPUT;
-        int n = 0, ret = IMP_EXIT_BADINPUT;
+                return log_error("calibrate lights: %s", err.msg[0] ? err.msg : "out of memory"), IMP_EXIT_BAD_INPUT;
+        int n = 0, ret = IMP_EXIT_BAD_INPUT;
         struct imp_rig_light *L = NULL;
         bool near = false;
         r = imp_lights_lp_read(a->import_lp, a->dome, a->dome[3], &n, &L, NULL, &near, &err);

@@ -34,19 +34,19 @@ struct gamma_run {
 
 /* A library error as an exit code: the input at fault, or a failure. */
 static int exit_code(int r) {
-        return r == -ENOMEM || r == -EDOM ? IMP_EXIT_FAILURE : IMP_EXIT_BADINPUT;
+        return r == -ENOMEM || r == -EDOM ? IMP_EXIT_FAILURE : IMP_EXIT_BAD_INPUT;
 }
 
 /* Opens set and finds its camera (NULL: the first): an exit code. */
 static int open_set(const char *set, const char *camera, struct imp_captureset **ret_cs, const char **ret_cam) {
         struct imp_error err = {};
         if (imp_captureset_open(set, ret_cs, &err) < 0)
-                return log_error("calibrate radiometric: %s", err.msg), IMP_EXIT_BADINPUT;
+                return log_error("calibrate radiometric: %s", err.msg), IMP_EXIT_BAD_INPUT;
         const struct imp_rig *rig = imp_captureset_rig(*ret_cs);
         int ci = imp_cli_camera_index(rig, camera);
         if (ci < 0)
                 return log_error("calibrate radiometric: no camera '%s' in %s/rig.json", camera ? camera : "(any)", set),
-                       IMP_EXIT_BADINPUT;
+                       IMP_EXIT_BAD_INPUT;
         *ret_cam = rig->cameras[ci].name;
         return 0;
 }
@@ -149,10 +149,10 @@ static int write_rig(const char *out, const char *base, const struct ptc_run *pt
         const char *from = base ? base : "the set's rig";
         if (base) {
                 if (imp_rig_load(base, &copy, &err) < 0)
-                        return log_error("calibrate radiometric: %s", err.msg), IMP_EXIT_BADINPUT;
+                        return log_error("calibrate radiometric: %s", err.msg), IMP_EXIT_BAD_INPUT;
         } else if (imp_rig_copy(gm ? &gm->rig : &ptc->rig, &copy) < 0)
                 return IMP_EXIT_FAILURE;
-        int ret = IMP_EXIT_BADINPUT;
+        int ret = IMP_EXIT_BAD_INPUT;
         if (ptc) {
                 int bi = imp_cli_camera_index(&copy, ptc->camera);
                 if (bi < 0) {
