@@ -519,6 +519,49 @@ static int problem_init(struct problem *pb, int L, const struct imp_light_estima
         return 0;
 }
 
+/* pb->cov = N⁻¹ (the normal matrix with the priors), column by column through Cholesky. */
+static int invert_normal(struct problem *pb) {
+        memcpy(pb->A, pb->N, sizeof *pb->A * (size_t) pb->np * pb->np);
+        if (!imp_cholesky_factor(pb->np, pb->A))
+                return -EDOM;   /* cannot happen: every parameter has a prior */
+        for (int q = 0; q < pb->np; q++) {
+                double *col = pb->step;
+                memset(col, 0, sizeof *col * (size_t) pb->np);
+                col[q] = 1;
+                imp_cholesky_solve(pb->np, pb->A, col);
+                for (int k = 0; k < pb->np; k++)
+                        pb->cov[(size_t) k * pb->np + q] = col[k];
+        }
+        return 0;
+}
+
+/* The refined mirror centres with their covariance (scaled by rep->cov_scale) and shift
+ * from the silhouette fits; the shift statistics into rep. */
+static void centre_results(const struct problem *pb, struct imp_joint_centre *ret_centres, struct imp_joint_report *rep) {
+        const int n_lights = pb->L, n_mirrors = pb->M;
+        double ss = 0;
+        for (int m = 0; m < n_mirrors; m++) {
+                struct imp_joint_centre jc = { 0 };
+                int q = 3 * n_lights + 3 * m;
+                double tmp[9], lam[3];
+                for (int a = 0; a < 3; a++) {
+                        jc.centre_mm[a] = pb->theta[q + a];
+                        for (int b = 0; b < 3; b++)
+                                jc.cov_mm2[a * 3 + b] = pb->cov[(size_t) (q + a) * pb->np + q + b] * rep->cov_scale;
+                }
+                memcpy(tmp, jc.cov_mm2, sizeof tmp);
+                imp_eigen_sym(3, tmp, lam, NULL);
+                jc.sigma_mm = sqrt(IMP_MAX(lam[2], 0.0));
+                double dc[3] = { jc.centre_mm[0] - pb->C0[3 * m], jc.centre_mm[1] - pb->C0[3 * m + 1],
+                                 jc.centre_mm[2] - pb->C0[3 * m + 2] };
+                jc.shift_mm = imp_norm3(dc);
+                ss += jc.shift_mm * jc.shift_mm;
+                rep->centre_shift_max_mm = IMP_MAX(rep->centre_shift_max_mm, jc.shift_mm);
+                ret_centres[m] = jc;
+        }
+        rep->centre_shift_rms_mm = n_mirrors ? sqrt(ss / n_mirrors) : 0;
+}
+
 int imp_lights_joint_refine(int n_lights, const struct imp_light_estimate *lights, int n_mirrors,
                             const struct imp_joint_mirror *mirrors, int n_obs, const struct imp_joint_obs *obs,
                             const struct imp_joint_opts *opts, struct imp_light_estimate *ret_lights,
@@ -601,40 +644,11 @@ int imp_lights_joint_refine(int n_lights, const struct imp_light_estimate *light
                 rep.flags |= IMP_JOINT_WEAK_CENTRES;
         if (rep.cond > COND_MAX)
                 rep.flags |= IMP_JOINT_ILL_CONDITIONED;
-        memcpy(pb.A, pb.N, sizeof *pb.A * (size_t) pb.np * pb.np);
-        if (!imp_cholesky_factor(pb.np, pb.A))
-                return -EDOM;   /* cannot happen: every parameter has a prior */
-        for (int q = 0; q < pb.np; q++) {
-                double *col = pb.step;
-                memset(col, 0, sizeof *col * (size_t) pb.np);
-                col[q] = 1;
-                imp_cholesky_solve(pb.np, pb.A, col);
-                for (int k = 0; k < pb.np; k++)
-                        pb.cov[(size_t) k * pb.np + q] = col[k];
-        }
+        if ((r = invert_normal(&pb)) < 0)
+                return r;
         for (int l = 0; l < n_lights; l++)
                 light_result(&pb, l, &lights[l], rep.cov_scale, cond_max, ps, &ret_lights[l]);
-        double ss = 0;
-        for (int m = 0; m < n_mirrors; m++) {
-                struct imp_joint_centre jc = { 0 };
-                int q = 3 * n_lights + 3 * m;
-                double tmp[9], lam[3];
-                for (int a = 0; a < 3; a++) {
-                        jc.centre_mm[a] = pb.theta[q + a];
-                        for (int b = 0; b < 3; b++)
-                                jc.cov_mm2[a * 3 + b] = pb.cov[(size_t) (q + a) * pb.np + q + b] * rep.cov_scale;
-                }
-                memcpy(tmp, jc.cov_mm2, sizeof tmp);
-                imp_eigen_sym(3, tmp, lam, NULL);
-                jc.sigma_mm = sqrt(IMP_MAX(lam[2], 0.0));
-                double dc[3] = { jc.centre_mm[0] - pb.C0[3 * m], jc.centre_mm[1] - pb.C0[3 * m + 1],
-                                 jc.centre_mm[2] - pb.C0[3 * m + 2] };
-                jc.shift_mm = imp_norm3(dc);
-                ss += jc.shift_mm * jc.shift_mm;
-                rep.centre_shift_max_mm = IMP_MAX(rep.centre_shift_max_mm, jc.shift_mm);
-                ret_centres[m] = jc;
-        }
-        rep.centre_shift_rms_mm = n_mirrors ? sqrt(ss / n_mirrors) : 0;
+        centre_results(&pb, ret_centres, &rep);
         for (int i = 0; i < n_obs; i++) {
                 if (ret_residual_px)
                         ret_residual_px[i] = isfinite(res[i]) ? res[i] * obs[i].sigma_px : 1e30;

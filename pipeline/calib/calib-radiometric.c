@@ -48,8 +48,9 @@ static void pair_stats(const struct imp_image *a, const struct imp_image *b, con
         ret[3] = (double) nc / n;
 }
 
-int imp_radiometric_ptc(const struct imp_ptc_input *in, struct imp_ptc_result *ret, struct imp_error *err) {
-        if (!in || !ret || in->n_levels < 1 || in->n_levels > IMP_PTC_MAX_LEVELS || !in->levels ||
+/* Checks the input and sets the ROI (x, y, w, h): 0 or -EINVAL (err says why). */
+static int check_input(const struct imp_ptc_input *in, int roi[4], struct imp_error *err) {
+        if (in->n_levels < 1 || in->n_levels > IMP_PTC_MAX_LEVELS || !in->levels ||
             in->n_darks < 1 || !in->darks || in->bits < 1 || in->bits > 16)
                 return imp_error_set(err, -EINVAL, "photon transfer: bad arguments (levels 1..%d, ≥ 1 dark, bits 1..16)",
                                      IMP_PTC_MAX_LEVELS);
@@ -62,13 +63,61 @@ int imp_radiometric_ptc(const struct imp_ptc_input *in, struct imp_ptc_result *r
                     !(in->levels[i].exposure_us > 0))
                         return imp_error_set(err, -EINVAL, "photon transfer: level %d: missing frame, size differs "
                                              "from the darks, or exposure ≤ 0", i);
-        int roi[4] = { 0, 0, ref->width, ref->height };
+        roi[0] = roi[1] = 0, roi[2] = ref->width, roi[3] = ref->height;
         if (in->roi[2] > 0) {
-                memcpy(roi, in->roi, sizeof roi);
+                memcpy(roi, in->roi, 4 * sizeof *roi);
                 if (roi[0] < 0 || roi[1] < 0 || roi[3] < 1 || roi[0] + roi[2] > ref->width || roi[1] + roi[3] > ref->height)
                         return imp_error_set(err, -EINVAL, "photon transfer: ROI outside the %dx%d frame", ref->width,
                                              ref->height);
         }
+        return 0;
+}
+
+/* The points of every level, in exposure order, into out->points; sp_sd[k] the spatial σ
+ * of point k; saturation (the first level whose variance drops below SAT_VAR_DROP × the
+ * largest so far, or that clips) and every later level flagged saturated; *ret_sat_mean
+ * the largest mean among them (∞ when none). */
+static void level_points(const struct imp_ptc_input *in, const int roi[4], double clip, double black,
+                         struct imp_ptc_result *out, double *sp_sd, double *ret_sat_mean) {
+        double st[4];
+        int order[IMP_PTC_MAX_LEVELS];
+        for (int i = 0; i < in->n_levels; i++)
+                order[i] = i;
+        for (int i = 1; i < in->n_levels; i++)
+                for (int j = i; j > 0 && in->levels[order[j]].exposure_us < in->levels[order[j - 1]].exposure_us; j--) {
+                        int t = order[j]; order[j] = order[j - 1]; order[j - 1] = t;
+                }
+        double vmax = 0, sat_mean = INFINITY, sat_exp = INFINITY;
+        for (int k = 0; k < in->n_levels; k++) {
+                const struct imp_ptc_level *L = &in->levels[order[k]];
+                struct imp_ptc_point *p = &out->points[k];
+                pair_stats(L->a, L->b, roi, clip, st);
+                *p = (struct imp_ptc_point) { .exposure_us = L->exposure_us, .mean_dn = st[0] - black,
+                                              .var_dn2 = st[1], .clip_fraction = st[3] };
+                sp_sd[k] = sqrt(IMP_MAX(st[2], 0.0));
+                if (!isfinite(sat_exp) && (st[1] < SAT_VAR_DROP * vmax || st[3] > SAT_CLIP_FRACTION)) {
+                        sat_mean = p->mean_dn;
+                        sat_exp = L->exposure_us;
+                        out->flags |= IMP_PTC_SATURATION_FOUND;
+                }
+                if (!isfinite(sat_exp))
+                        vmax = IMP_MAX(vmax, st[1]);
+        }
+        /* the saturation mean: the largest mean among saturated levels (clip plateau) */
+        for (int k = 0; k < in->n_levels; k++)
+                if (out->points[k].exposure_us >= sat_exp) {
+                        out->points[k].saturated = true;
+                        sat_mean = IMP_MAX(sat_mean, out->points[k].mean_dn);
+                }
+        *ret_sat_mean = sat_mean;
+}
+
+int imp_radiometric_ptc(const struct imp_ptc_input *in, struct imp_ptc_result *ret, struct imp_error *err) {
+        if (!in || !ret)
+                return imp_error_set(err, -EINVAL, "photon transfer: bad arguments");
+        int roi[4], r = check_input(in, roi, err);
+        if (r < 0)
+                return r;
         double clip = (double) ((1u << in->bits) - 1), st[4];
         struct imp_ptc_result out = { .sensor.bits = in->bits, .n_points = in->n_levels };
 
@@ -86,35 +135,8 @@ int imp_radiometric_ptc(const struct imp_ptc_input *in, struct imp_ptc_result *r
         out.sensor.black_level_dn = black;
 
         /* per level, in exposure order */
-        int order[IMP_PTC_MAX_LEVELS];
-        for (int i = 0; i < in->n_levels; i++)
-                order[i] = i;
-        for (int i = 1; i < in->n_levels; i++)
-                for (int j = i; j > 0 && in->levels[order[j]].exposure_us < in->levels[order[j - 1]].exposure_us; j--) {
-                        int t = order[j]; order[j] = order[j - 1]; order[j - 1] = t;
-                }
-        double sp_sd[IMP_PTC_MAX_LEVELS], vmax = 0, sat_mean = INFINITY, sat_exp = INFINITY;
-        for (int k = 0; k < in->n_levels; k++) {
-                const struct imp_ptc_level *L = &in->levels[order[k]];
-                struct imp_ptc_point *p = &out.points[k];
-                pair_stats(L->a, L->b, roi, clip, st);
-                *p = (struct imp_ptc_point) { .exposure_us = L->exposure_us, .mean_dn = st[0] - black,
-                                              .var_dn2 = st[1], .clip_fraction = st[3] };
-                sp_sd[k] = sqrt(IMP_MAX(st[2], 0.0));
-                if (!isfinite(sat_exp) && (st[1] < SAT_VAR_DROP * vmax || st[3] > SAT_CLIP_FRACTION)) {
-                        sat_mean = p->mean_dn;
-                        sat_exp = L->exposure_us;
-                        out.flags |= IMP_PTC_SATURATION_FOUND;
-                }
-                if (!isfinite(sat_exp))
-                        vmax = IMP_MAX(vmax, st[1]);
-        }
-        /* the saturation mean: the largest mean among saturated levels (clip plateau) */
-        for (int k = 0; k < in->n_levels; k++)
-                if (out.points[k].exposure_us >= sat_exp) {
-                        out.points[k].saturated = true;
-                        sat_mean = IMP_MAX(sat_mean, out.points[k].mean_dn);
-                }
+        double sp_sd[IMP_PTC_MAX_LEVELS], sat_mean;
+        level_points(in, roi, clip, black, &out, sp_sd, &sat_mean);
 
         /* weighted fit var = q + s·mean, and the linear response mean = a + b·t */
         double W = 0, Wx = 0, Wy = 0, Wxx = 0, Wxy = 0, T = 0, Tx = 0, Ty = 0, Txx = 0, Txy = 0;
