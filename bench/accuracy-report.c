@@ -427,11 +427,12 @@ static int write_presets(const struct acc_study *st, const struct machine *mc, c
 
 /* ---- the report --------------------------------------------------------------------------- */
 
-static void fmt_opt(char *buf, size_t size, double v, const char *fmt) {
+/* v with `decimals` decimals, or "–" when not measured (v < 0). */
+static void fmt_opt(char *buf, size_t size, double v, int decimals) {
         if (v < 0)
                 snprintf(buf, size, "–");
         else
-                snprintf(buf, size, fmt, v);
+                snprintf(buf, size, "%.*f", decimals, v);
 }
 
 static void report_table(FILE *f, const struct acc_study *st, const char *scene) {
@@ -448,8 +449,8 @@ static void report_table(FILE *f, const struct acc_study *st, const char *scene)
                         continue;
                 }
                 char rd[32], k[32];
-                fmt_opt(rd, sizeof rd, r->rho_d_err, "%.3f");
-                fmt_opt(k, sizeof k, r->lobe_k_err, "%.2f");
+                fmt_opt(rd, sizeof rd, r->rho_d_err, 3);
+                fmt_opt(k, sizeof k, r->lobe_k_err, 2);
                 char front[64];
                 snprintf(front, sizeof front, "%s%s%s%s%s", r->front_capture ? "**C**" : "",
                          r->front_capture && r->front_processing ? " " : "", r->front_processing ? "**P**" : "",

@@ -281,9 +281,10 @@ static int capture_spheres(struct capture *cp, const struct lights_args *a) {
                 n = a->n_spheres;
         } else {
                 struct imp_sphere_circle circ[MAX_SPHERES];
-                double r = a->sphere_radius_mm, cut = a->sphere_cut_mm;
-                double rz = cp->plane_z_mm + (isfinite(cut) ? -cut : r);
-                double rho = isfinite(cut) ? imp_lights_image_radius(m, sqrt(r * r - cut * cut), cp->plane_z_mm) : imp_lights_image_radius(m, r, rz);
+                double r_mm = a->sphere_radius_mm, cut = a->sphere_cut_mm;
+                double rz = cp->plane_z_mm + (isfinite(cut) ? -cut : r_mm);
+                double rho = isfinite(cut) ? imp_lights_image_radius(m, sqrt(r_mm * r_mm - cut * cut), cp->plane_z_mm)
+                                           : imp_lights_image_radius(m, r_mm, rz);
                 struct imp_frame_view v = { mx, 0, 0 };
                 int found = imp_lights_sphere_detect(&v, DETECT_RADIUS_LO * rho, DETECT_RADIUS_HI * rho, circ, MAX_SPHERES);
                 if (found < 0)

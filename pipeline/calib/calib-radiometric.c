@@ -115,9 +115,9 @@ static void level_points(const struct imp_ptc_input *in, const int roi[4], doubl
 int imp_radiometric_ptc(const struct imp_ptc_input *in, struct imp_ptc_result *ret, struct imp_error *err) {
         if (!in || !ret)
                 return imp_error_set(err, -EINVAL, "photon transfer: bad arguments");
-        int roi[4], r = check_input(in, roi, err);
-        if (r < 0)
-                return r;
+        int roi[4], rc = check_input(in, roi, err);
+        if (rc < 0)
+                return rc;
         double clip = (double) ((1u << in->bits) - 1), st[4];
         struct imp_ptc_result out = { .sensor.bits = in->bits, .n_points = in->n_levels };
 
