@@ -427,11 +427,12 @@ static int write_presets(const struct acc_study *st, const struct machine *mc, c
 
 /* ---- the report --------------------------------------------------------------------------- */
 
-static void fmt_opt(char *buf, size_t size, double v, const char *fmt) {
+/* v with `decimals` decimals, or "–" when not measured (v < 0). */
+static void fmt_opt(char *buf, size_t size, double v, int decimals) {
         if (v < 0)
                 snprintf(buf, size, "–");
         else
-                snprintf(buf, size, fmt, v);
+                snprintf(buf, size, "%.*f", decimals, v);
 }
 
 static void report_table(FILE *f, const struct acc_study *st, const char *scene) {
@@ -448,8 +449,8 @@ static void report_table(FILE *f, const struct acc_study *st, const char *scene)
                         continue;
                 }
                 char rd[32], k[32];
-                fmt_opt(rd, sizeof rd, r->rho_d_err, "%.3f");
-                fmt_opt(k, sizeof k, r->lobe_k_err, "%.2f");
+                fmt_opt(rd, sizeof rd, r->rho_d_err, 3);
+                fmt_opt(k, sizeof k, r->lobe_k_err, 2);
                 char front[64];
                 snprintf(front, sizeof front, "%s%s%s%s%s", r->front_capture ? "**C**" : "",
                          r->front_capture && r->front_processing ? " " : "", r->front_processing ? "**P**" : "",
@@ -545,6 +546,61 @@ static void report_front(FILE *f, const struct acc_study *st, const char *scene,
         fputc('\n', f);
 }
 
+/* The presets' table: the figures of each preset on every scene. */
+static void report_presets(FILE *f, const struct acc_study *st) {
+        fprintf(f, "\n## Scan presets\n\n"
+                   "Picked on %s from the capture-time front of the configurations a plan can express (default "
+                   "processing, a dome sweep, no binning): **archival** = the most accurate, **draft** = the fastest "
+                   "whose height RMSE is within %.0f× archival's, **standard** = the fastest after draft within "
+                   "%.1f× archival's. Written to "
+                   "`config/plans/{draft,standard,archival}.cfg` with the figures in their header and in "
+                   "`config/plans/presets.json`, which `impasto plan estimate` reads.\n\n"
+                   "| preset | config | frames | capture s | height RMSE µm | normal ° | ρd err |",
+                st->scenes[0], HEIGHT_FACTOR_DRAFT, HEIGHT_FACTOR_STANDARD);
+        for (int si = 1; si < st->n_scenes; si++)
+                fprintf(f, " %s height µm |", st->scenes[si]);
+        fprintf(f, "\n|---|---|---:|---:|---:|---:|---:|");
+        for (int si = 1; si < st->n_scenes; si++)
+                fprintf(f, "---:|");
+        fputc('\n', f);
+        for (int i = 0; i < 3; i++) {
+                const struct acc_result *p = find_preset(st, preset_names[i]);
+                if (!p)
+                        continue;
+                fprintf(f, "| %s | `%s` | %zu | %.2f | %.2f | %.2f | %.3f |", preset_names[i], p->cfg->name, p->frames,
+                        p->capture_s, p->height_rmse_um, p->normal_err_deg, p->rho_d_err);
+                for (int si = 1; si < st->n_scenes; si++) {
+                        const struct acc_result *h = find(st, st->scenes[si], p->cfg->name);
+                        fprintf(f, h && h->ok ? " %.2f |" : " – |", h ? h->height_rmse_um : 0);
+                }
+                fputc('\n', f);
+        }
+}
+
+/* The simulator's cost: the rich renderings and the per-effect measurement. */
+static void report_sim_cost(FILE *f, const struct acc_study *st) {
+        fprintf(f, "\n## Simulator cost\n\n");
+        for (int si = 0; si < st->n_scenes; si++)
+                if (st->render_wall_s[si] > 0)
+                        fprintf(f, "- rendering the rich set of %s: %zu frames in %.1f s wall, %.1f s CPU "
+                                   "(%.1f ms CPU per frame)\n", st->scenes[si], st->render_frames[si],
+                                st->render_wall_s[si], st->render_cpu_s[si],
+                                1e3 * st->render_cpu_s[si] / (double) IMP_MAX(st->render_frames[si], 1));
+        if (st->n_effects > 0) {
+                fprintf(f, "\nPer effect on %s (bench/bench-sim-effects.c's measurement: `direct` alone, then each "
+                           "effect alone on top of it; 4 frames: two dome lights, a Gray plane, a phase frame):\n\n"
+                           "| effect | view maps s | ms/frame | shading evals | shadow rays | shadow steps | random draws "
+                           "| projector lookups | distortion evals |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+                        st->effects_scene);
+                for (int i = 0; i < st->n_effects; i++) {
+                        const struct acc_effect_cost *e = &st->effects[i];
+                        fprintf(f, "| %s | %.2f | %.1f | %llu | %llu | %llu | %llu | %llu | %llu |\n", e->effect, e->view_s,
+                                e->ms_per_frame, e->shading_evals, e->shadow_rays, e->shadow_steps, e->random_draws,
+                                e->projector_lookups, e->distortion_evals);
+                }
+        }
+}
+
 static int write_report(const struct acc_study *st, const struct machine *mc, const char *path, const char *img_dir) {
         FILE *f = fopen(path, "we");
         if (!f)
@@ -583,7 +639,7 @@ static int write_report(const struct acc_study *st, const struct machine *mc, co
                    "- **proc wall / CPU s, peak RSS**: each configuration is processed by its own process, "
                    "`impasto process SET --out COPY --quiet` with the configuration's knobs as flags (`--threads`, "
                    "`--gray-only`, `--btf-iterations`, `--btf-robust-passes`, `--no-shadow-test`, `--cell`, "
-                   "`--no-btf`; `process_flags` in results.json), fork and exec of the bench's binary; wall from "
+                   "`--no-btf`; `process_flags` in results.json), fork and exec of `impasto`; wall from "
                    "the fork to `wait4`, CPU (user + system) and peak RSS from `wait4`'s rusage of that process "
                    "only.\n"
                    "- **copy MiB**: bytes of the copy directory (EXR textures, boxes, previews).\n"
@@ -611,53 +667,8 @@ static int write_report(const struct acc_study *st, const struct machine *mc, co
                 report_front(f, st, st->scenes[si], false);
                 report_front(f, st, st->scenes[si], true);
         }
-        fprintf(f, "\n## Scan presets\n\n"
-                   "Picked on %s from the capture-time front of the configurations a plan can express (default "
-                   "processing, a dome sweep, no binning): **archival** = the most accurate, **draft** = the fastest "
-                   "whose height RMSE is within %.0f× archival's, **standard** = the fastest after draft within "
-                   "%.1f× archival's. Written to "
-                   "`config/plans/{draft,standard,archival}.cfg` with the figures in their header and in "
-                   "`config/plans/presets.json`, which `impasto plan estimate` reads.\n\n"
-                   "| preset | config | frames | capture s | height RMSE µm | normal ° | ρd err |",
-                st->scenes[0], HEIGHT_FACTOR_DRAFT, HEIGHT_FACTOR_STANDARD);
-        for (int si = 1; si < st->n_scenes; si++)
-                fprintf(f, " %s height µm |", st->scenes[si]);
-        fprintf(f, "\n|---|---|---:|---:|---:|---:|---:|");
-        for (int si = 1; si < st->n_scenes; si++)
-                fprintf(f, "---:|");
-        fputc('\n', f);
-        for (int i = 0; i < 3; i++) {
-                const struct acc_result *p = find_preset(st, preset_names[i]);
-                if (!p)
-                        continue;
-                fprintf(f, "| %s | `%s` | %zu | %.2f | %.2f | %.2f | %.3f |", preset_names[i], p->cfg->name, p->frames,
-                        p->capture_s, p->height_rmse_um, p->normal_err_deg, p->rho_d_err);
-                for (int si = 1; si < st->n_scenes; si++) {
-                        const struct acc_result *h = find(st, st->scenes[si], p->cfg->name);
-                        fprintf(f, h && h->ok ? " %.2f |" : " – |", h ? h->height_rmse_um : 0);
-                }
-                fputc('\n', f);
-        }
-        fprintf(f, "\n## Simulator cost\n\n");
-        for (int si = 0; si < st->n_scenes; si++)
-                if (st->render_wall_s[si] > 0)
-                        fprintf(f, "- rendering the rich set of %s: %zu frames in %.1f s wall, %.1f s CPU "
-                                   "(%.1f ms CPU per frame)\n", st->scenes[si], st->render_frames[si],
-                                st->render_wall_s[si], st->render_cpu_s[si],
-                                1e3 * st->render_cpu_s[si] / (double) IMP_MAX(st->render_frames[si], 1));
-        if (st->n_effects > 0) {
-                fprintf(f, "\nPer effect on %s (bench/bench-sim-effects.c's measurement: `direct` alone, then each "
-                           "effect alone on top of it; 4 frames: two dome lights, a Gray plane, a phase frame):\n\n"
-                           "| effect | view maps s | ms/frame | shading evals | shadow rays | shadow steps | random draws "
-                           "| projector lookups | distortion evals |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
-                        st->effects_scene);
-                for (int i = 0; i < st->n_effects; i++) {
-                        const struct acc_effect_cost *e = &st->effects[i];
-                        fprintf(f, "| %s | %.2f | %.1f | %llu | %llu | %llu | %llu | %llu | %llu |\n", e->effect, e->view_s,
-                                e->ms_per_frame, e->shading_evals, e->shadow_rays, e->shadow_steps, e->random_draws,
-                                e->projector_lookups, e->distortion_evals);
-                }
-        }
+        report_presets(f, st);
+        report_sim_cost(f, st);
         fprintf(f, "\n## Not measured here\n\n"
                    "- **Fewer Gray bits** (dropping LSB planes and letting the phase resolve the period): the "
                    "decoder (`imp_sl_decode`) rejects a code with fewer bits than the projector needs, so this "

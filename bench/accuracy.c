@@ -2,15 +2,15 @@
  * what accuracy costs in time. Each study scene is rendered once with the richest plan;
  * every configuration's capture set is then derived by taking the frames its plan names
  * (2×2 binned for the binning knob), processed by its own `impasto process` process (fork
- * and exec of this binary with the configuration's knobs as flags: wall, CPU and peak RSS
- * of that process alone) and compared with the truth in a forked child. The outputs are
+ * and exec of the `impasto` beside impasto-bench with the configuration's knobs as flags:
+ * wall, CPU and peak RSS of that process alone) and compared with the truth in a forked child. The outputs are
  * written by bench/accuracy-report.c.
  *
  * Processing used to run in a forked child of this process (until 2026-11-22). That cost the
  * same as the exec (docs/accuracy-vs-time.md "Method changes"), but a forked child carries
  * the parent's state, and its wait4 peak RSS starts at the parent's resident memory; an
  * exec'd one is a command line anyone can rerun. Nothing that runs OpenMP is forked without
- * an exec now: the simulator's effect costs run as `impasto bench sim-effects` too. */
+ * an exec now: the simulator's effect costs run as `impasto-bench sim-effects` too. */
 #define _GNU_SOURCE   /* nftw() */
 #include <errno.h>
 #include <ftw.h>
@@ -24,12 +24,14 @@
 #include <sys/stat.h>
 #include <sys/wait.h>
 #include <fcntl.h>
+#include <limits.h>
 #include <time.h>
 #include <unistd.h>
 #include "accuracy.h"
+#include "bench-study.h"
+#include "exit-codes.h"
 #include "build-kind.h"
 #include "captureset.h"
-#include "commands.h"
 #include "compare-appearance.h"
 #include "compare.h"
 #include "json-util.h"
@@ -38,6 +40,7 @@
 #include "process.h"
 #include "render.h"
 #include "scene.h"
+#include "sibling.h"
 
 #define SL_EXP_ALL   0x7u
 #define DOME_EXP_ALL 0x7u
@@ -138,7 +141,7 @@ struct child_cost {
 /* Runs fn(arg) in a forked child; the child's exit code is fn's return. Cost from wait4(),
  * so it is that child's alone; but a child that does not exec carries this process's
  * memory (its peak RSS starts at ours) and state, so anything whose cost is reported goes
- * through exec_self. The parent never starts an OpenMP thread pool. */
+ * through an exec (exec_impasto, exec_self). The parent never starts an OpenMP thread pool. */
 static int run_forked(int (*fn)(void *), void *arg, const char *log_path, struct child_cost *ret) {
         fflush(NULL);
         double t0 = now_s();
@@ -168,6 +171,21 @@ static int run_forked(int (*fn)(void *), void *arg, const char *log_path, struct
         return 0;
 }
 
+/* `impasto …` (the client beside impasto-bench) with argv; argv[0] is replaced. */
+static int exec_impasto(void *arg) {
+        char **argv = arg, path[PATH_MAX];
+        int r = imp_sibling_path("impasto", path, sizeof path);
+        if (r < 0) {
+                fprintf(stderr, "impasto beside impasto-bench: %s\n", strerror(-r));
+                return 127;
+        }
+        argv[0] = path;
+        execv(path, argv);
+        fprintf(stderr, "exec %s: %s\n", path, strerror(errno));
+        return 127;
+}
+
+/* impasto-bench itself with argv (a step of a study run in its own process). */
 static int exec_self(void *arg) {
         char **argv = arg;
         execv("/proc/self/exe", argv);
@@ -491,7 +509,7 @@ static int render_rich(struct acc_study *st, int si, const char *scene_path, con
                          "--out", (char *) dir, "--quiet", NULL };
         struct child_cost cost = { .status = -1 };
         fprintf(stderr, "bench accuracy: rendering %s (%zu frames)…\n", scene_path, st->render_frames[si]);
-        int r = run_forked(exec_self, argv, path, &cost);
+        int r = run_forked(exec_impasto, argv, path, &cost);
         if (r < 0 || cost.status != 0)
                 return log_error("bench accuracy: impasto sim render failed (exit %d), see %s", cost.status, path),
                        -EIO;
@@ -520,7 +538,7 @@ static void measure(struct acc_study *st, struct acc_result *res, const char *se
                 argv[n++] = w;
         struct child_cost cost = { .status = -1 };
         res->load_before = load1();
-        if (run_forked(exec_self, argv, log_path, &cost) < 0 || cost.status != 0) {
+        if (run_forked(exec_impasto, argv, log_path, &cost) < 0 || cost.status != 0) {
                 log_error("bench accuracy: %s/%s: processing failed (exit %d), see %s", res->scene, c->name,
                           cost.status, log_path);
                 return;
@@ -664,7 +682,7 @@ static int sweep_scene(struct acc_study *st, int si, const char *scene_path, boo
 
 /* The simulator's cost per effect on a study scene (bench/bench-sim-effects.c's
  * measurement: `direct` alone, then each other effect alone on top of it; four frames),
- * as `impasto bench sim-effects SCENE OUT_JSON` (not in the usage: the study's own step,
+ * as `impasto-bench sim-effects SCENE OUT_JSON` (not in the usage: the study's own step,
  * exec'd so that the renderer's OpenMP threads start in a fresh process). */
 static int cmd_sim_effects(const char *scene_path, const char *out) {
         struct imp_error err = {};
@@ -718,7 +736,7 @@ static void measure_effects(struct acc_study *st, const char *scene_path) {
         char out[4096], log_path[4096];
         pathf(out, sizeof out, "%s/sim-effects.json", st->out_dir);
         pathf(log_path, sizeof log_path, "%s/sim-effects.log", st->out_dir);
-        char *argv[] = { "impasto", "bench", "sim-effects", (char *) scene_path, out, NULL };
+        char *argv[] = { "impasto-bench", "sim-effects", (char *) scene_path, out, NULL };
         struct child_cost cost = { .status = -1 };
         if (run_forked(exec_self, argv, log_path, &cost) < 0 || cost.status != 0) {
                 log_warning("bench accuracy: the simulator's effect costs could not be measured, see %s, ignoring",
@@ -835,22 +853,13 @@ static int cmd_accuracy(int argc, char **argv) {
         return failed ? 1 : 0;
 }
 
-static int run(int argc, char **argv) {
-        if (argc < 2 || !strcmp(argv[1], "--help") || !strcmp(argv[1], "-h")) {
-                usage(argc < 2 ? stderr : stdout);
-                return argc < 2 ? 2 : 0;
-        }
-        if (!strcmp(argv[1], "accuracy"))
-                return cmd_accuracy(argc - 1, argv + 1);
-        if (!strcmp(argv[1], "sim-effects") && argc == 4)
-                return cmd_sim_effects(argv[2], argv[3]);
-        fprintf(stderr, "impasto bench: unknown subcommand '%s'\n", argv[1]);
-        usage(stderr);
-        return 2;
+static int run_sim_effects(int argc, char **argv) {
+        if (argc != 3)
+                return fprintf(stderr, "usage: impasto-bench sim-effects SCENE OUT_JSON\n"), IMP_EXIT_USAGE;
+        return cmd_sim_effects(argv[1], argv[2]);
 }
 
-const struct imp_command imp_cmd_bench = {
-        .name = "bench",
-        .summary = "studies on the simulated rig: accuracy versus capture and processing time",
-        .run = run,
-};
+IMP_BENCH_STUDY(accuracy, .name = "accuracy",
+                .summary = "accuracy versus capture and processing time on the simulated rig", .run = cmd_accuracy);
+/* the sweep's own step, run in a child: the simulator's cost per effect */
+IMP_BENCH_STUDY(sim_effects, .name = "sim-effects", .summary = NULL, .run = run_sim_effects);

@@ -22,8 +22,8 @@
 #include <sys/resource.h>
 #include <time.h>
 #include "camera.h"
+#include "exit-codes.h"
 
-#define EXIT_SKIP 77
 #define OPEN_TIMEOUT_MS 3000
 #define GV1_BLOCK_ID_MAX 0xffffu        /* GVSP 1.x block ids are 16 bit and skip 0 on wrap */
 
@@ -198,7 +198,7 @@ int main(int argc, char **argv) {
         r = imp_camera_open("aravis", o.address, OPEN_TIMEOUT_MS, &cam);
         if (r < 0) {
                 fprintf(stderr, "bench-aravis: camera %s: %s, skipping\n", o.address, strerror(-r));
-                return r == -ENOENT ? 1 : EXIT_SKIP;    /* -ENOENT: built without Aravis */
+                return r == -ENOENT ? 1 : IMP_EXIT_SKIP;    /* -ENOENT: built without Aravis */
         }
         if (configure(cam, &o) < 0)
                 return 1;

@@ -15,6 +15,7 @@
 #include <omp.h>
 #endif
 #include "cv-graycode.h"
+#include "numerics.h"
 #include "structured-light.h"
 
 #define NFRAMES 42
@@ -33,17 +34,12 @@ static double peak_rss_mib(void) {
         return ru.ru_maxrss / 1024.0;       /* KiB on Linux */
 }
 
-static int cmp_double(const void *a, const void *b) {
-        double x = *(const double *) a, y = *(const double *) b;
-        return (x > y) - (x < y);
-}
-
 /* Median, min and max of v[0..n) (sorts a copy). */
 static void stats(const double *v, int n, double *med, double *lo, double *hi) {
         double t[MAX_REPS];
         memcpy(t, v, n * sizeof *t);
-        qsort(t, n, sizeof *t, cmp_double);
-        *med = n % 2 ? t[n / 2] : 0.5 * (t[n / 2 - 1] + t[n / 2]);
+        qsort(t, n, sizeof *t, imp_cmp_double);
+        *med = imp_median_sorted(t, (size_t) n);
         *lo = t[0];
         *hi = t[n - 1];
 }

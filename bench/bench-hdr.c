@@ -52,6 +52,7 @@
 #include "cv-hdr.h"
 #include "hdr.h"
 #include "image.h"
+#include "numerics.h"
 
 #define N_EXP 3
 #define N_BINS 3
@@ -213,11 +214,6 @@ static void reset_hwm(void) {
         }
 }
 
-static int cmp_double(const void *a, const void *b) {
-        double x = *(const double *) a, y = *(const double *) b;
-        return (x > y) - (x < y);
-}
-
 /* Error of est (f32, 1 channel) against the truth over the mask. */
 static void evaluate(const struct stack *st, const struct imp_image *est, bool fit, struct outcome *o) {
         double s1 = 0, s2 = 0;
@@ -338,7 +334,7 @@ static void run_method(const struct stack *st, enum method m, int threads, int r
         struct rusage ru;
         getrusage(RUSAGE_SELF, &ru);
         o->peak_rss_mib = ru.ru_maxrss / 1024.0;
-        qsort(times, reps, sizeof *times, cmp_double);
+        qsort(times, reps, sizeof *times, imp_cmp_double);
         o->ms_median = times[reps / 2];
         o->ms_min = times[0];
         evaluate(st, m <= M_IMP8 ? res.value : cv_out, m >= M_CV_TRUE, o);
@@ -489,12 +485,12 @@ static void time_forked(const struct stack *st, int threads, int reps, bool warm
 static double median_of(const double *x, int n, double *ret_min, double *ret_max) {
         double tmp[MAX_REPS];
         memcpy(tmp, x, n * sizeof *x);
-        qsort(tmp, n, sizeof *tmp, cmp_double);
+        qsort(tmp, n, sizeof *tmp, imp_cmp_double);
         if (ret_min)
                 *ret_min = tmp[0];
         if (ret_max)
                 *ret_max = tmp[n - 1];
-        return n % 2 ? tmp[n / 2] : 0.5 * (tmp[n / 2 - 1] + tmp[n / 2]);
+        return imp_median_sorted(tmp, (size_t) n);
 }
 
 static void print_timing(const struct timing *t, int reps, double mpix) {

@@ -27,6 +27,7 @@
 #include <time.h>
 #include <unistd.h>
 #include "image.h"
+#include "numerics.h"
 
 #define N_METHODS 3
 #define N_FRAMES 2
@@ -108,14 +109,9 @@ static int write_method(int m, const char *path, const struct imp_image *img) {
         }
 }
 
-static int cmp_double(const void *a, const void *b) {
-        double x = *(const double *) a, y = *(const double *) b;
-        return (x > y) - (x < y);
-}
-
 static double median(double *v, int n) {
-        qsort(v, (size_t) n, sizeof *v, cmp_double);
-        return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+        qsort(v, (size_t) n, sizeof *v, imp_cmp_double);
+        return imp_median_sorted(v, (size_t) n);
 }
 
 int main(int argc, char **argv) {

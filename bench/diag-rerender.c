@@ -160,6 +160,61 @@ struct acc {
         double ss, ss_edge, ss_hl, n, n_edge, n_hl;
 };
 
+/* Where the squared residuals come from: material (by the reference's ρs, k), sign of the
+ * model's error, fit flags. */
+struct breakdown {
+        double mat[3], matn[3], sign[2], flag[9], flagn[9], n;
+};
+
+static void add_breakdown(struct breakdown *bd, const struct imp_btf_texel *m, const struct imp_btf_texel *t, double d) {
+        int mat = m->rho_s[1] > 0.3f ? 2 : m->k > 6.5f ? 1 : 0;
+        bd->mat[mat] += d * d, bd->matn[mat]++;
+        bd->sign[d < 0] += d * d;
+        for (int f = 0; f < 9; f++)
+                if (t->flags & (1u << f))
+                        bd->flag[f] += d * d, bd->flagn[f]++;
+        bd->n++;
+}
+
+static void print_breakdown(const struct breakdown *b) {
+        double bss = b->sign[0] + b->sign[1];
+        printf("    by material (ref ρs/k): ochre %.1f%% SS (%.1f%% smp, rmse %.4f), blue %.1f%% (%.1f%%, %.4f), glaze %.1f%% (%.1f%%, %.4f);"
+               " model too low %.1f%% SS, too high %.1f%%\n    by flag:",
+               100 * b->mat[0] / bss, 100 * b->matn[0] / b->n, sqrt(b->mat[0] / fmax(1, b->matn[0])),
+               100 * b->mat[1] / bss, 100 * b->matn[1] / b->n, sqrt(b->mat[1] / fmax(1, b->matn[1])),
+               100 * b->mat[2] / bss, 100 * b->matn[2] / b->n, sqrt(b->mat[2] / fmax(1, b->matn[2])),
+               100 * b->sign[0] / bss, 100 * b->sign[1] / bss);
+        static const char *const FN[9] = { "few", "cx=cy", "matte", "sat", "hidden", "filled", "masked", "kbound", "uncertain" };
+        for (int f = 0; f < 9; f++)
+                if (b->flagn[f] > 0)
+                        printf(" %s %.1f%% SS (%.1f%% smp, rmse %.4f)", FN[f], 100 * b->flag[f] / bss, 100 * b->flagn[f] / b->n,
+                               sqrt(b->flag[f] / b->flagn[f]));
+        printf("\n");
+}
+
+/* The last channel of each texel of map (n lights + 1): the RMS over the lights. */
+static void map_all_lights(float *map, size_t n_texels, int n) {
+        for (size_t i = 0; i < n_texels; i++) {
+                double s = 0;
+                int c = 0;
+                for (int li = 0; li < n; li++)
+                        if (isfinite(map[i * (n + 1) + li]))
+                                s += (double) map[i * (n + 1) + li] * map[i * (n + 1) + li], c++;
+                map[i * (n + 1) + n] = c ? (float) sqrt(s / c) : NAN;
+        }
+}
+
+/* Whether a texel within 2 of (x, y) has the light blocked (lit[] == 2). */
+static bool near_shadow(const uint8_t *lit, int W, int H, int x, int y) {
+        for (int dy = -2; dy <= 2; dy++)
+                for (int dx = -2; dx <= 2; dx++) {
+                        int xx = x + dx, yy = y + dy;
+                        if (xx >= 0 && yy >= 0 && xx < W && yy < H && lit[(size_t) yy * W + xx] == 2)
+                                return true;
+                }
+        return false;
+}
+
 /* Re-render the held-out lights on grid g with BRDF tex (spec_ref: a second BRDF whose
  * specular term also marks a highlight). Prints one line; fills map (w·h·(n+1)) when not NULL. */
 static void rerender(const char *name, const struct grid *g, const struct imp_btf_texel *tex,
@@ -183,7 +238,7 @@ static void rerender(const char *name, const struct grid *g, const struct imp_bt
         size_t nsamp = 0, cap = (size_t) W * H * n;
         float *allres = malloc(cap * sizeof *allres);
         printf("%-34s", name);
-        double bd_mat[3] = { 0 }, bd_matn[3] = { 0 }, bd_sign[2] = { 0 }, bd_flag[9] = { 0 }, bd_flagn[9] = { 0 }, bd_n = 0;
+        struct breakdown bd = {};
         double per[64];
         for (int li = 0; li < n; li++) {
                 const struct imp_image *fr = frames[li], *va = valid[li];
@@ -223,15 +278,7 @@ static void rerender(const char *name, const struct grid *g, const struct imp_bt
                                         spec[ti] = (float) sp1;
                                         if (isfinite(d)) {
                                                 res[ti] = (float) (d * d);
-                                                /* breakdown: fit flags, material (by the reference's ρs, k), sign */
-                                                const struct imp_btf_texel *m = spec_ref ? &spec_ref[ti] : t;
-                                                int mat = m->rho_s[1] > 0.3f ? 2 : m->k > 6.5f ? 1 : 0;
-                                                bd_mat[mat] += d * d, bd_matn[mat]++;
-                                                bd_sign[d < 0] += d * d;
-                                                for (int f = 0; f < 9; f++)
-                                                        if (t->flags & (1u << f))
-                                                                bd_flag[f] += d * d, bd_flagn[f]++;
-                                                bd_n++;
+                                                add_breakdown(&bd, spec_ref ? &spec_ref[ti] : t, t, d);
                                         }
                                 }
                         }
@@ -243,15 +290,7 @@ static void rerender(const char *name, const struct grid *g, const struct imp_bt
                                         map[i * (n + 1) + li] = isfinite(res[i]) ? sqrtf(res[i]) : NAN;
                                 if (!isfinite(res[i]))
                                         continue;
-                                bool edge = false;
-                                for (int dy = -2; dy <= 2 && !edge; dy++)
-                                        for (int dx = -2; dx <= 2; dx++) {
-                                                int xx = x + dx, yy = y + dy;
-                                                if (xx >= 0 && yy >= 0 && xx < W && yy < H && lit[(size_t) yy * W + xx] == 2) {
-                                                        edge = true;
-                                                        break;
-                                                }
-                                        }
+                                bool edge = near_shadow(lit, W, H, x, y);
                                 bool hl = spec[i] > 0.02;
                                 a.ss += res[i], a.n++;
                                 if (edge)
@@ -281,29 +320,10 @@ static void rerender(const char *name, const struct grid *g, const struct imp_bt
         for (int li = 0; li < n; li++)
                 printf(" %.0f°:%.4f", elev[li], per[li]);
         printf("\n");
-        double bss = bd_sign[0] + bd_sign[1];
-        printf("    by material (ref ρs/k): ochre %.1f%% SS (%.1f%% smp, rmse %.4f), blue %.1f%% (%.1f%%, %.4f), glaze %.1f%% (%.1f%%, %.4f);"
-               " model too low %.1f%% SS, too high %.1f%%\n    by flag:",
-               100 * bd_mat[0] / bss, 100 * bd_matn[0] / bd_n, sqrt(bd_mat[0] / fmax(1, bd_matn[0])),
-               100 * bd_mat[1] / bss, 100 * bd_matn[1] / bd_n, sqrt(bd_mat[1] / fmax(1, bd_matn[1])),
-               100 * bd_mat[2] / bss, 100 * bd_matn[2] / bd_n, sqrt(bd_mat[2] / fmax(1, bd_matn[2])),
-               100 * bd_sign[0] / bss, 100 * bd_sign[1] / bss);
-        static const char *const FN[9] = { "few", "cx=cy", "matte", "sat", "hidden", "filled", "masked", "kbound", "uncertain" };
-        for (int f = 0; f < 9; f++)
-                if (bd_flagn[f] > 0)
-                        printf(" %s %.1f%% SS (%.1f%% smp, rmse %.4f)", FN[f], 100 * bd_flag[f] / bss, 100 * bd_flagn[f] / bd_n,
-                               sqrt(bd_flag[f] / bd_flagn[f]));
-        printf("\n");
+        print_breakdown(&bd);
         fflush(stdout);
         if (map)
-                for (size_t i = 0; i < (size_t) W * H; i++) {
-                        double s = 0;
-                        int c = 0;
-                        for (int li = 0; li < n; li++)
-                                if (isfinite(map[i * (n + 1) + li]))
-                                        s += (double) map[i * (n + 1) + li] * map[i * (n + 1) + li], c++;
-                        map[i * (n + 1) + n] = c ? (float) sqrt(s / c) : NAN;
-                }
+                map_all_lights(map, (size_t) W * H, n);
         free(allres);
         free(lit);
         free(res);
@@ -359,34 +379,19 @@ static struct imp_btf_texel *fit_on(const struct grid *g, const struct imp_btf_c
         return rt;
 }
 
-int main(int argc, char **argv) {
-        if (argc < 5) {
-                fprintf(stderr, "usage: diag-rerender CAPTURE COPY TRUTH N [--refit | --true-normals | --refit-copy] "
-                        "[--maps DIR]\n");
-                return 2;
-        }
-        const char *capdir = argv[1], *copydir = argv[2], *truthdir = argv[3], *mapdir = NULL;
-        int N = atoi(argv[4]);
-        bool refit = false, refit_copy = false, true_normals = false;
-        for (int i = 5; i < argc; i++) {
-                if (!strcmp(argv[i], "--refit"))
-                        refit = true;
-                else if (!strcmp(argv[i], "--true-normals"))
-                        refit = true_normals = true;
-                else if (!strcmp(argv[i], "--refit-copy"))
-                        refit = refit_copy = true;
-                else if (!strcmp(argv[i], "--maps") && i + 1 < argc)
-                        mapdir = argv[++i];
-        }
-        struct imp_error err = {};
-        struct imp_captureset *cs;
-        if (imp_captureset_open(capdir, &cs, &err) < 0) {
-                fprintf(stderr, "%s\n", err.msg);
-                return 1;
-        }
-        const struct imp_rig *rig = imp_captureset_rig(cs);
-        const struct imp_rig_camera *cam = &rig->cameras[0];
+/* The HDR-merged dome stacks of camera 0: the held-out ones (every Nth) and, with `fit`,
+ * the others (the fit lights); prints the held-out count and the HDR noise. */
+struct stacks {
+        int nho, nfit;
+        struct imp_image **ho_f, **ho_v, **fi_f, **fi_v;
+        struct imp_rig_light *ho_l, *fi_l;
+        double elev[64];
+};
 
+static void load_stacks(const struct imp_captureset *cs, const struct imp_rig_camera *cam, int N, bool refit,
+                        struct stacks *ret) {
+        struct imp_error err = {};
+        const struct imp_rig *rig = imp_captureset_rig(cs);
         /* dome stacks of camera 0, in manifest order (process.c collect_stacks) */
         size_t nrec = imp_captureset_count(cs), nst = 0;
         size_t (*st)[8] = calloc(nrec, sizeof *st);
@@ -407,7 +412,7 @@ int main(int argc, char **argv) {
         struct imp_image **ho_f = calloc(nst, sizeof *ho_f), **ho_v = calloc(nst, sizeof *ho_v);
         struct imp_image **fi_f = calloc(nst, sizeof *fi_f), **fi_v = calloc(nst, sizeof *fi_v);
         struct imp_rig_light *ho_l = calloc(nst, sizeof *ho_l), *fi_l = calloc(nst, sizeof *fi_l);
-        double elev[64], noise_ss = 0, noise_n = 0;
+        double *elev = ret->elev, noise_ss = 0, noise_n = 0;
         for (size_t s = 0; s < nst; s++) {
                 bool held = N > 0 && (s + 1) % (size_t) N == 0;
                 if (!held && !refit)
@@ -417,7 +422,7 @@ int main(int argc, char **argv) {
                 for (int k = 0; k < stn[s]; k++) {
                         if (imp_captureset_load_frame(cs, st[s][k], &raw[k], &err) < 0) {
                                 fprintf(stderr, "%s\n", err.msg);
-                                return 1;
+                                exit(1);
                         }
                         const struct imp_frame_record *rec = imp_captureset_record(cs, st[s][k]);
                         ex[k] = (struct imp_hdr_exposure) { raw[k], rec->exposure_us, rec->gain_db };
@@ -462,6 +467,107 @@ int main(int argc, char **argv) {
         }
         printf("held-out lights: %d of %zu; HDR noise (σ of V/E at the centre's E, mean over pixels): %.4f\n", nho,
                nst, sqrt(noise_ss / fmax(1, noise_n)));
+        free(st);
+        free(stn);
+        *ret = (struct stacks) { .nho = nho, .nfit = nfit, .ho_f = ho_f, .ho_v = ho_v, .fi_f = fi_f, .fi_v = fi_v,
+                                 .ho_l = ho_l, .fi_l = fi_l };
+        memcpy(ret->elev, elev, sizeof ret->elev);
+}
+
+/* The copy's texel positions and heights with the truth's normals (bilinear at each
+ * texel's world point; smoothed over 2r+1 truth texels, r = 0 and 1), rendered with the
+ * truth BRDF and with a BRDF refitted on them. */
+static void true_normals_pass(const struct grid *gcp, const struct grid *gtp, double cp, double tp, const double org[2],
+                              const struct imp_pinhole *cam_model, const struct imp_btf_capture *capt,
+                              const struct stacks *S, float *mc) {
+        const struct grid gc = *gcp, gt = *gtp;
+        const int nho = S->nho;
+        struct imp_rig_light *ho_l = S->ho_l;
+        struct imp_image **ho_f = S->ho_f, **ho_v = S->ho_v;
+        const double *elev = S->elev;
+        size_t nt = (size_t) gc.hf.width * gc.hf.height;
+        float *tn = malloc(3 * nt * sizeof *tn);
+        const double *A = gc.hf.canvas_to_world;
+        for (int rad = 0; rad <= 1; rad++) {
+                for (int y = 0; y < gc.hf.height; y++)
+                        for (int x = 0; x < gc.hf.width; x++) {
+                                size_t i = (size_t) y * gc.hf.width + x;
+                                double P[3] = { x * cp, y * cp, gc.height[i] }, W[3], nw[3] = { 0, 0, 0 };
+                                for (int r = 0; r < 3; r++)
+                                        W[r] = A[4 * r] * P[0] + A[4 * r + 1] * P[1] + A[4 * r + 2] * P[2] + A[4 * r + 3];
+                                double fx = (W[0] - org[0]) / tp, fy = (W[1] - org[1]) / tp;
+                                int x0 = (int) floor(fx), y0 = (int) floor(fy);
+                                double ax = fx - x0, ay = fy - y0;
+                                for (int dy = -rad; dy <= rad + 1; dy++)
+                                        for (int dx = -rad; dx <= rad + 1; dx++) {
+                                                int xx = IMP_CLAMP(x0 + dx, 0, gt.hf.width - 1), yy = IMP_CLAMP(y0 + dy, 0, gt.hf.height - 1);
+                                                double wx = dx <= 0 ? (dx == 0 ? 1 - ax : 1) : (dx == rad + 1 ? ax : 1);
+                                                double wy = dy <= 0 ? (dy == 0 ? 1 - ay : 1) : (dy == rad + 1 ? ay : 1);
+                                                if (rad == 0) {
+                                                        wx = dx == 0 ? 1 - ax : ax;
+                                                        wy = dy == 0 ? 1 - ay : ay;
+                                                }
+                                                const float *q = gt.normal + 3 * ((size_t) yy * gt.hf.width + xx);
+                                                for (int c = 0; c < 3; c++)
+                                                        nw[c] += wx * wy * q[c];
+                                        }
+                                double len = 0;
+                                for (int r = 0; r < 3; r++) {   /* canvas = Aᵀ world (rotation part) */
+                                        double v = A[r] * nw[0] + A[4 + r] * nw[1] + A[8 + r] * nw[2];
+                                        tn[3 * i + r] = (float) v;
+                                        len += v * v;
+                                }
+                                for (int r = 0; r < 3; r++)
+                                        tn[3 * i + r] = (float) (tn[3 * i + r] / sqrt(len));
+                        }
+                struct grid g3 = gc;
+                g3.normal = tn;
+                g3.hf.normal = tn;
+                char nm[64];
+                snprintf(nm, sizeof nm, "copy pos + true n (r%d) + true BRDF", rad);
+                rerender(nm, &g3, gc.tex_other, NULL, cam_model, ho_l, ho_f, ho_v, elev, nho, mc);
+                struct imp_btf_texel *rt = fit_on(&g3, capt, false);
+                snprintf(nm, sizeof nm, "copy pos + true n (r%d) + refit", rad);
+                rerender(nm, &g3, rt, gc.tex_other, cam_model, ho_l, ho_f, ho_v, elev, nho, mc);
+                free(rt);
+        }
+        free(tn);
+}
+
+int main(int argc, char **argv) {
+        if (argc < 5) {
+                fprintf(stderr, "usage: diag-rerender CAPTURE COPY TRUTH N [--refit | --true-normals | --refit-copy] "
+                        "[--maps DIR]\n");
+                return 2;
+        }
+        const char *capdir = argv[1], *copydir = argv[2], *truthdir = argv[3], *mapdir = NULL;
+        int N = atoi(argv[4]);
+        bool refit = false, refit_copy = false, true_normals = false;
+        for (int i = 5; i < argc; i++) {
+                if (!strcmp(argv[i], "--refit"))
+                        refit = true;
+                else if (!strcmp(argv[i], "--true-normals"))
+                        refit = true_normals = true;
+                else if (!strcmp(argv[i], "--refit-copy"))
+                        refit = refit_copy = true;
+                else if (!strcmp(argv[i], "--maps") && i + 1 < argc)
+                        mapdir = argv[++i];
+        }
+        struct imp_error err = {};
+        struct imp_captureset *cs;
+        if (imp_captureset_open(capdir, &cs, &err) < 0) {
+                fprintf(stderr, "%s\n", err.msg);
+                return 1;
+        }
+        const struct imp_rig *rig = imp_captureset_rig(cs);
+        const struct imp_rig_camera *cam = &rig->cameras[0];
+
+        struct stacks S;
+        load_stacks(cs, cam, N, refit, &S);
+        int nho = S.nho, nfit = S.nfit;
+        struct imp_image **ho_f = S.ho_f, **ho_v = S.ho_v, **fi_f = S.fi_f, **fi_v = S.fi_v;
+        struct imp_rig_light *ho_l = S.ho_l, *fi_l = S.fi_l;
+        const double *elev = S.elev;
 
         /* the copy and the truth */
         _cleanup_json_ json_t *cj = NULL, *tj = NULL;
@@ -509,57 +615,8 @@ int main(int argc, char **argv) {
         rerender("fitted geometry + fitted BRDF", &gc, gc.tex, gc.tex_other, &cam->model, ho_l, ho_f, ho_v, elev, nho, mc);
         write_map(mapdir, "fgeo-fbrdf", &gc, mc, nho);
         }
-        if (true_normals) {
-                /* the copy's texel positions and heights with the truth's normals (bilinear at
-                 * each texel's world point; smoothed over 2r+1 truth texels, r = 0 and 1) */
-                size_t nt = (size_t) gc.hf.width * gc.hf.height;
-                float *tn = malloc(3 * nt * sizeof *tn);
-                const double *A = gc.hf.canvas_to_world;
-                for (int rad = 0; rad <= 1; rad++) {
-                        for (int y = 0; y < gc.hf.height; y++)
-                                for (int x = 0; x < gc.hf.width; x++) {
-                                        size_t i = (size_t) y * gc.hf.width + x;
-                                        double P[3] = { x * cp, y * cp, gc.height[i] }, W[3], nw[3] = { 0, 0, 0 };
-                                        for (int r = 0; r < 3; r++)
-                                                W[r] = A[4 * r] * P[0] + A[4 * r + 1] * P[1] + A[4 * r + 2] * P[2] + A[4 * r + 3];
-                                        double fx = (W[0] - org[0]) / tp, fy = (W[1] - org[1]) / tp;
-                                        int x0 = (int) floor(fx), y0 = (int) floor(fy);
-                                        double ax = fx - x0, ay = fy - y0;
-                                        for (int dy = -rad; dy <= rad + 1; dy++)
-                                                for (int dx = -rad; dx <= rad + 1; dx++) {
-                                                        int xx = IMP_CLAMP(x0 + dx, 0, gt.hf.width - 1), yy = IMP_CLAMP(y0 + dy, 0, gt.hf.height - 1);
-                                                        double wx = dx <= 0 ? (dx == 0 ? 1 - ax : 1) : (dx == rad + 1 ? ax : 1);
-                                                        double wy = dy <= 0 ? (dy == 0 ? 1 - ay : 1) : (dy == rad + 1 ? ay : 1);
-                                                        if (rad == 0) {
-                                                                wx = dx == 0 ? 1 - ax : ax;
-                                                                wy = dy == 0 ? 1 - ay : ay;
-                                                        }
-                                                        const float *q = gt.normal + 3 * ((size_t) yy * gt.hf.width + xx);
-                                                        for (int c = 0; c < 3; c++)
-                                                                nw[c] += wx * wy * q[c];
-                                                }
-                                        double len = 0;
-                                        for (int r = 0; r < 3; r++) {   /* canvas = Aᵀ world (rotation part) */
-                                                double v = A[r] * nw[0] + A[4 + r] * nw[1] + A[8 + r] * nw[2];
-                                                tn[3 * i + r] = (float) v;
-                                                len += v * v;
-                                        }
-                                        for (int r = 0; r < 3; r++)
-                                                tn[3 * i + r] = (float) (tn[3 * i + r] / sqrt(len));
-                                }
-                        struct grid g3 = gc;
-                        g3.normal = tn;
-                        g3.hf.normal = tn;
-                        char nm[64];
-                        snprintf(nm, sizeof nm, "copy pos + true n (r%d) + true BRDF", rad);
-                        rerender(nm, &g3, gc.tex_other, NULL, &cam->model, ho_l, ho_f, ho_v, elev, nho, mc);
-                        struct imp_btf_texel *rt = fit_on(&g3, &capt, false);
-                        snprintf(nm, sizeof nm, "copy pos + true n (r%d) + refit", rad);
-                        rerender(nm, &g3, rt, gc.tex_other, &cam->model, ho_l, ho_f, ho_v, elev, nho, mc);
-                        free(rt);
-                }
-                free(tn);
-        }
+        if (true_normals)
+                true_normals_pass(&gc, &gt, cp, tp, org, &cam->model, &capt, &S, mc);
         if (refit_copy) {
                 /* the copy's geometry, BRDF refitted here (reproduces the copy: a check; timed) */
                 struct imp_btf_texel *rt = fit_on(&gc, &capt, true);

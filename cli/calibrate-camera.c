@@ -13,6 +13,7 @@
 #include <sys/stat.h>
 #include "calib-camera.h"
 #include "calibrate-ext.h"
+#include "exit-codes.h"
 #include "log.h"
 #include "rig.h"
 #ifdef IMPASTO_HAVE_CV
@@ -20,8 +21,6 @@
 #include "cv-calib.h"
 #endif
 
-#define EXIT_USAGE 2
-#define EXIT_BADINPUT 3
 #define MAX_SETS 64
 
 static void usage(FILE *f) {
@@ -287,7 +286,7 @@ static int report(const struct camera_args *a, const struct imp_calib_camera *re
         }
         if (r < 0) {
                 log_error("calibrate camera: %s", err.msg);
-                return r == -ENOENT ? EXIT_BADINPUT : 1;
+                return r == -ENOENT ? IMP_EXIT_BAD_INPUT : IMP_EXIT_FAILURE;
         }
         return 0;
 }
@@ -295,7 +294,7 @@ static int report(const struct camera_args *a, const struct imp_calib_camera *re
 static int run_camera(struct camera_args *a) {
         static char *names[IMP_CALIB_CAMERA_MAX_VIEWS];
         static bool is_set[IMP_CALIB_CAMERA_MAX_VIEWS];
-        int n = 0, ret = EXIT_BADINPUT;
+        int n = 0, ret = IMP_EXIT_BAD_INPUT;
         const int nc = a->o.board_cols * a->o.board_rows;
         struct imp_calib_camera *res = calloc(1, sizeof *res);
         double *corners = calloc((size_t) IMP_CALIB_CAMERA_MAX_VIEWS * 2 * nc, sizeof *corners);
@@ -310,7 +309,7 @@ static int run_camera(struct camera_args *a) {
         }
         int r = list_inputs(a, names, is_set, &n);
         if (r < 0) {
-                ret = r == -ENOMEM ? 1 : EXIT_BADINPUT;
+                ret = r == -ENOMEM ? IMP_EXIT_FAILURE : IMP_EXIT_BAD_INPUT;
                 goto out;
         }
         for (int k = 0; k < nc; k++) {
@@ -330,7 +329,7 @@ static int run_camera(struct camera_args *a) {
         r = imp_cv_calib_camera(views, w, h, &a->o, res, &err);
         if (r < 0) {
                 log_error("calibrate camera: %s", err.msg);
-                ret = r == -ENOMEM ? 1 : EXIT_BADINPUT;
+                ret = r == -ENOMEM ? IMP_EXIT_FAILURE : IMP_EXIT_BAD_INPUT;
                 goto out;
         }
         ret = report(a, res, have_rig ? &rig : NULL);
@@ -354,7 +353,7 @@ int imp_calibrate_camera_main(int argc, char **argv) {
                 return 0;       /* --help */
         if (r < 0) {
                 usage(stderr);
-                return EXIT_USAGE;
+                return IMP_EXIT_USAGE;
         }
 #ifdef IMPASTO_HAVE_CV
         return run_camera(&a);

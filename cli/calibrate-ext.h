@@ -1,4 +1,5 @@
-/* `impasto calibrate lights` and `impasto calibrate radiometric` (cli/calibrate-lights.c),
+/* `impasto calibrate lights` (cli/cmd-calibrate-lights.c) and `impasto calibrate radiometric`
+ * (cli/cmd-calibrate-radiometric.c),
  * dispatched from cli/cmd-calibrate.c. argv[0] is the target name ("lights", …); the
  * return value is the process exit code (0, 1 failure, 2 usage, 3 bad input). */
 #pragma once

@@ -17,6 +17,7 @@
 #include "calib.h"
 #include "calibrate-ext.h"
 #include "calibrate-remote.h"
+#include "exit-codes.h"
 #include "captureset.h"
 #include "commands.h"
 #include "rig.h"
@@ -25,8 +26,6 @@
 #include "cv-calib.h"
 #endif
 
-#define EXIT_USAGE 2
-#define EXIT_BADINPUT 3
 
 static void usage(FILE *f) {
         fprintf(f, "usage: impasto calibrate procam --captures DIR... --projector WxH --board COLSxROWS\n"
@@ -134,13 +133,13 @@ static int run_sets(const char **dirs, int n_dirs, const char *reference, struct
                 int r = imp_captureset_open(dirs[0], &cs, &err);
                 if (r < 0) {
                         log_error("calibrate procam: %s", err.msg);
-                        return EXIT_BADINPUT;
+                        return IMP_EXIT_BAD_INPUT;
                 }
                 const struct imp_rig *rig = imp_captureset_rig(cs);
                 if (!rig->has_projector) {
                         imp_captureset_close(cs);
                         log_error("calibrate procam: %s/rig.json has no projector; give --projector WxH", dirs[0]);
-                        return EXIT_BADINPUT;
+                        return IMP_EXIT_BAD_INPUT;
                 }
                 o->proj_w = rig->projector.model.width;
                 o->proj_h = rig->projector.model.height;
@@ -150,14 +149,14 @@ static int run_sets(const char **dirs, int n_dirs, const char *reference, struct
         int r = imp_calib_sets_open(dirs, n_dirs, o->proj_w, o->proj_h, &sets, &err);
         if (r < 0) {
                 log_error("calibrate procam: %s", err.msg);
-                return r == -ENOMEM ? 1 : EXIT_BADINPUT;
+                return r == -ENOMEM ? IMP_EXIT_FAILURE : IMP_EXIT_BAD_INPUT;
         }
         static struct imp_calib_procam res;
         r = imp_cv_calib_procam_source(dirs, n_dirs, imp_calib_sets_load, sets, o, &res, &err);
         if (r < 0) {
                 imp_calib_sets_free(sets);
                 log_error("calibrate procam: %s", err.msg);
-                return r == -ENOMEM ? 1 : EXIT_BADINPUT;
+                return r == -ENOMEM ? IMP_EXIT_FAILURE : IMP_EXIT_BAD_INPUT;
         }
         int ret = report(&res, json);
         if (out && !ret) {
@@ -210,13 +209,13 @@ static int run_procam(int argc, char **argv) {
                 if (!strcmp(a, "--captures") || !strcmp(a, "--sets")) {
                         if (n_dirs && sets != !strcmp(a, "--sets")) {
                                 log_error("--captures and --sets cannot be mixed");
-                                return EXIT_USAGE;
+                                return IMP_EXIT_USAGE;
                         }
                         sets = !strcmp(a, "--sets");
                         while (i + 1 < argc && strncmp(argv[i + 1], "--", 2)) {
                                 if (n_dirs == IMP_CALIB_MAX_CAPTURES) {
                                         log_error("%s: at most %d directories", a, IMP_CALIB_MAX_CAPTURES);
-                                        return EXIT_USAGE;
+                                        return IMP_EXIT_USAGE;
                                 }
                                 dirs[n_dirs++] = argv[++i];
                         }
@@ -225,7 +224,7 @@ static int run_procam(int argc, char **argv) {
                 if (!val) {
                         log_error("%s: unknown option or missing value", a);
                         usage(stderr);
-                        return EXIT_USAGE;
+                        return IMP_EXIT_USAGE;
                 }
                 i++;
                 int r = 0;
@@ -252,20 +251,20 @@ static int run_procam(int argc, char **argv) {
                 else if (r == 0) {
                         log_error("unknown option '%s'", a);
                         usage(stderr);
-                        return EXIT_USAGE;
+                        return IMP_EXIT_USAGE;
                 }
                 if (r < 0)
-                        return EXIT_USAGE;
+                        return IMP_EXIT_USAGE;
         }
         if (!n_dirs || (!have_proj && !sets) || !have_board || !have_square) {
                 log_error("--captures (or --sets), --projector (not needed with --sets), --board and "
                           "--square are required");
                 usage(stderr);
-                return EXIT_USAGE;
+                return IMP_EXIT_USAGE;
         }
         if (reference && !sets) {
                 log_error("--reference needs --sets");
-                return EXIT_USAGE;
+                return IMP_EXIT_USAGE;
         }
         if (sets)
                 return run_sets(dirs, n_dirs, reference, &o, have_proj, json, out, mm_per_unit);
@@ -274,7 +273,7 @@ static int run_procam(int argc, char **argv) {
         int r = imp_cv_calib_procam(dirs, n_dirs, &o, &res, &err);
         if (r < 0) {
                 log_error("calibrate procam: %s", err.msg);
-                return r == -ENOMEM ? 1 : EXIT_BADINPUT;
+                return r == -ENOMEM ? IMP_EXIT_FAILURE : IMP_EXIT_BAD_INPUT;
         }
         for (int i = 0; i < res.n_warnings; i++)
                 log_warning("%s", res.warnings[i]);
@@ -304,7 +303,7 @@ static int run_procam(int argc, char **argv) {
 static int run(int argc, char **argv) {
         if (argc < 2 || !strcmp(argv[1], "--help") || !strcmp(argv[1], "-h")) {
                 usage(argc < 2 ? stderr : stdout);
-                return argc < 2 ? EXIT_USAGE : 0;
+                return argc < 2 ? IMP_EXIT_USAGE : 0;
         }
         if (!strcmp(argv[1], "start") || !strcmp(argv[1], "list") || !strcmp(argv[1], "show"))
                 return imp_calibrate_remote_main(argc - 1, argv + 1);   /* on the daemon */
@@ -321,7 +320,7 @@ static int run(int argc, char **argv) {
         }
         log_error("calibrate: unknown target '%s'", argv[1]);
         usage(stderr);
-        return EXIT_USAGE;
+        return IMP_EXIT_USAGE;
 }
 
 const struct imp_command imp_cmd_calibrate = { "calibrate", "calibrate camera, projector-camera, dome lights and radiometry", run };

@@ -22,14 +22,13 @@
 #endif
 #include "captureset.h"
 #include "commands.h"
+#include "exit-codes.h"
 #include "log.h"
 #include "plan.h"
 #include "render.h"
 #include "scene.h"
 #include "serve.h"
 
-#define EXIT_USAGE 2
-#define EXIT_BADINPUT 3
 #define MAX_FAULTS 16
 
 struct sim_args {
@@ -137,7 +136,7 @@ static int load_scene(const struct sim_args *a, struct imp_scene **ret) {
         int r = imp_scene_load(a->scene, ret, &err);
         if (r < 0) {
                 log_error("%s", err.msg[0] ? err.msg : strerror(-r));
-                return EXIT_BADINPUT;
+                return IMP_EXIT_BAD_INPUT;
         }
         if (a->has_seed)
                 imp_scene_set_seed(*ret, (uint64_t) a->seed);
@@ -157,7 +156,7 @@ static int cmd_info(const struct sim_args *a) {
                 int r = imp_plan_load(a->plan, imp_scene_rig(scene), &plan, &err);
                 if (r < 0) {
                         log_error("%s", err.msg[0] ? err.msg : strerror(-r));
-                        return EXIT_BADINPUT;
+                        return IMP_EXIT_BAD_INPUT;
                 }
                 printf("plan %s: %zu frames, estimated capture time %.1f s\n", a->plan, imp_plan_count(plan),
                        imp_plan_estimate_s(plan, imp_scene_rig(scene)));
@@ -187,7 +186,7 @@ static void stamp(struct imp_frame_record *rec, const struct imp_frame_record *p
 static int cmd_render(const struct sim_args *a) {
         if (!a->scene || !a->plan || !a->out) {
                 usage(stderr);
-                return EXIT_USAGE;
+                return IMP_EXIT_USAGE;
         }
 #ifdef _OPENMP
         if (a->threads > 0)
@@ -202,7 +201,7 @@ static int cmd_render(const struct sim_args *a) {
         int r = imp_plan_load(a->plan, imp_scene_rig(scene), &plan, &err);
         if (r < 0) {
                 log_error("%s", err.msg[0] ? err.msg : strerror(-r));
-                return EXIT_BADINPUT;
+                return IMP_EXIT_BAD_INPUT;
         }
         double t0 = now_s();
         _cleanup_(imp_render_freep) struct imp_render *rd = NULL;
@@ -266,7 +265,7 @@ static int cmd_render(const struct sim_args *a) {
 static int cmd_serve(const struct sim_args *a) {
         if (!a->scene) {
                 usage(stderr);
-                return EXIT_USAGE;
+                return IMP_EXIT_USAGE;
         }
         sigset_t set;
         sigemptyset(&set);
@@ -288,7 +287,7 @@ static int cmd_serve(const struct sim_args *a) {
         for (int i = 0; i < a->n_faults; i++)
                 if (imp_serve_fault(s, a->faults[i], &err) < 0) {
                         log_error("%s", err.msg);
-                        return EXIT_USAGE;
+                        return IMP_EXIT_USAGE;
                 }
         if (a->rig_out && (r = imp_rig_save(a->rig_out, imp_serve_rig(s), &err)) < 0) {
                 log_error("%s", err.msg[0] ? err.msg : strerror(-r));
@@ -327,12 +326,12 @@ static int cmd_serve(const struct sim_args *a) {
 static int run(int argc, char **argv) {
         if (argc < 2 || !strcmp(argv[1], "--help") || !strcmp(argv[1], "-h")) {
                 usage(argc < 2 ? stderr : stdout);
-                return argc < 2 ? EXIT_USAGE : 0;
+                return argc < 2 ? IMP_EXIT_USAGE : 0;
         }
         struct sim_args a = { 0 };
         if (parse_args(argc - 1, argv + 1, &a) < 0) {
                 usage(stderr);
-                return EXIT_USAGE;
+                return IMP_EXIT_USAGE;
         }
         if (!strcmp(argv[1], "render"))
                 return cmd_render(&a);
@@ -341,13 +340,13 @@ static int run(int argc, char **argv) {
         if (!strcmp(argv[1], "info")) {
                 if (!a.scene) {
                         usage(stderr);
-                        return EXIT_USAGE;
+                        return IMP_EXIT_USAGE;
                 }
                 return cmd_info(&a);
         }
         log_error("sim: unknown subcommand '%s'", argv[1]);
         usage(stderr);
-        return EXIT_USAGE;
+        return IMP_EXIT_USAGE;
 }
 
 const struct imp_command imp_cmd_sim = {

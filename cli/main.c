@@ -3,6 +3,7 @@
 #include <stdio.h>
 #include <string.h>
 #include "commands.h"
+#include "exit-codes.h"
 #include "log.h"
 
 /* Subcommands are declared weak so that the client links while a subcommand's module is
@@ -27,12 +28,12 @@ int main(int argc, char **argv) {
         imp_log_set_ident("impasto");
         if (argc < 2 || !strcmp(argv[1], "--help") || !strcmp(argv[1], "-h")) {
                 usage(argc < 2 ? stderr : stdout);
-                return argc < 2 ? 2 : 0;
+                return argc < 2 ? IMP_EXIT_USAGE : IMP_EXIT_OK;
         }
         for (size_t i = 0; i < sizeof commands / sizeof commands[0]; i++)
                 if (commands[i] && !strcmp(commands[i]->name, argv[1]))
                         return commands[i]->run(argc - 1, argv + 1);
         fprintf(stderr, "impasto: unknown command '%s'\n", argv[1]);
         usage(stderr);
-        return 2;
+        return IMP_EXIT_USAGE;
 }

@@ -6,6 +6,7 @@
 #include <stdbool.h>
 #include <stddef.h>
 #include <jansson.h>
+#include "exit-codes.h"   /* IMP_EXIT_*: the client exit codes */
 #include "macro.h"
 
 #define IMP_PROTO_VERSION      1                /* "protocol" in the banner; bumped on breaking changes */
@@ -63,15 +64,6 @@ const char *imp_proto_error_code_name(enum imp_proto_errcode code);
 /* IMP_PROTO_E_UNKNOWN for a name this version does not know. */
 enum imp_proto_errcode imp_proto_error_code_from_name(const char *name);
 
-/* Client exit codes (impasto(1)). */
-enum imp_proto_exit {
-        IMP_EXIT_OK = 0,
-        IMP_EXIT_FAILURE = 1,
-        IMP_EXIT_USAGE = 2,
-        IMP_EXIT_BAD_INPUT = 3,
-        IMP_EXIT_UNREACHABLE = 4,
-        IMP_EXIT_PERMISSION = 5,
-};
 /* The exit code a client uses when the daemon answers with this error. */
 int imp_proto_exit_status(enum imp_proto_errcode code);
 

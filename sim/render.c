@@ -688,6 +688,49 @@ static bool same_pattern(const struct imp_pattern *a, const struct imp_pattern *
                a->steps == b->steps;
 }
 
+/* Adds the direct light of dome light L at view pixel v (BRDF b) to V, with its shadow
+ * when `shadows`. Per pixel of the hot loop: allocates nothing. */
+static inline void add_direct(const struct imp_render *r, const struct view_px *v, const struct brdf_mix *b,
+                              const struct imp_rig_light *L, bool shadows, struct imp_sim_counters *loc, double V[3]) {
+        double d, l[3], f[3], cosl;
+        bool lit = shade_point(v, b, L->pos_mm, &d, l, f, &cosl);
+        if (lit && shadows) {
+                loc->shadow_rays++;
+                lit = !occluded(r, v->p, L->pos_mm, &loc->shadow_steps);
+        }
+        if (!lit)
+                return;
+        loc->shading_evals++;
+        double E = L->intensity * 1e6 / (d * d);
+        if (L->profile_exp > 0) {
+                double ca = -(L->axis[0] * l[0] + L->axis[1] * l[1] + L->axis[2] * l[2]);
+                E *= ca > 0 ? (L->profile_exp == 1 ? ca : pow(ca, L->profile_exp)) : 0;
+        }
+        for (int c = 0; c < 3; c++)
+                V[c] += E * L->colour[c] * cosl * f[c];
+}
+
+/* Adds the projector's light of pattern pat at a pixel whose projector footprint is pp to
+ * V: from the defocused profile (plen samples) when given, else the sharp emission. */
+static inline void add_projector(const struct proj_px *pp, const struct imp_rig_projector *pj,
+                                 const struct imp_pattern *pat, const float *profile, int plen,
+                                 struct imp_sim_counters *loc, double V[3]) {
+        if (!(pp->g[0] > 0 || pp->g[1] > 0 || pp->g[2] > 0))
+                return;
+        double xa = pp->x[pat->axis], e;
+        loc->projector_lookups++;
+        if (profile) {
+                double fi = (xa + 0.5) * PATTERN_SUB - 0.5;
+                fi = IMP_CLAMP(fi, 0, plen - 1);
+                int i0 = (int) fi, i1 = IMP_MIN(i0 + 1, plen - 1);
+                e = profile[i0] + (fi - i0) * (profile[i1] - profile[i0]);
+        } else {
+                e = emission(pj, pat, xa);
+        }
+        for (int c = 0; c < 3; c++)
+                V[c] += pp->g[c] * e;
+}
+
 /* Fills cam[ci].rad for the light situation of `rec` (cached across an exposure stack). */
 static int compute_radiance(struct imp_render *r, const struct imp_frame_record *rec, int *ret_ci,
                             struct imp_error *err) {
@@ -744,41 +787,10 @@ static int compute_radiance(struct imp_render *r, const struct imp_frame_record 
                                 double V[3] = { 0, 0, 0 };
                                 struct brdf_mix b;
                                 texel_brdf(r, v, &b);
-                                if (use_light) {
-                                        double d, l[3], f[3], cosl;
-                                        bool lit = shade_point(v, &b, L->pos_mm, &d, l, f, &cosl);
-                                        if (lit && shadows) {
-                                                loc.shadow_rays++;
-                                                lit = !occluded(r, v->p, L->pos_mm, &loc.shadow_steps);
-                                        }
-                                        if (lit) {
-                                                loc.shading_evals++;
-                                                double E = L->intensity * 1e6 / (d * d);
-                                                if (L->profile_exp > 0) {
-                                                        double ca = -(L->axis[0] * l[0] + L->axis[1] * l[1] + L->axis[2] * l[2]);
-                                                        E *= ca > 0 ? (L->profile_exp == 1 ? ca : pow(ca, L->profile_exp)) : 0;
-                                                }
-                                                for (int c = 0; c < 3; c++)
-                                                        V[c] += E * L->colour[c] * cosl * f[c];
-                                        }
-                                }
-                                if (use_proj) {
-                                        const struct proj_px *pp = &cs->proj[k];
-                                        if (pp->g[0] > 0 || pp->g[1] > 0 || pp->g[2] > 0) {
-                                                double xa = pp->x[pat.axis], e;
-                                                loc.projector_lookups++;
-                                                if (defocus_pat) {
-                                                        double fi = (xa + 0.5) * PATTERN_SUB - 0.5;
-                                                        fi = IMP_CLAMP(fi, 0, plen - 1);
-                                                        int i0 = (int) fi, i1 = IMP_MIN(i0 + 1, plen - 1);
-                                                        e = profile[i0] + (fi - i0) * (profile[i1] - profile[i0]);
-                                                } else {
-                                                        e = emission(pj, &pat, xa);
-                                                }
-                                                for (int c = 0; c < 3; c++)
-                                                        V[c] += pp->g[c] * e;
-                                        }
-                                }
+                                if (use_light)
+                                        add_direct(r, v, &b, L, shadows, &loc, V);
+                                if (use_proj)
+                                        add_projector(&cs->proj[k], pj, &pat, defocus_pat ? profile : NULL, plen, &loc, V);
                                 if (use_ind) {
                                         double P[3] = { v->p[0], v->p[1], v->p[2] }, N[3] = { v->n[0], v->n[1], v->n[2] };
                                         float rgb[3];

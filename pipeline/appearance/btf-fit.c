@@ -10,6 +10,7 @@
 #include <string.h>
 
 #include "btf.h"
+#include "numerics.h"
 
 #define MAXP 3                        /* lobe parameters: (cx, cy, log k) or (cxy, log k) */
 #define COND_MAX 1e12                 /* reported condition numbers are capped here */
@@ -342,81 +343,27 @@ static int normal_matrix(const struct work *w, const struct eval *e, bool cxy, d
 
 /* Cholesky solve of the small SPD system M x = r; false when not positive definite. */
 static bool chol_solve(int np, double M[MAXP][MAXP], const double r[MAXP], double x[MAXP]) {
-        double L[MAXP][MAXP] = { { 0 } };
-        for (int j = 0; j < np; j++) {
-                double s = M[j][j];
-                for (int k = 0; k < j; k++)
-                        s -= L[j][k] * L[j][k];
-                if (!(s > 0.0))
-                        return false;
-                L[j][j] = sqrt(s);
-                for (int i = j + 1; i < np; i++) {
-                        double t = M[i][j];
-                        for (int k = 0; k < j; k++)
-                                t -= L[i][k] * L[j][k];
-                        L[i][j] = t / L[j][j];
-                }
-        }
-        double z[MAXP];
-        for (int i = 0; i < np; i++) {
-                double s = r[i];
-                for (int k = 0; k < i; k++)
-                        s -= L[i][k] * z[k];
-                z[i] = s / L[i][i];
-        }
-        for (int i = np - 1; i >= 0; i--) {
-                double s = z[i];
-                for (int k = i + 1; k < np; k++)
-                        s -= L[k][i] * x[k];
-                x[i] = s / L[i][i];
-        }
-        return true;
-}
-
-/* Eigenvalues of a symmetric np×np matrix (cyclic Jacobi; np ≤ 3). */
-static void sym_eig(int np, const double M[MAXP][MAXP], double ev[MAXP]) {
-        double a[MAXP][MAXP];
-        memcpy(a, M, sizeof a);
-        for (int sweep = 0; sweep < 20; sweep++) {
-                double off = 0.0;
-                for (int p = 0; p < np; p++)
-                        for (int q = p + 1; q < np; q++)
-                                off += a[p][q] * a[p][q];
-                if (off < 1e-30)
-                        break;
-                for (int p = 0; p < np; p++)
-                        for (int q = p + 1; q < np; q++) {
-                                if (a[p][q] == 0.0)
-                                        continue;
-                                double th = 0.5 * (a[q][q] - a[p][p]) / a[p][q];
-                                double t = (th >= 0 ? 1.0 : -1.0) / (fabs(th) + sqrt(th * th + 1.0));
-                                double c = 1.0 / sqrt(t * t + 1.0), s = t * c;
-                                for (int k = 0; k < np; k++) {
-                                        double akp = a[k][p], akq = a[k][q];
-                                        a[k][p] = c * akp - s * akq;
-                                        a[k][q] = s * akp + c * akq;
-                                }
-                                for (int k = 0; k < np; k++) {
-                                        double apk = a[p][k], aqk = a[q][k];
-                                        a[p][k] = c * apk - s * aqk;
-                                        a[q][k] = s * apk + c * aqk;
-                                }
-                        }
-        }
+        double L[MAXP * MAXP];
         for (int i = 0; i < np; i++)
-                ev[i] = a[i][i];
+                for (int j = 0; j < np; j++)
+                        L[i * np + j] = M[i][j];
+        if (!imp_cholesky_factor(np, L))
+                return false;
+        memcpy(x, r, (size_t) np * sizeof *x);
+        imp_cholesky_solve(np, L, x);
+        return true;
 }
 
 /* Condition number of H after scaling it to unit diagonal; COND_MAX when singular. */
 static double equilibrated_cond(int np, const double H[MAXP][MAXP]) {
-        double S[MAXP][MAXP], ev[MAXP], lo = HUGE_VAL, hi = 0.0;
+        double S[MAXP * MAXP], ev[MAXP], lo = HUGE_VAL, hi = 0.0;
         for (int j = 0; j < np; j++)
                 if (!(H[j][j] > 0.0))
                         return COND_MAX;
         for (int j = 0; j < np; j++)
                 for (int l = 0; l < np; l++)
-                        S[j][l] = H[j][l] / sqrt(H[j][j] * H[l][l]);
-        sym_eig(np, S, ev);
+                        S[j * np + l] = H[j][l] / sqrt(H[j][j] * H[l][l]);
+        imp_eigen_sym(np, S, ev, NULL);
         for (int j = 0; j < np; j++) {
                 lo = fmin(lo, ev[j]);
                 hi = fmax(hi, ev[j]);
@@ -543,29 +490,6 @@ static void lm(struct work *w, bool cxy, const struct bounds *bd, double tol, in
 
 /* ---- robust weights -------------------------------------------------------------- */
 
-static float select_kth(float *a, int n, int k) {
-        int lo = 0, hi = n - 1;
-        while (lo < hi) {
-                float pivot = a[(lo + hi) / 2];
-                int i = lo, j = hi;
-                while (i <= j) {
-                        while (a[i] < pivot) i++;
-                        while (a[j] > pivot) j--;
-                        if (i <= j) {
-                                float t = a[i]; a[i] = a[j]; a[j] = t;
-                                i++;
-                                j--;
-                        }
-                }
-                if (k <= j)
-                        hi = j;
-                else if (k >= i)
-                        lo = i;
-                else
-                        break;
-        }
-        return a[k];
-}
 
 /* Residual of sample i in white units (V/E), channels pooled. */
 static double sample_residual(const struct work *w, const double rd[3], const double rs[3], int i) {
@@ -597,7 +521,7 @@ static void huber_reweight(struct work *w, const double rd[3], const double rs[3
                            const struct imp_btf_fit_params *p) {
         residuals2(w, rd, rs);
         memcpy(w->tmp, w->res, w->n * sizeof *w->tmp);
-        double med = sqrt(select_kth(w->tmp, w->n, w->n / 2));
+        double med = sqrt(imp_select_kth_float(w->tmp, (size_t) w->n, (size_t) w->n / 2));
         double sigma = fmax(1.4826 * med, p->sigma_floor), thr = p->huber_delta * sigma, thr2 = thr * thr;
         for (int i = 0; i < w->n; i++) {
                 double r2 = w->res[i];

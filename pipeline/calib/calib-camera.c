@@ -7,6 +7,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "calib-camera.h"
+#include "numerics.h"
 #include "captureset.h"
 #include "rig.h"
 
@@ -23,11 +24,6 @@ void imp_calib_camera_warn(struct imp_calib_camera *r, const char *fmt, ...) {
         va_start(ap, fmt);
         vsnprintf(r->warnings[r->n_warnings++], IMP_CALIB_WARNING_LEN, fmt, ap);
         va_end(ap);
-}
-
-static int cmp_float(const void *a, const void *b) {
-        float x = *(const float *) a, y = *(const float *) b;
-        return (x > y) - (x < y);
 }
 
 int imp_calib_image_to_u8(const struct imp_image *im, double black, struct imp_image **ret,
@@ -53,7 +49,7 @@ int imp_calib_image_to_u8(const struct imp_image *im, double black, struct imp_i
                         if (i % P99_SAMPLE_STEP == 0)
                                 sample[ns++] = lum[i];
                 }
-        qsort(sample, ns, sizeof *sample, cmp_float);
+        qsort(sample, ns, sizeof *sample, imp_cmp_float);
         double p99 = sample[(size_t) (0.99 * (double) (ns - 1))];
         free(sample);
         if (!(p99 > black) || !((p99 - black) > 1e-6 * fmax(fabs(p99), 1e-30))) {

@@ -8,6 +8,7 @@
 #include <string.h>
 #include "calib-lights-joint.h"
 #include "macro.h"
+#include "numerics.h"
 
 #define HELD_Z_SIGMA_MM 0.001
 #define OUTLIER_K 5.0
@@ -29,9 +30,6 @@
 #define COST_RTOL 1e-12
 #define STEP_TOL_MM 1e-9
 
-static double dot3(const double a[3], const double b[3]) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
-static double norm3(const double a[3]) { return sqrt(dot3(a, a)); }
-
 /* Per highlight, what does not depend on the parameters: the camera ray through the
  * centroid and its derivative with respect to the pixel. */
 struct pre {
@@ -50,7 +48,7 @@ static bool pixel_inverse(struct pre *p, const double C[3], double r) {
                         double h = s ? -DIR_STEP : DIR_STEP, u[3], P[3];
                         for (int k = 0; k < 3; k++)
                                 u[k] = p->u[k] + h * p->du[a][k];
-                        double l = norm3(u);
+                        double l = imp_norm3(u);
                         for (int k = 0; k < 3; k++)
                                 u[k] /= l;
                         if (!imp_lights_reflect_ray(p->O, u, C, r, P, dd[s]))
@@ -59,7 +57,7 @@ static bool pixel_inverse(struct pre *p, const double C[3], double r) {
                 for (int k = 0; k < 3; k++)
                         G[a][k] = (dd[0][k] - dd[1][k]) / (2 * DIR_STEP);
         }
-        double a = dot3(G[0], G[0]), b = dot3(G[0], G[1]), c = dot3(G[1], G[1]), det = a * c - b * b;
+        double a = imp_dot3(G[0], G[0]), b = imp_dot3(G[0], G[1]), c = imp_dot3(G[1], G[1]), det = a * c - b * b;
         if (!(det > 0))
                 return false;
         for (int k = 0; k < 3; k++) {
@@ -76,120 +74,21 @@ static bool residual(const struct pre *p, const struct imp_joint_obs *o, const d
         double P[3], d[3];
         if (!imp_lights_reflect_ray(p->O, p->u, C, r, P, d))
                 return false;
-        double v[3] = { X[0] - P[0], X[1] - P[1], X[2] - P[2] }, lv = norm3(v), s = dot3(v, d), e[3];
+        double v[3] = { X[0] - P[0], X[1] - P[1], X[2] - P[2] }, lv = imp_norm3(v), s = imp_dot3(v, d), e[3];
         if (!(lv > 0))
                 return false;
         for (int k = 0; k < 3; k++)
                 e[k] = (v[k] - s * d[k]) / lv;
         for (int a = 0; a < 2; a++)
-                res[a] = dot3(p->G[a], e) / o->sigma_px;
+                res[a] = imp_dot3(p->G[a], e) / o->sigma_px;
         if (ret_dist)
-                *ret_dist = norm3(e) * lv;
+                *ret_dist = imp_norm3(e) * lv;
         if (ret_behind)
                 *ret_behind = s < 0;
         return true;
 }
 
 /* ---- dense symmetric helpers ---- */
-
-/* In-place Cholesky (lower triangle of A, n×n row-major). false when not positive definite. */
-static bool cholesky(int n, double *A) {
-        for (int j = 0; j < n; j++) {
-                double s = A[(size_t) j * n + j];
-                for (int k = 0; k < j; k++)
-                        s -= A[(size_t) j * n + k] * A[(size_t) j * n + k];
-                if (!(s > 0))
-                        return false;
-                double l = sqrt(s);
-                A[(size_t) j * n + j] = l;
-                for (int i = j + 1; i < n; i++) {
-                        double t = A[(size_t) i * n + j];
-                        for (int k = 0; k < j; k++)
-                                t -= A[(size_t) i * n + k] * A[(size_t) j * n + k];
-                        A[(size_t) i * n + j] = t / l;
-                }
-        }
-        return true;
-}
-
-/* Solves L Lᵀ x = b in place (L from cholesky()). */
-static void chol_solve(int n, const double *L, double *b) {
-        for (int i = 0; i < n; i++) {
-                double t = b[i];
-                for (int k = 0; k < i; k++)
-                        t -= L[(size_t) i * n + k] * b[k];
-                b[i] = t / L[(size_t) i * n + i];
-        }
-        for (int i = n - 1; i >= 0; i--) {
-                double t = b[i];
-                for (int k = i + 1; k < n; k++)
-                        t -= L[(size_t) k * n + i] * b[k];
-                b[i] = t / L[(size_t) i * n + i];
-        }
-}
-
-/* Cyclic Jacobi: eigenvalues of the symmetric n×n A (destroyed) into ret_l (ascending), and
- * the eigenvectors as columns of V (n×n, may be NULL). */
-static void jacobi_eig(int n, double *A, double *ret_l, double *V) {
-        if (V)
-                for (int i = 0; i < n * n; i++)
-                        V[i] = i % (n + 1) == 0;
-        for (int sweep = 0; sweep < 60; sweep++) {
-                double off = 0, diag = 0;
-                for (int i = 0; i < n; i++) {
-                        diag += A[i * n + i] * A[i * n + i];
-                        for (int j = i + 1; j < n; j++)
-                                off += A[i * n + j] * A[i * n + j];
-                }
-                if (!(off > 1e-30 * diag))
-                        break;
-                for (int p = 0; p < n - 1; p++)
-                        for (int q = p + 1; q < n; q++) {
-                                double apq = A[p * n + q];
-                                if (apq == 0)
-                                        continue;
-                                double th = (A[q * n + q] - A[p * n + p]) / (2 * apq);
-                                double t = (th >= 0 ? 1 : -1) / (fabs(th) + sqrt(th * th + 1));
-                                double c = 1 / sqrt(t * t + 1), s = t * c;
-                                for (int k = 0; k < n; k++) {
-                                        double akp = A[k * n + p], akq = A[k * n + q];
-                                        A[k * n + p] = c * akp - s * akq;
-                                        A[k * n + q] = s * akp + c * akq;
-                                }
-                                for (int k = 0; k < n; k++) {
-                                        double apk = A[p * n + k], aqk = A[q * n + k];
-                                        A[p * n + k] = c * apk - s * aqk;
-                                        A[q * n + k] = s * apk + c * aqk;
-                                }
-                                if (V)
-                                        for (int k = 0; k < n; k++) {
-                                                double vkp = V[k * n + p], vkq = V[k * n + q];
-                                                V[k * n + p] = c * vkp - s * vkq;
-                                                V[k * n + q] = s * vkp + c * vkq;
-                                        }
-                        }
-        }
-        for (int i = 0; i < n; i++)
-                ret_l[i] = A[i * n + i];
-        /* selection sort, carrying the vectors */
-        for (int i = 0; i < n; i++) {
-                int m = i;
-                for (int j = i + 1; j < n; j++)
-                        if (ret_l[j] < ret_l[m])
-                                m = j;
-                if (m == i)
-                        continue;
-                double t = ret_l[i];
-                ret_l[i] = ret_l[m];
-                ret_l[m] = t;
-                if (V)
-                        for (int k = 0; k < n; k++) {
-                                t = V[k * n + i];
-                                V[k * n + i] = V[k * n + m];
-                                V[k * n + m] = t;
-                        }
-        }
-}
 
 static bool inv3(const double A[9], double ret[9]) {
         double a = A[0], b = A[1], c = A[2], d = A[3], e = A[4], f = A[5], g = A[6], h = A[7], i = A[8];
@@ -214,7 +113,7 @@ static double scaled_cond(int n, double *S, double *work_l) {
                                 S[i * n + j] /= sqrt(S[i * n + i] * S[j * n + j]);
         for (int i = 0; i < n; i++)
                 S[i * n + i] = 1;
-        jacobi_eig(n, S, work_l, NULL);
+        imp_eigen_sym(n, S, work_l, NULL);
         return work_l[0] > work_l[n - 1] / COND_CAP ? work_l[n - 1] / work_l[0] : COND_CAP;
 }
 
@@ -345,11 +244,11 @@ static int solve(struct problem *pb, int max_iter, bool *ret_conv) {
                                 pb->step[q] = -pb->g[q];
                         }
                         double fn;
-                        if (!cholesky(np, pb->A)) {
+                        if (!imp_cholesky_factor(np, pb->A)) {
                                 lambda *= 10;
                                 continue;
                         }
-                        chol_solve(np, pb->A, pb->step);
+                        imp_cholesky_solve(np, pb->A, pb->step);
                         for (int q = 0; q < np; q++)
                                 pb->trial[q] = pb->theta[q] + pb->step[q];
                         if (cost(pb, pb->trial, &fn, NULL) && fn <= f) {
@@ -388,11 +287,6 @@ static void all_residuals(struct problem *pb, double *theta, double *res) {
                                                    pb->mir[o->mirror].sphere.radius_mm, r, NULL, NULL)
                          ? hypot(r[0], r[1]) : INFINITY;
         }
-}
-
-static int cmp_double(const void *a, const void *b) {
-        double x = *(const double *) a, y = *(const double *) b;
-        return x < y ? -1 : x > y;
 }
 
 /* RMS pixel residual and χ² of the inliers. */
@@ -487,7 +381,7 @@ static void light_result(const struct problem *pb, int l, const struct imp_light
         for (int a = 0; a < 3; a++)
                 for (int b = 0; b < 3; b++)
                         cov[a * 3 + b] = pb->cov[(size_t) (q + a) * np + q + b] * cov_scale;
-        jacobi_eig(3, blk, lam, V);
+        imp_eigen_sym(3, blk, lam, V);
         e.cond = lam[0] > lam[2] / COND_CAP ? lam[2] / lam[0] : COND_CAP;
         if (n < 2)
                 e.flags |= IMP_LIGHT_FEW_RAYS;
@@ -503,7 +397,7 @@ static void light_result(const struct problem *pb, int l, const struct imp_light
         }
         double cl[3], tmp[9];
         memcpy(tmp, cov, sizeof tmp);
-        jacobi_eig(3, tmp, cl, NULL);
+        imp_eigen_sym(3, tmp, cl, NULL);
         memcpy(e.pos_mm, X, sizeof e.pos_mm);
         memcpy(e.cov_mm2, cov, sizeof cov);
         e.sigma_mm = sqrt(IMP_MAX(cl[2], 0.0));
@@ -625,6 +519,49 @@ static int problem_init(struct problem *pb, int L, const struct imp_light_estima
         return 0;
 }
 
+/* pb->cov = N⁻¹ (the normal matrix with the priors), column by column through Cholesky. */
+static int invert_normal(struct problem *pb) {
+        memcpy(pb->A, pb->N, sizeof *pb->A * (size_t) pb->np * pb->np);
+        if (!imp_cholesky_factor(pb->np, pb->A))
+                return -EDOM;   /* cannot happen: every parameter has a prior */
+        for (int q = 0; q < pb->np; q++) {
+                double *col = pb->step;
+                memset(col, 0, sizeof *col * (size_t) pb->np);
+                col[q] = 1;
+                imp_cholesky_solve(pb->np, pb->A, col);
+                for (int k = 0; k < pb->np; k++)
+                        pb->cov[(size_t) k * pb->np + q] = col[k];
+        }
+        return 0;
+}
+
+/* The refined mirror centres with their covariance (scaled by rep->cov_scale) and shift
+ * from the silhouette fits; the shift statistics into rep. */
+static void centre_results(const struct problem *pb, struct imp_joint_centre *ret_centres, struct imp_joint_report *rep) {
+        const int n_lights = pb->L, n_mirrors = pb->M;
+        double ss = 0;
+        for (int m = 0; m < n_mirrors; m++) {
+                struct imp_joint_centre jc = { 0 };
+                int q = 3 * n_lights + 3 * m;
+                double tmp[9], lam[3];
+                for (int a = 0; a < 3; a++) {
+                        jc.centre_mm[a] = pb->theta[q + a];
+                        for (int b = 0; b < 3; b++)
+                                jc.cov_mm2[a * 3 + b] = pb->cov[(size_t) (q + a) * pb->np + q + b] * rep->cov_scale;
+                }
+                memcpy(tmp, jc.cov_mm2, sizeof tmp);
+                imp_eigen_sym(3, tmp, lam, NULL);
+                jc.sigma_mm = sqrt(IMP_MAX(lam[2], 0.0));
+                double dc[3] = { jc.centre_mm[0] - pb->C0[3 * m], jc.centre_mm[1] - pb->C0[3 * m + 1],
+                                 jc.centre_mm[2] - pb->C0[3 * m + 2] };
+                jc.shift_mm = imp_norm3(dc);
+                ss += jc.shift_mm * jc.shift_mm;
+                rep->centre_shift_max_mm = IMP_MAX(rep->centre_shift_max_mm, jc.shift_mm);
+                ret_centres[m] = jc;
+        }
+        rep->centre_shift_rms_mm = n_mirrors ? sqrt(ss / n_mirrors) : 0;
+}
+
 int imp_lights_joint_refine(int n_lights, const struct imp_light_estimate *lights, int n_mirrors,
                             const struct imp_joint_mirror *mirrors, int n_obs, const struct imp_joint_obs *obs,
                             const struct imp_joint_opts *opts, struct imp_light_estimate *ret_lights,
@@ -669,7 +606,7 @@ int imp_lights_joint_refine(int n_lights, const struct imp_light_estimate *light
                                 sorted[m++] = res[i];
                 if (m == 0)
                         break;
-                qsort(sorted, (size_t) m, sizeof *sorted, cmp_double);
+                qsort(sorted, (size_t) m, sizeof *sorted, imp_cmp_double);
                 rep.scale = sorted[m / 2] / RAYLEIGH_MEDIAN;
                 /* never below 1: lights with two or three rays fit them almost exactly, and a
                  * median of such residuals would make every honest highlight an outlier */
@@ -707,40 +644,11 @@ int imp_lights_joint_refine(int n_lights, const struct imp_light_estimate *light
                 rep.flags |= IMP_JOINT_WEAK_CENTRES;
         if (rep.cond > COND_MAX)
                 rep.flags |= IMP_JOINT_ILL_CONDITIONED;
-        memcpy(pb.A, pb.N, sizeof *pb.A * (size_t) pb.np * pb.np);
-        if (!cholesky(pb.np, pb.A))
-                return -EDOM;   /* cannot happen: every parameter has a prior */
-        for (int q = 0; q < pb.np; q++) {
-                double *col = pb.step;
-                memset(col, 0, sizeof *col * (size_t) pb.np);
-                col[q] = 1;
-                chol_solve(pb.np, pb.A, col);
-                for (int k = 0; k < pb.np; k++)
-                        pb.cov[(size_t) k * pb.np + q] = col[k];
-        }
+        if ((r = invert_normal(&pb)) < 0)
+                return r;
         for (int l = 0; l < n_lights; l++)
                 light_result(&pb, l, &lights[l], rep.cov_scale, cond_max, ps, &ret_lights[l]);
-        double ss = 0;
-        for (int m = 0; m < n_mirrors; m++) {
-                struct imp_joint_centre jc = { 0 };
-                int q = 3 * n_lights + 3 * m;
-                double tmp[9], lam[3];
-                for (int a = 0; a < 3; a++) {
-                        jc.centre_mm[a] = pb.theta[q + a];
-                        for (int b = 0; b < 3; b++)
-                                jc.cov_mm2[a * 3 + b] = pb.cov[(size_t) (q + a) * pb.np + q + b] * rep.cov_scale;
-                }
-                memcpy(tmp, jc.cov_mm2, sizeof tmp);
-                jacobi_eig(3, tmp, lam, NULL);
-                jc.sigma_mm = sqrt(IMP_MAX(lam[2], 0.0));
-                double dc[3] = { jc.centre_mm[0] - pb.C0[3 * m], jc.centre_mm[1] - pb.C0[3 * m + 1],
-                                 jc.centre_mm[2] - pb.C0[3 * m + 2] };
-                jc.shift_mm = norm3(dc);
-                ss += jc.shift_mm * jc.shift_mm;
-                rep.centre_shift_max_mm = IMP_MAX(rep.centre_shift_max_mm, jc.shift_mm);
-                ret_centres[m] = jc;
-        }
-        rep.centre_shift_rms_mm = n_mirrors ? sqrt(ss / n_mirrors) : 0;
+        centre_results(&pb, ret_centres, &rep);
         for (int i = 0; i < n_obs; i++) {
                 if (ret_residual_px)
                         ret_residual_px[i] = isfinite(res[i]) ? res[i] * obs[i].sigma_px : 1e30;

@@ -10,6 +10,7 @@
 #include <unistd.h>
 #include "calib-lights.h"
 #include "macro.h"
+#include "numerics.h"
 
 #define SILHOUETTE_PROFILES 360       /* radial edge profiles per sphere */
 #define SILHOUETTE_MIN_EDGES 32
@@ -30,8 +31,6 @@
 #define COND_CAP 1e30
 #define REFERENCE_DISTANCE_MM 1000.0  /* intensity = irradiance at this distance */
 
-static double dot3(const double a[3], const double b[3]) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
-static double norm3(const double a[3]) { return sqrt(dot3(a, a)); }
 
 static double view_get(const struct imp_frame_view *v, int x, int y, int c) {
         return imp_image_get(v->img, x, y, c);
@@ -47,55 +46,14 @@ static double bilinear(const struct imp_image *img, double x, double y) {
                (imp_image_get(img, x0, y0 + 1, 0) * (1 - ax) + imp_image_get(img, x0 + 1, y0 + 1, 0) * ax) * ay;
 }
 
-static int cmp_double(const void *a, const void *b) {
-        double x = *(const double *) a, y = *(const double *) b;
-        return x < y ? -1 : x > y;
-}
-
 /* ---- 3×3 symmetric helpers ---- */
 
-/* Jacobi eigen-decomposition: ret_l ascending, ret_v columns (row-major V[i*3+k], vector k). */
+/* Eigen-decomposition of a symmetric 3×3: ret_l ascending, eigenvector k in column k of
+ * ret_v (row-major V[i*3+k]). */
 static void eig3(const double A_in[9], double ret_l[3], double ret_v[9]) {
-        double A[9], V[9] = { 1, 0, 0, 0, 1, 0, 0, 0, 1 };
+        double A[9];
         memcpy(A, A_in, sizeof A);
-        for (int sweep = 0; sweep < 50; sweep++) {
-                double off = A[1] * A[1] + A[2] * A[2] + A[5] * A[5];
-                if (!(off > 1e-30 * (A[0] * A[0] + A[4] * A[4] + A[8] * A[8])))
-                        break;
-                for (int p = 0; p < 2; p++)
-                        for (int q = p + 1; q < 3; q++) {
-                                double apq = A[p * 3 + q];
-                                if (apq == 0)
-                                        continue;
-                                double th = (A[q * 3 + q] - A[p * 3 + p]) / (2 * apq);
-                                double t = (th >= 0 ? 1 : -1) / (fabs(th) + sqrt(th * th + 1));
-                                double c = 1 / sqrt(t * t + 1), s = t * c;
-                                for (int k = 0; k < 3; k++) {   /* A ← A·J */
-                                        double akp = A[k * 3 + p], akq = A[k * 3 + q];
-                                        A[k * 3 + p] = c * akp - s * akq;
-                                        A[k * 3 + q] = s * akp + c * akq;
-                                }
-                                for (int k = 0; k < 3; k++) {   /* A ← Jᵀ·A */
-                                        double apk = A[p * 3 + k], aqk = A[q * 3 + k];
-                                        A[p * 3 + k] = c * apk - s * aqk;
-                                        A[q * 3 + k] = s * apk + c * aqk;
-                                }
-                                for (int k = 0; k < 3; k++) {
-                                        double vkp = V[k * 3 + p], vkq = V[k * 3 + q];
-                                        V[k * 3 + p] = c * vkp - s * vkq;
-                                        V[k * 3 + q] = s * vkp + c * vkq;
-                                }
-                        }
-        }
-        int idx[3] = { 0, 1, 2 };
-        for (int i = 0; i < 3; i++)
-                for (int j = i + 1; j < 3; j++)
-                        if (A[idx[j] * 4] < A[idx[i] * 4]) { int t = idx[i]; idx[i] = idx[j]; idx[j] = t; }
-        for (int k = 0; k < 3; k++) {
-                ret_l[k] = A[idx[k] * 4];
-                for (int i = 0; i < 3; i++)
-                        ret_v[i * 3 + k] = V[i * 3 + idx[k]];
-        }
+        imp_eigen_sym(3, A, ret_l, ret_v);
 }
 
 /* Inverse of a symmetric positive definite 3×3 through its eigen-decomposition. */
@@ -171,7 +129,7 @@ static int collect_edges(const struct imp_frame_view *vw, struct edge *edges, do
         for (int y = 0; y < img->height; y++)
                 for (int x = 0; x < img->width; x++)
                         vals[(size_t) y * img->width + x] = view_get(vw, x, y, 0);
-        qsort(vals, n, sizeof *vals, cmp_double);
+        qsort(vals, n, sizeof *vals, imp_cmp_double);
         double lo = vals[n / 10], hi = vals[n * 9 / 10];
         if (!(hi - lo > 0) || !isfinite(hi - lo))
                 return -ENOENT;
@@ -263,7 +221,7 @@ static bool robust_circle(struct edge *e, int n, double *res, struct imp_sphere_
                 if (!sorted)
                         return false;
                 memcpy(sorted, res, (size_t) n * sizeof *sorted);
-                qsort(sorted, (size_t) n, sizeof *sorted, cmp_double);
+                qsort(sorted, (size_t) n, sizeof *sorted, imp_cmp_double);
                 double lim = IMP_MAX(3 * 1.4826 * sorted[n / 2], 0.5);
                 int m = 0;
                 for (int i = 0; i < n; i++)
@@ -316,7 +274,7 @@ int imp_lights_sphere_detect(const struct imp_frame_view *v, double min_radius_p
         }
         if (m < 16)
                 return 0;
-        qsort(vals, m, sizeof *vals, cmp_double);
+        qsort(vals, m, sizeof *vals, imp_cmp_double);
         double thr = 0.5 * (vals[m / 20] + vals[m * 19 / 20]);
         if (!(vals[m * 19 / 20] > vals[m / 20]))
                 return 0;
@@ -353,7 +311,7 @@ int imp_lights_sphere_detect(const struct imp_frame_view *v, double min_radius_p
  * closest ray point lies below the cut, the rim's: |crossing of the cut plane − C|_xy − a. */
 static double edge_residual(const double O[3], const double d[3], const double C[3], double r, double cut,
                             double J[3]) {
-        double w[3] = { C[0] - O[0], C[1] - O[1], C[2] - O[2] }, s = dot3(w, d), u[3];
+        double w[3] = { C[0] - O[0], C[1] - O[1], C[2] - O[2] }, s = imp_dot3(w, d), u[3];
         for (int k = 0; k < 3; k++)
                 u[k] = w[k] - s * d[k];   /* from the closest ray point to C */
         if (isfinite(cut) && u[2] > -cut && fabs(d[2]) > 1e-12) {
@@ -366,7 +324,7 @@ static double edge_residual(const double O[3], const double d[3], const double C
                         return l - sqrt(IMP_MAX(r * r - cut * cut, 0.0));
                 }
         }
-        double dist = norm3(u);
+        double dist = imp_norm3(u);
         for (int k = 0; k < 3; k++)
                 J[k] = dist > 0 ? u[k] / dist : 0;
         return dist - r;
@@ -517,11 +475,11 @@ int imp_lights_highlight(const struct imp_frame_view *v, const struct imp_sphere
                 }
         if (n < 16 || pk < 0)
                 return -ENOENT;
-        qsort(vals, n, sizeof *vals, cmp_double);
+        qsort(vals, n, sizeof *vals, imp_cmp_double);
         double bg = vals[n / 2];
         for (size_t i = 0; i < n; i++)
                 vals[i] = fabs(vals[i] - bg);
-        qsort(vals, n, sizeof *vals, cmp_double);
+        qsort(vals, n, sizeof *vals, imp_cmp_double);
         double sigma_bg = 1.4826 * vals[n / 2];
         double top = IMP_MIN(peak, saturation);
         if (!(top - bg > HIGHLIGHT_MIN_SNR * sigma_bg) || !(top > bg))
@@ -578,7 +536,7 @@ int imp_lights_highlight(const struct imp_frame_view *v, const struct imp_sphere
 bool imp_lights_reflect_ray(const double O[3], const double u[3], const double C[3], double r, double P[3],
                             double d[3]) {
         double w[3] = { O[0] - C[0], O[1] - C[1], O[2] - C[2] };
-        double b = dot3(w, u), c = dot3(w, w) - r * r, disc = b * b - c;
+        double b = imp_dot3(w, u), c = imp_dot3(w, w) - r * r, disc = b * b - c;
         if (!(disc >= 0))
                 return false;
         double t = -b - sqrt(disc), n[3];
@@ -586,10 +544,10 @@ bool imp_lights_reflect_ray(const double O[3], const double u[3], const double C
                 P[k] = O[k] + t * u[k];
                 n[k] = (P[k] - C[k]) / r;
         }
-        double un = dot3(u, n);
+        double un = imp_dot3(u, n);
         for (int k = 0; k < 3; k++)
                 d[k] = u[k] - 2 * un * n[k];
-        double l = norm3(d);
+        double l = imp_norm3(d);
         for (int k = 0; k < 3; k++)
                 d[k] /= l;
         return true;
@@ -615,7 +573,7 @@ int imp_lights_reflect(const struct imp_pinhole *cam, const struct imp_sphere *s
                         double q[2] = { px[0] + (a == 0) * h, px[1] + (a == 1) * h }, Pq[3], dq[3];
                         double ang = RIM_SIGMA_RAD;
                         if (reflect_px(cam, s, q, Pq, dq))
-                                ang = acos(IMP_CLAMP(dot3(d, dq), -1.0, 1.0));
+                                ang = acos(IMP_CLAMP(imp_dot3(d, dq), -1.0, 1.0));
                         acc += ang * ang;
                 }
                 double sc = 2 * IMP_MAX(s->centre_sigma_mm, 0.0) / s->radius_mm;
@@ -641,7 +599,7 @@ int imp_lights_triangulate(int n, const double (*o)[3], const double (*d)[3], co
                 return -ENOMEM;
         double mo[3] = { 0 }, md[3] = { 0 };
         for (int i = 0; i < n; i++) {
-                double l = norm3(d[i]);
+                double l = imp_norm3(d[i]);
                 if (!isfinite(l + o[i][0] + o[i][1] + o[i][2]) || !(l > 0))
                         return -EINVAL;
                 if (sigma_rad && !isfinite(sigma_rad[i]))
@@ -652,7 +610,7 @@ int imp_lights_triangulate(int n, const double (*o)[3], const double (*d)[3], co
                         md[k] += u[i][k];
                 }
         }
-        double ml = norm3(md), Xp[3];
+        double ml = imp_norm3(md), Xp[3];
         for (int k = 0; k < 3; k++)
                 Xp[k] = mo[k] + (ml > 1e-9 ? pd * md[k] / ml : 0);
         double X[3], A[9], Ap[9], cov[9];
@@ -680,13 +638,13 @@ int imp_lights_triangulate(int n, const double (*o)[3], const double (*d)[3], co
                         X[a] = cov[a * 3] * b[0] + cov[a * 3 + 1] * b[1] + cov[a * 3 + 2] * b[2];
                 for (int i = 0; i < n; i++) {
                         double w[3] = { X[0] - o[i][0], X[1] - o[i][1], X[2] - o[i][2] };
-                        slat[i] = IMP_MAX(sigma_rad ? sigma_rad[i] : 0, LIGHT_MIN_SIGMA_RAD) * IMP_MAX(norm3(w), 1.0);
+                        slat[i] = IMP_MAX(sigma_rad ? sigma_rad[i] : 0, LIGHT_MIN_SIGMA_RAD) * IMP_MAX(imp_norm3(w), 1.0);
                 }
         }
         unsigned flags = n < 2 ? IMP_LIGHT_FEW_RAYS : 0;
         double chi2 = 0, ss = 0;
         for (int i = 0; i < n; i++) {
-                double w[3] = { X[0] - o[i][0], X[1] - o[i][1], X[2] - o[i][2] }, s = dot3(w, u[i]), e2 = 0;
+                double w[3] = { X[0] - o[i][0], X[1] - o[i][1], X[2] - o[i][2] }, s = imp_dot3(w, u[i]), e2 = 0;
                 if (s < 0)
                         flags |= IMP_LIGHT_BEHIND;
                 for (int k = 0; k < 3; k++)
@@ -748,11 +706,11 @@ int imp_lights_intensity(const struct imp_pinhole *cam, const struct imp_frame_v
                         if (!(t > 0))
                                 continue;
                         double l[3] = { pos_mm[0] - O[0] - t * d[0], pos_mm[1] - O[1] - t * d[1], pos_mm[2] - O[2] - t * d[2] };
-                        double dist = norm3(l), cosl = l[2] / dist, f = 1;
+                        double dist = imp_norm3(l), cosl = l[2] / dist, f = 1;
                         if (!(cosl > 0))
                                 continue;
                         if (axis && profile_exp > 0) {
-                                double ca = -dot3(l, axis) / (dist * norm3(axis));
+                                double ca = -imp_dot3(l, axis) / (dist * imp_norm3(axis));
                                 if (!(ca > 0))
                                         continue;
                                 f = pow(ca, profile_exp);
@@ -803,7 +761,7 @@ int imp_lights_lp_write(const char *path, int n, const struct imp_rig_light *lig
                 for (int k = 0; k < 3; k++)
                         p[k] = lights[i].pos_mm[k] - (near_field || !centre_mm ? 0 : centre_mm[k]);
                 if (!near_field) {
-                        double l = norm3(p);
+                        double l = imp_norm3(p);
                         for (int k = 0; k < 3; k++)
                                 p[k] = l > 0 ? p[k] / l : 0;
                 }
@@ -862,7 +820,7 @@ int imp_lights_lp_read(const char *path, const double centre_mm[3], double radiu
                         break;
                 }
                 if (!near) {
-                        double l = norm3(p);
+                        double l = imp_norm3(p);
                         if (!(l > 1e-9)) {
                                 r = imp_error_set(err, -EBADMSG, "%s:%d: zero direction", path, lineno);
                                 break;

@@ -5,7 +5,9 @@
 #include <stdlib.h>
 #include <string.h>
 #include "calib-radiometric.h"
+#include "captureset.h"
 #include "macro.h"
+#include "numerics.h"
 
 #define QUANTISATION_VAR_DN2 (1.0 / 12.0)   /* rounding to integer DN */
 #define SAT_VAR_DROP 0.5                    /* variance below this × max so far: saturated */
@@ -46,8 +48,9 @@ static void pair_stats(const struct imp_image *a, const struct imp_image *b, con
         ret[3] = (double) nc / n;
 }
 
-int imp_radiometric_ptc(const struct imp_ptc_input *in, struct imp_ptc_result *ret, struct imp_error *err) {
-        if (!in || !ret || in->n_levels < 1 || in->n_levels > IMP_PTC_MAX_LEVELS || !in->levels ||
+/* Checks the input and sets the ROI (x, y, w, h): 0 or -EINVAL (err says why). */
+static int check_input(const struct imp_ptc_input *in, int roi[4], struct imp_error *err) {
+        if (in->n_levels < 1 || in->n_levels > IMP_PTC_MAX_LEVELS || !in->levels ||
             in->n_darks < 1 || !in->darks || in->bits < 1 || in->bits > 16)
                 return imp_error_set(err, -EINVAL, "photon transfer: bad arguments (levels 1..%d, ≥ 1 dark, bits 1..16)",
                                      IMP_PTC_MAX_LEVELS);
@@ -60,13 +63,61 @@ int imp_radiometric_ptc(const struct imp_ptc_input *in, struct imp_ptc_result *r
                     !(in->levels[i].exposure_us > 0))
                         return imp_error_set(err, -EINVAL, "photon transfer: level %d: missing frame, size differs "
                                              "from the darks, or exposure ≤ 0", i);
-        int roi[4] = { 0, 0, ref->width, ref->height };
+        roi[0] = roi[1] = 0, roi[2] = ref->width, roi[3] = ref->height;
         if (in->roi[2] > 0) {
-                memcpy(roi, in->roi, sizeof roi);
+                memcpy(roi, in->roi, 4 * sizeof *roi);
                 if (roi[0] < 0 || roi[1] < 0 || roi[3] < 1 || roi[0] + roi[2] > ref->width || roi[1] + roi[3] > ref->height)
                         return imp_error_set(err, -EINVAL, "photon transfer: ROI outside the %dx%d frame", ref->width,
                                              ref->height);
         }
+        return 0;
+}
+
+/* The points of every level, in exposure order, into out->points; sp_sd[k] the spatial σ
+ * of point k; saturation (the first level whose variance drops below SAT_VAR_DROP × the
+ * largest so far, or that clips) and every later level flagged saturated; *ret_sat_mean
+ * the largest mean among them (∞ when none). */
+static void level_points(const struct imp_ptc_input *in, const int roi[4], double clip, double black,
+                         struct imp_ptc_result *out, double *sp_sd, double *ret_sat_mean) {
+        double st[4];
+        int order[IMP_PTC_MAX_LEVELS];
+        for (int i = 0; i < in->n_levels; i++)
+                order[i] = i;
+        for (int i = 1; i < in->n_levels; i++)
+                for (int j = i; j > 0 && in->levels[order[j]].exposure_us < in->levels[order[j - 1]].exposure_us; j--) {
+                        int t = order[j]; order[j] = order[j - 1]; order[j - 1] = t;
+                }
+        double vmax = 0, sat_mean = INFINITY, sat_exp = INFINITY;
+        for (int k = 0; k < in->n_levels; k++) {
+                const struct imp_ptc_level *L = &in->levels[order[k]];
+                struct imp_ptc_point *p = &out->points[k];
+                pair_stats(L->a, L->b, roi, clip, st);
+                *p = (struct imp_ptc_point) { .exposure_us = L->exposure_us, .mean_dn = st[0] - black,
+                                              .var_dn2 = st[1], .clip_fraction = st[3] };
+                sp_sd[k] = sqrt(IMP_MAX(st[2], 0.0));
+                if (!isfinite(sat_exp) && (st[1] < SAT_VAR_DROP * vmax || st[3] > SAT_CLIP_FRACTION)) {
+                        sat_mean = p->mean_dn;
+                        sat_exp = L->exposure_us;
+                        out->flags |= IMP_PTC_SATURATION_FOUND;
+                }
+                if (!isfinite(sat_exp))
+                        vmax = IMP_MAX(vmax, st[1]);
+        }
+        /* the saturation mean: the largest mean among saturated levels (clip plateau) */
+        for (int k = 0; k < in->n_levels; k++)
+                if (out->points[k].exposure_us >= sat_exp) {
+                        out->points[k].saturated = true;
+                        sat_mean = IMP_MAX(sat_mean, out->points[k].mean_dn);
+                }
+        *ret_sat_mean = sat_mean;
+}
+
+int imp_radiometric_ptc(const struct imp_ptc_input *in, struct imp_ptc_result *ret, struct imp_error *err) {
+        if (!in || !ret)
+                return imp_error_set(err, -EINVAL, "photon transfer: bad arguments");
+        int roi[4], rc = check_input(in, roi, err);
+        if (rc < 0)
+                return rc;
         double clip = (double) ((1u << in->bits) - 1), st[4];
         struct imp_ptc_result out = { .sensor.bits = in->bits, .n_points = in->n_levels };
 
@@ -84,35 +135,8 @@ int imp_radiometric_ptc(const struct imp_ptc_input *in, struct imp_ptc_result *r
         out.sensor.black_level_dn = black;
 
         /* per level, in exposure order */
-        int order[IMP_PTC_MAX_LEVELS];
-        for (int i = 0; i < in->n_levels; i++)
-                order[i] = i;
-        for (int i = 1; i < in->n_levels; i++)
-                for (int j = i; j > 0 && in->levels[order[j]].exposure_us < in->levels[order[j - 1]].exposure_us; j--) {
-                        int t = order[j]; order[j] = order[j - 1]; order[j - 1] = t;
-                }
-        double sp_sd[IMP_PTC_MAX_LEVELS], vmax = 0, sat_mean = INFINITY, sat_exp = INFINITY;
-        for (int k = 0; k < in->n_levels; k++) {
-                const struct imp_ptc_level *L = &in->levels[order[k]];
-                struct imp_ptc_point *p = &out.points[k];
-                pair_stats(L->a, L->b, roi, clip, st);
-                *p = (struct imp_ptc_point) { .exposure_us = L->exposure_us, .mean_dn = st[0] - black,
-                                              .var_dn2 = st[1], .clip_fraction = st[3] };
-                sp_sd[k] = sqrt(IMP_MAX(st[2], 0.0));
-                if (!isfinite(sat_exp) && (st[1] < SAT_VAR_DROP * vmax || st[3] > SAT_CLIP_FRACTION)) {
-                        sat_mean = p->mean_dn;
-                        sat_exp = L->exposure_us;
-                        out.flags |= IMP_PTC_SATURATION_FOUND;
-                }
-                if (!isfinite(sat_exp))
-                        vmax = IMP_MAX(vmax, st[1]);
-        }
-        /* the saturation mean: the largest mean among saturated levels (clip plateau) */
-        for (int k = 0; k < in->n_levels; k++)
-                if (out.points[k].exposure_us >= sat_exp) {
-                        out.points[k].saturated = true;
-                        sat_mean = IMP_MAX(sat_mean, out.points[k].mean_dn);
-                }
+        double sp_sd[IMP_PTC_MAX_LEVELS], sat_mean;
+        level_points(in, roi, clip, black, &out, sp_sd, &sat_mean);
 
         /* weighted fit var = q + s·mean, and the linear response mean = a + b·t */
         double W = 0, Wx = 0, Wy = 0, Wxx = 0, Wxy = 0, T = 0, Tx = 0, Ty = 0, Txx = 0, Txy = 0;
@@ -180,6 +204,122 @@ int imp_radiometric_ptc(const struct imp_ptc_input *in, struct imp_ptc_result *r
         return 0;
 }
 
+#define PTC_MAX_DARKS 64
+
+static bool same_light(const struct imp_frame_record *a, const struct imp_frame_record *b) {
+        return !strcmp(a->camera, b->camera) && a->light == b->light && fabs(a->exposure_us - b->exposure_us) <= 1e-9 * a->exposure_us &&
+               a->gain_db == b->gain_db && !memcmp(&a->pattern, &b->pattern, sizeof a->pattern) && !strcmp(a->step, b->step);
+}
+
+static int cmp_level(const void *x, const void *y) {
+        const struct imp_ptc_level *a = x, *b = y;
+        return (a->exposure_us > b->exposure_us) - (a->exposure_us < b->exposure_us);
+}
+
+/* The frames of one photon-transfer measurement: loaded flat pairs and darks. */
+struct ptc_frames {
+        struct imp_image **frames;    /* 2 × levels, then the darks */
+        struct imp_ptc_level *levels;
+        int nf, nl, nd;
+        double gain_db;
+};
+
+static void ptc_frames_free(struct ptc_frames *f) {
+        for (int i = 0; i < f->nf; i++)
+                imp_image_free(f->frames[i]);
+        free(f->frames);
+        free(f->levels);
+}
+
+/* Flat pairs: each frame with the next unused one taken in the same light. */
+static int load_pairs(const struct imp_captureset *cs, const char *cam, struct ptc_frames *f, struct imp_error *err) {
+        size_t n = imp_captureset_count(cs);
+        _cleanup_free_ bool *used = calloc(n + 1, sizeof *used);
+        if (!used)
+                return -ENOMEM;
+        for (size_t i = 0; i < n && f->nl < IMP_PTC_MAX_LEVELS; i++) {
+                const struct imp_frame_record *a = imp_captureset_record(cs, i);
+                if (used[i] || strcmp(a->camera, cam) || !strcmp(a->step, "dark"))
+                        continue;
+                for (size_t k = i + 1; k < n; k++) {
+                        const struct imp_frame_record *b = imp_captureset_record(cs, k);
+                        if (used[k] || !same_light(a, b))
+                                continue;
+                        if (!isnan(f->gain_db) && a->gain_db != f->gain_db)
+                                return imp_error_set(err, -EINVAL, "%s: frames at gains %g and %g dB",
+                                                     imp_captureset_dir(cs), f->gain_db, a->gain_db);
+                        f->gain_db = a->gain_db;
+                        used[i] = used[k] = true;
+                        int r = imp_captureset_load_frame(cs, i, &f->frames[f->nf], err);
+                        if (r < 0)
+                                return r;
+                        f->nf++;
+                        if ((r = imp_captureset_load_frame(cs, k, &f->frames[f->nf], err)) < 0)
+                                return r;
+                        f->nf++;
+                        f->levels[f->nl++] = (struct imp_ptc_level) { a->exposure_us, f->frames[f->nf - 2],
+                                                                      f->frames[f->nf - 1] };
+                        break;
+                }
+        }
+        return 0;
+}
+
+/* The darks of the shortest dark exposure. */
+static int load_darks(const struct imp_captureset *cs, const char *cam, struct ptc_frames *f, struct imp_error *err) {
+        size_t n = imp_captureset_count(cs);
+        double dark_exp = INFINITY;
+        for (size_t i = 0; i < n; i++) {
+                const struct imp_frame_record *rec = imp_captureset_record(cs, i);
+                if (!strcmp(rec->step, "dark") && !strcmp(rec->camera, cam))
+                        dark_exp = IMP_MIN(dark_exp, rec->exposure_us);
+        }
+        for (size_t i = 0; i < n && f->nd < PTC_MAX_DARKS; i++) {
+                const struct imp_frame_record *rec = imp_captureset_record(cs, i);
+                if (strcmp(rec->step, "dark") || strcmp(rec->camera, cam) || rec->exposure_us != dark_exp)
+                        continue;
+                int r = imp_captureset_load_frame(cs, i, &f->frames[f->nf], err);
+                if (r < 0)
+                        return r;
+                f->nf++, f->nd++;
+        }
+        return 0;
+}
+
+int imp_radiometric_ptc_measure(const struct imp_captureset *cs, const char *cam, const int roi[4],
+                                struct imp_ptc_result *ret, int *ret_levels, int *ret_darks, struct imp_error *err) {
+        const struct imp_rig *rig = imp_captureset_rig(cs);
+        const struct imp_rig_camera *camera = NULL;
+        for (int i = 0; i < rig->n_cameras && !camera; i++)
+                if (!strcmp(rig->cameras[i].name, cam))
+                        camera = &rig->cameras[i];
+        if (!camera)
+                return imp_error_set(err, -ENOENT, "no camera '%s' in %s/rig.json", cam, imp_captureset_dir(cs));
+        struct ptc_frames f = { .frames = calloc(2 * IMP_PTC_MAX_LEVELS + PTC_MAX_DARKS, sizeof *f.frames),
+                                .levels = calloc(IMP_PTC_MAX_LEVELS, sizeof *f.levels), .gain_db = NAN };
+        int r = f.frames && f.levels ? 0 : -ENOMEM;
+        if (r == 0 && (r = load_pairs(cs, cam, &f, err)) == 0)
+                r = load_darks(cs, cam, &f, err);
+        int first_dark = f.nf - f.nd;
+        if (r == 0 && (f.nl == 0 || f.nd == 0))
+                r = imp_error_set(err, -ENODATA, "%s: need pairs of equal flat frames and dark frames (found %d pairs, "
+                                  "%d darks of %s)", imp_captureset_dir(cs), f.nl, f.nd, cam);
+        if (r == 0) {
+                qsort(f.levels, (size_t) f.nl, sizeof *f.levels, cmp_level);
+                struct imp_ptc_input in = { .bits = camera->sensor.bits, .gain_db = f.gain_db, .n_levels = f.nl,
+                                            .levels = f.levels, .n_darks = f.nd,
+                                            .darks = (const struct imp_image *const *) &f.frames[first_dark],
+                                            .roi = { roi[0], roi[1], roi[2], roi[3] } };
+                r = imp_radiometric_ptc(&in, ret, err);
+        }
+        if (r == 0 && ret_levels)
+                *ret_levels = f.nl;
+        if (r == 0 && ret_darks)
+                *ret_darks = f.nd;
+        ptc_frames_free(&f);
+        return r;
+}
+
 double imp_radiometric_dn_to_value(const struct imp_sensor *s, double exposure_us, double gain_db, double dn) {
         double e_per_dn = s->gain_e_per_dn * pow(10.0, -gain_db / 20.0);
         double denom = s->quantum_scale * exposure_us * 1e-6;
@@ -217,15 +357,11 @@ int imp_radiometric_projector_gamma(const struct imp_image *white, const struct 
                         /* the phase from the first Fourier coefficient of the n_k (N-step phase
                          * shifting): c^γ is even about the crest, so its fundamental keeps
                          * the pattern's phase for any γ (up to the aliased harmonics N ± 1) */
-                        double s = 0, c = 0;
                         for (int k = 0; k < n_steps; k++) {
                                 n[k] = (imp_image_get(steps[k], x, y, 0) - b) / (w - b);
-                                double a = 2 * M_PI * k / n_steps;
-                                s += n[k] * sin(a);
-                                c += n[k] * cos(a);
                                 data += n[k];
                         }
-                        double theta = atan2(-s, c);
+                        double theta = imp_phase_nstep(n, n_steps);
                         for (int k = 0; k < n_steps; k++) {
                                 double ck = 0.5 + 0.5 * cos(theta + 2 * M_PI * k / n_steps);
                                 ln_c[cnt++] = ck > 0 ? log(ck) : -INFINITY;

@@ -71,6 +71,17 @@ struct imp_ptc_result {
  * *ret untouched on failure. */
 int imp_radiometric_ptc(const struct imp_ptc_input *in, struct imp_ptc_result *ret, struct imp_error *err);
 
+/* Photon transfer of camera `cam` (a camera of cs's rig) from cs: each flat frame paired
+ * with the next unused one taken in the same light (camera, light, exposure, gain, pattern,
+ * step), sorted by exposure; the dark frames ("dark" step) of the shortest dark exposure
+ * (at most 64). Then imp_radiometric_ptc() over roi (x, y, w, h; w = 0: the whole frame).
+ * ret_levels, ret_darks: the pairs and darks used (may be NULL). -ENODATA (err says how
+ * many were found) without a pair or a dark, -EINVAL for pairs at different gains, the
+ * reader's errors; *ret untouched on failure. */
+struct imp_captureset;
+int imp_radiometric_ptc_measure(const struct imp_captureset *cs, const char *cam, const int roi[4],
+                                struct imp_ptc_result *ret, int *ret_levels, int *ret_darks, struct imp_error *err);
+
 /* DN → radiometric value V (1.0 = white Lambertian at the reference irradiance): the
  * inverse of the simulator's sensor model, ignoring noise: (dn − black)·g_eff /
  * (quantum_scale · t). */

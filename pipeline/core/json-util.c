@@ -12,7 +12,7 @@
 #include <unistd.h>
 #include "json-util.h"
 
-static const char *json_type_name(const json_t *v) {
+const char *imp_json_type_name(const json_t *v) {
         switch (json_typeof(v)) {
         case JSON_OBJECT: return "an object";
         case JSON_ARRAY: return "an array";
@@ -36,7 +36,7 @@ static int member(const json_t *obj, const char *key, bool required, const char 
                   json_t **ret, struct imp_error *err) {
         if (!json_is_object(obj))
                 return imp_error_set(err, -EINVAL, "%s: expected an object, got %s", what,
-                                     obj ? json_type_name(obj) : "nothing");
+                                     obj ? imp_json_type_name(obj) : "nothing");
         json_t *v = json_object_get(obj, key);
         if (v && !(json_is_null(v) && !required)) {
                 *ret = v;
@@ -50,7 +50,7 @@ static int member(const json_t *obj, const char *key, bool required, const char 
 static int wrong(const char *what, const char *key, const char *want, const json_t *v,
                  struct imp_error *err) {
         return imp_error_set(err, -EINVAL, "%s%s%s: expected %s, got %s", what, sep(what), key,
-                             want, json_type_name(v));
+                             want, imp_json_type_name(v));
 }
 
 int imp_json_get_double(const json_t *obj, const char *key, bool required, double *ret,
@@ -97,7 +97,7 @@ int imp_json_get_doubles(const json_t *obj, const char *key, bool required, int 
                 return r;
         if (!json_is_array(v))
                 return imp_error_set(err, -EINVAL, "%s%s%s: expected an array of %d numbers, got %s",
-                                     what, sep(what), key, n, json_type_name(v));
+                                     what, sep(what), key, n, imp_json_type_name(v));
         if ((int) json_array_size(v) != n)
                 return imp_error_set(err, -EINVAL, "%s%s%s: expected %d numbers, got %zu", what,
                                      sep(what), key, n, json_array_size(v));
@@ -105,7 +105,7 @@ int imp_json_get_doubles(const json_t *obj, const char *key, bool required, int 
                 if (!json_is_number(json_array_get(v, (size_t) i)))
                         return imp_error_set(err, -EINVAL, "%s%s%s[%d]: expected a number, got %s",
                                              what, sep(what), key, i,
-                                             json_type_name(json_array_get(v, (size_t) i)));
+                                             imp_json_type_name(json_array_get(v, (size_t) i)));
         for (int i = 0; i < n; i++)
                 ret[i] = json_number_value(json_array_get(v, (size_t) i));
         return 0;

@@ -24,6 +24,8 @@ int imp_json_get_string(const json_t *obj, const char *key, bool required, const
                         const char *what, struct imp_error *err);
 int imp_json_get_doubles(const json_t *obj, const char *key, bool required, int n, double *ret,
                          const char *what, struct imp_error *err);
+/* "an object", "an array", "a string", …: v's type for messages ("expected …, got %s"). */
+const char *imp_json_type_name(const json_t *v);
 /* Load a whole file; parse errors name file:line:column. */
 int imp_json_load(const char *path, json_t **ret, struct imp_error *err);
 /* Crash-safe: writes PATH.tmp, fsyncs it, renames over PATH, fsyncs the directory. */

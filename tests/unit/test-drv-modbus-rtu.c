@@ -102,13 +102,16 @@ static void test_wrong_unit(const char *dev) {
 }
 
 static void test_syntax(const char *dev) {
+        /* after "rtu:DEV" (NULL: "rtu:" alone, no device) */
         static const char *const bad[] = {
-                "rtu:", "rtu:%s;parity=X", "rtu:%s;parity=EE", "rtu:%s;baud=0", "rtu:%s;data_bits=9",
-                "rtu:%s;stop_bits=3", "rtu:%s;unit=248",
+                NULL, ";parity=X", ";parity=EE", ";baud=0", ";data_bits=9", ";stop_bits=3", ";unit=248",
         };
         for (size_t i = 0; i < ARRAY_SIZE(bad); i++) {
                 char addr[160];
-                snprintf(addr, sizeof addr, bad[i], dev);
+                if (bad[i])
+                        snprintf(addr, sizeof addr, "rtu:%s%s", dev, bad[i]);
+                else
+                        snprintf(addr, sizeof addr, "rtu:");
                 struct imp_dome *d = NULL;
                 CHECK_MSG(imp_dome_open("modbus", addr, 0, &d) == -EINVAL, "\"%s\" accepted", addr);
                 imp_dome_close(d);

@@ -91,7 +91,10 @@ static void test_extraction(double tilt_deg) {
         double ez[3] = { M[2], M[6], M[10] }, ex[3] = { M[0], M[4], M[8] }, zt[3], z[3] = { 0, 0, 1 };
         rot(R, z, zt);
         CHECK_NEAR(ez[0] * zt[0] + ez[1] * zt[1] + ez[2] * zt[2], 1.0, 1e-4);
-        CHECK_NEAR(ex[1], -ex[0] * ez[0] * ez[1] / (1 - ez[0] * ez[0]) * 0 + ex[1], 0);   /* finite */
+        /* ex ∝ x̂ − (x̂·ez) ez = (1 − ez₀², −ez₀ez₁, −ez₀ez₂): a unit vector with these ratios */
+        CHECK_NEAR(ex[0] * ex[0] + ex[1] * ex[1] + ex[2] * ex[2], 1.0, 1e-9);
+        CHECK_NEAR(ex[1] * (1 - ez[0] * ez[0]), -ex[0] * ez[0] * ez[1], 1e-9);
+        CHECK_NEAR(ex[2] * (1 - ez[0] * ez[0]), -ex[0] * ez[0] * ez[2], 1e-9);
         CHECK_NEAR(ex[0] * ez[0] + ex[1] * ez[1] + ex[2] * ez[2], 0.0, 1e-9);
         CHECK_GE(ex[0], 0.99);
         CHECK_NEAR(hf.footprint_mm, PITCH, 0.02);

@@ -53,7 +53,7 @@ static void quiet_end(int saved) {
         }
 }
 
-#define QUIET(expr) ({ int saved_ = quiet_begin(); int r_ = (expr); quiet_end(saved_); r_; })
+#define QUIET(expr) ({ int saved_ = quiet_begin(); int quiet_r_ = (expr); quiet_end(saved_); quiet_r_; })
 
 enum fmt { PNG, TIFF_, EXR };
 static const char *const fmt_name[] = { "png", "tiff", "exr" };

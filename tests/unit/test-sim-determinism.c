@@ -9,16 +9,16 @@
 #include "scene.h"
 #include "test.h"
 
-static const char *scene_fmt =
-        "scene = { name = \"det\"; seed = 5; effects = [\"direct\", \"shadows\", \"projector\"%s]; };\n"
-        "painting = { width_mm = 12.0; height_mm = 9.0; pitch_mm = 0.06; frame = { width_mm = 1.0; height_mm = 2.0; };\n"
-        "  layers = ( { type = \"strokes\"; amplitude_mm = 0.2; count = 40; width_mm = 1.5; length_mm = 6.0; },\n"
-        "             { type = \"ridge\"; amplitude_mm = 0.5; start_mm = [2.0, 3.0]; end_mm = [10.0, 5.0]; } );\n"
-        "  regions = ( { shape = \"all\"; rho_d = [0.7, 0.6, 0.5]; rho_s = [0.3, 0.3, 0.3]; k = 20.0; tint_variation = 0.1; } ); };\n"
-        "rig = { cameras = ( { name = \"cam0\"; width = 200; height = 150; fx = 4000.0;\n"
-        "    pos_mm = [6.0, 4.5, 300.0]; look_at_mm = [6.0, 4.5, 0.0]; } );\n"
-        "  projector = { width = 128; height = 96; fx = 1000.0; pos_mm = [100.0, 4.5, 280.0]; look_at_mm = [6.0, 4.5, 0.0]; };\n"
-        "  dome = { rings = ( { elevation_deg = 30.0; count = 4; } ); }; };\n";
+#define SCENE_FMT \
+        "scene = { name = \"det\"; seed = 5; effects = [\"direct\", \"shadows\", \"projector\"%s]; };\n" \
+        "painting = { width_mm = 12.0; height_mm = 9.0; pitch_mm = 0.06; frame = { width_mm = 1.0; height_mm = 2.0; };\n" \
+        "  layers = ( { type = \"strokes\"; amplitude_mm = 0.2; count = 40; width_mm = 1.5; length_mm = 6.0; },\n" \
+        "             { type = \"ridge\"; amplitude_mm = 0.5; start_mm = [2.0, 3.0]; end_mm = [10.0, 5.0]; } );\n" \
+        "  regions = ( { shape = \"all\"; rho_d = [0.7, 0.6, 0.5]; rho_s = [0.3, 0.3, 0.3]; k = 20.0; tint_variation = 0.1; } ); };\n" \
+        "rig = { cameras = ( { name = \"cam0\"; width = 200; height = 150; fx = 4000.0;\n" \
+        "    pos_mm = [6.0, 4.5, 300.0]; look_at_mm = [6.0, 4.5, 0.0]; } );\n" \
+        "  projector = { width = 128; height = 96; fx = 1000.0; pos_mm = [100.0, 4.5, 280.0]; look_at_mm = [6.0, 4.5, 0.0]; };\n" \
+        "  dome = { rings = ( { elevation_deg = 30.0; count = 4; } ); }; };\n"
 
 static const struct imp_frame_record frames[] = {
         { .seq = 0, .step = "dome", .camera = "cam0", .light = 1, .exposure_us = 10000 },
@@ -36,7 +36,7 @@ static uint16_t *render_all(bool noise, uint64_t seed, int threads, size_t *ret_
         (void) threads;
 #endif
         char text[4096];
-        snprintf(text, sizeof text, scene_fmt, noise ? ", \"noise\"" : "");
+        snprintf(text, sizeof text, SCENE_FMT, noise ? ", \"noise\"" : "");
         struct imp_error err = { 0 };
         _cleanup_(imp_scene_freep) struct imp_scene *scene = NULL;
         _cleanup_(imp_render_freep) struct imp_render *r = NULL;

@@ -11,20 +11,20 @@
 #define STEP_H_MM 0.5
 #define LIGHT_DIST_MM 20000.0   /* far enough that the elevation varies < 1e-4 rad over the shadow */
 
-static const char *scene_fmt =
-        "scene = { name = \"step\"; seed = 1; effects = [\"direct\"%s]; };\n"
-        "painting = { width_mm = 20.0; height_mm = 10.0; pitch_mm = 0.05;\n"
-        "  layers = ( { type = \"step\"; at_mm = 10.0; axis = \"x\"; amplitude_mm = 0.5; } );\n"
-        "  regions = ( { shape = \"all\"; rho_d = [0.9, 0.9, 0.9]; } ); };\n"
-        "rig = { cameras = ( { name = \"cam0\"; width = 400; height = 200; fx = 6000.0;\n"
-        "    pos_mm = [10.0, 5.0, 300.0]; look_at_mm = [10.0, 5.0, 0.0]; } );\n"
-        "  dome = { profile_exp = 0.0; lights = ( { pos_mm = [%.6f, 5.0, %.6f]; intensity = %.6f; } ); }; };\n";
+#define SCENE_FMT \
+        "scene = { name = \"step\"; seed = 1; effects = [\"direct\"%s]; };\n" \
+        "painting = { width_mm = 20.0; height_mm = 10.0; pitch_mm = 0.05;\n" \
+        "  layers = ( { type = \"step\"; at_mm = 10.0; axis = \"x\"; amplitude_mm = 0.5; } );\n" \
+        "  regions = ( { shape = \"all\"; rho_d = [0.9, 0.9, 0.9]; } ); };\n" \
+        "rig = { cameras = ( { name = \"cam0\"; width = 400; height = 200; fx = 6000.0;\n" \
+        "    pos_mm = [10.0, 5.0, 300.0]; look_at_mm = [10.0, 5.0, 0.0]; } );\n" \
+        "  dome = { profile_exp = 0.0; lights = ( { pos_mm = [%.6f, 5.0, %.6f]; intensity = %.6f; } ); }; };\n"
 
 /* Shadow end along the centre row: world x just past the last dark pixel after the step. */
 static double shadow_end(bool shadows, double elev_deg, uint64_t *ret_rays) {
         double e = elev_deg * M_PI / 180;
         char text[2048];
-        snprintf(text, sizeof text, scene_fmt, shadows ? ", \"shadows\"" : "", STEP_AT_MM - LIGHT_DIST_MM * cos(e),
+        snprintf(text, sizeof text, SCENE_FMT, shadows ? ", \"shadows\"" : "", STEP_AT_MM - LIGHT_DIST_MM * cos(e),
                  LIGHT_DIST_MM * sin(e), (LIGHT_DIST_MM / 1000) * (LIGHT_DIST_MM / 1000));
         struct imp_error err = { 0 };
         _cleanup_(imp_scene_freep) struct imp_scene *scene = NULL;
