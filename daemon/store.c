@@ -12,13 +12,6 @@
 #include "impastod.h"
 #include "json-util.h"
 
-void rfc3339_now(char buf[static 32]) {
-        time_t t = time(NULL);
-        struct tm tm;
-        gmtime_r(&t, &tm);
-        strftime(buf, 32, "%Y-%m-%dT%H:%M:%SZ", &tm);
-}
-
 int store_init(const char *state_dir, struct imp_error *err) {
         char p[PATH_MAX];
         int r;
