@@ -250,6 +250,7 @@ struct job {
         char error[1024];
         char stage[64];                 /* the worker's current processing stage, "" before */
         double progress;                /* 0..1 over the whole job */
+        char verdict[16];               /* the copy's quality.verdict once done ("" when it has none) */
         json_t *worker_args;            /* as written into the file (string or null) */
         pid_t pid;                      /* our worker child, 0 when none */
         int spawn_attempts;             /* attempts in the file when the child was started */

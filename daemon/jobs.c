@@ -34,18 +34,37 @@ static json_t *job_error_json(const struct job *j) {
         return json_pack("{s:s, s:i, s:s}", "code", "internal", "errno", 0, "message", j->error);
 }
 
+/* The copy's quality verdict (copy.json "quality": {"verdict": "ok"|"degraded"|"unusable"}),
+ * read once the job is done; "" when the copy has none (or a value not one of these). */
+static void job_read_verdict(struct job *j) {
+        j->verdict[0] = 0;
+        if (j->state != IMP_JOB_DONE || !j->output[0])
+                return;
+        char p[PATH_MAX + 16];
+        snprintf(p, sizeof p, "%s/copy.json", j->output);
+        struct imp_error e = { 0 };
+        _cleanup_json_ json_t *doc = NULL;
+        if (imp_json_load(p, &doc, &e) < 0)
+                return;
+        const char *v = json_string_value(json_object_get(json_object_get(doc, "quality"), "verdict"));
+        if (v && (!strcmp(v, "ok") || !strcmp(v, "degraded") || !strcmp(v, "unusable")))
+                snprintf(j->verdict, sizeof j->verdict, "%s", v);
+        else if (v)
+                log_warning("%s: quality.verdict \"%.32s\" is not ok, degraded or unusable, ignoring", p, v);
+}
+
 json_t *job_json(const struct job *j, bool full) {
-        const char *stage = j->stage[0] ? j->stage : NULL;
+        const char *stage = j->stage[0] ? j->stage : NULL, *verdict = j->verdict[0] ? j->verdict : NULL;
         if (!full)
-                return json_pack("{s:s, s:s, s:s, s:s, s:f, s:s?, s:i}", "job", j->id, "session", j->session, "state",
-                                 imp_job_state_name(j->state), "queued", j->queued, "progress", j->progress, "stage",
-                                 stage, "attempts", j->attempts);
-        return json_pack("{s:s, s:s, s:s, s:s, s:s?, s:s?, s:s?, s:o?, s:i, s:i, s:s, s:f, s:s?, s:O?}", "job", j->id,
-                         "session", j->session, "state", imp_job_state_name(j->state), "queued", j->queued, "started",
-                         j->started[0] ? j->started : NULL, "ended", j->ended[0] ? j->ended : NULL, "output",
-                         j->state == IMP_JOB_DONE ? j->output : NULL, "error", job_error_json(j), "attempts",
-                         j->attempts, "max_attempts", j->max_attempts, "set", j->set_dir, "progress", j->progress,
-                         "stage", stage, "worker_args", j->worker_args);
+                return json_pack("{s:s, s:s, s:s, s:s, s:f, s:s?, s:i, s:s?}", "job", j->id, "session", j->session,
+                                 "state", imp_job_state_name(j->state), "queued", j->queued, "progress", j->progress,
+                                 "stage", stage, "attempts", j->attempts, "verdict", verdict);
+        return json_pack("{s:s, s:s, s:s, s:s, s:s?, s:s?, s:s?, s:o?, s:i, s:i, s:s, s:f, s:s?, s:O?, s:s?}", "job",
+                         j->id, "session", j->session, "state", imp_job_state_name(j->state), "queued", j->queued,
+                         "started", j->started[0] ? j->started : NULL, "ended", j->ended[0] ? j->ended : NULL,
+                         "output", j->state == IMP_JOB_DONE ? j->output : NULL, "error", job_error_json(j),
+                         "attempts", j->attempts, "max_attempts", j->max_attempts, "set", j->set_dir, "progress",
+                         j->progress, "stage", stage, "worker_args", j->worker_args, "verdict", verdict);
 }
 
 /* ---- the file ----------------------------------------------------------------------------- */
@@ -134,6 +153,10 @@ static int job_read(struct job *j, enum imp_job_file *ret_which, bool *ret_legac
                 j->state = IMP_JOB_QUEUED;
                 legacy = true;
         }
+        if (j->state != IMP_JOB_DONE)
+                j->verdict[0] = 0;
+        else if (!j->verdict[0])
+                job_read_verdict(j);
         *ret_which = which;
         if (ret_legacy)
                 *ret_legacy = legacy;
@@ -222,11 +245,12 @@ static void job_announce(struct daemon *d, struct job *j) {
         j->ev_progress = j->progress;
         snprintf(j->ev_stage, sizeof j->ev_stage, "%s", j->stage);
         server_broadcast(d, "job",
-                         json_pack("{s:s, s:s, s:s, s:f, s:s?, s:i, s:i, s:s?, s:o?}", "job", j->id, "session",
-                                   j->session, "state", imp_job_state_name(j->state), "progress", j->progress, "stage",
-                                   j->stage[0] ? j->stage : NULL, "attempts", j->attempts, "max_attempts",
-                                   j->max_attempts, "output", j->state == IMP_JOB_DONE ? j->output : NULL, "error",
-                                   j->state == IMP_JOB_QUEUED || j->state == IMP_JOB_RUNNING ? NULL : job_error_json(j)));
+                         json_pack("{s:s, s:s, s:s, s:f, s:s?, s:i, s:i, s:s?, s:o?, s:s?}", "job", j->id,
+                                   "session", j->session, "state", imp_job_state_name(j->state), "progress",
+                                   j->progress, "stage", j->stage[0] ? j->stage : NULL, "attempts", j->attempts,
+                                   "max_attempts", j->max_attempts, "output", j->state == IMP_JOB_DONE ? j->output : NULL,
+                                   "error", j->state == IMP_JOB_QUEUED || j->state == IMP_JOB_RUNNING ? NULL
+                                   : job_error_json(j), "verdict", j->verdict[0] ? j->verdict : NULL));
 }
 
 static int kick_timer(sd_event_source *src, uint64_t usec, void *userdata) {

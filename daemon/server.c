@@ -196,19 +196,25 @@ typedef json_t *(*command_fn)(struct client *c, const struct imp_proto_request *
 static json_t *cmd_status(struct client *c, const struct imp_proto_request *req, struct imp_proto_error *e) {
         struct daemon *d = c->d;
         unsigned queued = 0, running = 0;
+        const struct job *last = NULL;  /* the list is newest first */
         for (struct job *j = d->jobs; j; j = j->next) {
                 queued += j->state == IMP_JOB_QUEUED;
                 running += j->state == IMP_JOB_RUNNING;
+                if (!last && j->state == IMP_JOB_DONE)
+                        last = j;
         }
+        json_t *lastj = last ? json_pack("{s:s, s:s?}", "job", last->id, "verdict",
+                                         last->verdict[0] ? last->verdict : NULL) : NULL;
         json_t *sess = json_null();
         if (d->active)
                 sess = json_pack("{s:s, s:s, s:I, s:I}", "session", d->active->id, "state",
                                  session_state_name(d->active->state), "step", (json_int_t) d->active->n_frames,
                                  "steps", (json_int_t) d->active->frames_total);
-        return json_pack("{s:{s:s, s:f, s:i}, s:{s:s, s:b, s:i}, s:o, s:{s:i, s:i}}", "daemon", "version",
+        return json_pack("{s:{s:s, s:f, s:i}, s:{s:s, s:b, s:i}, s:o, s:{s:i, s:i, s:o?}}", "daemon", "version",
                          imp_version(), "uptime_s", (double) (now_us(d) - d->started_us) / 1e6, "pid", (int) getpid(),
                          "rig", "name", d->rigcfg->name, "calibrated", d->have_rig, "calibration",
-                         d->calib_version, "session", sess, "jobs", "queued", queued, "running", running);
+                         d->calib_version, "session", sess, "jobs", "queued", queued, "running", running,
+                         "last_done", lastj);
 }
 
 static json_t *cmd_rig(struct client *c, const struct imp_proto_request *req, struct imp_proto_error *e) {
