@@ -3,6 +3,7 @@
  * rig.json, plan), impastod as a child process, and a blocking protocol client built on
  * the shared codec. */
 #include <fcntl.h>
+#include <sched.h>
 #include <poll.h>
 #include <signal.h>
 #include <sys/socket.h>
@@ -30,6 +31,11 @@ struct harness {
         struct imp_emu_modbus *mb;
         struct imp_emu_gige *gige;
         pid_t pid;
+        /* h_start options */
+        bool roles_from_credentials;    /* no --operators-all: roles as the kernel says */
+        bool new_pid_namespace;         /* impastod as PID 1 of a new PID namespace */
+        const char *stderr_path;        /* impastod's standard error into this file */
+        bool keep_socket;               /* leave a socket file at h->socket (another daemon's) */
 };
 
 _unused_ static uint64_t h_now_ms(void) {
@@ -107,35 +113,63 @@ _unused_ static void h_teardown(struct harness *h) {
         imp_emu_rig_free(h->rig);
 }
 
+struct h_exec {
+        const struct harness *h;
+        const char *const *argv;
+};
+
+static int h_exec_child(void *userdata) {
+        const struct h_exec *x = userdata;
+        const char *err = x->h->stderr_path ? x->h->stderr_path : getenv("IMPASTO_TEST_VERBOSE") ? NULL : "/dev/null";
+        if (err) {
+                int fd = open(err, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+                if (fd >= 0)
+                        dup2(fd, 2);
+        }
+        execv(x->argv[0], (char **) x->argv);
+        _exit(127);
+}
+
+/* fork, or clone into a new PID namespace (needs root), then exec argv. */
+static pid_t h_spawn(const struct harness *h, const char *const *argv) {
+        struct h_exec x = { h, argv };
+        if (h->new_pid_namespace) {
+                static char stack[256 * 1024] __attribute__((aligned(16)));
+                pid_t pid = clone(h_exec_child, stack + sizeof stack, CLONE_NEWPID | SIGCHLD, &x);
+                if (pid < 0) {
+                        perror("clone(CLONE_NEWPID)");
+                        exit(2);
+                }
+                return pid;
+        }
+        pid_t pid = fork();
+        if (pid < 0)
+                exit(2);
+        if (pid == 0)
+                h_exec_child(&x);
+        return pid;
+}
+
 /* Starts impastod with the harness paths and extra options (NULL-terminated). */
 _unused_ static void h_start(struct harness *h, const char *const *extra) {
         const char *argv[32];
         int n = 0;
-        argv[n++] = IMPASTO_BINARY_DIR "/daemon/impastod";
+        /* IMPASTO_TEST_IMPASTOD: another impastod binary (e.g. an older one, to see a test fail) */
+        argv[n++] = getenv("IMPASTO_TEST_IMPASTOD") ?: IMPASTO_BINARY_DIR "/daemon/impastod";
         argv[n++] = "--rig";
         argv[n++] = h->rigcfg;
         argv[n++] = "--socket";
         argv[n++] = h->socket;
         argv[n++] = "--state-dir";
         argv[n++] = h->state;
-        argv[n++] = "--operators-all";
+        if (!h->roles_from_credentials)
+                argv[n++] = "--operators-all";
         for (; extra && *extra && n < 30; extra++)
                 argv[n++] = *extra;
         argv[n] = NULL;
-        unlink(h->socket);
-        pid_t pid = fork();
-        if (pid < 0)
-                exit(2);
-        if (pid == 0) {
-                if (!getenv("IMPASTO_TEST_VERBOSE")) {
-                        int fd = open("/dev/null", O_WRONLY);
-                        if (fd >= 0)
-                                dup2(fd, 2);
-                }
-                execv(argv[0], (char **) argv);
-                _exit(127);
-        }
-        h->pid = pid;
+        if (!h->keep_socket)
+                unlink(h->socket);
+        h->pid = h_spawn(h, argv);
 }
 
 /* Waits for exit; returns the wait status, or -1 after timeout_ms (then kills). */
