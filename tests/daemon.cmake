@@ -27,3 +27,12 @@ if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WI
                          TIMEOUT 120 RESOURCE_LOCK gvcp)
   endforeach()
 endif()
+
+# test-daemon-abuse: a slow reader, a slowloris, a memory-bomb plan and @include escapes at
+# once during a capture (docs/security.md); needs root, else skipped.
+if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WITH_MODBUS)
+  impasto_test(test-daemon-abuse LABELS integration stability fault LIBS impasto_proto impasto_pipeline impasto_emu
+               TIMEOUT 180)
+  add_dependencies(test-daemon-abuse impastod)
+  set_tests_properties(test-daemon-abuse PROPERTIES RESOURCE_LOCK gvcp)
+endif()
