@@ -56,10 +56,10 @@ static void job_read_verdict(struct job *j) {
 json_t *job_json(const struct job *j, bool full) {
         const char *stage = j->stage[0] ? j->stage : NULL, *verdict = j->verdict[0] ? j->verdict : NULL;
         if (!full)
-                return json_pack("{s:s, s:s, s:s, s:s, s:f, s:s?, s:i, s:s?}", "job", j->id, "session", j->session,
+                return json_pack("{s:s, s:s, s:s, s:s, s:f, s:s?, s:i, s:s*}", "job", j->id, "session", j->session,
                                  "state", imp_job_state_name(j->state), "queued", j->queued, "progress", j->progress,
                                  "stage", stage, "attempts", j->attempts, "verdict", verdict);
-        return json_pack("{s:s, s:s, s:s, s:s, s:s?, s:s?, s:s?, s:o?, s:i, s:i, s:s, s:f, s:s?, s:O?, s:s?}", "job",
+        return json_pack("{s:s, s:s, s:s, s:s, s:s?, s:s?, s:s?, s:o?, s:i, s:i, s:s, s:f, s:s?, s:O?, s:s*}", "job",
                          j->id, "session", j->session, "state", imp_job_state_name(j->state), "queued", j->queued,
                          "started", j->started[0] ? j->started : NULL, "ended", j->ended[0] ? j->ended : NULL,
                          "output", j->state == IMP_JOB_DONE ? j->output : NULL, "error", job_error_json(j),
@@ -245,7 +245,7 @@ static void job_announce(struct daemon *d, struct job *j) {
         j->ev_progress = j->progress;
         snprintf(j->ev_stage, sizeof j->ev_stage, "%s", j->stage);
         server_broadcast(d, "job",
-                         json_pack("{s:s, s:s, s:s, s:f, s:s?, s:i, s:i, s:s?, s:o?, s:s?}", "job", j->id,
+                         json_pack("{s:s, s:s, s:s, s:f, s:s?, s:i, s:i, s:s?, s:o?, s:s*}", "job", j->id,
                                    "session", j->session, "state", imp_job_state_name(j->state), "progress",
                                    j->progress, "stage", j->stage[0] ? j->stage : NULL, "attempts", j->attempts,
                                    "max_attempts", j->max_attempts, "output", j->state == IMP_JOB_DONE ? j->output : NULL,

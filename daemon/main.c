@@ -340,6 +340,37 @@ static int defer_resume(sd_event_source *src, void *userdata) {
         return auto_resume(src, 0, userdata);
 }
 
+/* Shutdown: the rig safe first, then the state files and the clients. */
+static void daemon_shutdown(struct daemon *d, bool activated) {
+        sd_notify(false, "STOPPING=1");
+        d->stopping = true;
+        device_probe_wait(d);
+        for (struct session *s = d->sessions; s; s = s->next)
+                if (s == d->active || s->cs)
+                        session_shutdown(s);
+        rigcfg_safe_state(d->rigcfg);
+        server_stop(d);
+        if (!activated && d->listen_fd >= 0 && socket_is_ours(d))
+                (void) unlink(d->socket_path);
+        if (d->listen_fd >= 0)
+                close(d->listen_fd);
+        jobs_free_all(d);
+        calibrations_free_all(d);
+        while (d->sessions) {
+                struct session *s = d->sessions;
+                d->sessions = s->next;
+                session_free(s);
+        }
+        rigcfg_free(d->rigcfg);
+        if (d->have_rig)
+                imp_rig_free(&d->rig);
+        sd_event_unref(d->event);
+        if (d->socket_lock_fd >= 0)
+                close(d->socket_lock_fd);
+        if (d->lock_fd >= 0)
+                close(d->lock_fd);      /* (the lock files stay: unlinking them would race a new daemon) */
+}
+
 int main(int argc, char **argv) {
         struct daemon d = {
                 .socket_path = "/run/impasto/control.sock",
@@ -443,34 +474,7 @@ int main(int argc, char **argv) {
         if (r < 0)
                 log_error_errno(r, "event loop: %m");
 
-        /* Shutdown: the rig safe first, then the state files and the clients. */
-        sd_notify(false, "STOPPING=1");
-        d.stopping = true;
-        device_probe_wait(&d);
-        for (struct session *s = d.sessions; s; s = s->next)
-                if (s == d.active || s->cs)
-                        session_shutdown(s);
-        rigcfg_safe_state(d.rigcfg);
-        server_stop(&d);
-        if (n != 1 && d.listen_fd >= 0 && socket_is_ours(&d))
-                (void) unlink(d.socket_path);
-        if (d.listen_fd >= 0)
-                close(d.listen_fd);
-        jobs_free_all(&d);
-        calibrations_free_all(&d);
-        while (d.sessions) {
-                struct session *s = d.sessions;
-                d.sessions = s->next;
-                session_free(s);
-        }
-        rigcfg_free(d.rigcfg);
-        if (d.have_rig)
-                imp_rig_free(&d.rig);
-        sd_event_unref(d.event);
-        if (d.socket_lock_fd >= 0)
-                close(d.socket_lock_fd);
-        if (d.lock_fd >= 0)
-                close(d.lock_fd);      /* (the lock files stay: unlinking them would race a new daemon) */
+        daemon_shutdown(&d, n == 1);
         log_info("stopped");
         return r < 0 ? 1 : 0;
 }

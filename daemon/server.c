@@ -203,7 +203,7 @@ static json_t *cmd_status(struct client *c, const struct imp_proto_request *req,
                 if (!last && j->state == IMP_JOB_DONE)
                         last = j;
         }
-        json_t *lastj = last ? json_pack("{s:s, s:s?}", "job", last->id, "verdict",
+        json_t *lastj = last ? json_pack("{s:s, s:s*}", "job", last->id, "verdict",
                                          last->verdict[0] ? last->verdict : NULL) : NULL;
         json_t *sess = json_null();
         if (d->active)
