@@ -3,12 +3,13 @@
  * rig.json, plan), impastod as a child process, and a blocking protocol client built on
  * the shared codec. */
 #include <fcntl.h>
-#include <sched.h>
+#include <linux/sched.h>
 #include <poll.h>
 #include <signal.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
 #include <sys/un.h>
+#include <sys/syscall.h>
 #include <sys/wait.h>
 #include <time.h>
 #include "captureset.h"
@@ -130,21 +131,16 @@ static int h_exec_child(void *userdata) {
         _exit(127);
 }
 
-/* fork, or clone into a new PID namespace (needs root), then exec argv. */
+/* fork, or (new_pid_namespace, needs root) the raw clone(2) that is fork into a new PID
+ * namespace, then exec argv. */
 static pid_t h_spawn(const struct harness *h, const char *const *argv) {
         struct h_exec x = { h, argv };
-        if (h->new_pid_namespace) {
-                static char stack[256 * 1024] __attribute__((aligned(16)));
-                pid_t pid = clone(h_exec_child, stack + sizeof stack, CLONE_NEWPID | SIGCHLD, &x);
-                if (pid < 0) {
-                        perror("clone(CLONE_NEWPID)");
-                        exit(2);
-                }
-                return pid;
-        }
-        pid_t pid = fork();
-        if (pid < 0)
+        pid_t pid = h->new_pid_namespace ? (pid_t) syscall(SYS_clone, CLONE_NEWPID | SIGCHLD, NULL, NULL, NULL, NULL)
+                                         : fork();
+        if (pid < 0) {
+                perror(h->new_pid_namespace ? "clone(CLONE_NEWPID)" : "fork");
                 exit(2);
+        }
         if (pid == 0)
                 h_exec_child(&x);
         return pid;

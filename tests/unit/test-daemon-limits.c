@@ -22,6 +22,7 @@
 #define _GNU_SOURCE 1
 #include "test-daemon-harness.c"
 #include <grp.h>
+#include <sched.h>
 #include <linux/capability.h>
 #include <sys/mount.h>
 #include <sys/prctl.h>
