@@ -405,32 +405,14 @@ int main(int argc, char **argv) {
         sigprocmask(SIG_BLOCK, &mask, NULL);
         signal(SIGPIPE, SIG_IGN);
 
+        /* One daemon per state directory and socket, decided before anything is loaded or
+         * the socket touched. */
         struct imp_error e = { 0 };
-        int r = rigcfg_load(d.rig_config, &d.rigcfg, &e);
-        if (r < 0) {
-                log_error_errno(r, "rig config: %s", e.msg);
-                return 1;
-        }
-        if (d.device_timeout_ms)
-                d.rigcfg->timeout_ms = d.device_timeout_ms;
-        r = imp_rig_load(d.rigcfg->calibration, &d.rig, &e);
-        if (r < 0)
-                log_warning_errno(r, "rig calibration: %s; sessions cannot start until it exists, ignoring", e.msg);
-        else
-                d.have_rig = true;
+        int r;
         if ((r = store_init(d.state_dir, &e)) < 0) {
                 log_error_errno(r, "state directory: %s", e.msg);
                 return 1;
         }
-        if ((r = sd_event_default(&d.event)) < 0) {
-                log_error_errno(r, "event loop: %m");
-                return 1;
-        }
-        sd_event_now(d.event, CLOCK_MONOTONIC, &d.started_us);
-        (void) sd_event_add_signal(d.event, NULL, SIGTERM, on_signal, &d);
-        (void) sd_event_add_signal(d.event, NULL, SIGINT, on_signal, &d);
-        (void) sd_event_set_watchdog(d.event, true);
-
         int n = sd_listen_fds(true);
         if (n > 1) {
                 log_error("socket activation passed %d sockets, expected one", n);
@@ -448,6 +430,27 @@ int main(int argc, char **argv) {
                 return 1;
         if (lock_instance(&d, n != 1) < 0)
                 return 1;
+        r = rigcfg_load(d.rig_config, &d.rigcfg, &e);
+        if (r < 0) {
+                log_error_errno(r, "rig config: %s", e.msg);
+                return 1;
+        }
+        if (d.device_timeout_ms)
+                d.rigcfg->timeout_ms = d.device_timeout_ms;
+        r = imp_rig_load(d.rigcfg->calibration, &d.rig, &e);
+        if (r < 0)
+                log_warning_errno(r, "rig calibration: %s; sessions cannot start until it exists, ignoring", e.msg);
+        else
+                d.have_rig = true;
+        if ((r = sd_event_default(&d.event)) < 0) {
+                log_error_errno(r, "event loop: %m");
+                return 1;
+        }
+        sd_event_now(d.event, CLOCK_MONOTONIC, &d.started_us);
+        (void) sd_event_add_signal(d.event, NULL, SIGTERM, on_signal, &d);
+        (void) sd_event_add_signal(d.event, NULL, SIGINT, on_signal, &d);
+        (void) sd_event_set_watchdog(d.event, true);
+
         if ((r = server_start(&d)) < 0) {
                 log_error_errno(r, "control socket %s: %m", d.socket_path);
                 return 1;
