@@ -18,6 +18,7 @@
 #define READ_CHUNK 16384
 #define LIST_DEFAULT 100
 #define SWEEP_US 1000000ULL             /* the timeouts are checked once a second */
+#define OUT_KEEP (256 * 1024)           /* a drained output buffer larger than this is freed */
 
 struct client {
         struct client *next;
@@ -109,7 +110,9 @@ static int client_queue(struct client *c, const char *line) {
                         c->out_off = 0;
                 }
                 if (c->out_len + n > c->out_cap) {
-                        size_t cap = IMP_MAX(c->out_cap * 2, c->out_len + n + 4096);
+                        /* (out_len + n is within client_queue_max here) */
+                        size_t cap = IMP_MIN(IMP_MAX(c->out_cap * 2, c->out_len + n + 4096),
+                                             (size_t) c->d->client_queue_max + 4096);
                         char *o = realloc(c->out, cap);
                         if (!o)
                                 return -ENOMEM;
@@ -548,6 +551,12 @@ static int client_flush(struct client *c) {
         if (c->closing && c->out_off == c->out_len) {
                 client_free(c);
                 return -ECONNRESET;
+        }
+        if (c->out_off == c->out_len && c->out_cap > OUT_KEEP) {
+                /* drained after a burst: give the memory back */
+                free(c->out);
+                c->out = NULL;
+                c->out_cap = c->out_len = c->out_off = 0;
         }
         return 0;
 }
