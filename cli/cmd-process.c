@@ -32,7 +32,9 @@ static void usage(FILE *f) {
                    "  cost knobs (docs/accuracy-vs-time.md): --threads N OpenMP threads (0: all);\n"
                    "                --gray-only decodes the Gray code alone; --btf-iterations N LM\n"
                    "                iterations per pass (0: default); --btf-robust-passes N Huber\n"
-                   "                reweightings (-1: default); --no-shadow-test keeps self-shadowed samples\n");
+                   "                reweightings (-1: default); --no-shadow-test keeps self-shadowed samples\n"
+                   "  --allow-incomplete  process a set that lacks frames of its plan (refused\n"
+                   "                otherwise); what is missing goes to copy.json provenance.incomplete\n");
 }
 
 /* An integer option from lo to 1000 (--holdout 0 = none, --threads 0 = all, ...). */
@@ -63,6 +65,7 @@ static int run(int argc, char **argv) {
                 { "btf-iterations", required_argument, NULL, 'I' },
                 { "btf-robust-passes", required_argument, NULL, 'R' },
                 { "no-shadow-test", no_argument, NULL, 'S' },
+                { "allow-incomplete", no_argument, NULL, 'A' },
                 { "help", no_argument, NULL, 'h' }, {}
         };
         int c;
@@ -92,6 +95,7 @@ static int run(int argc, char **argv) {
                         break;
                 case 'G': o.sl_gray_only = true; break;
                 case 'S': o.btf_no_shadow_test = true; break;
+                case 'A': o.allow_incomplete = true; break;
                 case 'q': o.progress = NULL; break;
                 case 'h': usage(stdout); return 0;
                 default: usage(stderr); return 2;
@@ -106,7 +110,7 @@ static int run(int argc, char **argv) {
         int r = imp_process_capture(argv[optind], out, &o, &err);
         if (r < 0) {
                 log_error("%s", err.msg[0] ? err.msg : strerror(-r));
-                return r == -EINVAL || r == -EBADMSG ? 3 : 1;
+                return r == -EINVAL || r == -EBADMSG || r == -ENODATA ? 3 : 1;
         }
         clock_gettime(CLOCK_MONOTONIC, &t1);
         printf("digital copy written to %s (%.1f s)\n", out,

@@ -8,7 +8,7 @@
 /* Subcommands are declared weak so that the client links while a subcommand's module is
  * not built in this configuration (say, without OpenCV); such a command is not offered. */
 #define IMP_COMMANDS(X) X(sim) X(process) X(compare) X(render) X(calibrate) X(plan) X(bench) \
-        X(status) X(devices) X(scan) X(jobs)
+        X(status) X(devices) X(scan) X(jobs) X(repair)
 #define DECLARE(n) extern const struct imp_command imp_cmd_##n __attribute__((weak));
 IMP_COMMANDS(DECLARE)
 #define ENTRY(n) &imp_cmd_##n,

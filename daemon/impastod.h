@@ -140,6 +140,9 @@ struct session {
         char started[32], ended[32];
         enum session_state state;
         bool interrupted;               /* found running after a restart */
+        char damaged[512];              /* non-empty: session.json was unreadable (why); the
+                                           session is rebuilt from its set's manifest and plan
+                                           on resume, which writes session.json anew */
         struct imp_rig rig;             /* from the set's rig.json once open */
         bool have_rig;
         struct imp_plan *plan;
@@ -349,6 +352,15 @@ int calibration_reference_set(struct daemon *d, const char *set_dir, struct imp_
  * the client could not. The resolved path in ret; not_found naming `field` otherwise. */
 int plan_path_resolve(struct daemon *d, const struct daemon_peer *peer, const char *path, const char *field,
                       char ret[static PATH_MAX], struct imp_proto_error *perr);
+/* Reads a (resolved) plan file through one descriptor: no symlink on the way, never blocking
+ * (O_NONBLOCK: a FIFO or a device is refused, not waited on), a regular file of at most
+ * DAEMON_PLAN_MAX_BYTES, text without NUL. *ret_text is malloc'd and NUL-terminated. */
+int plan_read(const char *path, char **ret_text, struct imp_proto_error *perr);
+/* plan_read + imp_plan_load_string against the daemon's rig: a plan may not @include, and its
+ * expansion is capped (IMP_PLAN_MAX_FRAMES/BYTES) before anything is allocated. The text in
+ * *ret_text when not NULL (the bytes the capture set keeps as plan.cfg). */
+int plan_load_text(struct daemon *d, const char *path, struct imp_plan **ret, char **ret_text,
+                   struct imp_proto_error *perr);
 /* A plan file by name (e.g. "photon-transfer.cfg") from the first plan directory that has it. */
 int plan_path_builtin(struct daemon *d, const char *name, char ret[static PATH_MAX]);
 

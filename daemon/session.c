@@ -129,18 +129,7 @@ static int pattern_index(const struct session *s, const struct imp_pattern *p) {
 }
 
 int plan_check(struct daemon *d, const char *path, struct imp_plan **ret, struct imp_proto_error *perr) {
-        if (!d->have_rig)
-                return imp_proto_error_set(perr, IMP_PROTO_E_BAD_STATE, ENODATA, NULL,
-                                           "the rig has no calibration (rig.json) loaded");
-        struct imp_error e = { 0 };
-        struct imp_plan *p = NULL;
-        int r = imp_plan_load(path, &d->rig, &p, &e);
-        if (r == -ENOENT && access(path, F_OK) < 0)
-                return imp_proto_error_set(perr, IMP_PROTO_E_NOT_FOUND, ENOENT, "args.plan", "%s", e.msg);
-        if (r < 0)
-                return imp_proto_error_set(perr, IMP_PROTO_E_INVALID_PLAN, -r, "args.plan", "%s", e.msg);
-        *ret = p;
-        return 0;
+        return plan_load_text(d, path, ret, NULL, perr);
 }
 
 /* ---- events ---------------------------------------------------------------------------- */
@@ -761,7 +750,8 @@ int session_start(struct daemon *d, const char *plan_path, const char *name, str
                 return imp_proto_error_set(perr, IMP_PROTO_E_BUSY, EBUSY, NULL, "session %s holds the rig (%s)",
                                            d->active->id, session_state_name(d->active->state));
         struct imp_plan *plan = NULL;
-        int r = plan_check(d, plan_path, &plan, perr);
+        _cleanup_free_ char *plan_text = NULL;
+        int r = plan_load_text(d, plan_path, &plan, &plan_text, perr);
         if (r < 0)
                 return r;
         struct session *s = calloc(1, sizeof *s);
@@ -798,7 +788,7 @@ int session_start(struct daemon *d, const char *plan_path, const char *name, str
         s->state = SESSION_PREPARING;
         rfc3339_now(s->started);
         struct imp_error e = { 0 };
-        if ((r = imp_captureset_create(s->dir, &s->rig, plan_path, &s->cs, &e)) < 0) {
+        if ((r = imp_captureset_create_with_plan(s->dir, &s->rig, plan_text, strlen(plan_text), &s->cs, &e)) < 0) {
                 session_free(s);
                 return imp_proto_error_set(perr, IMP_PROTO_E_IO, -r, NULL, "%s", e.msg);
         }
@@ -831,11 +821,38 @@ int session_pause(struct session *s, struct imp_proto_error *perr) {
         return 0;
 }
 
-/* Reopen the set (repairing a torn tail), reload rig and plan from it, check the records
+/* What a crash left in the set (a torn last line, a frame stored but not yet recorded, a
+ * .tmp) is moved into quarantine/ by the library's repair, each item logged and reported to
+ * the clients as a non-fatal fault: resuming is the operator's request (session.resume, or
+ * --resume), and nothing is deleted. */
+static int repair_for_resume(struct session *s, struct imp_proto_error *perr) {
+        struct imp_error e = { 0 };
+        json_t *report = NULL;
+        int r = imp_captureset_repair(s->dir, false, &report, &e);
+        if (r < 0)
+                return imp_proto_error_set(perr, IMP_PROTO_E_IO, -r, NULL, "%s", e.msg);
+        size_t i;
+        json_t *item;
+        json_array_foreach(report, i, item) {
+                char msg[1024];
+                snprintf(msg, sizeof msg, "resume: moved %s to %s: %s", json_string_value(json_object_get(item, "path")),
+                         json_string_value(json_object_get(item, "moved_to")),
+                         json_string_value(json_object_get(item, "reason")));
+                log_warning("session %s: %s", s->id, msg);
+                emit_fault(s, NULL, IMP_PROTO_E_IO, EUCLEAN, false, msg);
+        }
+        json_decref(report);
+        return 0;
+}
+
+/* Reopen the set (after repair_for_resume), reload rig and plan from it, check the records
  * already there against the plan: capture continues at the first missing seq. */
 static int reopen(struct session *s, struct imp_proto_error *perr) {
         struct imp_error e = { 0 };
-        int r = imp_captureset_open(s->dir, &s->cs, &e);
+        int r = repair_for_resume(s, perr);
+        if (r < 0)
+                return r;
+        r = imp_captureset_open(s->dir, &s->cs, &e);
         if (r < 0)
                 return imp_proto_error_set(perr, IMP_PROTO_E_IO, -r, NULL, "%s", e.msg);
         if (!s->have_rig) {
@@ -846,7 +863,10 @@ static int reopen(struct session *s, struct imp_proto_error *perr) {
         if (!s->plan) {
                 char p[PATH_MAX + 16];
                 snprintf(p, sizeof p, "%s/plan.cfg", s->dir);
-                if ((r = imp_plan_load(p, &s->rig, &s->plan, &e)) < 0)
+                _cleanup_free_ char *text = NULL;
+                if ((r = plan_read(p, &text, perr)) < 0)
+                        return r;
+                if ((r = imp_plan_load_string(text, p, &s->rig, &s->plan, &e)) < 0)
                         return imp_proto_error_set(perr, IMP_PROTO_E_INVALID_PLAN, -r, NULL, "%s", e.msg);
                 if ((r = collect_patterns(s)) < 0)
                         return imp_proto_error_set(perr, IMP_PROTO_E_INTERNAL, -r, NULL, "out of memory");
@@ -888,6 +908,12 @@ int session_resume(struct session *s, struct imp_proto_error *perr) {
                 imp_captureset_close(s->cs);
                 s->cs = NULL;
                 return r;
+        }
+        if (s->damaged[0]) {
+                log_notice("session %s: rebuilt from its capture set's manifest and plan (%zu of %zu frames); "
+                           "session.json was: %s", s->id, s->n_frames, s->frames_total, s->damaged);
+                s->damaged[0] = 0;
+                save(s);
         }
         char msg[512];
         uint64_t need = 0;
@@ -933,9 +959,18 @@ void session_shutdown(struct session *s) {
         s->cs = NULL;
 }
 
+/* A session whose session.json was unreadable says so: {"damaged": why}. */
+static json_t *with_damage(json_t *j, const struct session *s) {
+        if (j && s->damaged[0])
+                json_object_set_new(j, "damaged", json_string(s->damaged));
+        return j;
+}
+
 json_t *session_summary_json(const struct session *s) {
-        return json_pack("{s:s, s:s, s:s, s:s, s:I}", "session", s->id, "name", s->name, "state",
-                         session_state_name(s->state), "started", s->started, "frames", (json_int_t) s->n_frames);
+        return with_damage(json_pack("{s:s, s:s, s:s, s:s, s:I}", "session", s->id, "name", s->name, "state",
+                                     session_state_name(s->state), "started", s->started, "frames",
+                                     (json_int_t) s->n_frames),
+                           s);
 }
 
 json_t *session_show_json(const struct session *s) {
@@ -943,10 +978,10 @@ json_t *session_show_json(const struct session *s) {
         json_t *streamed = json_pack("{s:I, s:I, s:I, s:I, s:I}", "runs", (json_int_t) s->streamed.runs, "frames",
                                      (json_int_t) s->streamed.frames, "lost", (json_int_t) s->streamed.lost,
                                      "stale", (json_int_t) s->streamed.stale, "stops", (json_int_t) s->streamed.stops);
-        return json_pack("{s:s, s:s, s:s, s:s, s:s, s:s, s:s?, s:I, s:I, s:I, s:b, s:O, s:o}", "session", s->id,
+        return with_damage(json_pack("{s:s, s:s, s:s, s:s, s:s, s:s, s:s?, s:I, s:I, s:I, s:b, s:O, s:o}", "session", s->id,
                          "name", s->name, "state", session_state_name(s->state), "plan", s->plan_path, "path",
                          s->dir, "started", s->started, "ended", s->ended[0] ? s->ended : NULL, "step",
                          (json_int_t) s->n_frames, "steps", (json_int_t) s->frames_total, "frames",
                          (json_int_t) s->n_frames, "interrupted", s->interrupted, "faults", s->faults,
-                         "streamed", streamed);
+                         "streamed", streamed), s);
 }

@@ -11,6 +11,7 @@
 #include <time.h>
 #include "impastod.h"
 #include "json-util.h"
+#include "log.h"
 
 int store_init(const char *state_dir, struct imp_error *err) {
         char p[PATH_MAX];
@@ -38,59 +39,100 @@ int store_session_save(const struct session *s, struct imp_error *err) {
         return imp_json_save_atomic(p, j, err);
 }
 
-static int load_one(struct daemon *d, const char *dir, const char *id) {
+/* Frames of a set, counted cheaply from its manifest's complete lines (for listings; resume
+ * reopens properly). */
+static size_t count_manifest_lines(const char *dir) {
         char p[2 * PATH_MAX];
-        snprintf(p, sizeof p, "%s/session.json", dir);
+        snprintf(p, sizeof p, "%s/manifest.jsonl", dir);
+        _cleanup_fclose_ FILE *m = fopen(p, "re");
+        size_t n = 0;
+        int c, prev = '\n';
+        while (m && (c = fgetc(m)) != EOF) {
+                if (c == '\n' && prev != '\n')
+                        n++;
+                prev = c;
+        }
+        return n;
+}
+
+static struct session *session_new_loaded(struct daemon *d, const char *dir, const char *id) {
+        struct session *s = calloc(1, sizeof *s);
+        if (!s)
+                return NULL;
+        s->d = d;
+        snprintf(s->id, sizeof s->id, "%s", id);
+        snprintf(s->dir, sizeof s->dir, "%.4000s", dir);
+        s->shown_pattern = -1;
+        s->current_tile = -1;
+        return s;
+}
+
+/* session.json as saved by store_session_save; -EBADMSG with e naming what is wrong. */
+static int load_session_json(struct session *s, struct imp_error *e) {
+        char p[2 * PATH_MAX];
+        snprintf(p, sizeof p, "%s/session.json", s->dir);
         _cleanup_json_ json_t *j = NULL;
-        struct imp_error e = { 0 };
-        int r = imp_json_load(p, &j, &e);
+        int r = imp_json_load(p, &j, e);
         if (r < 0)
                 return r;
         const char *name = "", *plan = "", *state = "", *started = "", *ended = NULL;
         long long total = 0;
-        if (imp_json_get_string(j, "name", false, &name, p, &e) < 0 ||
-            imp_json_get_string(j, "plan", false, &plan, p, &e) < 0 ||
-            imp_json_get_string(j, "state", true, &state, p, &e) < 0 ||
-            imp_json_get_string(j, "started", false, &started, p, &e) < 0 ||
-            imp_json_get_string(j, "ended", false, &ended, p, &e) < 0 ||
-            imp_json_get_int(j, "frames_total", false, &total, p, &e) < 0)
-                return -EINVAL;
+        if (imp_json_get_string(j, "name", false, &name, p, e) < 0 ||
+            imp_json_get_string(j, "plan", false, &plan, p, e) < 0 ||
+            imp_json_get_string(j, "state", true, &state, p, e) < 0 ||
+            imp_json_get_string(j, "started", false, &started, p, e) < 0 ||
+            imp_json_get_string(j, "ended", false, &ended, p, e) < 0 ||
+            imp_json_get_int(j, "frames_total", false, &total, p, e) < 0)
+                return -EBADMSG;
         int st = session_state_from_name(state);
-        if (st < 0)
-                return -EINVAL;
-        struct session *s = calloc(1, sizeof *s);
-        if (!s)
-                return -ENOMEM;
-        s->d = d;
-        snprintf(s->id, sizeof s->id, "%s", id);
+        if (st < 0 || total < 0)
+                return imp_error_set(e, -EBADMSG, "%s: state: \"%s\" is not a session state", p, state);
         snprintf(s->name, sizeof s->name, "%s", name);
         snprintf(s->plan_path, sizeof s->plan_path, "%s", plan);
-        snprintf(s->dir, sizeof s->dir, "%.4000s", dir);
         snprintf(s->started, sizeof s->started, "%s", started);
         snprintf(s->ended, sizeof s->ended, "%s", ended ? ended : "");
         s->frames_total = (size_t) total;
         s->state = (enum session_state) st;
-        s->shown_pattern = -1;
-        s->current_tile = -1;
         json_t *f = json_object_get(j, "faults");
         s->faults = json_is_array(f) ? json_incref(f) : json_array();
-        if (s->state == SESSION_CAPTURING || s->state == SESSION_PREPARING) {
+        return 0;
+}
+
+/* A session whose session.json is damaged or missing does not vanish while its set is on
+ * disk: it is listed as paused and damaged, never resumed by itself; session.resume rebuilds
+ * it from the set's manifest and plan.cfg (reopen) and saves a new session.json. */
+static int load_damaged(struct session *s, const struct imp_error *why) {
+        char p[2 * PATH_MAX];
+        snprintf(p, sizeof p, "%s/set.json", s->dir);
+        if (access(p, F_OK) < 0)
+                return -ENOENT;         /* not a capture set either: nothing to recover */
+        snprintf(s->damaged, sizeof s->damaged, "%.500s", why->msg[0] ? why->msg : "session.json is unreadable");
+        snprintf(s->name, sizeof s->name, "%.64s", s->id);
+        snprintf(s->plan_path, sizeof s->plan_path, "%.4000s/plan.cfg", s->dir);
+        s->state = SESSION_PAUSED;
+        s->faults = json_array();
+        log_warning("session %s: %s: listed as damaged; `impasto scan resume %s` rebuilds it from the "
+                    "capture set's manifest and plan", s->id, s->damaged, s->id);
+        return 0;
+}
+
+static int load_one(struct daemon *d, const char *dir, const char *id) {
+        struct session *s = session_new_loaded(d, dir, id);
+        if (!s)
+                return -ENOMEM;
+        struct imp_error e = { 0 };
+        int r = load_session_json(s, &e);
+        if (r < 0 && (r = load_damaged(s, &e)) < 0) {
+                log_warning("%s: no session.json and no capture set (%s), ignoring", dir, e.msg);
+                session_free(s);
+                return r;
+        }
+        if (!s->damaged[0] && (s->state == SESSION_CAPTURING || s->state == SESSION_PREPARING)) {
                 /* The daemon stopped (or died) while this session ran. */
                 s->state = SESSION_PAUSED;
                 s->interrupted = true;
         }
-        /* Count frames cheaply from the manifest for listings; resume reopens properly. */
-        snprintf(p, sizeof p, "%s/manifest.jsonl", dir);
-        FILE *m = fopen(p, "re");
-        if (m) {
-                int c, prev = '\n';
-                while ((c = fgetc(m)) != EOF) {
-                        if (c == '\n' && prev != '\n')
-                                s->n_frames++;
-                        prev = c;
-                }
-                fclose(m);
-        }
+        s->n_frames = count_manifest_lines(dir);
         s->next = d->sessions;
         d->sessions = s;
         return 0;

@@ -46,6 +46,7 @@ static bool same_exposure(const struct imp_frame_record *a, const struct imp_fra
 struct process_opts {
         const char *capture, *out;
         const struct imp_process_options *opt;
+        json_t *incomplete;           /* what the set lacks of its plan (allow_incomplete) */
 };
 
 static double now_s(void) {
@@ -778,9 +779,25 @@ static int write_copy_json(const struct process_opts *o, const struct geometry_o
                 "provenance", "software", "impasto " IMPASTO_VERSION_STRING, "capture", o->capture,
                               "seconds", seconds, "peak_rss_kib", (json_int_t) ru.ru_maxrss,
                 "stages", stages);
+        if (o->incomplete)
+                json_object_set(json_object_get(j, "provenance"), "incomplete", o->incomplete);
         char path[4096];
         snprintf(path, sizeof path, "%s/copy.json", o->out);
         return imp_json_save_atomic(path, j, err);
+}
+
+/* A set lacking frames of its plan is refused unless allow_incomplete (then o->incomplete). */
+static int check_complete(struct process_opts *o, const struct imp_captureset *cs, struct imp_error *err) {
+        json_t *missing = NULL;
+        int r = imp_captureset_check_complete(cs, &missing, err);
+        if (r <= 0 || o->opt->allow_incomplete) {
+                o->incomplete = missing;
+                return r < 0 ? r : 0;
+        }
+        json_decref(missing);
+        char msg[sizeof err->msg];
+        snprintf(msg, sizeof msg, "%s", err ? err->msg : "");
+        return imp_error_set(err, -ENODATA, "%.900s; refused (--allow-incomplete processes it anyway)", msg);
 }
 
 void imp_process_options_default(struct imp_process_options *o) {
@@ -794,7 +811,7 @@ int imp_process_capture(const char *capture_dir, const char *copy_dir,
         double t0 = now_s();
         _cleanup_(imp_captureset_closep) struct imp_captureset *cs = NULL;
         int r = imp_captureset_open(capture_dir, &cs, err);
-        if (r < 0)
+        if (r < 0 || (r = check_complete(&o, cs, err)) < 0)
                 return r;
         r = imp_mkdir_p(copy_dir, 0755);
         if (r < 0)
@@ -814,6 +831,7 @@ int imp_process_capture(const char *capture_dir, const char *copy_dir,
         if (r >= 0)
                 r = write_copy_json(&o, &g, g.stages, now_s() - t0, err);
         json_decref(g.stages);
+        json_decref(o.incomplete);
         imp_boxes_done(&g.boxes);
         imp_heightfield_done(&g.hf);
 #ifdef _OPENMP

@@ -23,6 +23,9 @@ struct imp_process_options {
         int btf_robust_passes;        /* Huber reweightings; < 0: the fit's default */
         bool btf_no_shadow_test;      /* no ray casting on the heightfield: self-shadowed
                                          and hidden samples are kept */
+        bool allow_incomplete;        /* process a set missing frames of its plan (else
+                                         refused, -ENODATA); copy.json provenance.incomplete
+                                         then says what is missing */
         bool photometric_normals;     /* refine the heightfield normals by photometric
                                          stereo on the dome sweep (pipeline/appearance/photometric.h)
                                          when it has >= 8 fitted lights; the BTF fit and

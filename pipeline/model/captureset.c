@@ -1,10 +1,12 @@
 /* Capture sets on disk (docs/capture-set.md): frames written crash-safely, then recorded
- * in an append-only JSON-lines manifest; open() repairs what a crash can leave behind
- * (a torn last line, an unrecorded frame, a .tmp) and refuses what it cannot explain. */
+ * in an append-only JSON-lines manifest. open() never changes a set: it reads, and refuses
+ * what it cannot explain; repair() is the explicit step that moves what a crash left behind
+ * (a torn last line, an unrecorded frame, a .tmp) into quarantine/, never deleting. */
 #define _GNU_SOURCE
 #include <dirent.h>
 #include <errno.h>
 #include <fcntl.h>
+#include <limits.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -15,6 +17,7 @@
 #include <zlib.h>
 #include "captureset.h"
 #include "json-util.h"
+#include "plan.h"
 
 #define SET_FORMAT "impasto-capture-set"
 #define SET_VERSION 1
@@ -208,6 +211,13 @@ static char *path_in(const char *dir, const char *rel) {
         return asprintf(&p, "%s/%s", dir, rel) < 0 ? NULL : p;
 }
 
+/* "frames/000012.tiff": the file of manifest line i + 1 (thread-local buffer). */
+static const char *frame_name(size_t i) {
+        static __thread char buf[64];
+        snprintf(buf, sizeof buf, FRAMES_DIR "/%06zu.tiff", i);
+        return buf;
+}
+
 /* CRC-32 (zlib) and size of a whole file; fsyncs it too when `sync`. */
 static int file_crc(const char *path, bool sync, uint32_t *ret_crc, long long *ret_bytes) {
         _cleanup_close_ int fd = open(path, O_RDONLY | O_CLOEXEC);
@@ -311,7 +321,8 @@ static int dir_usable(const char *dir, struct imp_error *err) {
         return 0;
 }
 
-static int copy_plan(const char *plan_path, const char *dst, struct imp_error *err) {
+/* The plan file's bytes (the set keeps a byte copy). */
+static int read_plan(const char *plan_path, char **ret, size_t *ret_size, struct imp_error *err) {
         _cleanup_fclose_ FILE *f = fopen(plan_path, "re");
         if (!f) {
                 int r = negative_errno();
@@ -330,7 +341,9 @@ static int copy_plan(const char *plan_path, const char *dst, struct imp_error *e
                 return imp_error_set(err, -EIO, "%s: read error", plan_path);
         fclose(mem);
         mem = NULL;
-        return imp_file_write_atomic(dst, buf, size, err);
+        *ret = TAKE_PTR(buf);
+        *ret_size = size;
+        return 0;
 }
 
 static int create_empty(const char *dir, const char *name, int flags, int *ret_fd,
@@ -354,6 +367,18 @@ static int create_empty(const char *dir, const char *name, int flags, int *ret_f
 
 int imp_captureset_create(const char *dir, const struct imp_rig *rig, const char *plan_path,
                           struct imp_captureset **ret, struct imp_error *err) {
+        _cleanup_free_ char *text = NULL;
+        size_t size = 0;
+        if (plan_path) {
+                int r = read_plan(plan_path, &text, &size, err);
+                if (r < 0)
+                        return r;
+        }
+        return imp_captureset_create_with_plan(dir, rig, text, size, ret, err);
+}
+
+int imp_captureset_create_with_plan(const char *dir, const struct imp_rig *rig, const char *plan_text,
+                                    size_t plan_size, struct imp_captureset **ret, struct imp_error *err) {
         _cleanup_(imp_captureset_closep) struct imp_captureset *cs = cs_new(dir);
         if (!cs)
                 return imp_error_set(err, -ENOMEM, "%s: out of memory", dir);
@@ -372,7 +397,7 @@ int imp_captureset_create(const char *dir, const struct imp_rig *rig, const char
         }
         if ((r = imp_rig_save(rig_path, rig, err)) < 0)
                 return r;
-        if (plan_path && (r = copy_plan(plan_path, plan_dst, err)) < 0)
+        if (plan_text && (r = imp_file_write_atomic(plan_dst, plan_text, plan_size, err)) < 0)
                 return r;
         if ((r = create_empty(dir, MANIFEST, O_APPEND, &cs->manifest_fd, err)) < 0 ||
             (r = create_empty(dir, "session.log", 0, NULL, err)) < 0)
@@ -494,32 +519,49 @@ static int parse_line(const char *dir, const char *line, size_t len, size_t line
         return 0;
 }
 
-static int read_manifest(struct imp_captureset *cs, bool *ret_torn, struct imp_error *err) {
+/* What follows the last good manifest line: nothing, or a torn / unreadable last line
+ * (what a crash or a power loss can leave). */
+struct manifest_tail {
+        bool torn;
+        size_t lineno;
+        char why[600];
+};
+
+static int read_manifest(struct imp_captureset *cs, struct manifest_tail *tail, struct imp_error *err) {
         _cleanup_free_ char *buf = NULL;
         size_t size = 0;
         int r = read_fd_all(cs->manifest_fd, &buf, &size);
         if (r < 0)
                 return imp_error_set(err, r, "%s/" MANIFEST ": %s", cs->dir, strerror(-r));
         size_t pos = 0, lineno = 0;
-        bool torn = false;
+        *tail = (struct manifest_tail) { 0 };
         while (pos < size) {
                 char *nl = memchr(buf + pos, '\n', size - pos);
                 size_t end = nl ? (size_t) (nl - buf) : size;
                 lineno++;
                 if (!nl) {
-                        torn = true;   /* the crash came in the middle of the last append */
+                        /* the crash came in the middle of the last append */
+                        *tail = (struct manifest_tail) { .torn = true, .lineno = lineno };
+                        snprintf(tail->why, sizeof tail->why, "incomplete (no end of line)");
                         break;
                 }
                 struct imp_frame_record rec;
                 long long bytes = 0;
                 struct imp_error line_err = {};
                 r = parse_line(cs->dir, buf + pos, end - pos, lineno, &rec, &bytes, &line_err);
+                /* A well-formed record naming another line's frame is damage (a flipped bit,
+                 * swapped lines), never a crash: refused even on the last line. */
+                if (r == 0 && strcmp(rec.file, frame_name(lineno - 1)))
+                        return imp_error_set(err, -EBADMSG, "%s/" MANIFEST ":%zu: file: expected \"%s\" (frames "
+                                             "are named after their manifest line), got \"%s\"", cs->dir, lineno,
+                                             frame_name(lineno - 1), rec.file);
                 if (r < 0) {
                         /* A complete but unreadable *last* line is what a power loss can leave
-                         * (the size grew, the data did not reach the disk): dropped like a torn
-                         * one. In the middle it is damage that we must not paper over. */
+                         * (the size grew, the data did not reach the disk). In the middle it is
+                         * damage that we must not paper over. */
                         if (end + 1 == size) {
-                                torn = true;
+                                *tail = (struct manifest_tail) { .torn = true, .lineno = lineno };
+                                snprintf(tail->why, sizeof tail->why, "unreadable (%.560s)", line_err.msg);
                                 break;
                         }
                         if (err)
@@ -531,7 +573,6 @@ static int read_manifest(struct imp_captureset *cs, bool *ret_torn, struct imp_e
                 pos = end + 1;
         }
         cs->manifest_bytes = (off_t) pos;
-        *ret_torn = torn;
         return 0;
 }
 
@@ -568,8 +609,13 @@ static bool looks_like_frame(const char *name) {
         return digits >= 6 && strcmp(name + digits, ".tiff") == 0;
 }
 
-/* Removes *.tmp in DIR and in frames/, and frame files no manifest line lists. */
-static int remove_strays(const struct imp_captureset *cs, struct imp_error *err) {
+/* Calls fn for each *.tmp in the set directory and in frames/, and each frame-shaped file
+ * in frames/ that no manifest line lists: what a crash can leave, and nothing else (other
+ * files are the operator's and are left alone). Stops at the first error fn returns. */
+typedef int (*stray_fn)(const struct imp_captureset *cs, const char *rel, const char *reason, void *userdata,
+                        struct imp_error *err);
+
+static int for_each_stray(const struct imp_captureset *cs, stray_fn fn, void *userdata, struct imp_error *err) {
         _cleanup_free_ const char **names = malloc((cs->n + 1) * sizeof *names);
         if (!names)
                 return imp_error_set(err, -ENOMEM, "out of memory");
@@ -586,26 +632,22 @@ static int remove_strays(const struct imp_captureset *cs, struct imp_error *err)
                         int r = negative_errno();
                         return imp_error_set(err, r, "%s: %s", d, strerror(-r));
                 }
-                bool removed = false;
                 struct dirent *de;
                 while ((de = readdir(dh))) {
-                        const char *name = de->d_name;
-                        bool stray = ends_with(name, ".tmp");
-                        if (!stray && pass && looks_like_frame(name))
-                                stray = !bsearch(&name, names, cs->n, sizeof *names, cmp_str);
-                        if (!stray)
+                        const char *name = de->d_name, *reason = NULL;
+                        if (ends_with(name, ".tmp"))
+                                reason = "a temporary file (a write that a crash interrupted)";
+                        else if (pass && looks_like_frame(name) &&
+                                 !bsearch(&name, names, cs->n, sizeof *names, cmp_str))
+                                reason = "a frame file no manifest line lists (a crash between storing the "
+                                         "frame and recording it, or a damaged manifest)";
+                        if (!reason)
                                 continue;
-                        if (unlinkat(dirfd(dh), name, 0) < 0 && errno != ENOENT) {
-                                int r = negative_errno();
-                                return imp_error_set(err, r, "%s/%s: cannot remove: %s", d, name,
-                                                     strerror(-r));
-                        }
-                        removed = true;
-                }
-                if (removed) {
-                        int r = fsync_dir(d);
+                        char rel[300];
+                        snprintf(rel, sizeof rel, "%s%s", pass ? FRAMES_DIR "/" : "", name);
+                        int r = fn(cs, rel, reason, userdata, err);
                         if (r < 0)
-                                return imp_error_set(err, r, "%s: fsync: %s", d, strerror(-r));
+                                return r;
                 }
         }
         return 0;
@@ -636,37 +678,168 @@ static int open_manifest(struct imp_captureset *cs, struct imp_error *err) {
         return 0;
 }
 
+/* set.json, rig.json and the manifest read into cs; the manifest open as open_manifest()
+ * decides (appending when this process got the writer's lock). */
+static int load_set(struct imp_captureset *cs, struct manifest_tail *tail, struct imp_error *err) {
+        int r = check_set_json(cs->dir, err);
+        if (r < 0)
+                return r;
+        _cleanup_free_ char *rig_path = path_in(cs->dir, "rig.json");
+        if (!rig_path)
+                return imp_error_set(err, -ENOMEM, "%s: out of memory", cs->dir);
+        if ((r = imp_rig_load(rig_path, &cs->rig, err)) < 0 || (r = open_manifest(cs, err)) < 0)
+                return r;
+        return read_manifest(cs, tail, err);
+}
+
 int imp_captureset_open(const char *dir, struct imp_captureset **ret, struct imp_error *err) {
         _cleanup_(imp_captureset_closep) struct imp_captureset *cs = cs_new(dir);
         if (!cs)
                 return imp_error_set(err, -ENOMEM, "%s: out of memory", dir);
-        int r = check_set_json(dir, err);
+        struct manifest_tail tail;
+        int r = load_set(cs, &tail, err);
         if (r < 0)
                 return r;
-        _cleanup_free_ char *rig_path = path_in(dir, "rig.json");
-        if (!rig_path)
-                return imp_error_set(err, -ENOMEM, "%s: out of memory", dir);
-        if ((r = imp_rig_load(rig_path, &cs->rig, err)) < 0)
-                return r;
-        if ((r = open_manifest(cs, err)) < 0)
-                return r;
-        bool torn;
-        if ((r = read_manifest(cs, &torn, err)) < 0)
-                return r;
-        if (!cs->read_only) {
-                if (torn && (ftruncate(cs->manifest_fd, cs->manifest_bytes) < 0 ||
-                             fsync(cs->manifest_fd) < 0)) {
-                        r = negative_errno();
-                        return imp_error_set(err, r, "%s/" MANIFEST ": cannot repair: %s", dir,
-                                             strerror(-r));
-                }
-                if ((r = remove_strays(cs, err)) < 0)
-                        return r;
-        }
+        /* A torn tail while another process holds the writer's lock is its append in
+         * progress: the view ends before it. Without a writer it is what a crash left, and
+         * only an explicit repair (or the daemon's resume) may take it away. */
+        if (tail.torn && cs->read_only != -EBUSY)
+                return imp_error_set(err, -EBADMSG, "%s/" MANIFEST ":%zu: the last line is %s: a capture "
+                                     "that crashed or lost power? The set is left as it is; `impasto repair "
+                                     "%s` moves the line and its frame to quarantine/ (or resume the session)",
+                                     dir, tail.lineno, tail.why, dir);
         if ((r = verify_frames_present(cs, err)) < 0)
                 return r;
         *ret = TAKE_PTR(cs);
         return 0;
+}
+
+/* ---- repair ---- */
+
+/* A free name for `base` in quarantine/ ("000012.tiff", then "000012.tiff.1", …). */
+static int quarantine_name(const char *qdir, const char *base, char *ret, size_t size) {
+        for (int k = 0; k < 1000; k++) {
+                if (k == 0)
+                        snprintf(ret, size, "%s/%s", qdir, base);
+                else
+                        snprintf(ret, size, "%s/%s.%d", qdir, base, k);
+                if (access(ret, F_OK) < 0 && errno == ENOENT)
+                        return 0;
+        }
+        return -EEXIST;
+}
+
+struct repair {
+        bool dry_run;
+        json_t *report;
+        char *qdir;
+};
+
+static int quarantine_dir(const struct imp_captureset *cs, struct repair *rp, struct imp_error *err) {
+        if (rp->qdir)
+                return 0;
+        rp->qdir = path_in(cs->dir, IMP_CAPTURESET_QUARANTINE);
+        if (!rp->qdir)
+                return imp_error_set(err, -ENOMEM, "out of memory");
+        if (mkdir(rp->qdir, 0755) < 0 && errno != EEXIST) {
+                int r = negative_errno();
+                return imp_error_set(err, r, "%s: %s", rp->qdir, strerror(-r));
+        }
+        return 0;
+}
+
+static int report_item(struct repair *rp, const char *rel, const char *reason, const char *moved_to) {
+        json_t *item = json_pack("{s:s, s:s, s:s*}", "path", rel, "reason", reason, "moved_to", moved_to);
+        return item && json_array_append_new(rp->report, item) == 0 ? 0 : -ENOMEM;
+}
+
+/* Moves one stray into quarantine/ (renamed, never copied or deleted), fsyncing both. */
+static int move_stray(const struct imp_captureset *cs, const char *rel, const char *reason, void *userdata,
+                      struct imp_error *err) {
+        struct repair *rp = userdata;
+        if (rp->dry_run)
+                return report_item(rp, rel, reason, NULL) < 0 ? imp_error_set(err, -ENOMEM, "out of memory") : 0;
+        int r = quarantine_dir(cs, rp, err);
+        if (r < 0)
+                return r;
+        const char *base = strrchr(rel, '/') ? strrchr(rel, '/') + 1 : rel;
+        char dst[PATH_MAX];
+        _cleanup_free_ char *src = path_in(cs->dir, rel);
+        if (!src)
+                return imp_error_set(err, -ENOMEM, "out of memory");
+        if ((r = quarantine_name(rp->qdir, base, dst, sizeof dst)) < 0 || rename(src, dst) < 0) {
+                r = r < 0 ? r : negative_errno();
+                return imp_error_set(err, r, "%s: cannot move to %s: %s", src, rp->qdir, strerror(-r));
+        }
+        if ((r = fsync_dir(rp->qdir)) < 0)
+                return imp_error_set(err, r, "%s: fsync: %s", rp->qdir, strerror(-r));
+        _cleanup_free_ char *parent = strdup(src);
+        if (parent && strrchr(parent, '/'))
+                *strrchr(parent, '/') = 0;
+        if (parent && (r = fsync_dir(parent)) < 0)
+                return imp_error_set(err, r, "%s: fsync: %s", parent, strerror(-r));
+        return report_item(rp, rel, reason, dst + strlen(cs->dir) + 1) < 0
+                       ? imp_error_set(err, -ENOMEM, "out of memory") : 0;
+}
+
+/* Saves the torn tail's bytes in quarantine/ and cuts the manifest back to its last good
+ * line: the bytes are kept, the manifest is whole again. */
+static int move_tail(struct imp_captureset *cs, const struct manifest_tail *tail, struct repair *rp,
+                     struct imp_error *err) {
+        char rel[64], reason[700];   /* why: 600 */
+        snprintf(rel, sizeof rel, MANIFEST ":%zu", tail->lineno);
+        snprintf(reason, sizeof reason, "the last manifest line is %s", tail->why);
+        if (rp->dry_run)
+                return report_item(rp, rel, reason, NULL) < 0 ? imp_error_set(err, -ENOMEM, "out of memory") : 0;
+        int r = quarantine_dir(cs, rp, err);
+        if (r < 0)
+                return r;
+        _cleanup_free_ char *buf = NULL;
+        size_t size = 0;
+        if ((r = read_fd_all(cs->manifest_fd, &buf, &size)) < 0)
+                return imp_error_set(err, r, "%s/" MANIFEST ": %s", cs->dir, strerror(-r));
+        char dst[PATH_MAX];
+        if ((r = quarantine_name(rp->qdir, "manifest-tail.jsonl", dst, sizeof dst)) < 0)
+                return imp_error_set(err, r, "%s: %s", rp->qdir, strerror(-r));
+        if ((r = imp_file_write_atomic(dst, buf + cs->manifest_bytes, size - (size_t) cs->manifest_bytes, err)) < 0)
+                return r;
+        if (ftruncate(cs->manifest_fd, cs->manifest_bytes) < 0 || fsync(cs->manifest_fd) < 0) {
+                r = negative_errno();
+                return imp_error_set(err, r, "%s/" MANIFEST ": cannot cut the torn line: %s", cs->dir, strerror(-r));
+        }
+        return report_item(rp, rel, reason, dst + strlen(cs->dir) + 1) < 0
+                       ? imp_error_set(err, -ENOMEM, "out of memory") : 0;
+}
+
+int imp_captureset_repair(const char *dir, bool dry_run, json_t **ret_report, struct imp_error *err) {
+        _cleanup_(imp_captureset_closep) struct imp_captureset *cs = cs_new(dir);
+        if (!cs)
+                return imp_error_set(err, -ENOMEM, "%s: out of memory", dir);
+        struct manifest_tail tail;
+        int r = load_set(cs, &tail, err);
+        if (r < 0)
+                return r;
+        if (cs->read_only)
+                return imp_error_set(err, cs->read_only, "%s: cannot repair: %s", dir,
+                                     cs->read_only == -EBUSY ? "another process is writing it"
+                                                             : strerror(-cs->read_only));
+        /* A listed frame missing or resized is damage, not a crash: nothing is moved. */
+        if ((r = verify_frames_present(cs, err)) < 0)
+                return r;
+        struct repair rp = { .dry_run = dry_run, .report = json_array() };
+        if (!rp.report)
+                return imp_error_set(err, -ENOMEM, "out of memory");
+        if (tail.torn)
+                r = move_tail(cs, &tail, &rp, err);
+        if (r >= 0)
+                r = for_each_stray(cs, move_stray, &rp, err);
+        free(rp.qdir);
+        if (r < 0) {
+                json_decref(rp.report);
+                return r;
+        }
+        *ret_report = rp.report;
+        return (int) json_array_size(rp.report);
 }
 
 /* ---- append ---- */
@@ -697,12 +870,16 @@ int imp_captureset_add_frame(struct imp_captureset *cs, struct imp_frame_record 
         _cleanup_free_ char *desc = json_dumps(j, JSON_COMPACT | JSON_REAL_PRECISION(17));
         if (!desc)
                 return imp_error_set(err, -ENOMEM, "%s: out of memory", cs->dir);
+        /* Whatever is there is not part of the set, but it is not ours to overwrite either. */
+        if (access(path, F_OK) == 0 || access(tmp, F_OK) == 0)
+                return imp_error_set(err, -EEXIST, "%s (or its .tmp) exists but is not in the manifest: "
+                                     "`impasto repair %s` moves it to quarantine/", path, cs->dir);
         int ret = imp_tiff_write_fast(tmp, frame, desc, err);
         if (ret < 0)
                 return ret;
         long long bytes = 0;
         ret = file_crc(tmp, true, &r.crc32, &bytes);
-        if (ret == 0 && rename(tmp, path) < 0)
+        if (ret == 0 && renameat2(AT_FDCWD, tmp, AT_FDCWD, path, RENAME_NOREPLACE) < 0)
                 ret = negative_errno();
         if (ret < 0) {
                 unlink(tmp);
@@ -756,6 +933,51 @@ const struct imp_rig *imp_captureset_rig(const struct imp_captureset *cs) { retu
 
 const char *imp_captureset_dir(const struct imp_captureset *cs) { return cs->dir; }
 
+/* The first field in which two records differ ("light", "pattern.bit", …), or NULL. */
+static const char *record_diff(const struct imp_frame_record *a, const struct imp_frame_record *b) {
+        const struct imp_pattern *p = &a->pattern, *q = &b->pattern;
+        return a->seq != b->seq ? "seq" : strcmp(a->step, b->step) ? "step" : strcmp(a->camera, b->camera) ? "camera"
+               : a->tile != b->tile ? "tile" : p->kind != q->kind ? "pattern.kind" : p->axis != q->axis ? "pattern.axis"
+               : p->bit != q->bit ? "pattern.bit" : p->nbits != q->nbits ? "pattern.nbits"
+               : p->inverse != q->inverse ? "pattern.inverse" : p->period_px != q->period_px ? "pattern.period_px"
+               : p->step != q->step ? "pattern.step" : p->steps != q->steps ? "pattern.steps"
+               : a->light != b->light ? "light" : a->exposure_index != b->exposure_index ? "exposure_index"
+               : a->exposure_us != b->exposure_us ? "exposure_us" : a->gain_db != b->gain_db ? "gain_db"
+               : a->t_light_on_ns != b->t_light_on_ns ? "t_light_on_ns" : a->t_trigger_ns != b->t_trigger_ns ? "t_trigger_ns"
+               : a->t_frame_ns != b->t_frame_ns ? "t_frame_ns" : strcmp(a->file, b->file) ? "file" : NULL;
+}
+
+/* The record each frame carries in its ImageDescription must be the manifest's line, field
+ * for field: a flipped bit in the manifest (`"light":3` → 7) or two frames swapped (with
+ * their checksums) would otherwise give a wrong copy without a word. */
+static int check_embedded(const struct imp_captureset *cs, size_t i, const char *path, const char *desc,
+                          struct imp_error *err) {
+        const struct imp_frame_record *rec = &cs->recs[i];
+        json_error_t je;
+        _cleanup_json_ json_t *j = desc ? json_loads(desc, JSON_REJECT_DUPLICATES, &je) : NULL;
+        if (!j || !json_is_object(j))
+                return imp_error_set(err, -EBADMSG, "%s: no frame record in the TIFF's ImageDescription: the frame "
+                                     "cannot be checked against " MANIFEST ":%zu", path, i + 1);
+        json_object_set_new(j, "crc32", json_integer(rec->crc32));   /* a file cannot hold its own */
+        struct imp_frame_record emb;
+        char what[PATH_MAX + 40];
+        snprintf(what, sizeof what, "%s: embedded record", path);
+        int r = imp_frame_record_from_json(j, what, &emb, err);
+        if (r < 0)
+                return r;
+        const char *field = record_diff(rec, &emb);
+        if (!field)
+                return 0;
+        _cleanup_json_ json_t *mj = imp_frame_record_to_json(rec);
+        _cleanup_json_ json_t *ej = imp_frame_record_to_json(&emb);
+        const char *key = strncmp(field, "pattern.", 8) ? field : "pattern";
+        _cleanup_free_ char *mv = json_dumps(json_object_get(mj, key), JSON_ENCODE_ANY | JSON_COMPACT);
+        _cleanup_free_ char *ev = json_dumps(json_object_get(ej, key), JSON_ENCODE_ANY | JSON_COMPACT);
+        return imp_error_set(err, -EBADMSG, "%s: %s: " MANIFEST ":%zu says %s, the frame's embedded record says %s: "
+                             "the manifest or the frame is damaged, or frames were swapped", path, field, i + 1,
+                             mv ? mv : "?", ev ? ev : "?");
+}
+
 int imp_captureset_load_frame(const struct imp_captureset *cs, size_t i, struct imp_image **ret,
                               struct imp_error *err) {
         if (i >= cs->n)
@@ -773,11 +995,142 @@ int imp_captureset_load_frame(const struct imp_captureset *cs, size_t i, struct 
                 return imp_error_set(err, -EBADMSG, "%s: checksum mismatch (manifest says %08x, file "
                                      "has %08x): the frame is damaged", path, rec->crc32, crc);
         _cleanup_image_ struct imp_image *img = NULL;
-        if ((r = imp_tiff_read(path, &img, NULL, err)) < 0)
+        _cleanup_free_ char *desc = NULL;
+        if ((r = imp_tiff_read(path, &img, &desc, err)) < 0 ||
+            (r = check_embedded(cs, i, path, desc, err)) < 0)
                 return r;
         if (img->type != IMP_PIX_U16)
                 return imp_error_set(err, -EBADMSG, "%s: expected a 16-bit frame, got %s", path,
                                      imp_pixel_type_name(img->type));
         *ret = TAKE_PTR(img);
         return 0;
+}
+
+/* ---- completeness against the plan ---- */
+
+/* The set's plan.cfg expanded against its rig; *ret NULL when the set has no plan. Read as
+ * text: a set's plan may not @include (the set may come from anywhere). */
+static int load_own_plan(const struct imp_captureset *cs, struct imp_plan **ret, struct imp_error *err) {
+        _cleanup_free_ char *p = path_in(cs->dir, "plan.cfg");
+        if (!p)
+                return imp_error_set(err, -ENOMEM, "out of memory");
+        *ret = NULL;
+        _cleanup_close_ int fd = open(p, O_RDONLY | O_CLOEXEC | O_NONBLOCK | O_NOFOLLOW);
+        if (fd < 0 && errno == ENOENT)
+                return 0;
+        if (fd < 0) {
+                int r = negative_errno();
+                return imp_error_set(err, r, "%s: %s", p, strerror(-r));
+        }
+        struct stat st;
+        if (fstat(fd, &st) < 0 || !S_ISREG(st.st_mode) || st.st_size > (1 << 20))
+                return imp_error_set(err, -EBADMSG, "%s: not a plan file (a regular file of at most 1 MiB)", p);
+        _cleanup_free_ char *text = NULL;
+        size_t size = 0;
+        int r = read_fd_all(fd, &text, &size);
+        if (r < 0)
+                return imp_error_set(err, r, "%s: %s", p, strerror(-r));
+        return imp_plan_load_string(text, p, &cs->rig, ret, err);
+}
+
+/* The record of `rec` must be the plan's frame of the same seq (what was captured is what
+ * the plan asked for): the first field that differs, or NULL. */
+static const char *plan_diff(const struct imp_frame_record *rec, const struct imp_frame_record *want) {
+        struct imp_frame_record a = *rec;
+        /* what the plan cannot know */
+        a.t_light_on_ns = want->t_light_on_ns;
+        a.t_trigger_ns = want->t_trigger_ns;
+        a.t_frame_ns = want->t_frame_ns;
+        memcpy(a.file, want->file, sizeof a.file);
+        a.crc32 = want->crc32;
+        return record_diff(&a, want);
+}
+
+static json_t *missing_step(json_t *steps, const char *step) {
+        json_t *o = json_object_get(steps, step);
+        if (!o) {
+                o = json_pack("{s:i, s:i, s:[]}", "planned", 0, "missing", 0, "lights");
+                json_object_set_new(steps, step, o);
+        }
+        return o;
+}
+
+static void count_in(json_t *o, const char *key) {
+        json_object_set_new(o, key, json_integer(json_integer_value(json_object_get(o, key)) + 1));
+}
+
+/* "dome: 11 of 12 frames (lights 1, 2, 3, …); structured-light: …" */
+static void describe_missing(json_t *steps, char *buf, size_t size) {
+        const char *step;
+        json_t *o;
+        buf[0] = 0;
+        json_object_foreach(steps, step, o) {
+                long long miss = json_integer_value(json_object_get(o, "missing"));
+                if (!miss)
+                        continue;
+                size_t n = strlen(buf);
+                snprintf(buf + n, size - n, "%s%s: %lld of %lld frames", n ? "; " : "", step, miss,
+                         json_integer_value(json_object_get(o, "planned")));
+                json_t *lights = json_object_get(o, "lights");
+                for (size_t i = 0; i < json_array_size(lights) && i < 8; i++) {
+                        n = strlen(buf);
+                        snprintf(buf + n, size - n, "%s%lld", i ? ", " : " (lights ",
+                                 json_integer_value(json_array_get(lights, i)));
+                }
+                n = strlen(buf);
+                if (json_array_size(lights))
+                        snprintf(buf + n, size - n, "%s)", json_array_size(lights) > 8 ? ", …" : "");
+        }
+}
+
+int imp_captureset_check_complete(const struct imp_captureset *cs, json_t **ret_missing, struct imp_error *err) {
+        _cleanup_(imp_plan_freep) struct imp_plan *plan = NULL;
+        *ret_missing = NULL;
+        int r = load_own_plan(cs, &plan, err);
+        if (r < 0 || !plan)
+                return r;
+        size_t np = imp_plan_count(plan);
+        _cleanup_free_ bool *have = calloc(np ? np : 1, sizeof *have);
+        if (!have)
+                return imp_error_set(err, -ENOMEM, "out of memory");
+        for (size_t i = 0; i < cs->n; i++) {
+                const struct imp_frame_record *rec = &cs->recs[i];
+                if (rec->seq < 0 || (size_t) rec->seq >= np)
+                        return imp_error_set(err, -EBADMSG, "%s/" MANIFEST ":%zu: seq: %lld, but the set's plan has "
+                                             "%zu frames", cs->dir, i + 1, rec->seq, np);
+                const char *field = plan_diff(rec, imp_plan_frame(plan, (size_t) rec->seq));
+                if (field)
+                        return imp_error_set(err, -EBADMSG, "%s/" MANIFEST ":%zu (%s): %s: differs from frame %lld of "
+                                             "the set's plan.cfg: the manifest is damaged", cs->dir, i + 1, rec->file,
+                                             field, rec->seq);
+                have[rec->seq] = true;
+        }
+        _cleanup_json_ json_t *steps = json_object();
+        size_t missing = 0;
+        for (size_t k = 0; steps && k < np; k++) {
+                const struct imp_frame_record *f = imp_plan_frame(plan, k);
+                json_t *o = missing_step(steps, f->step);
+                count_in(o, "planned");
+                if (have[k])
+                        continue;
+                missing++;
+                count_in(o, "missing");
+                json_t *lights = json_object_get(o, "lights");
+                bool listed = f->light < 0;
+                for (size_t i = 0; !listed && i < json_array_size(lights); i++)
+                        listed = json_integer_value(json_array_get(lights, i)) == f->light;
+                if (!listed)
+                        json_array_append_new(lights, json_integer(f->light));
+        }
+        if (!steps)
+                return imp_error_set(err, -ENOMEM, "out of memory");
+        if (!missing)
+                return 0;
+        char what[1024];
+        describe_missing(steps, what, sizeof what);
+        *ret_missing = json_pack("{s:I, s:I, s:I, s:O}", "frames_planned", (json_int_t) np, "frames_present",
+                                 (json_int_t) (np - missing), "frames_missing", (json_int_t) missing, "steps", steps);
+        imp_error_set(err, -ENODATA, "%s: incomplete: %zu of the plan's %zu frames are missing (%s)", cs->dir, missing,
+                      np, what);
+        return 1;
 }

@@ -31,10 +31,28 @@ struct imp_captureset;   /* opaque */
  * plan file (plan_path may be NULL). Caller closes with imp_captureset_close(). */
 int imp_captureset_create(const char *dir, const struct imp_rig *rig, const char *plan_path,
                           struct imp_captureset **ret, struct imp_error *err);
-/* Opens an existing set for reading and appending. A torn last manifest line, a frame
- * file without a manifest line, or a leftover .tmp is repaired (dropped); a frame whose
- * checksum does not match is an error naming it. */
+/* The same with the plan's bytes given (plan_text NULL: no plan.cfg): a caller that has
+ * read and checked the plan already (impastod) keeps exactly what it checked. */
+int imp_captureset_create_with_plan(const char *dir, const struct imp_rig *rig, const char *plan_text,
+                                    size_t plan_size, struct imp_captureset **ret, struct imp_error *err);
+/* Opens an existing set for reading (and appending, when no other process holds the
+ * writer's lock). Never changes anything on disk. A torn or unreadable last manifest line
+ * is an error (-EBADMSG, pointing at imp_captureset_repair) unless another process is
+ * writing the set (then the view ends before it); frame files no line lists and .tmp files
+ * are not part of the set and are ignored (add_frame refuses to overwrite them). A damaged
+ * line, a line whose `file` is not the frame of its line number, a missing or resized frame
+ * is an error naming the file, line and field. */
 int imp_captureset_open(const char *dir, struct imp_captureset **ret, struct imp_error *err);
+/* The folder inside a set where repair moves what it cannot account for. */
+#define IMP_CAPTURESET_QUARANTINE "quarantine"
+/* The explicit repair of what a crash can leave: a torn or unreadable last manifest line
+ * (its bytes saved as quarantine/manifest-tail.jsonl, the manifest cut back to its last good
+ * line), frame files no line lists and *.tmp files (moved into quarantine/). Nothing is
+ * deleted. Refuses (-EBUSY) while another process writes the set, and refuses without
+ * moving anything when the damage is not a crash's (a bad line in the middle, a listed
+ * frame missing or resized). *ret_report: a JSON array of {"path","reason","moved_to"} (no
+ * moved_to when dry_run, which changes nothing). Returns the number of items, or < 0. */
+int imp_captureset_repair(const char *dir, bool dry_run, json_t **ret_report, struct imp_error *err);
 void imp_captureset_close(struct imp_captureset *cs);
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_captureset *, imp_captureset_close);
 
@@ -49,6 +67,15 @@ const char *imp_captureset_dir(const struct imp_captureset *cs);
 /* Loads frame i (u16, raw digital numbers), verifying its checksum. */
 int imp_captureset_load_frame(const struct imp_captureset *cs, size_t i, struct imp_image **ret,
                               struct imp_error *err);
+
+/* The set against its own plan (plan.cfg, expanded against its rig; read as text, no
+ * @include): 0 when every planned frame is recorded (or the set has no plan); 1 when some
+ * are missing, with err saying which ("SET: incomplete: 11 of the plan's 54 frames are
+ * missing (dome: 11 of 12 frames (lights 1, 2, …))") and *ret_missing =
+ * {"frames_planned","frames_present","frames_missing","steps":{STEP:{"planned","missing",
+ * "lights":[…]}}}; < 0 when the plan cannot be read or a record is not the plan's frame of
+ * its seq (-EBADMSG naming the manifest line and field). Reads only. */
+int imp_captureset_check_complete(const struct imp_captureset *cs, json_t **ret_missing, struct imp_error *err);
 
 json_t *imp_frame_record_to_json(const struct imp_frame_record *rec);
 int imp_frame_record_from_json(const json_t *j, const char *what, struct imp_frame_record *ret,

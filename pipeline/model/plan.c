@@ -3,6 +3,7 @@
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
+#include <strings.h>
 #include "conf.h"
 #include "plan.h"
 
@@ -345,6 +346,73 @@ static int expand(struct imp_plan *p, const struct plan_spec *ps) {
         return 0;
 }
 
+/* Frames of one tile and camera, by group, before anything is allocated. */
+struct plan_counts {
+        double sl, dome, dark;
+};
+
+static struct plan_counts count_per_camera(const struct plan_spec *ps) {
+        struct plan_counts n = { 0 };
+        if (ps->sl) {
+                double per_exp = (ps->white ? 1 : 0) + (ps->black ? 1 : 0);
+                for (int a = 0; a < 2; a++)
+                        if (ps->gray_bits[a] > 0)
+                                per_exp += ps->gray_bits[a] * (ps->inverse ? 2.0 : 1.0) +
+                                           (double) ps->n_periods * ps->steps;
+                n.sl = per_exp * ps->n_sl_exp;
+        }
+        if (ps->dome)
+                n.dome = (double) ps->n_lights * ps->n_dome_exp * ps->dome_repeat;
+        int nd = 0;   /* distinct exposures, as expand() counts them */
+        for (int i = 0; i < ps->n_sl_exp + ps->n_dome_exp; i++) {
+                double e = i < ps->n_sl_exp ? ps->sl_exp_us[i] : ps->dome_exp_us[i - ps->n_sl_exp];
+                bool seen = false;
+                for (int k = 0; k < i; k++)
+                        seen |= (k < ps->n_sl_exp ? ps->sl_exp_us[k] : ps->dome_exp_us[k - ps->n_sl_exp]) == e;
+                nd += !seen;
+        }
+        n.dark = (double) nd * ps->dark_count;
+        return n;
+}
+
+static double camera_frame_bytes(const struct imp_rig *rig, const char *camera) {
+        for (int i = 0; i < rig->n_cameras; i++)
+                if (!strcmp(rig->cameras[i].name, camera))
+                        return (double) rig->cameras[i].model.width * rig->cameras[i].model.height * 2.0;
+        return 0;
+}
+
+/* Refuses a plan whose expansion exceeds IMP_PLAN_MAX_FRAMES or IMP_PLAN_MAX_BYTES, from
+ * the counts alone (each factor is capped, their product is not): the message names the
+ * fields whose product explodes. */
+static int check_expansion(const struct imp_conf *c, const struct imp_rig *rig, const struct plan_spec *ps,
+                           struct imp_error *err) {
+        struct plan_counts n = count_per_camera(ps);
+        double per_camera = n.sl + n.dome + n.dark, frames = 0, bytes = 0;
+        for (int i = 0; i < ps->n_cameras; i++) {
+                frames += per_camera * ps->tiles;
+                bytes += per_camera * ps->tiles * camera_frame_bytes(rig, ps->cameras[i]);
+        }
+        if (frames <= IMP_PLAN_MAX_FRAMES && bytes <= IMP_PLAN_MAX_BYTES)
+                return 0;
+        const char *worst = n.dome >= n.sl && n.dome >= n.dark ? "dome (lights × exposures_us × repeat)"
+                            : n.sl >= n.dark ? "structured_light (patterns × exposures_us)"
+                                             : "dark.count (× distinct exposures)";
+        if (frames > IMP_PLAN_MAX_FRAMES)
+                return imp_error_set(err, -E2BIG,
+                                     "%s: the plan expands to %.3g frames, more than the %d allowed: "
+                                     "tiles %d × cameras %d × %.3g frames per camera and tile, of which "
+                                     "%s gives %.3g",
+                                     imp_conf_path(c), frames, IMP_PLAN_MAX_FRAMES, ps->tiles, ps->n_cameras,
+                                     per_camera, worst, fmax(n.dome, fmax(n.sl, n.dark)));
+        return imp_error_set(err, -E2BIG,
+                             "%s: the plan's %.3g frames would take %.3g bytes on disk, more than the "
+                             "%.3g allowed: tiles %d × cameras %d × %.3g frames per camera and tile, of which "
+                             "%s gives %.3g",
+                             imp_conf_path(c), frames, bytes, (double) IMP_PLAN_MAX_BYTES, ps->tiles,
+                             ps->n_cameras, per_camera, worst, fmax(n.dome, fmax(n.sl, n.dark)));
+}
+
 static int plan_from_conf(const struct imp_conf *c, const struct imp_rig *rig, struct imp_plan **ret,
                           struct imp_error *err) {
         static const char *const known[] = { "cameras", "tiles", "gain_db", "structured_light",
@@ -367,6 +435,8 @@ static int plan_from_conf(const struct imp_conf *c, const struct imp_rig *rig, s
                                   imp_conf_path(c));
                 goto out;
         }
+        if ((r = check_expansion(c, rig, &ps, err)) < 0)
+                goto out;
         struct imp_plan *p = calloc(1, sizeof *p);
         if (!p) {
                 r = -ENOMEM;
@@ -394,10 +464,32 @@ int imp_plan_load(const char *path, const struct imp_rig *rig, struct imp_plan *
         return plan_from_conf(c, rig, ret, err);
 }
 
+/* libconfig (1.5) honours `@include "F"` at the start of a line even in a string, opening F
+ * relative to the working directory with the caller's rights, and it has no hook to refuse
+ * it. A plan as text has no directory of its own, and the daemon's plans come from clients:
+ * any "@include" (any case, anywhere, even in a comment or a string) is refused before
+ * libconfig sees the text, so that nothing is opened and no other file's name, existence or
+ * syntax reaches the message. */
+static int refuse_include(const char *text, const char *name, struct imp_error *err) {
+        int line = 1;
+        for (const char *p = text; *p; p++) {
+                if (*p == '\n')
+                        line++;
+                else if (*p == '@' && strncasecmp(p + 1, "include", 7) == 0)
+                        return imp_error_set(err, -EINVAL, "%s:%d: @include: a plan read as text (every plan "
+                                             "given to impastod) may not include other files; write it out "
+                                             "in full", name ? name : "(string)", line);
+        }
+        return 0;
+}
+
 int imp_plan_load_string(const char *text, const char *name, const struct imp_rig *rig,
                          struct imp_plan **ret, struct imp_error *err) {
         _cleanup_(imp_conf_freep) struct imp_conf *c = NULL;
-        int r = imp_conf_load_string(text, name, &c, err);
+        int r = refuse_include(text, name, err);
+        if (r < 0)
+                return r;
+        r = imp_conf_load_string(text, name, &c, err);
         if (r < 0)
                 return r;
         return plan_from_conf(c, rig, ret, err);

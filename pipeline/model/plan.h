@@ -38,14 +38,21 @@
 #define IMP_PLAN_MAX_EXPOSURES 8
 #define IMP_PLAN_MAX_PERIODS 8
 #define IMP_PLAN_MAX_REPEAT 10000
+/* Caps on the expanded plan, checked from the counts before anything is allocated (every
+ * factor is capped, their product is not): a million frames is ~100 tiles of the archival
+ * plan; a frame record takes ~250 bytes in memory. Bytes are raw 16-bit pixels on disk. */
+#define IMP_PLAN_MAX_FRAMES 1000000
+#define IMP_PLAN_MAX_BYTES (64ULL << 40)
 
 struct imp_plan;   /* opaque: the parsed settings and the expanded frame list */
 
 /* Loads and expands a plan against `rig` (needed for projector size, light ids and camera
- * names). Caller frees with imp_plan_free(). -EINVAL/-ENOENT with "FILE:LINE: FIELD: …". */
+ * names). Caller frees with imp_plan_free(). -EINVAL/-ENOENT with "FILE:LINE: FIELD: …";
+ * -E2BIG when the expansion exceeds IMP_PLAN_MAX_FRAMES or IMP_PLAN_MAX_BYTES. */
 int imp_plan_load(const char *path, const struct imp_rig *rig, struct imp_plan **ret,
                   struct imp_error *err);
-/* The same from text; `name` stands for the file name in messages. */
+/* The same from text; `name` stands for the file name in messages. Text may not use
+ * `@include` (refused with -EINVAL before libconfig reads it): nothing but the text is read. */
 int imp_plan_load_string(const char *text, const char *name, const struct imp_rig *rig,
                          struct imp_plan **ret, struct imp_error *err);
 void imp_plan_free(struct imp_plan *p);

@@ -1,6 +1,7 @@
 /* Crash safety of capture sets: a child appends frames in a loop and is SIGKILLed after
- * a random (seeded) delay, 20 times; after each kill the set must reopen with every
- * recorded frame intact (CRC), no .tmp left, no unrecorded frame file, the count equal
+ * a random (seeded) delay, 20 times; after each kill an explicit repair moves what the kill
+ * left (torn line, .tmp, unrecorded frame) into quarantine/, and the set must reopen with
+ * every recorded frame intact (CRC), no .tmp left, no unrecorded frame file, the count equal
  * to the complete frames, and appending must continue with the next seq. */
 #include <dirent.h>
 #include <errno.h>
@@ -48,16 +49,19 @@ static _Noreturn void child(const char *dir, int ready_fd) {
                 fprintf(stderr, "child: %s\n", e.msg);
                 _exit(3);
         }
-        /* The delay starts once the set is open, so that on a loaded machine the kill
-         * still lands among the writes rather than during start-up. */
-        if (write(ready_fd, "r", 1) != 1)
-                _exit(5);
-        close(ready_fd);
-        for (;;)
+        /* The delay starts once the child has stored its first frame, so that on a loaded
+         * machine the kill still lands among the writes rather than during start-up. */
+        for (bool first = true;; first = false) {
                 if (append(cs, &e) < 0) {
                         fprintf(stderr, "child: %s\n", e.msg);
                         _exit(4);
                 }
+                if (first) {
+                        if (write(ready_fd, "r", 1) != 1)
+                                _exit(5);
+                        close(ready_fd);
+                }
+        }
 }
 
 static int count_files(const char *dir, const char *suffix) {
@@ -66,14 +70,14 @@ static int count_files(const char *dir, const char *suffix) {
         struct dirent *de;
         while (d && (de = readdir(d))) {
                 size_t l = strlen(de->d_name), m = strlen(suffix);
-                n += l >= m && strcmp(de->d_name + l - m, suffix) == 0;
+                n += strcmp(de->d_name, ".") && strcmp(de->d_name, "..") && l >= m && strcmp(de->d_name + l - m, suffix) == 0;
         }
         if (d)
                 closedir(d);
         return n;
 }
 
-/* What the kill left behind, before open() repairs it: for the summary, to show that
+/* What the kill left behind, before repair moves it: for the summary, to show that
  * the interesting instants were hit. */
 static void inspect(const char *dir, const char *frames, int *torn, int *tmp, int *unrecorded) {
         char path[700];
@@ -91,9 +95,27 @@ static void inspect(const char *dir, const char *frames, int *torn, int *tmp, in
         *unrecorded += count_files(frames, ".tiff") > lines;
 }
 
+/* Repair moves what the kill left into quarantine/ (nothing is deleted): the files there
+ * grow by exactly the number of items reported. */
+static void repair(const char *dir, int round) {
+        char q[700];
+        snprintf(q, sizeof q, "%s/quarantine", dir);
+        int before = count_files(q, "");
+        json_t *report = NULL;
+        struct imp_error e = {};
+        int n = imp_captureset_repair(dir, false, &report, &e);
+        CHECK_MSG(n >= 0, "round %d: repair: %s", round, e.msg);
+        if (n < 0)
+                return;
+        CHECK_INT_EQ(json_array_size(report), (size_t) n);
+        CHECK_INT_EQ(count_files(q, ""), before + n);
+        json_decref(report);
+}
+
 static void check_set(const char *dir, const char *frames, int round, size_t *ret_count) {
         struct imp_captureset *cs = NULL;
         struct imp_error e = {};
+        repair(dir, round);
         CHECK_OK(imp_captureset_open(dir, &cs, &e));
         if (!cs) {
                 fprintf(stderr, "round %d: %s\n", round, e.msg);
@@ -177,7 +199,9 @@ int main(void) {
                 (double) (t1.tv_sec - t0.tv_sec) + (t1.tv_nsec - t0.tv_nsec) * 1e-9);
         fprintf(stderr, "kills that left a torn manifest line: %d, a .tmp frame: %d, an unrecorded "
                 "frame: %d\n", torn, tmp, unrecorded);
-        /* the kills must have landed while writing, not before the child started */
-        CHECK_INT_GE(rounds_with_child_frames, ROUNDS / 2);
+        /* the kills must have landed in the middle of appends (a .tmp, an unrecorded frame or
+         * a torn line left behind) often enough to test the repair: ~half of them do */
+        CHECK_INT_GE(rounds_with_child_frames, ROUNDS);
+        CHECK_INT_GE(torn + tmp + unrecorded, ROUNDS / 4);
         return TEST_DONE();
 }

@@ -264,6 +264,15 @@ static void test_layout(void) {
         imp_captureset_close(NULL);
 }
 
+static int report_count(json_t *report, const char *path_prefix) {
+        int n = 0;
+        size_t i;
+        json_t *item;
+        json_array_foreach(report, i, item)
+                n += strncmp(json_string_value(json_object_get(item, "path")), path_prefix, strlen(path_prefix)) == 0;
+        return n;
+}
+
 static void test_repairs(void) {
         struct imp_captureset *cs = NULL;
         struct imp_error e = {};
@@ -282,24 +291,77 @@ static void test_repairs(void) {
         write_file(pathf("%s/frames/000005.tiff.tmp", dir), "partial", O_TRUNC);
         write_file(pathf("%s/rig.json.tmp", dir), "{", O_TRUNC);
         write_file(pathf("%s/frames/notes.txt", dir), "operator's file", O_TRUNC);
-        CHECK_OK(imp_captureset_open(dir, &cs, &e));
-        if (!cs)
-                return;
-        CHECK_INT_EQ(imp_captureset_count(cs), 4);
+        long long torn_size = file_size(manifest);
+        /* open() changes nothing and refuses the torn tail, pointing at repair */
+        CHECK_ERR(imp_captureset_open(dir, &cs, &e), -EBADMSG);
+        CHECK_STR_CONTAINS(e.msg, "manifest.jsonl:5: the last line is incomplete");
+        CHECK_STR_CONTAINS(e.msg, "impasto repair");
+        CHECK_INT_EQ(file_size(manifest), torn_size);
+        CHECK(exists(pathf("%s/frames/000004.tiff", dir)));
+        CHECK(exists(pathf("%s/frames/000005.tiff.tmp", dir)));
+        CHECK(exists(pathf("%s/rig.json.tmp", dir)));
+        /* a dry run reports, and changes nothing */
+        json_t *report = NULL;
+        CHECK_INT_EQ(imp_captureset_repair(dir, true, &report, &e), 4);
+        CHECK_INT_EQ(report_count(report, "manifest.jsonl:5"), 1);
+        CHECK_INT_EQ(report_count(report, "frames/"), 2);   /* 000004.tiff and 000005.tiff.tmp */
+        CHECK_INT_EQ(report_count(report, "rig.json.tmp"), 1);
+        CHECK(json_object_get(json_array_get(report, 0), "moved_to") == NULL);
+        json_decref(report);
+        CHECK_INT_EQ(file_size(manifest), torn_size);
+        CHECK(exists(pathf("%s/frames/000004.tiff", dir)));
+        CHECK(!exists(pathf("%s/quarantine", dir)));
+        /* the repair moves each item into quarantine/, deleting nothing */
+        CHECK_INT_EQ(imp_captureset_repair(dir, false, &report, &e), 4);
+        CHECK_STR_EQ(json_string_value(json_object_get(json_array_get(report, 0), "moved_to")),
+                     "quarantine/manifest-tail.jsonl");
+        json_decref(report);
         CHECK_INT_EQ(file_size(manifest), good);
+        CHECK_INT_EQ(file_size(pathf("%s/quarantine/manifest-tail.jsonl", dir)), torn_size - good);
+        CHECK_INT_EQ(file_size(pathf("%s/quarantine/000004.tiff", dir)), file_size(pathf("%s/frames/000000.tiff", dir)));
+        CHECK(exists(pathf("%s/quarantine/000005.tiff.tmp", dir)));
+        CHECK(exists(pathf("%s/quarantine/rig.json.tmp", dir)));
         CHECK(!exists(pathf("%s/frames/000004.tiff", dir)));
         CHECK(!exists(pathf("%s/frames/000005.tiff.tmp", dir)));
         CHECK(!exists(pathf("%s/rig.json.tmp", dir)));
         CHECK(exists(pathf("%s/frames/notes.txt", dir)));   /* not ours: left alone */
+        CHECK_INT_EQ(imp_captureset_repair(dir, false, &report, &e), 0);   /* nothing left to do */
+        json_decref(report);
+        CHECK_OK(imp_captureset_open(dir, &cs, &e));
+        if (!cs)
+                return;
+        CHECK_INT_EQ(imp_captureset_count(cs), 4);
         add_frames(cs, 1);   /* continues at frames/000004.tiff */
         CHECK_INT_EQ(imp_captureset_record(cs, 4)->seq, 4);
         imp_captureset_close(cs);
         cs = NULL;
 
+        /* add_frame never overwrites a file it did not record */
+        write_file(pathf("%s/frames/000005.tiff", dir), "someone's", O_TRUNC);
+        CHECK_OK(imp_captureset_open(dir, &cs, &e));
+        if (!cs)
+                return;
+        struct imp_frame_record r = make_record(5, 0);
+        _cleanup_image_ struct imp_image *f = make_frame(5);
+        CHECK_ERR(imp_captureset_add_frame(cs, &r, f, &e), -EEXIST);
+        CHECK_STR_CONTAINS(e.msg, "impasto repair");
+        CHECK_INT_EQ(file_size(pathf("%s/frames/000005.tiff", dir)), 9);
+        imp_captureset_close(cs);
+        cs = NULL;
+        CHECK_INT_EQ(imp_captureset_repair(dir, false, &report, &e), 1);
+        json_decref(report);
+        CHECK(exists(pathf("%s/quarantine/000005.tiff", dir)));
+
         /* a complete but unreadable last line (power loss: the size grew, the data did not
-         * reach the disk) is dropped like a torn one */
+         * reach the disk) is refused by open, and moved by repair like a torn one */
         good = file_size(manifest);
         write_file(manifest, "{\"seq\": oops}\n", O_APPEND);
+        CHECK_ERR(imp_captureset_open(dir, &cs, &e), -EBADMSG);
+        CHECK_STR_CONTAINS(e.msg, "manifest.jsonl:6: the last line is unreadable");
+        CHECK_INT_EQ(imp_captureset_repair(dir, false, &report, &e), 1);
+        CHECK_STR_EQ(json_string_value(json_object_get(json_array_get(report, 0), "moved_to")),
+                     "quarantine/manifest-tail.jsonl.1");
+        json_decref(report);
         CHECK_OK(imp_captureset_open(dir, &cs, &e));
         if (!cs)
                 return;
@@ -307,12 +369,18 @@ static void test_repairs(void) {
         CHECK_INT_EQ(file_size(manifest), good);
         imp_captureset_close(cs);
         cs = NULL;
-        /* ... but the same line followed by a good one is damage, not a crash */
+        /* ... but the same line followed by a good one is damage, not a crash: open and
+         * repair both refuse, and repair moves nothing */
         write_file(manifest, "{\"seq\": oops}\n", O_APPEND);
         write_file(manifest, "{}\n", O_APPEND);
+        long long damaged = file_size(manifest);
         CHECK_ERR(imp_captureset_open(dir, &cs, &e), -EBADMSG);
         CHECK_STR_CONTAINS(e.msg, "manifest.jsonl:6:");
         CHECK(cs == NULL);
+        report = NULL;
+        CHECK_ERR(imp_captureset_repair(dir, false, &report, &e), -EBADMSG);
+        CHECK(report == NULL);
+        CHECK_INT_EQ(file_size(manifest), damaged);
 }
 
 static void test_damage(void) {

@@ -45,6 +45,11 @@ _unused_ static uint64_t h_now_ms(void) {
         return (uint64_t) ts.tv_sec * 1000 + (uint64_t) ts.tv_nsec / 1000000;
 }
 
+/* A deadline `ms` from now, scaled for sanitizer builds and loaded machines. */
+_unused_ static uint64_t h_deadline_ms(unsigned ms) {
+        return h_now_ms() + (uint64_t) (ms * test_timeout_scale());
+}
+
 _unused_ static void h_write(const char *path, const char *text) {
         FILE *f = fopen(path, "we");
         if (!f) {
@@ -170,7 +175,7 @@ _unused_ static void h_start(struct harness *h, const char *const *extra) {
 
 /* Waits for exit; returns the wait status, or -1 after timeout_ms (then kills). */
 _unused_ static int h_wait(struct harness *h, unsigned timeout_ms) {
-        uint64_t end = h_now_ms() + timeout_ms;
+        uint64_t end = h_deadline_ms(timeout_ms);
         int st;
         while (h_now_ms() < end) {
                 pid_t r = waitpid(h->pid, &st, WNOHANG);
@@ -219,7 +224,7 @@ _unused_ static int tc_connect(struct tclient *c, const char *path, unsigned tim
         if (strlen(path) >= sizeof sa.sun_path)
                 return -ENAMETOOLONG;
         memcpy(sa.sun_path, path, strlen(path) + 1);
-        uint64_t end = h_now_ms() + timeout_ms;
+        uint64_t end = h_deadline_ms(timeout_ms);
         for (;;) {
                 int fd = socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
                 if (connect(fd, (struct sockaddr *) &sa, sizeof sa) == 0) {
@@ -262,7 +267,7 @@ _unused_ static int tc_send_raw(struct tclient *c, const void *data, size_t n) {
 /* Next message within timeout_ms: 0, -ETIMEDOUT, -ECONNRESET at EOF, -EBADMSG. Events are
  * counted in c as they pass. */
 _unused_ static int tc_read(struct tclient *c, unsigned timeout_ms, struct imp_proto_message *ret) {
-        uint64_t end = h_now_ms() + timeout_ms;
+        uint64_t end = h_deadline_ms(timeout_ms);
         for (;;) {
                 char *line;
                 size_t len;
@@ -396,7 +401,7 @@ _unused_ static int tc_open(struct tclient *c, const char *path, bool subscribe)
 
 /* Reads until n_done reaches `done` (or a job event in state `job_state` when given). */
 _unused_ static int tc_wait_done(struct tclient *c, unsigned done, unsigned timeout_ms) {
-        uint64_t end = h_now_ms() + timeout_ms;
+        uint64_t end = h_deadline_ms(timeout_ms);
         while (c->n_done < done) {
                 int64_t left = (int64_t) end - (int64_t) h_now_ms();
                 if (left <= 0)
@@ -411,7 +416,7 @@ _unused_ static int tc_wait_done(struct tclient *c, unsigned done, unsigned time
 }
 
 _unused_ static int tc_wait_job(struct tclient *c, const char *state, unsigned timeout_ms) {
-        uint64_t end = h_now_ms() + timeout_ms;
+        uint64_t end = h_deadline_ms(timeout_ms);
         while (strcmp(c->job_state, state)) {
                 int64_t left = (int64_t) end - (int64_t) h_now_ms();
                 if (left <= 0)

@@ -19,7 +19,7 @@
 
 /* Reads events until session `id` is in `state` (checked with session.show every 200 ms). */
 static bool wait_state(struct tclient *c, const char *id, const char *state, unsigned timeout_ms) {
-        uint64_t end = h_now_ms() + timeout_ms;
+        uint64_t end = h_deadline_ms(timeout_ms);
         while (h_now_ms() < end) {
                 struct imp_proto_message m = { 0 };
                 if (tc_read(c, 200, &m) == 0)
@@ -82,7 +82,7 @@ static void unplug_and_back(struct harness *h, const char *plan, size_t frames, 
                 atomic_store(&stall_armed, 1);
                 fprintf(stderr, "%s: camera stalls after %u frame events\n", name, c.n_frames);
                 /* It comes back by itself: the session completes, or pauses and resumes. */
-                uint64_t end = h_now_ms() + 90000;
+                uint64_t end = h_deadline_ms(90000);
                 bool completed = false, resumed_once = false;
                 while (!completed && h_now_ms() < end) {
                         completed = wait_state(&c, id, "completed", 1000);

@@ -29,7 +29,7 @@ static bool private_tmpfs(const char *dir, const char *opts) {
 
 /* Polls session.show until the state is `want`; returns the reply (caller frees) or NULL. */
 static json_t *wait_state(struct tclient *c, const char *id, const char *want, unsigned timeout_ms) {
-        uint64_t end = h_now_ms() + timeout_ms;
+        uint64_t end = h_deadline_ms(timeout_ms);
         while (h_now_ms() < end) {
                 json_t *r = tc_ok(c, "session.show", h_arg("session", id));
                 const char *st = json_string_value(json_object_get(r, "state"));
@@ -43,7 +43,7 @@ static json_t *wait_state(struct tclient *c, const char *id, const char *want, u
 
 static void wait_frames(struct tclient *c, unsigned n) {
         unsigned start = c->n_frames;
-        uint64_t end = h_now_ms() + 10000;
+        uint64_t end = h_deadline_ms(10000);
         while (c->n_frames < start + n && !c->n_done && h_now_ms() < end) {
                 struct imp_proto_message m = { 0 };
                 if (tc_read(c, 500, &m) == 0)

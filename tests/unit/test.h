@@ -45,6 +45,14 @@ static int test_checks_ __attribute__((unused));
 #define TEST_SKIP(...) do { fprintf(stderr, "SKIP: "); fprintf(stderr, __VA_ARGS__); \
         fputc('\n', stderr); exit(77); } while (0)
 
+/* The factor on deadlines a test keeps itself: IMPASTO_TIMEOUT_SCALE from ctest (5 under
+ * sanitizers, tests/CMakeLists.txt), 1 when unset. */
+static inline double test_timeout_scale(void) {
+        const char *s = getenv("IMPASTO_TIMEOUT_SCALE");
+        double v = s ? atof(s) : 1.0;
+        return v >= 1.0 && v <= 100.0 ? v : 1.0;
+}
+
 /* A fresh temporary directory for a test's files (mkdtemp under $TMPDIR or /tmp). */
 static inline const char *test_tmpdir(void) {
         static char buf[256];
