@@ -127,6 +127,13 @@ int imp_client_open(const char *path, struct imp_client **ret, struct imp_error 
                                      IMP_CLIENT_REPLY_TIMEOUT_MS / 1000);
         if (r < 0)
                 return imp_error_prefix(err, "%s: ", path);
+        /* A daemon that cannot take the connection says why instead of a banner (busy: too
+         * many connections; shutting_down). */
+        if (m.kind == IMP_PROTO_MSG_REPLY && !m.ok)
+                return imp_error_set(err, m.error.code == IMP_PROTO_E_BUSY ? -EBUSY
+                                          : m.error.sys_errno > 0 ? -m.error.sys_errno : -ECONNREFUSED,
+                                     "impastod at %s refused the connection: %s (%s)", path, m.error.message,
+                                     imp_proto_error_code_name(m.error.code));
         if (m.kind != IMP_PROTO_MSG_BANNER)
                 return imp_error_set(err, -EBADMSG, "%s: the first line from the daemon is not a banner", path);
         if (m.protocol != IMP_PROTO_VERSION)

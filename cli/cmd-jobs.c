@@ -21,11 +21,12 @@ static void human_list(const json_t *r) {
                 printf("no jobs\n");
                 return;
         }
-        printf("%-32s %-32s %-8s %-20s %s\n", "JOB", "SESSION", "STATE", "QUEUED", "PROGRESS");
+        printf("%-32s %-32s %-8s %-20s %-8s %s\n", "JOB", "SESSION", "STATE", "QUEUED", "PROGRESS", "VERDICT");
         json_array_foreach(list, i, j) {
                 double p = imp_client_num(j, "progress");
-                printf("%-32s %-32s %-8s %-20s %3.0f%%\n", imp_client_str(j, "job"), imp_client_str(j, "session"),
-                       imp_client_str(j, "state"), imp_client_str(j, "queued"), p == p ? 100 * p : 0);
+                const char *v = imp_client_str(j, "verdict");
+                printf("%-32s %-32s %-8s %-20s %7.0f%% %s\n", imp_client_str(j, "job"), imp_client_str(j, "session"),
+                       imp_client_str(j, "state"), imp_client_str(j, "queued"), p == p ? 100 * p : 0, v[0] ? v : "-");
         }
 }
 
@@ -38,6 +39,8 @@ static void human_show(const json_t *r) {
                 printf("ended    %s\n", imp_client_str(r, "ended"));
         if (*imp_client_str(r, "output"))
                 printf("output   %s\n", imp_client_str(r, "output"));
+        if (*imp_client_str(r, "verdict"))
+                printf("verdict  %s\n", imp_client_str(r, "verdict"));
         const json_t *e = json_object_get(r, "error");
         if (json_is_object(e))
                 printf("error    %s: %s\n", imp_client_str(e, "code"), imp_client_str(e, "message"));

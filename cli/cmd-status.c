@@ -21,6 +21,10 @@ static void human(const json_t *r) {
         if (json_is_object(j))
                 printf("jobs     %lld queued, %lld running\n", imp_client_int(j, "queued"),
                        imp_client_int(j, "running"));
+        /* the newest finished copy's quality verdict, when the copy has one */
+        const json_t *last = json_object_get(j, "last_done");
+        if (json_is_object(last) && *imp_client_str(last, "verdict"))
+                printf("copy     %s: verdict %s\n", imp_client_str(last, "job"), imp_client_str(last, "verdict"));
 }
 
 static int run(int argc, char **argv) {

@@ -815,7 +815,7 @@ static int next_version(struct daemon *d, int *ret) {
 }
 
 int calibration_start(struct daemon *d, const char *routine, const json_t *args, const char *plan,
-                      const char *name, const struct ucred *peer, struct calibration **ret,
+                      const char *name, const struct daemon_peer *peer, struct calibration **ret,
                       struct imp_proto_error *perr) {
         const struct routine *rt = routine_find(routine);
         if (!rt)

@@ -4,6 +4,7 @@
 #pragma once
 #include <stdbool.h>
 #include <stdint.h>
+#include <sys/types.h>
 #include <limits.h>
 #include <jansson.h>
 #include <systemd/sd-event.h>
@@ -11,6 +12,7 @@
 #include "captureset.h"
 #include "dome.h"
 #include "error.h"
+#include "job.h"
 #include "plan.h"
 #include "protocol.h"
 #include "rig.h"
@@ -18,8 +20,16 @@
 
 #define DAEMON_MAX_CAMERAS 4
 #define DAEMON_DEVICE_TIMEOUT_MS 3000
-#define DAEMON_OUT_SOFT_MAX (1024 * 1024)        /* progress/frame dropped beyond (PROTOCOL §6) */
-#define DAEMON_OUT_HARD_MAX (4 * 1024 * 1024)    /* connection closed beyond */
+#define DAEMON_OUT_SOFT_MAX (1024 * 1024)        /* progress/frame dropped, requests not read, beyond (PROTOCOL §6) */
+#define DAEMON_OUT_HARD_MAX (4 * 1024 * 1024)    /* default --client-queue-max: connection closed beyond */
+
+/* The connection limits of docs/security.md, with their defaults (impastod options). */
+#define DAEMON_MAX_CLIENTS 32                   /* --max-clients */
+#define DAEMON_MAX_CLIENTS_PER_UID 8            /* --max-clients-per-uid: an observer uid's connections */
+#define DAEMON_RESERVED_SLOTS 4                 /* --reserved-slots: of max-clients, for operators only */
+#define DAEMON_IDLE_TIMEOUT_S 300               /* --idle-timeout-s: no request, no event subscription */
+#define DAEMON_REQUEST_TIMEOUT_S 10             /* --request-timeout-s: a request line left unfinished */
+#define DAEMON_DEVICE_PROBE_INTERVAL_S 10       /* --device-probe-interval-s: one `devices` probe per */
 
 /* ---- rig config (rigcfg.c) ---------------------------------------------------------- */
 
@@ -87,6 +97,17 @@ void rigcfg_safe_state(struct rigcfg *rc);
 void rigcfg_close_devices(struct rigcfg *rc);
 struct dev_camera *rigcfg_camera(struct rigcfg *rc, const char *name);
 json_t *rigcfg_devices_json(struct rigcfg *rc);
+/* `devices` off the event loop: rigcfg_open_devices() in a thread on the rig config, while the
+ * loop does not touch the devices (the rig must be free: no active session, and session.start,
+ * session.resume and calibrate are refused as busy until it ends). `done` runs on the loop
+ * with the devices' states. Rate-limited by the caller. -EBUSY when one is running. */
+struct daemon;
+typedef void (*device_probe_done_fn)(struct daemon *d, json_t *devices);
+int device_probe_start(struct daemon *d, device_probe_done_fn done);
+/* The devices as last known, without touching them (safe while a probe runs). */
+json_t *device_probe_snapshot(struct daemon *d);
+/* Waits for a running probe (shutdown). */
+void device_probe_wait(struct daemon *d);
 
 /* ---- sessions (session.c, store.c) ---------------------------------------------------- */
 
@@ -167,7 +188,7 @@ int store_session_save(const struct session *s, struct imp_error *err);
 int store_sessions_load(struct daemon *d);
 int store_free_bytes(const char *path, uint64_t *ret);
 uint64_t store_frame_bytes(const struct imp_rig *rig, const char *camera);
-void rfc3339_now(char buf[static 32]);
+#define rfc3339_now imp_rfc3339_now      /* pipeline/model/job.h */
 
 /* The store writer: one thread per capturing session that appends frames to the set in
  * the order queued, each through imp_captureset_add_frame() (TIFF to a temporary name,
@@ -215,8 +236,6 @@ void session_shutdown(struct session *s);
 
 /* ---- jobs (jobs.c) --------------------------------------------------------------------- */
 
-enum job_state { JOB_QUEUED, JOB_RUNNING, JOB_DONE, JOB_FAILED };
-const char *job_state_name(enum job_state s);
 
 /* The daemon's view of STATE/jobs/<id>.json (docs/jobs.md). The file is the truth: the
  * daemon writes it only while no worker holds the job (enqueue, retry, an attempt that no
@@ -228,19 +247,20 @@ struct job {
         char session[128];
         char set_dir[PATH_MAX];         /* "capture" */
         char output[PATH_MAX];          /* "copy" */
-        enum job_state state;
+        enum imp_job_state state;
         int attempts, max_attempts;
         char queued[32], started[32], ended[32];
         char error[1024];
         char stage[64];                 /* the worker's current processing stage, "" before */
         double progress;                /* 0..1 over the whole job */
+        char verdict[16];               /* the copy's quality.verdict once done ("" when it has none) */
         json_t *worker_args;            /* as written into the file (string or null) */
         pid_t pid;                      /* our worker child, 0 when none */
         int spawn_attempts;             /* attempts in the file when the child was started */
         bool claim_seen;                /* the child was seen to claim the job (it accounts for it) */
         sd_event_source *child_source;
         /* what the last `job` event said, so that re-reads only announce changes */
-        enum job_state ev_state;
+        enum imp_job_state ev_state;
         int ev_attempts;
         double ev_progress;
         char ev_stage[64];
@@ -267,7 +287,18 @@ void jobs_free_all(struct daemon *d);
 /* A calibration run by the daemon (docs/daemon.md, "Calibrations"): a capture session of the
  * routine's plan, then the offline routine on the set as a durable job of the daemon's own
  * (STATE/calibrations/<version>/calibration.json), then a new calibration version. */
-struct ucred;    /* <sys/socket.h> with _GNU_SOURCE */
+/* A client's credentials, from the kernel at connect() (SO_PEERCRED, SO_PEERGROUPS): never
+ * from /proc/<pid>, whose pid may be another process's by the time it is read (or 0 for a
+ * peer in another PID namespace). */
+#define DAEMON_PEER_GROUPS_MAX 256
+struct daemon_peer {
+        uid_t uid;
+        gid_t gid;
+        pid_t pid;                      /* for logs only; 0 from another PID namespace */
+        int n_groups;                   /* supplementary groups; -1 when unknown (fail closed) */
+        gid_t groups[DAEMON_PEER_GROUPS_MAX];
+};
+bool daemon_peer_in_group(const struct daemon_peer *p, gid_t gid);
 
 enum calib_state { CALIB_CAPTURING, CALIB_QUEUED, CALIB_RUNNING, CALIB_DONE, CALIB_FAILED };
 
@@ -296,7 +327,7 @@ struct calibration {
 int calibrations_load(struct daemon *d);
 void calibrations_free_all(struct daemon *d);
 int calibration_start(struct daemon *d, const char *routine, const json_t *args, const char *plan,
-                      const char *name, const struct ucred *peer, struct calibration **ret,
+                      const char *name, const struct daemon_peer *peer, struct calibration **ret,
                       struct imp_proto_error *perr);
 struct calibration *calibration_find(struct daemon *d, const char *id);
 json_t *calibration_json(const struct calibration *c, bool full);
@@ -319,7 +350,7 @@ int calibration_reference_set(struct daemon *d, const char *set_dir, struct imp_
  * configured, and be readable by the peer itself (its uid and groups against the file's mode
  * and the search rights of its directories), so that the daemon never reads for a client what
  * the client could not. The resolved path in ret; not_found naming `field` otherwise. */
-int plan_path_resolve(struct daemon *d, const struct ucred *peer, const char *path, const char *field,
+int plan_path_resolve(struct daemon *d, const struct daemon_peer *peer, const char *path, const char *field,
                       char ret[static PATH_MAX], struct imp_proto_error *perr);
 /* Reads a (resolved) plan file through one descriptor: no symlink on the way, never blocking
  * (O_NONBLOCK: a FIFO or a device is refused, not waited on), a regular file of at most
@@ -339,6 +370,9 @@ struct client;
 
 int server_start(struct daemon *d);
 void server_stop(struct daemon *d);
+/* The command table agrees with the protocol's (every command handled, the same role);
+ * false, logged, when not: the daemon then refuses to start. */
+bool server_commands_check(void);
 /* Event to every subscribed client; fields stolen. */
 void server_broadcast(struct daemon *d, const char *type, json_t *fields);
 
@@ -355,6 +389,12 @@ struct daemon {
         bool operators_all;
         bool auto_resume;
         unsigned max_clients;
+        unsigned max_clients_per_uid;   /* observers' connections per uid */
+        unsigned reserved_slots;        /* of max_clients, for operators */
+        unsigned idle_timeout_s;        /* 0: none */
+        unsigned request_timeout_s;     /* 0: none */
+        uint64_t client_queue_max;      /* queued reply/event bytes before a client is closed */
+        unsigned device_probe_interval_s;
         unsigned retries;               /* attempts per capture step */
         unsigned job_attempts;
         uint64_t min_free_bytes;
@@ -369,6 +409,12 @@ struct daemon {
         sd_event_source *listen_source;
         struct client *clients;
         unsigned n_clients;
+        sd_event_source *client_timer;  /* idle and request timeouts */
+        int lock_fd;                    /* flock on STATE/impastod.lock: one daemon per state */
+        int socket_lock_fd;             /* flock on SOCKET.lock when the socket is ours to create */
+        uint64_t socket_ino;            /* the socket file we bound (unlinked at exit only if still it) */
+        struct device_probe *probe;     /* a `devices` probe off the loop (rigcfg.c), or NULL */
+        uint64_t probe_last_us;         /* monotonic start of the last probe */
 
         struct session *sessions;       /* newest first */
         struct session *active;         /* holds the rig: preparing, capturing or paused */

@@ -20,20 +20,6 @@
 
 #define JOB_RETRY_DELAY_US 500000ULL    /* before attempt n+1 after a failed one: n × this */
 #define JOB_POLL_US 2000000ULL          /* re-read of claims held by workers we did not start */
-#define JOB_ID_MAX 128
-
-static const char *const job_state_names[] = { "queued", "running", "done", "failed" };
-
-const char *job_state_name(enum job_state s) {
-        return job_state_names[s];
-}
-
-static int job_state_from_name(const char *s) {
-        for (size_t i = 0; i < ARRAY_SIZE(job_state_names); i++)
-                if (s && !strcmp(s, job_state_names[i]))
-                        return (int) i;
-        return -EINVAL;
-}
 
 struct job *jobs_find(struct daemon *d, const char *id) {
         for (struct job *j = d->jobs; j; j = j->next)
@@ -43,37 +29,57 @@ struct job *jobs_find(struct daemon *d, const char *id) {
 }
 
 static json_t *job_error_json(const struct job *j) {
-        if (!j->error[0] || j->state == JOB_DONE)
+        if (!j->error[0] || j->state == IMP_JOB_DONE)
                 return NULL;
         return json_pack("{s:s, s:i, s:s}", "code", "internal", "errno", 0, "message", j->error);
 }
 
+/* The copy's quality verdict (copy.json "quality": {"verdict": "ok"|"degraded"|"unusable"}),
+ * read once the job is done; "" when the copy has none (or a value not one of these). */
+static void job_read_verdict(struct job *j) {
+        j->verdict[0] = 0;
+        if (j->state != IMP_JOB_DONE || !j->output[0])
+                return;
+        char p[PATH_MAX + 16];
+        snprintf(p, sizeof p, "%s/copy.json", j->output);
+        struct imp_error e = { 0 };
+        _cleanup_json_ json_t *doc = NULL;
+        if (imp_json_load(p, &doc, &e) < 0)
+                return;
+        const char *v = json_string_value(json_object_get(json_object_get(doc, "quality"), "verdict"));
+        if (v && (!strcmp(v, "ok") || !strcmp(v, "degraded") || !strcmp(v, "unusable")))
+                snprintf(j->verdict, sizeof j->verdict, "%s", v);
+        else if (v)
+                log_warning("%s: quality.verdict \"%.32s\" is not ok, degraded or unusable, ignoring", p, v);
+}
+
 json_t *job_json(const struct job *j, bool full) {
-        const char *stage = j->stage[0] ? j->stage : NULL;
+        const char *stage = j->stage[0] ? j->stage : NULL, *verdict = j->verdict[0] ? j->verdict : NULL;
         if (!full)
-                return json_pack("{s:s, s:s, s:s, s:s, s:f, s:s?, s:i}", "job", j->id, "session", j->session, "state",
-                                 job_state_name(j->state), "queued", j->queued, "progress", j->progress, "stage",
-                                 stage, "attempts", j->attempts);
-        return json_pack("{s:s, s:s, s:s, s:s, s:s?, s:s?, s:s?, s:o?, s:i, s:i, s:s, s:f, s:s?, s:O?}", "job", j->id,
-                         "session", j->session, "state", job_state_name(j->state), "queued", j->queued, "started",
-                         j->started[0] ? j->started : NULL, "ended", j->ended[0] ? j->ended : NULL, "output",
-                         j->state == JOB_DONE ? j->output : NULL, "error", job_error_json(j), "attempts",
-                         j->attempts, "max_attempts", j->max_attempts, "set", j->set_dir, "progress", j->progress,
-                         "stage", stage, "worker_args", j->worker_args);
+                return json_pack("{s:s, s:s, s:s, s:s, s:f, s:s?, s:i, s:s*}", "job", j->id, "session", j->session,
+                                 "state", imp_job_state_name(j->state), "queued", j->queued, "progress", j->progress,
+                                 "stage", stage, "attempts", j->attempts, "verdict", verdict);
+        return json_pack("{s:s, s:s, s:s, s:s, s:s?, s:s?, s:s?, s:o?, s:i, s:i, s:s, s:f, s:s?, s:O?, s:s*}", "job",
+                         j->id, "session", j->session, "state", imp_job_state_name(j->state), "queued", j->queued,
+                         "started", j->started[0] ? j->started : NULL, "ended", j->ended[0] ? j->ended : NULL,
+                         "output", j->state == IMP_JOB_DONE ? j->output : NULL, "error", job_error_json(j),
+                         "attempts", j->attempts, "max_attempts", j->max_attempts, "set", j->set_dir, "progress",
+                         j->progress, "stage", stage, "worker_args", j->worker_args, "verdict", verdict);
 }
 
 /* ---- the file ----------------------------------------------------------------------------- */
 
-enum job_file { JOB_FILE_QUEUE, JOB_FILE_CLAIM };
 
-static void job_path(const struct job *j, enum job_file which, char *buf, size_t size) {
-        snprintf(buf, size, "%s/jobs/%s.json%s", j->d->state_dir, j->id, which == JOB_FILE_CLAIM ? ".running" : "");
+static void job_path(const struct job *j, enum imp_job_file which, char *buf, size_t size) {
+        char dir[PATH_MAX];
+        snprintf(dir, sizeof dir, "%s/jobs", j->d->state_dir);
+        (void) imp_job_path(dir, j->id, which, buf, size);
 }
 
 /* The members the daemon owns, in the worker's format (docs/jobs.md). */
 static json_t *job_file_json(const struct job *j) {
         return json_pack("{s:s, s:s, s:s, s:s, s:i, s:i, s:s?, s:s, s:s, s:s?, s:s?, s:f, s:s?, s:O?}", "id", j->id,
-                         "capture", j->set_dir, "copy", j->output, "state", job_state_name(j->state), "attempts",
+                         "capture", j->set_dir, "copy", j->output, "state", imp_job_state_name(j->state), "attempts",
                          j->attempts, "max_attempts", j->max_attempts, "error", j->error[0] ? j->error : NULL,
                          "session", j->session, "queued", j->queued, "started", j->started[0] ? j->started : NULL,
                          "ended", j->ended[0] ? j->ended : NULL, "progress", j->progress, "stage",
@@ -81,7 +87,7 @@ static json_t *job_file_json(const struct job *j) {
 }
 
 /* Writes j into `which`, keeping members the daemon does not know (a worker's). */
-static int job_write(struct job *j, enum job_file which) {
+static int job_write(struct job *j, enum imp_job_file which) {
         char p[PATH_MAX + 200];
         job_path(j, which, p, sizeof p);
         struct imp_error e = { 0 };
@@ -97,114 +103,82 @@ static int job_write(struct job *j, enum job_file which) {
         return r;
 }
 
-static void copy_str(char *dst, size_t size, const json_t *o, const char *key) {
-        const char *v = json_string_value(json_object_get(o, key));
-        if (v)
-                snprintf(dst, size, "%s", v);
-}
-
 /* Reads the job's file (the queue name, else the claim) into j. *ret_which says which one;
  * *ret_legacy is set for a file in the daemon's old format (job/set/output), which the
  * caller rewrites. -ENOENT when neither exists, -EBADMSG when it is not a job. */
-static int job_read(struct job *j, enum job_file *ret_which, bool *ret_legacy) {
+static int job_read(struct job *j, enum imp_job_file *ret_which, bool *ret_legacy) {
         char p[PATH_MAX + 200];
-        _cleanup_json_ json_t *o = NULL;
+        _cleanup_(imp_job_done) struct imp_job f = { 0 };
         struct imp_error e = { 0 };
-        enum job_file which = JOB_FILE_QUEUE;
+        enum imp_job_file which = IMP_JOB_FILE_QUEUE;
         int r = -ENOENT;
         /* The worker renames queue → claim → queue: try the claim in between. */
         for (int k = 0; k < 3 && r == -ENOENT; k++) {
-                which = k == 1 ? JOB_FILE_CLAIM : JOB_FILE_QUEUE;
+                which = k == 1 ? IMP_JOB_FILE_CLAIM : IMP_JOB_FILE_QUEUE;
                 job_path(j, which, p, sizeof p);
-                r = imp_json_load(p, &o, &e);
+                r = imp_job_read(p, IMP_JOB_LENIENT, &f, &e);
         }
+        if (r == -EBADMSG)
+                log_warning("%s, ignoring", e.msg);
         if (r < 0)
                 return r;
-        int st = job_state_from_name(json_string_value(json_object_get(o, "state")));
-        const json_t *capture = json_object_get(o, "capture"), *set = json_object_get(o, "set");
-        if (!json_is_object(o) || st < 0 || !(json_is_string(capture) || json_is_string(set))) {
-                log_warning("%s: not a job file (docs/jobs.md), ignoring", p);
-                return -EBADMSG;
-        }
-        bool legacy = !json_is_string(capture);
-        if (legacy) {
-                copy_str(j->set_dir, sizeof j->set_dir, o, "set");
+        bool legacy = f.legacy;
+        snprintf(j->set_dir, sizeof j->set_dir, "%s", f.capture);
+        if (legacy)
                 snprintf(j->output, sizeof j->output, "%s/outputs/%s", j->d->state_dir, j->id);
-        } else {
-                copy_str(j->set_dir, sizeof j->set_dir, o, "capture");
-                copy_str(j->output, sizeof j->output, o, "copy");
-        }
-        copy_str(j->session, sizeof j->session, o, "session");
-        copy_str(j->queued, sizeof j->queued, o, "queued");
-        j->started[0] = j->ended[0] = j->stage[0] = j->error[0] = 0;
-        copy_str(j->started, sizeof j->started, o, "started");
-        copy_str(j->ended, sizeof j->ended, o, "ended");
-        copy_str(j->stage, sizeof j->stage, o, "stage");
-        const json_t *err = json_object_get(o, "error");
-        if (json_is_object(err))        /* the old format kept an error object */
-                err = json_object_get(err, "message");
-        if (json_is_string(err))
-                snprintf(j->error, sizeof j->error, "%s", json_string_value(err));
-        json_t *v = json_object_get(o, "attempts");
-        j->attempts = json_is_integer(v) ? (int) json_integer_value(v) : 0;
-        v = json_object_get(o, "max_attempts");
-        if (json_is_integer(v) && json_integer_value(v) >= 1)
-                j->max_attempts = (int) json_integer_value(v);
+        else if (f.copy[0])
+                snprintf(j->output, sizeof j->output, "%s", f.copy);
+        if (f.session[0])
+                snprintf(j->session, sizeof j->session, "%s", f.session);
+        if (f.queued[0])
+                snprintf(j->queued, sizeof j->queued, "%s", f.queued);
+        snprintf(j->started, sizeof j->started, "%s", f.started);
+        snprintf(j->ended, sizeof j->ended, "%s", f.ended);
+        snprintf(j->stage, sizeof j->stage, "%s", f.stage);
+        snprintf(j->error, sizeof j->error, "%s", f.error);
+        j->attempts = f.attempts;
+        if (f.max_attempts >= 1)
+                j->max_attempts = f.max_attempts;
         else if (j->max_attempts < 1)
                 j->max_attempts = (int) j->d->job_attempts;
-        v = json_object_get(o, "progress");
-        j->progress = json_is_number(v) ? IMP_CLAMP(json_number_value(v), 0.0, 1.0) : 0.0;
-        v = json_object_get(o, "worker_args");
+        j->progress = f.progress;
         json_decref(j->worker_args);
-        j->worker_args = json_is_string(v) ? json_incref(v) : NULL;
-        j->state = (enum job_state) st;
+        j->worker_args = json_incref(f.worker_args);
+        j->state = f.state;
         /* A claim is running whatever its file says yet; a running job under the queue name
          * was left by the old daemon (it ran the worker itself): queued again. */
-        if (which == JOB_FILE_CLAIM)
-                j->state = JOB_RUNNING;
-        else if (j->state == JOB_RUNNING) {
-                j->state = JOB_QUEUED;
+        if (which == IMP_JOB_FILE_CLAIM)
+                j->state = IMP_JOB_RUNNING;
+        else if (j->state == IMP_JOB_RUNNING) {
+                j->state = IMP_JOB_QUEUED;
                 legacy = true;
         }
+        if (j->state != IMP_JOB_DONE)
+                j->verdict[0] = 0;
+        else if (!j->verdict[0])
+                job_read_verdict(j);
         *ret_which = which;
         if (ret_legacy)
                 *ret_legacy = legacy;
         return 0;
 }
 
-/* The claim lock of docs/jobs.md: flock on <id>.lock, checked not to have been unlinked
- * meanwhile. -EBUSY when a worker holds it. */
+/* The claim lock of docs/jobs.md (pipeline/model/job.h). -EBUSY when a worker holds it. */
 static int job_lock(const struct job *j, int *ret_fd) {
         char p[PATH_MAX + 200];
-        snprintf(p, sizeof p, "%s/jobs/%s.lock", j->d->state_dir, j->id);
-        for (;;) {
-                int fd = open(p, O_RDWR | O_CREAT | O_CLOEXEC, 0644);
-                if (fd < 0)
-                        return negative_errno();
-                if (flock(fd, LOCK_EX | LOCK_NB) < 0) {
-                        int r = errno == EWOULDBLOCK ? -EBUSY : negative_errno();
-                        close(fd);
-                        return r;
-                }
-                struct stat a, b;
-                if (fstat(fd, &a) == 0 && stat(p, &b) == 0 && a.st_ino == b.st_ino && a.st_dev == b.st_dev) {
-                        *ret_fd = fd;
-                        return 0;
-                }
-                close(fd);
-        }
+        job_path(j, IMP_JOB_FILE_LOCK, p, sizeof p);
+        return imp_job_lock(p, ret_fd);
 }
 
 static void job_unlock(const struct job *j, int fd) {
         char p[PATH_MAX + 200];
-        snprintf(p, sizeof p, "%s/jobs/%s.lock", j->d->state_dir, j->id);
-        (void) unlink(p);
-        close(fd);
+        job_path(j, IMP_JOB_FILE_LOCK, p, sizeof p);
+        imp_job_unlock(p, fd);
 }
 
 static void job_set_failed_attempt(struct job *j, const char *why) {
         snprintf(j->error, sizeof j->error, "%.1000s", why);
-        j->state = j->attempts >= j->max_attempts ? JOB_FAILED : JOB_QUEUED;
+        j->state = j->attempts >= j->max_attempts ? IMP_JOB_FAILED : IMP_JOB_QUEUED;
         rfc3339_now(j->ended);
 }
 
@@ -216,7 +190,7 @@ static void job_account(struct job *j, const char *why) {
                 return;         /* a worker is claiming it: its outcome will be read */
         j->attempts++;
         job_set_failed_attempt(j, why);
-        (void) job_write(j, JOB_FILE_QUEUE);
+        (void) job_write(j, IMP_JOB_FILE_QUEUE);
         job_unlock(j, fd);
 }
 
@@ -228,14 +202,14 @@ static int job_recover(struct job *j, const char *why) {
         if (r < 0)
                 return r == -EBUSY ? 0 : r;
         char claim[PATH_MAX + 200], queue[PATH_MAX + 200];
-        job_path(j, JOB_FILE_CLAIM, claim, sizeof claim);
-        job_path(j, JOB_FILE_QUEUE, queue, sizeof queue);
+        job_path(j, IMP_JOB_FILE_CLAIM, claim, sizeof claim);
+        job_path(j, IMP_JOB_FILE_QUEUE, queue, sizeof queue);
         if (access(claim, F_OK) < 0) {
                 job_unlock(j, fd);
                 return 0;       /* released meanwhile */
         }
         job_set_failed_attempt(j, why);
-        r = job_write(j, JOB_FILE_CLAIM);
+        r = job_write(j, IMP_JOB_FILE_CLAIM);
         if (r >= 0 && rename(claim, queue) < 0)
                 r = negative_errno();
         if (r >= 0)
@@ -243,7 +217,7 @@ static int job_recover(struct job *j, const char *why) {
         job_unlock(j, fd);
         if (r < 0)
                 return log_error_errno(r, "job %s: recovering %s: %m", j->id, claim);
-        log_notice("job %s: %s; %s", j->id, why, job_state_name(j->state));
+        log_notice("job %s: %s; %s", j->id, why, imp_job_state_name(j->state));
         return 1;
 }
 
@@ -254,15 +228,15 @@ static void job_announce(struct daemon *d, struct job *j) {
             fabs(j->ev_progress - j->progress) < 1e-6 && !strcmp(j->ev_stage, j->stage))
                 return;
         /* The claim counts the attempt our spawn already announced: one line per state. */
-        if (!j->ev_sent || j->ev_state != j->state || (j->state != JOB_RUNNING && j->ev_attempts != j->attempts)) {
-                if (j->state == JOB_DONE)
+        if (!j->ev_sent || j->ev_state != j->state || (j->state != IMP_JOB_RUNNING && j->ev_attempts != j->attempts)) {
+                if (j->state == IMP_JOB_DONE)
                         log_info("job %s: done, output %s", j->id, j->output);
-                else if (j->state == JOB_FAILED || (j->state == JOB_QUEUED && j->error[0] && j->attempts > 0))
-                        log_warning("job %s: %s after attempt %d of %d: %s", j->id, job_state_name(j->state),
+                else if (j->state == IMP_JOB_FAILED || (j->state == IMP_JOB_QUEUED && j->error[0] && j->attempts > 0))
+                        log_warning("job %s: %s after attempt %d of %d: %s", j->id, imp_job_state_name(j->state),
                                     j->attempts, j->max_attempts, j->error);
                 else
-                        log_info("job %s: %s (attempt %d of %d)", j->id, job_state_name(j->state),
-                                 j->attempts + (j->state == JOB_RUNNING && j->pid > 0 &&
+                        log_info("job %s: %s (attempt %d of %d)", j->id, imp_job_state_name(j->state),
+                                 j->attempts + (j->state == IMP_JOB_RUNNING && j->pid > 0 &&
                                                 j->attempts == j->spawn_attempts), j->max_attempts);
         }
         j->ev_sent = true;
@@ -271,11 +245,12 @@ static void job_announce(struct daemon *d, struct job *j) {
         j->ev_progress = j->progress;
         snprintf(j->ev_stage, sizeof j->ev_stage, "%s", j->stage);
         server_broadcast(d, "job",
-                         json_pack("{s:s, s:s, s:s, s:f, s:s?, s:i, s:i, s:s?, s:o?}", "job", j->id, "session",
-                                   j->session, "state", job_state_name(j->state), "progress", j->progress, "stage",
-                                   j->stage[0] ? j->stage : NULL, "attempts", j->attempts, "max_attempts",
-                                   j->max_attempts, "output", j->state == JOB_DONE ? j->output : NULL, "error",
-                                   j->state == JOB_QUEUED || j->state == JOB_RUNNING ? NULL : job_error_json(j)));
+                         json_pack("{s:s, s:s, s:s, s:f, s:s?, s:i, s:i, s:s?, s:o?, s:s*}", "job", j->id,
+                                   "session", j->session, "state", imp_job_state_name(j->state), "progress",
+                                   j->progress, "stage", j->stage[0] ? j->stage : NULL, "attempts", j->attempts,
+                                   "max_attempts", j->max_attempts, "output", j->state == IMP_JOB_DONE ? j->output : NULL,
+                                   "error", j->state == IMP_JOB_QUEUED || j->state == IMP_JOB_RUNNING ? NULL
+                                   : job_error_json(j), "verdict", j->verdict[0] ? j->verdict : NULL));
 }
 
 static int kick_timer(sd_event_source *src, uint64_t usec, void *userdata) {
@@ -298,22 +273,22 @@ static bool kick_pending(struct daemon *d) {
 
 /* Re-reads the file of a job we are not running as a child and announces what changed. */
 static void job_refresh(struct daemon *d, struct job *j) {
-        enum job_state before = j->state;
-        enum job_file which;
+        enum imp_job_state before = j->state;
+        enum imp_job_file which;
         int pid = j->pid;
         if (job_read(j, &which, NULL) < 0)
                 return;
-        if (pid > 0 && (which == JOB_FILE_CLAIM || j->attempts != j->spawn_attempts))
+        if (pid > 0 && (which == IMP_JOB_FILE_CLAIM || j->attempts != j->spawn_attempts))
                 j->claim_seen = true;
-        if (pid > 0 && !j->claim_seen && j->state == JOB_QUEUED)
-                j->state = JOB_RUNNING;         /* our child has not claimed it yet */
-        if (pid == 0 && which == JOB_FILE_CLAIM) {
+        if (pid > 0 && !j->claim_seen && j->state == IMP_JOB_QUEUED)
+                j->state = IMP_JOB_RUNNING;         /* our child has not claimed it yet */
+        if (pid == 0 && which == IMP_JOB_FILE_CLAIM) {
                 char why[128];
                 snprintf(why, sizeof why, "the worker stopped during attempt %d", j->attempts);
                 (void) job_recover(j, why);
         }
         job_announce(d, j);
-        if (pid == 0 && before == JOB_RUNNING && j->state != JOB_RUNNING && !kick_pending(d))
+        if (pid == 0 && before == IMP_JOB_RUNNING && j->state != IMP_JOB_RUNNING && !kick_pending(d))
                 schedule_kick(d, 0);
 }
 
@@ -348,7 +323,7 @@ int daemon_spawn(struct daemon *d, const char *const *argv, int fd_out, int fd_e
 
 static int job_spawn(struct daemon *d, struct job *j) {
         char file[PATH_MAX + 200];
-        job_path(j, JOB_FILE_QUEUE, file, sizeof file);
+        job_path(j, IMP_JOB_FILE_QUEUE, file, sizeof file);
         const char *const argv[] = { d->worker_cmd, file, NULL };
         return daemon_spawn(d, argv, -1, -1, job_exited, j, &j->pid, &j->child_source);
 }
@@ -358,9 +333,9 @@ void jobs_kick(struct daemon *d) {
                 return;
         struct job *next = NULL;
         for (struct job *j = d->jobs; j; j = j->next) {
-                if (j->state == JOB_RUNNING || j->pid > 0)
+                if (j->state == IMP_JOB_RUNNING || j->pid > 0)
                         return;
-                if (j->state == JOB_QUEUED)
+                if (j->state == IMP_JOB_QUEUED)
                         next = j;       /* the list is newest first: the last one is the oldest */
         }
         if (!next)
@@ -373,13 +348,13 @@ void jobs_kick(struct daemon *d) {
                 snprintf(why, sizeof why, "starting %s: %s", d->worker_cmd, strerror(-r));
                 job_account(next, why);
                 job_announce(d, next);
-                if (next->state == JOB_QUEUED)
+                if (next->state == IMP_JOB_QUEUED)
                         schedule_kick(d, JOB_RETRY_DELAY_US * (uint64_t) next->attempts);
                 else
                         schedule_kick(d, 0);
                 return;
         }
-        next->state = JOB_RUNNING;
+        next->state = IMP_JOB_RUNNING;
         job_announce(d, next);
 }
 
@@ -391,18 +366,18 @@ static int job_exited(sd_event_source *src, const siginfo_t *si, void *userdata)
         char how[64];
         snprintf(how, sizeof how, "%s %d", si->si_code == CLD_EXITED ? "exit status" : "killed by signal",
                  si->si_status);
-        enum job_file which;
+        enum imp_job_file which;
         int r = job_read(j, &which, NULL);
         if (r < 0) {
                 snprintf(j->error, sizeof j->error, "the job file is gone or unreadable after %.200s exited (%s)",
                          d->worker_cmd, how);
-                j->state = JOB_FAILED;
-        } else if (which == JOB_FILE_CLAIM) {
+                j->state = IMP_JOB_FAILED;
+        } else if (which == IMP_JOB_FILE_CLAIM) {
                 char why[PATH_MAX + 128];
                 snprintf(why, sizeof why, "%.200s stopped during attempt %d (%s)", d->worker_cmd, j->attempts, how);
                 if (job_recover(j, why) <= 0)
-                        j->state = JOB_RUNNING; /* another worker holds the claim */
-        } else if (j->state == JOB_QUEUED && j->attempts == j->spawn_attempts && !j->claim_seen) {
+                        j->state = IMP_JOB_RUNNING; /* another worker holds the claim */
+        } else if (j->state == IMP_JOB_QUEUED && j->attempts == j->spawn_attempts && !j->claim_seen) {
                 /* (once the claim was seen, a queued file is the worker's retry or an
                  * operator's jobs.retry that came before the child's exit) */
                 char why[PATH_MAX + 256];
@@ -412,7 +387,7 @@ static int job_exited(sd_event_source *src, const siginfo_t *si, void *userdata)
                 job_account(j, why);
         }
         job_announce(d, j);
-        if (j->state == JOB_QUEUED)
+        if (j->state == IMP_JOB_QUEUED)
                 schedule_kick(d, JOB_RETRY_DELAY_US * (uint64_t) IMP_MAX(j->attempts, 1));
         else
                 jobs_kick(d);
@@ -456,31 +431,31 @@ int jobs_enqueue(struct daemon *d, const struct session *s) {
         snprintf(j->output, sizeof j->output, "%s/outputs/%s", d->state_dir, s->id);
         rfc3339_now(j->queued);
         j->worker_args = worker_args_json(d);
-        j->state = JOB_QUEUED;
+        j->state = IMP_JOB_QUEUED;
         j->next = d->jobs;
         d->jobs = j;
-        int r = job_write(j, JOB_FILE_QUEUE);
+        int r = job_write(j, IMP_JOB_FILE_QUEUE);
         job_announce(d, j);
         jobs_kick(d);
         return r < 0 ? r : 0;
 }
 
 int jobs_retry(struct daemon *d, struct job *j, struct imp_proto_error *perr) {
-        if (j->state != JOB_FAILED)
+        if (j->state != IMP_JOB_FAILED)
                 return imp_proto_error_set(perr, IMP_PROTO_E_BAD_STATE, EINVAL, "args.job", "job %s is %s, not failed",
-                                           j->id, job_state_name(j->state));
+                                           j->id, imp_job_state_name(j->state));
         /* No lock: workers claim only queued files, and the worker that failed this one may
          * still hold its lock for a moment after writing the outcome. */
         /* The error of the last attempt is kept until the job is done; the arguments are the
          * daemon's current --worker-args, so that a retry after a configuration fix uses it. */
-        j->state = JOB_QUEUED;
+        j->state = IMP_JOB_QUEUED;
         j->attempts = 0;
         j->ended[0] = 0;
         j->progress = 0;
         j->stage[0] = 0;
         json_decref(j->worker_args);
         j->worker_args = worker_args_json(d);
-        int r = job_write(j, JOB_FILE_QUEUE);
+        int r = job_write(j, IMP_JOB_FILE_QUEUE);
         if (r < 0)
                 return imp_proto_error_set(perr, IMP_PROTO_E_IO, -r, "args.job", "job %s: writing its file: %s", j->id,
                                            strerror(-r));
@@ -495,27 +470,27 @@ static struct job *job_load(struct daemon *d, const char *id) {
         struct job *j = job_new(d, id);
         if (!j)
                 return NULL;
-        enum job_file which;
+        enum imp_job_file which;
         bool legacy = false;
         if (job_read(j, &which, &legacy) < 0) {
                 job_free(j);
                 return NULL;
         }
-        if (which == JOB_FILE_CLAIM) {
+        if (which == IMP_JOB_FILE_CLAIM) {
                 char why[128];
                 snprintf(why, sizeof why, "the worker stopped during attempt %d", j->attempts);
                 (void) job_recover(j, why);
         } else if (legacy)
-                (void) job_write(j, JOB_FILE_QUEUE);
+                (void) job_write(j, IMP_JOB_FILE_QUEUE);
         return j;
 }
 
 /* "<id>.json" or "<id>.json.running" → id; false for anything else (locks, .tmp). */
-static bool job_id_of(const char *name, char id[static JOB_ID_MAX + 1]) {
+static bool job_id_of(const char *name, char id[static IMP_JOB_ID_MAX + 1]) {
         size_t l = strlen(name);
         size_t n = l > 13 && !strcmp(name + l - 13, ".json.running") ? l - 13 :
                    l > 5 && !strcmp(name + l - 5, ".json") ? l - 5 : 0;
-        if (n == 0 || n > JOB_ID_MAX || name[0] == '.')
+        if (n == 0 || n > IMP_JOB_ID_MAX || name[0] == '.')
                 return false;
         memcpy(id, name, n);
         id[n] = 0;
@@ -535,7 +510,7 @@ int jobs_load(struct daemon *d) {
         char **names = NULL;
         size_t n = 0;
         struct dirent *de;
-        char id[JOB_ID_MAX + 1];
+        char id[IMP_JOB_ID_MAX + 1];
         while ((de = readdir(dir))) {
                 if (!job_id_of(de->d_name, id))
                         continue;
@@ -568,11 +543,11 @@ static int on_jobs_dir(sd_event_source *src, const struct inotify_event *ev, voi
         struct daemon *d = userdata;
         if (ev->mask & IN_Q_OVERFLOW) {
                 for (struct job *j = d->jobs; j; j = j->next)
-                        if (j->state == JOB_QUEUED || j->state == JOB_RUNNING)
+                        if (j->state == IMP_JOB_QUEUED || j->state == IMP_JOB_RUNNING)
                                 job_refresh(d, j);
                 return 0;
         }
-        char id[JOB_ID_MAX + 1];
+        char id[IMP_JOB_ID_MAX + 1];
         if (ev->len == 0 || !job_id_of(ev->name, id))
                 return 0;
         struct job *j = jobs_find(d, id);
@@ -596,7 +571,7 @@ static int on_jobs_dir(sd_event_source *src, const struct inotify_event *ev, voi
 static int on_poll(sd_event_source *src, uint64_t usec, void *userdata) {
         struct daemon *d = userdata;
         for (struct job *j = d->jobs; j; j = j->next)
-                if (j->pid == 0 && (j->state == JOB_RUNNING || (!d->spawn_workers && j->state == JOB_QUEUED)))
+                if (j->pid == 0 && (j->state == IMP_JOB_RUNNING || (!d->spawn_workers && j->state == IMP_JOB_QUEUED)))
                         job_refresh(d, j);
         (void) sd_event_source_set_time_relative(src, JOB_POLL_US);
         (void) sd_event_source_set_enabled(src, SD_EVENT_ONESHOT);

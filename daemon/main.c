@@ -2,9 +2,12 @@
  * activation or --socket), steps the capture session, reaps the processing workers and
  * handles SIGTERM/SIGINT: lights off, projector dark, cameras stopped, state flushed,
  * exit 0. systemd is told READY, STATUS, WATCHDOG and STOPPING. */
+#include <fcntl.h>
 #include <getopt.h>
 #include <signal.h>
 #include <string.h>
+#include <sys/file.h>
+#include <sys/stat.h>
 #include <systemd/sd-daemon.h>
 #include "impastod.h"
 #include "log.h"
@@ -22,6 +25,16 @@ static void help(void) {
                "  --resume               resume sessions interrupted by a stop or crash\n"
                "  --operators-all        every client is an operator (tests)\n"
                "  --max-clients N        connections at a time (default 32)\n"
+               "  --max-clients-per-uid N  connections of one observer uid (default 8)\n"
+               "  --reserved-slots N     of --max-clients, kept for operators and root (default 4)\n"
+               "  --idle-timeout-s N     close a connection without requests or subscription after N s\n"
+               "                         (default 300; 0 never)\n"
+               "  --request-timeout-s N  close a connection whose request line stays unfinished N s\n"
+               "                         (default 10; 0 never)\n"
+               "  --client-queue-max N   bytes of replies and events queued for a client before it is\n"
+               "                         closed (default 4194304)\n"
+               "  --device-probe-interval-s N  an operator's `devices` reopens devices at most once per\n"
+               "                         N s (default 10)\n"
                "  --retries N            attempts per capture step before pausing (default 3)\n"
                "  --job-attempts N       worker runs per job before it fails (default 3)\n"
                "  --device-timeout-ms N  timeout of a device connection (default 3000)\n"
@@ -100,9 +113,35 @@ static int check_worker_args(const char *args) {
         return 0;
 }
 
+enum { ARG_SOCKET = 256, ARG_STATE, ARG_WORKER, ARG_RESUME, ARG_OPS, ARG_MAXC, ARG_RETRIES, ARG_JOBS, ARG_MINFREE,
+       ARG_RIG, ARG_DEVTIMEOUT, ARG_WORKER_ARGS, ARG_NO_SPAWN, ARG_PLAN_DIR, ARG_CALIB_CMD, ARG_PER_UID, ARG_RESERVED,
+       ARG_IDLE, ARG_REQ_TIMEOUT, ARG_QUEUE_MAX, ARG_PROBE };
+
+/* The connection limits: integers 0 to 100000 (0: none, for the timeouts). */
+static int parse_limit(int opt, const char *arg, struct daemon *d) {
+        static const struct { int opt; const char *name; size_t off; unsigned min; } limits[] = {
+                { ARG_PER_UID, "max-clients-per-uid", offsetof(struct daemon, max_clients_per_uid), 1 },
+                { ARG_RESERVED, "reserved-slots", offsetof(struct daemon, reserved_slots), 0 },
+                { ARG_IDLE, "idle-timeout-s", offsetof(struct daemon, idle_timeout_s), 0 },
+                { ARG_REQ_TIMEOUT, "request-timeout-s", offsetof(struct daemon, request_timeout_s), 0 },
+                { ARG_PROBE, "device-probe-interval-s", offsetof(struct daemon, device_probe_interval_s), 0 },
+        };
+        for (size_t i = 0; i < ARRAY_SIZE(limits); i++) {
+                if (limits[i].opt != opt)
+                        continue;
+                uint64_t v;
+                if (parse_u64(arg, &v) < 0 || v < limits[i].min || v > 100000) {
+                        log_error("--%s: expected an integer from %u to 100000, got \"%s\"", limits[i].name,
+                                  limits[i].min, arg);
+                        return -EINVAL;
+                }
+                *(unsigned *) ((char *) d + limits[i].off) = (unsigned) v;
+                return 0;
+        }
+        return -EINVAL;
+}
+
 static int parse_args(int argc, char **argv, struct daemon *d) {
-        enum { ARG_SOCKET = 256, ARG_STATE, ARG_WORKER, ARG_RESUME, ARG_OPS, ARG_MAXC, ARG_RETRIES, ARG_JOBS,
-               ARG_MINFREE, ARG_RIG, ARG_DEVTIMEOUT, ARG_WORKER_ARGS, ARG_NO_SPAWN, ARG_PLAN_DIR, ARG_CALIB_CMD };
         static const struct option opts[] = {
                 { "rig", required_argument, NULL, ARG_RIG },
                 { "socket", required_argument, NULL, ARG_SOCKET },
@@ -119,6 +158,12 @@ static int parse_args(int argc, char **argv, struct daemon *d) {
                 { "device-timeout-ms", required_argument, NULL, ARG_DEVTIMEOUT },
                 { "plan-dir", required_argument, NULL, ARG_PLAN_DIR },
                 { "calibrate-cmd", required_argument, NULL, ARG_CALIB_CMD },
+                { "max-clients-per-uid", required_argument, NULL, ARG_PER_UID },
+                { "reserved-slots", required_argument, NULL, ARG_RESERVED },
+                { "idle-timeout-s", required_argument, NULL, ARG_IDLE },
+                { "request-timeout-s", required_argument, NULL, ARG_REQ_TIMEOUT },
+                { "client-queue-max", required_argument, NULL, ARG_QUEUE_MAX },
+                { "device-probe-interval-s", required_argument, NULL, ARG_PROBE },
                 { "verbose", no_argument, NULL, 'v' },
                 { "help", no_argument, NULL, 'h' },
                 {},
@@ -173,6 +218,21 @@ static int parse_args(int argc, char **argv, struct daemon *d) {
                         d->plan_dirs[d->n_plan_dirs++] = optarg;
                         break;
                 case ARG_CALIB_CMD: d->calibrate_cmd = optarg; break;
+                case ARG_PER_UID:
+                case ARG_RESERVED:
+                case ARG_IDLE:
+                case ARG_REQ_TIMEOUT:
+                case ARG_PROBE:
+                        if (parse_limit(c, optarg, d) < 0)
+                                return -EINVAL;
+                        break;
+                case ARG_QUEUE_MAX:
+                        if (parse_u64(optarg, &d->client_queue_max) < 0 || d->client_queue_max < 2 * IMP_PROTO_MESSAGE_MAX) {
+                                log_error("--client-queue-max: expected a byte count of at least %d (two of the "
+                                          "longest messages), got \"%s\"", 2 * IMP_PROTO_MESSAGE_MAX, optarg);
+                                return -EINVAL;
+                        }
+                        break;
                 case 'v': imp_log_set_level(IMP_LOG_DEBUG); break;
                 case 'h': help(); exit(0);
                 default: return -EINVAL;
@@ -189,6 +249,62 @@ static int parse_args(int argc, char **argv, struct daemon *d) {
         return 0;
 }
 
+/* One daemon per state directory and per socket: flock on STATE/impastod.lock (and on
+ * SOCKET.lock when the daemon creates its socket), taken before the socket is touched, so a
+ * second impastod exits saying who holds them and never unlinks the first one's socket. The
+ * locks go with the process (even on SIGKILL). */
+static int lock_one(const char *path, const char *what) {
+        int fd = open(path, O_RDWR | O_CREAT | O_CLOEXEC | O_NOFOLLOW, 0644);
+        if (fd < 0)
+                return log_error_errno(negative_errno(), "%s: cannot open the lock file %s: %m", what, path);
+        if (flock(fd, LOCK_EX | LOCK_NB) < 0) {
+                int r = negative_errno();
+                char pid[32] = "";
+                ssize_t n = pread(fd, pid, sizeof pid - 1, 0);
+                pid[n > 0 ? n : 0] = 0;
+                pid[strcspn(pid, "\n")] = 0;
+                close(fd);
+                if (r == -EWOULDBLOCK) {
+                        log_error("%s is in use by another impastod%s%s%s (lock %s); refusing to start a second one",
+                                  what, pid[0] ? " (pid " : "", pid, pid[0] ? ")" : "", path);
+                        return -EBUSY;
+                }
+                return log_error_errno(r, "%s: locking %s: %m", what, path);
+        }
+        char text[32];
+        int n = snprintf(text, sizeof text, "%d\n", (int) getpid());
+        if (ftruncate(fd, 0) < 0 || pwrite(fd, text, (size_t) n, 0) != n)
+                log_warning("%s: writing the pid into %s: %m, ignoring", what, path);
+        return fd;
+}
+
+static int lock_instance(struct daemon *d, bool own_socket) {
+        char p[PATH_MAX + 16];
+        snprintf(p, sizeof p, "%s/impastod.lock", d->state_dir);
+        char what[PATH_MAX + 32];
+        snprintf(what, sizeof what, "the state directory %s", d->state_dir);
+        int fd = lock_one(p, what);
+        if (fd < 0)
+                return fd;
+        d->lock_fd = fd;
+        if (!own_socket)
+                return 0;
+        snprintf(p, sizeof p, "%s.lock", d->socket_path);
+        snprintf(what, sizeof what, "the socket %s", d->socket_path);
+        fd = lock_one(p, what);
+        if (fd < 0)
+                return fd;
+        d->socket_lock_fd = fd;
+        return 0;
+}
+
+/* The socket file still the one this daemon bound (not replaced by someone else's). */
+static bool socket_is_ours(const struct daemon *d) {
+        struct stat st;
+        return d->socket_ino != 0 && stat(d->socket_path, &st) == 0 && st.st_ino == d->socket_ino &&
+               S_ISSOCK(st.st_mode);
+}
+
 #define AUTO_RESUME_ATTEMPTS 5
 #define AUTO_RESUME_DELAY_US 300000ULL
 
@@ -197,6 +313,11 @@ static int parse_args(int argc, char **argv, struct daemon *d) {
 static int auto_resume(sd_event_source *src, uint64_t usec, void *userdata) {
         struct daemon *d = userdata;
         static unsigned attempt;
+        if (d->probe) {         /* a `devices` probe holds the devices for a moment */
+                (void) sd_event_add_time_relative(d->event, NULL, CLOCK_MONOTONIC, AUTO_RESUME_DELAY_US, 0,
+                                                  auto_resume, d);
+                return 0;
+        }
         for (struct session *s = d->sessions; s; s = s->next) {
                 if (!s->interrupted || s->state != SESSION_PAUSED)
                         continue;
@@ -219,6 +340,37 @@ static int defer_resume(sd_event_source *src, void *userdata) {
         return auto_resume(src, 0, userdata);
 }
 
+/* Shutdown: the rig safe first, then the state files and the clients. */
+static void daemon_shutdown(struct daemon *d, bool activated) {
+        sd_notify(false, "STOPPING=1");
+        d->stopping = true;
+        device_probe_wait(d);
+        for (struct session *s = d->sessions; s; s = s->next)
+                if (s == d->active || s->cs)
+                        session_shutdown(s);
+        rigcfg_safe_state(d->rigcfg);
+        server_stop(d);
+        if (!activated && d->listen_fd >= 0 && socket_is_ours(d))
+                (void) unlink(d->socket_path);
+        if (d->listen_fd >= 0)
+                close(d->listen_fd);
+        jobs_free_all(d);
+        calibrations_free_all(d);
+        while (d->sessions) {
+                struct session *s = d->sessions;
+                d->sessions = s->next;
+                session_free(s);
+        }
+        rigcfg_free(d->rigcfg);
+        if (d->have_rig)
+                imp_rig_free(&d->rig);
+        sd_event_unref(d->event);
+        if (d->socket_lock_fd >= 0)
+                close(d->socket_lock_fd);
+        if (d->lock_fd >= 0)
+                close(d->lock_fd);      /* (the lock files stay: unlinking them would race a new daemon) */
+}
+
 int main(int argc, char **argv) {
         struct daemon d = {
                 .socket_path = "/run/impasto/control.sock",
@@ -226,7 +378,15 @@ int main(int argc, char **argv) {
                 .worker_cmd = "/usr/bin/impasto-worker",
                 .calibrate_cmd = "/usr/bin/impasto",
                 .spawn_workers = true,
-                .max_clients = 32,
+                .max_clients = DAEMON_MAX_CLIENTS,
+                .max_clients_per_uid = DAEMON_MAX_CLIENTS_PER_UID,
+                .reserved_slots = DAEMON_RESERVED_SLOTS,
+                .idle_timeout_s = DAEMON_IDLE_TIMEOUT_S,
+                .request_timeout_s = DAEMON_REQUEST_TIMEOUT_S,
+                .client_queue_max = DAEMON_OUT_HARD_MAX,
+                .device_probe_interval_s = DAEMON_DEVICE_PROBE_INTERVAL_S,
+                .lock_fd = -1,
+                .socket_lock_fd = -1,
                 .retries = 3,
                 .job_attempts = 3,
                 .min_free_bytes = 256ull << 20,
@@ -245,32 +405,14 @@ int main(int argc, char **argv) {
         sigprocmask(SIG_BLOCK, &mask, NULL);
         signal(SIGPIPE, SIG_IGN);
 
+        /* One daemon per state directory and socket, decided before anything is loaded or
+         * the socket touched. */
         struct imp_error e = { 0 };
-        int r = rigcfg_load(d.rig_config, &d.rigcfg, &e);
-        if (r < 0) {
-                log_error_errno(r, "rig config: %s", e.msg);
-                return 1;
-        }
-        if (d.device_timeout_ms)
-                d.rigcfg->timeout_ms = d.device_timeout_ms;
-        r = imp_rig_load(d.rigcfg->calibration, &d.rig, &e);
-        if (r < 0)
-                log_warning_errno(r, "rig calibration: %s; sessions cannot start until it exists, ignoring", e.msg);
-        else
-                d.have_rig = true;
+        int r;
         if ((r = store_init(d.state_dir, &e)) < 0) {
                 log_error_errno(r, "state directory: %s", e.msg);
                 return 1;
         }
-        if ((r = sd_event_default(&d.event)) < 0) {
-                log_error_errno(r, "event loop: %m");
-                return 1;
-        }
-        sd_event_now(d.event, CLOCK_MONOTONIC, &d.started_us);
-        (void) sd_event_add_signal(d.event, NULL, SIGTERM, on_signal, &d);
-        (void) sd_event_add_signal(d.event, NULL, SIGINT, on_signal, &d);
-        (void) sd_event_set_watchdog(d.event, true);
-
         int n = sd_listen_fds(true);
         if (n > 1) {
                 log_error("socket activation passed %d sockets, expected one", n);
@@ -284,6 +426,31 @@ int main(int argc, char **argv) {
                 }
                 d.listen_fd = SD_LISTEN_FDS_START;
         }
+        if (!server_commands_check())
+                return 1;
+        if (lock_instance(&d, n != 1) < 0)
+                return 1;
+        r = rigcfg_load(d.rig_config, &d.rigcfg, &e);
+        if (r < 0) {
+                log_error_errno(r, "rig config: %s", e.msg);
+                return 1;
+        }
+        if (d.device_timeout_ms)
+                d.rigcfg->timeout_ms = d.device_timeout_ms;
+        r = imp_rig_load(d.rigcfg->calibration, &d.rig, &e);
+        if (r < 0)
+                log_warning_errno(r, "rig calibration: %s; sessions cannot start until it exists, ignoring", e.msg);
+        else
+                d.have_rig = true;
+        if ((r = sd_event_default(&d.event)) < 0) {
+                log_error_errno(r, "event loop: %m");
+                return 1;
+        }
+        sd_event_now(d.event, CLOCK_MONOTONIC, &d.started_us);
+        (void) sd_event_add_signal(d.event, NULL, SIGTERM, on_signal, &d);
+        (void) sd_event_add_signal(d.event, NULL, SIGINT, on_signal, &d);
+        (void) sd_event_set_watchdog(d.event, true);
+
         if ((r = server_start(&d)) < 0) {
                 log_error_errno(r, "control socket %s: %m", d.socket_path);
                 return 1;
@@ -310,29 +477,7 @@ int main(int argc, char **argv) {
         if (r < 0)
                 log_error_errno(r, "event loop: %m");
 
-        /* Shutdown: the rig safe first, then the state files and the clients. */
-        sd_notify(false, "STOPPING=1");
-        d.stopping = true;
-        for (struct session *s = d.sessions; s; s = s->next)
-                if (s == d.active || s->cs)
-                        session_shutdown(s);
-        rigcfg_safe_state(d.rigcfg);
-        server_stop(&d);
-        if (n != 1 && d.listen_fd >= 0)
-                (void) unlink(d.socket_path);
-        if (d.listen_fd >= 0)
-                close(d.listen_fd);
-        jobs_free_all(&d);
-        calibrations_free_all(&d);
-        while (d.sessions) {
-                struct session *s = d.sessions;
-                d.sessions = s->next;
-                session_free(s);
-        }
-        rigcfg_free(d.rigcfg);
-        if (d.have_rig)
-                imp_rig_free(&d.rig);
-        sd_event_unref(d.event);
+        daemon_shutdown(&d, n == 1);
         log_info("stopped");
         return r < 0 ? 1 : 0;
 }

@@ -19,54 +19,29 @@
 #include "macro.h"
 #include "plan.h"
 
-#define MAX_GROUPS 256
-
-/* The peer's supplementary groups from /proc (SO_PEERCRED has only the primary one). */
-static int peer_groups(pid_t pid, gid_t *groups, int max) {
-        char p[64], line[4096];
-        snprintf(p, sizeof p, "/proc/%d/status", (int) pid);
-        _cleanup_fclose_ FILE *f = fopen(p, "re");
-        int n = 0;
-        while (f && fgets(line, sizeof line, f))
-                if (!strncmp(line, "Groups:", 7))
-                        for (char *s = line + 7, *end;; s = end) {
-                                unsigned long v = strtoul(s, &end, 10);
-                                if (end == s || n == max)
-                                        break;
-                                groups[n++] = (gid_t) v;
-                        }
-        return n;
-}
-
 /* Would the peer get `bit` (4 read, 1 search) on this inode by its mode bits? */
-static bool peer_may(const struct stat *st, const struct ucred *peer, const gid_t *groups, int n_groups,
-                     mode_t bit) {
+static bool peer_may(const struct stat *st, const struct daemon_peer *peer, mode_t bit) {
         if (st->st_uid == peer->uid)
                 return st->st_mode & (bit << 6);
-        bool in_group = st->st_gid == peer->gid;
-        for (int i = 0; i < n_groups && !in_group; i++)
-                in_group = groups[i] == st->st_gid;
-        if (in_group)
+        if (daemon_peer_in_group(peer, st->st_gid))     /* groups from SO_PEERGROUPS (server.c) */
                 return st->st_mode & (bit << 3);
         return st->st_mode & bit;
 }
 
 /* Every directory from / to the file must be searchable by the peer, the file readable. */
-static bool peer_can_read(const char *real, const struct ucred *peer) {
+static bool peer_can_read(const char *real, const struct daemon_peer *peer) {
         if (peer->uid == 0 || peer->uid == geteuid())
                 return true;    /* the daemon grants it nothing it does not have */
-        gid_t groups[MAX_GROUPS];
-        int ng = peer_groups(peer->pid, groups, MAX_GROUPS);
         char prefix[PATH_MAX];
         struct stat st;
         for (const char *p = real; (p = strchr(p, '/')); p++) {
                 size_t n = p == real ? 1 : (size_t) (p - real);
                 memcpy(prefix, real, n);
                 prefix[n] = 0;
-                if (stat(prefix, &st) < 0 || !peer_may(&st, peer, groups, ng, 1))
+                if (stat(prefix, &st) < 0 || !peer_may(&st, peer, 1))
                         return false;
         }
-        return stat(real, &st) == 0 && peer_may(&st, peer, groups, ng, 4);
+        return stat(real, &st) == 0 && peer_may(&st, peer, 4);
 }
 
 static bool below(const char *real, const char *dir) {
@@ -89,7 +64,7 @@ static int not_a_plan(struct daemon *d, const char *path, const char *field, str
                                    "%s: not a plan of this daemon: plans are read only below %s", path, dirs);
 }
 
-int plan_path_resolve(struct daemon *d, const struct ucred *peer, const char *path, const char *field,
+int plan_path_resolve(struct daemon *d, const struct daemon_peer *peer, const char *path, const char *field,
                       char ret[static PATH_MAX], struct imp_proto_error *perr) {
         char real[PATH_MAX];
         bool resolved = path && path[0] && realpath(path, real);

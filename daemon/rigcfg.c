@@ -2,10 +2,14 @@
  * backend and at which address, and where the rig's calibration (rig.json) is. Devices
  * are opened on demand and kept open; a device that failed is closed and reopened. */
 #include <libgen.h>
+#include <pthread.h>
 #include <string.h>
+#include <sys/eventfd.h>
+#include <unistd.h>
 #include "conf.h"
 #include "impastod.h"
 #include "json-util.h"
+#include "log.h"
 
 static const char *const dev_state_names[] = { "absent", "ok", "busy", "fault" };
 
@@ -287,4 +291,91 @@ json_t *rigcfg_devices_json(struct rigcfg *rc) {
                                                    "address", rc->dome.address, "state",
                                                    dev_state_name(rc->dome.state), "detail", rc->dome.detail));
         return a;
+}
+
+/* ---- `devices` off the event loop ------------------------------------------------------------ */
+
+/* Opening an absent camera takes its whole timeout (seconds): done in a thread so the loop
+ * keeps serving, with the rig's cameras copied so that a calibration made current meanwhile
+ * does not change what the thread reads. */
+struct device_probe {
+        struct daemon *d;
+        pthread_t thread;
+        int efd;                        /* the thread's "done" to the loop */
+        sd_event_source *src;
+        device_probe_done_fn done;
+        json_t *snapshot;               /* the devices before the probe, served meanwhile */
+        struct imp_rig rig;
+        bool have_rig;
+        uint64_t t0_us;
+};
+
+static void *probe_thread(void *userdata) {
+        struct device_probe *pr = userdata;
+        (void) rigcfg_open_devices(pr->d->rigcfg, pr->have_rig ? &pr->rig : NULL, NULL);
+        uint64_t one = 1;
+        (void) !write(pr->efd, &one, sizeof one);
+        return NULL;
+}
+
+static void probe_free(struct device_probe *pr) {
+        pthread_join(pr->thread, NULL);
+        sd_event_source_disable_unref(pr->src);
+        close(pr->efd);
+        json_decref(pr->snapshot);
+        if (pr->have_rig)
+                imp_rig_free(&pr->rig);
+        free(pr);
+}
+
+static int on_probe_done(sd_event_source *src, int fd, uint32_t revents, void *userdata) {
+        struct device_probe *pr = userdata;
+        struct daemon *d = pr->d;
+        device_probe_done_fn done = pr->done;
+        uint64_t now = 0;
+        (void) sd_event_now(d->event, CLOCK_MONOTONIC, &now);
+        log_debug("devices probed in %.3f s", (double) (now - pr->t0_us) / 1e6);
+        d->probe = NULL;
+        probe_free(pr);
+        done(d, rigcfg_devices_json(d->rigcfg));
+        return 0;
+}
+
+int device_probe_start(struct daemon *d, device_probe_done_fn done) {
+        if (d->probe)
+                return -EBUSY;
+        struct device_probe *pr = calloc(1, sizeof *pr);
+        if (!pr)
+                return -ENOMEM;
+        pr->d = d;
+        pr->done = done;
+        pr->efd = eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
+        pr->snapshot = rigcfg_devices_json(d->rigcfg);
+        pr->have_rig = d->have_rig && imp_rig_copy(&d->rig, &pr->rig) == 0;
+        (void) sd_event_now(d->event, CLOCK_MONOTONIC, &pr->t0_us);
+        int r = pr->efd < 0 ? negative_errno() : sd_event_add_io(d->event, &pr->src, pr->efd, EPOLLIN, on_probe_done, pr);
+        if (r >= 0 && (r = -pthread_create(&pr->thread, NULL, probe_thread, pr)) < 0)
+                pr->src = sd_event_source_disable_unref(pr->src);
+        if (r < 0) {
+                if (pr->efd >= 0)
+                        close(pr->efd);
+                json_decref(pr->snapshot);
+                if (pr->have_rig)
+                        imp_rig_free(&pr->rig);
+                free(pr);
+                return r;
+        }
+        d->probe = pr;
+        return 0;
+}
+
+json_t *device_probe_snapshot(struct daemon *d) {
+        return d->probe ? json_deep_copy(d->probe->snapshot) : rigcfg_devices_json(d->rigcfg);
+}
+
+void device_probe_wait(struct daemon *d) {
+        if (!d->probe)
+                return;
+        probe_free(d->probe);
+        d->probe = NULL;
 }

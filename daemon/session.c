@@ -269,6 +269,8 @@ static void finish(struct session *s, enum session_state st) {
         server_broadcast(s->d, "done", json_pack("{s:s, s:s, s:I, s:s}", "session", s->id, "state",
                                                  session_state_name(st), "frames", (json_int_t) s->n_frames,
                                                  "path", s->dir));
+        /* a session's end is what a calibration waits for (after the event is queued) */
+        calibrations_session_ended(s->d, s->id, session_state_name(st));
         if (st == SESSION_COMPLETED)
                 (void) jobs_enqueue(s->d, s);
 }

@@ -13,13 +13,6 @@
 #include "json-util.h"
 #include "log.h"
 
-void rfc3339_now(char buf[static 32]) {
-        time_t t = time(NULL);
-        struct tm tm;
-        gmtime_r(&t, &tm);
-        strftime(buf, 32, "%Y-%m-%dT%H:%M:%SZ", &tm);
-}
-
 int store_init(const char *state_dir, struct imp_error *err) {
         char p[PATH_MAX];
         int r;

@@ -13,3 +13,26 @@ if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WI
     set_tests_properties(test-daemon-${t} PROPERTIES RESOURCE_LOCK gvcp)
   endforeach()
 endif()
+
+# test-daemon-limits PART: the socket's access control and limits (docs/security.md), one
+# impastod per part; needs root (clients as other uids, a private /etc/group), else skipped.
+if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WITH_MODBUS)
+  impasto_test(test-daemon-limits LABELS integration fault LIBS impasto_proto impasto_pipeline impasto_emu
+               TIMEOUT 120 ARGS roles)
+  add_dependencies(test-daemon-limits impastod impasto)
+  set_tests_properties(test-daemon-limits PROPERTIES RESOURCE_LOCK gvcp)
+  foreach(part pidns slowreader slots devices instance verdict)
+    add_test(NAME test-daemon-limits-${part} COMMAND test-daemon-limits ${part})
+    set_tests_properties(test-daemon-limits-${part} PROPERTIES LABELS "integration;fault" SKIP_RETURN_CODE 77
+                         TIMEOUT 120 RESOURCE_LOCK gvcp)
+  endforeach()
+endif()
+
+# test-daemon-abuse: a slow reader, a slowloris, a memory-bomb plan and @include escapes at
+# once during a capture (docs/security.md); needs root, else skipped.
+if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WITH_MODBUS)
+  impasto_test(test-daemon-abuse LABELS integration stability fault LIBS impasto_proto impasto_pipeline impasto_emu
+               TIMEOUT 180)
+  add_dependencies(test-daemon-abuse impastod)
+  set_tests_properties(test-daemon-abuse PROPERTIES RESOURCE_LOCK gvcp)
+endif()

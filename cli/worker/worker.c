@@ -32,6 +32,7 @@
 #include <time.h>
 #include <unistd.h>
 #include "build-kind.h"
+#include "job.h"
 #include "json-util.h"
 #include "log.h"
 #include "process.h"
@@ -42,8 +43,6 @@
 #define EXIT_BAD_JOB 3
 #define EXIT_QUEUE 4
 
-#define DEFAULT_MAX_ATTEMPTS 3
-#define MAX_ATTEMPTS_LIMIT 100
 #define POLL_INTERVAL_S 2.0
 #define PROGRESS_INTERVAL_S 1.0
 
@@ -53,45 +52,22 @@ static void on_signal(int sig) {
         stop_requested = 1;
 }
 
-/* One claimed or inspected job. */
+/* One claimed or inspected job: the file (pipeline/model/job.h) and where it lives. */
 struct job {
-        json_t *doc;                  /* the whole file: unknown members are kept */
-        char id[129];
+        struct imp_job f;
         char path[PATH_MAX];          /* DIR/<id>.json */
         char running[PATH_MAX];       /* DIR/<id>.json.running while claimed */
         char lock[PATH_MAX];          /* DIR/<id>.lock */
         char capture[PATH_MAX], copy[PATH_MAX];   /* resolved against DIR */
-        long long attempts, max_attempts;
         int lock_fd;
 };
 
-static void rfc3339_now(char buf[static 32]) {
-        struct timespec ts;
-        clock_gettime(CLOCK_REALTIME, &ts);
-        struct tm tm;
-        gmtime_r(&ts.tv_sec, &tm);
-        strftime(buf, 32, "%Y-%m-%dT%H:%M:%SZ", &tm);
-}
-
 static void job_done(struct job *j) {
-        json_decref(j->doc);
-        j->doc = NULL;
+        imp_job_done(&j->f);
         if (j->lock_fd >= 0) {
-                unlink(j->lock);
-                close(j->lock_fd);
+                imp_job_unlock(j->lock, j->lock_fd);
                 j->lock_fd = -1;
         }
-}
-
-static bool is_token(const char *s) {
-        size_t n = strlen(s);
-        if (n < 1 || n > 128 || s[0] == '.')
-                return false;
-        for (; *s; s++)
-                if (!(('a' <= *s && *s <= 'z') || ('A' <= *s && *s <= 'Z') || ('0' <= *s && *s <= '9') ||
-                      *s == '.' || *s == '_' || *s == '-'))
-                        return false;
-        return true;
 }
 
 static int resolve(const char *dir, const char *p, char *out, size_t size) {
@@ -108,83 +84,47 @@ static int job_read(const char *path, const char *read_from, struct job *j, stru
         snprintf(dir, sizeof dir, "%.*s", slash ? (int) (slash - path) : 1, slash ? path : ".");
         if (slash == path)
                 snprintf(dir, sizeof dir, "/");
-        int r = imp_json_load(read_from, &j->doc, err);
+        json_t *doc = NULL;
+        int r = imp_json_load(read_from, &doc, err);
         if (r < 0)
                 return r;
-        if (!json_is_object(j->doc))
-                return imp_error_set(err, -EINVAL, "%s: expected a JSON object", path);
-        const char *id, *capture, *copy, *state;
-        long long attempts = 0, max_attempts = DEFAULT_MAX_ATTEMPTS;
-        if ((r = imp_json_get_string(j->doc, "id", true, &id, path, err)) < 0 ||
-            (r = imp_json_get_string(j->doc, "capture", true, &capture, path, err)) < 0 ||
-            (r = imp_json_get_string(j->doc, "copy", true, &copy, path, err)) < 0 ||
-            (r = imp_json_get_string(j->doc, "state", true, &state, path, err)) < 0 ||
-            (r = imp_json_get_int(j->doc, "attempts", false, &attempts, path, err)) < 0 ||
-            (r = imp_json_get_int(j->doc, "max_attempts", false, &max_attempts, path, err)) < 0)
-                return r == -ENOENT ? -EINVAL : r;
-        if (!is_token(id))
-                return imp_error_set(err, -EINVAL, "%s: id: expected 1 to 128 of [A-Za-z0-9._-], got \"%s\"", path, id);
-        if (!capture[0] || !copy[0])
-                return imp_error_set(err, -EINVAL, "%s: %s: expected a path", path, capture[0] ? "copy" : "capture");
-        if (attempts < 0)
-                return imp_error_set(err, -EINVAL, "%s: attempts: expected an integer >= 0, got %lld", path, attempts);
-        if (max_attempts < 1 || max_attempts > MAX_ATTEMPTS_LIMIT)
-                return imp_error_set(err, -EINVAL, "%s: max_attempts: expected 1 to %d, got %lld", path,
-                                     MAX_ATTEMPTS_LIMIT, max_attempts);
-        snprintf(j->id, sizeof j->id, "%s", id);
+        if ((r = imp_job_parse(doc, path, IMP_JOB_STRICT, &j->f, err)) < 0)
+                return r;
         int n1 = snprintf(j->running, sizeof j->running, "%s.running", path);
-        int n2 = snprintf(j->lock, sizeof j->lock, "%s/%s.lock", dir, id);
-        if (resolve(dir, capture, j->capture, sizeof j->capture) < 0 ||
-            resolve(dir, copy, j->copy, sizeof j->copy) < 0 || n1 < 0 || (size_t) n1 >= sizeof j->running ||
-            n2 < 0 || (size_t) n2 >= sizeof j->lock)
+        if (resolve(dir, j->f.capture, j->capture, sizeof j->capture) < 0 ||
+            resolve(dir, j->f.copy, j->copy, sizeof j->copy) < 0 || n1 < 0 || (size_t) n1 >= sizeof j->running ||
+            imp_job_path(dir, j->f.id, IMP_JOB_FILE_LOCK, j->lock, sizeof j->lock) < 0)
                 return imp_error_set(err, -ENAMETOOLONG, "%s: a path of the job is too long", path);
-        j->attempts = attempts;
-        j->max_attempts = max_attempts;
         return 0;
 }
 
 static const char *job_state(const struct job *j) {
-        return json_string_value(json_object_get(j->doc, "state"));
+        return json_string_value(json_object_get(j->f.doc, "state"));
 }
 
-/* flock on DIR/<id>.lock, held while the job is claimed; -EBUSY when another worker has it.
- * The inode check closes the race with a holder that unlinks the lock file as it finishes. */
+/* The claim lock (pipeline/model/job.h), held while the job is claimed; -EBUSY when another
+ * worker has it. */
 static int job_lock(struct job *j) {
-        for (;;) {
-                int fd = open(j->lock, O_RDWR | O_CREAT | O_CLOEXEC, 0644);
-                if (fd < 0)
-                        return negative_errno();
-                if (flock(fd, LOCK_EX | LOCK_NB) < 0) {
-                        int r = errno == EWOULDBLOCK ? -EBUSY : negative_errno();
-                        close(fd);
-                        return r;
-                }
-                struct stat a, b;
-                if (fstat(fd, &a) == 0 && stat(j->lock, &b) == 0 && a.st_ino == b.st_ino && a.st_dev == b.st_dev) {
-                        j->lock_fd = fd;
-                        return 0;
-                }
-                close(fd);   /* unlinked under us: take the new one */
-        }
+        return imp_job_lock(j->lock, &j->lock_fd);
 }
 
 static int job_write(struct job *j, const char *where, struct imp_error *err) {
-        return imp_json_save_atomic(where, j->doc, err);
+        return imp_json_save_atomic(where, j->f.doc, err);
 }
 
 static int set_state(struct job *j, const char *state, const char *error) {
         char now[32];
-        rfc3339_now(now);
+        imp_rfc3339_now(now);
         bool running = !strcmp(state, "running");
-        if (json_object_set_new(j->doc, running ? "started" : "ended", json_string(now)) < 0 ||
-            (running && json_object_set_new(j->doc, "ended", json_null()) < 0) ||
-            (running && json_object_set_new(j->doc, "progress", json_real(0)) < 0) ||
-            (running && json_object_set_new(j->doc, "stage", json_null()) < 0) ||
-            (!strcmp(state, "done") && json_object_set_new(j->doc, "progress", json_real(1)) < 0) ||
-            json_object_set_new(j->doc, "state", json_string(state)) < 0 ||
-            json_object_set_new(j->doc, "attempts", json_integer(j->attempts)) < 0 ||
-            json_object_set_new(j->doc, "max_attempts", json_integer(j->max_attempts)) < 0 ||
-            json_object_set_new(j->doc, "error", error ? json_string(error) : json_null()) < 0)
+        if (json_object_set_new(j->f.doc, running ? "started" : "ended", json_string(now)) < 0 ||
+            (running && json_object_set_new(j->f.doc, "ended", json_null()) < 0) ||
+            (running && json_object_set_new(j->f.doc, "progress", json_real(0)) < 0) ||
+            (running && json_object_set_new(j->f.doc, "stage", json_null()) < 0) ||
+            (!strcmp(state, "done") && json_object_set_new(j->f.doc, "progress", json_real(1)) < 0) ||
+            json_object_set_new(j->f.doc, "state", json_string(state)) < 0 ||
+            json_object_set_new(j->f.doc, "attempts", json_integer(j->f.attempts)) < 0 ||
+            json_object_set_new(j->f.doc, "max_attempts", json_integer(j->f.max_attempts)) < 0 ||
+            json_object_set_new(j->f.doc, "error", error ? json_string(error) : json_null()) < 0)
                 return -ENOMEM;
         return 0;
 }
@@ -207,7 +147,7 @@ static int job_claim(const char *path, struct job *j, struct imp_error *err) {
         if (r < 0)
                 return r;
         if (strcmp(job_state(j) ?: "", "queued")) {
-                imp_error_set(err, -EALREADY, "%s: job %s is %s, not queued", path, j->id, job_state(j) ?: "?");
+                imp_error_set(err, -EALREADY, "%s: job %s is %s, not queued", path, j->f.id, job_state(j) ?: "?");
                 return -EALREADY;
         }
         r = job_lock(j);
@@ -215,20 +155,19 @@ static int job_claim(const char *path, struct job *j, struct imp_error *err) {
                 return imp_error_set(err, r, "%s: %s", path,
                                      r == -EBUSY ? "claimed by another worker" : strerror(-r));
         /* Another worker may have finished it between our read and the lock. */
-        json_decref(j->doc);
-        j->doc = NULL;
+        imp_job_done(&j->f);
         int lock_fd = TAKE_FD(j->lock_fd);
         r = job_read(path, path, j, err);
         j->lock_fd = lock_fd;
         if (r < 0)
                 return r == -ENOENT ? imp_error_set(err, -EBUSY, "%s: claimed by another worker", path) : r;
         if (strcmp(job_state(j) ?: "", "queued"))
-                return imp_error_set(err, -EALREADY, "%s: job %s is %s, not queued", path, j->id,
+                return imp_error_set(err, -EALREADY, "%s: job %s is %s, not queued", path, j->f.id,
                                      job_state(j) ?: "?");
         if (rename(path, j->running) < 0)
                 return imp_error_set(err, negative_errno(), "%s: cannot claim: %m", path);
-        j->attempts++;
-        if ((r = set_state(j, "running", json_string_value(json_object_get(j->doc, "error")))) < 0)
+        j->f.attempts++;
+        if ((r = set_state(j, "running", json_string_value(json_object_get(j->f.doc, "error")))) < 0)
                 return imp_error_set(err, r, "out of memory");
         if ((r = job_write(j, j->running, err)) < 0) {
                 rename(j->running, path);
@@ -282,14 +221,14 @@ static void on_progress(void *userdata, const char *stage, size_t done, size_t t
         snprintf(p->stage, sizeof p->stage, "%s", stage);
         p->last = t;
         p->fraction = job_fraction(p->fraction, stage, done, total);
-        printf("job %s: %s %zu/%zu\n", p->job->id, stage, done, total);
+        printf("job %s: %s %zu/%zu\n", p->job->f.id, stage, done, total);
         fflush(stdout);
         /* Progress is advice: a failed write does not stop the job. */
         struct imp_error err = {};
-        if (json_object_set_new(p->job->doc, "stage", json_string(stage)) < 0 ||
-            json_object_set_new(p->job->doc, "progress", json_real(p->fraction)) < 0 ||
+        if (json_object_set_new(p->job->f.doc, "stage", json_string(stage)) < 0 ||
+            json_object_set_new(p->job->f.doc, "progress", json_real(p->fraction)) < 0 ||
             job_write(p->job, p->job->running, &err) < 0)
-                log_warning("job %s: writing progress: %s, ignoring", p->job->id,
+                log_warning("job %s: writing progress: %s, ignoring", p->job->f.id,
                             err.msg[0] ? err.msg : "out of memory");
 }
 
@@ -340,7 +279,7 @@ static int parse_worker_args(const char *args, struct imp_process_options *o, ch
 
 /* Runs a claimed job to its next state and releases it. Returns the exit code. */
 static int job_run(struct job *j) {
-        printf("job %s: attempt %lld of %lld: %s -> %s\n", j->id, j->attempts, j->max_attempts, j->capture, j->copy);
+        printf("job %s: attempt %d of %d: %s -> %s\n", j->f.id, j->f.attempts, j->f.max_attempts, j->capture, j->copy);
         fflush(stdout);
         struct imp_process_options o;
         imp_process_options_default(&o);
@@ -348,16 +287,16 @@ static int job_run(struct job *j) {
         o.progress = on_progress;
         o.userdata = &ps;
         struct imp_error err = {};
-        const char *args = json_string_value(json_object_get(j->doc, "worker_args"));
+        const char *args = json_string_value(json_object_get(j->f.doc, "worker_args"));
         int r = args ? parse_worker_args(args, &o, err.msg, sizeof err.msg) : 0;
         if (r == 0 && args && args[0])
-                printf("job %s: worker_args %s\n", j->id, args);
+                printf("job %s: worker_args %s\n", j->f.id, args);
         /* The job file says which build processed it; a sanitizer or -O0 build is said aloud,
          * since its processing time is not the pipeline's (pipeline/core/build-kind.h). */
-        json_object_set_new(j->doc, "worker_build", json_string(imp_build_kind()));
+        json_object_set_new(j->f.doc, "worker_build", json_string(imp_build_kind()));
         if (imp_build_is_slow())
                 log_warning("job %s: this impasto-worker is an %s build: processing takes several times longer "
-                            "(and more memory) than with an optimized build", j->id, imp_build_kind());
+                            "(and more memory) than with an optimized build", j->f.id, imp_build_kind());
         if (r == 0)
                 r = imp_process_capture(j->capture, j->copy, &o, &err);
         const char *state = "done";
@@ -365,19 +304,19 @@ static int job_run(struct job *j) {
         msg[0] = 0;
         if (r < 0) {
                 snprintf(msg, sizeof msg, "%s", err.msg[0] ? err.msg : strerror(-r));
-                state = permanent(r) || j->attempts >= j->max_attempts ? "failed" : "queued";
+                state = permanent(r) || j->f.attempts >= j->f.max_attempts ? "failed" : "queued";
         }
         if (set_state(j, state, r < 0 ? msg : NULL) < 0)
                 return log_error("out of memory"), EXIT_JOB_FAILED;
         struct imp_error werr = {};
         int w = job_release(j, &werr);
         if (w < 0)
-                log_error("job %s: %s", j->id, werr.msg);
+                log_error("job %s: %s", j->f.id, werr.msg);
         if (r < 0) {
-                log_error("job %s: %s", j->id, msg);
-                printf("job %s: %s after attempt %lld of %lld\n", j->id, state, j->attempts, j->max_attempts);
+                log_error("job %s: %s", j->f.id, msg);
+                printf("job %s: %s after attempt %d of %d\n", j->f.id, state, j->f.attempts, j->f.max_attempts);
         } else
-                printf("job %s: done, digital copy in %s\n", j->id, j->copy);
+                printf("job %s: done, digital copy in %s\n", j->f.id, j->copy);
         fflush(stdout);
         return r < 0 || w < 0 ? EXIT_JOB_FAILED : EXIT_DONE;
 }
@@ -403,13 +342,13 @@ static void recover_stale(const char *dir, const char *name) {
                 return;   /* its worker is alive */
         if (access(running, F_OK) < 0)
                 return;   /* it finished meanwhile */
-        bool exhausted = j.attempts >= j.max_attempts;
+        bool exhausted = j.f.attempts >= j.f.max_attempts;
         char msg[256];
-        snprintf(msg, sizeof msg, "the worker stopped during attempt %lld", j.attempts);
+        snprintf(msg, sizeof msg, "the worker stopped during attempt %d", j.f.attempts);
         if (set_state(&j, exhausted ? "failed" : "queued", msg) < 0 || job_release(&j, &err) < 0)
                 log_warning("%s: cannot recover: %s, ignoring", running, err.msg);
         else
-                log_notice("job %s: %s; %s", j.id, msg, exhausted ? "failed" : "queued again");
+                log_notice("job %s: %s; %s", j.f.id, msg, exhausted ? "failed" : "queued again");
 }
 
 /* Recovers every stale claim in DIR before the queue is scanned, so that a recovered job

@@ -3,11 +3,13 @@
  * rig.json, plan), impastod as a child process, and a blocking protocol client built on
  * the shared codec. */
 #include <fcntl.h>
+#include <linux/sched.h>
 #include <poll.h>
 #include <signal.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
 #include <sys/un.h>
+#include <sys/syscall.h>
 #include <sys/wait.h>
 #include <time.h>
 #include "captureset.h"
@@ -30,6 +32,11 @@ struct harness {
         struct imp_emu_modbus *mb;
         struct imp_emu_gige *gige;
         pid_t pid;
+        /* h_start options */
+        bool roles_from_credentials;    /* no --operators-all: roles as the kernel says */
+        bool new_pid_namespace;         /* impastod as PID 1 of a new PID namespace */
+        const char *stderr_path;        /* impastod's standard error into this file */
+        bool keep_socket;               /* leave a socket file at h->socket (another daemon's) */
 };
 
 _unused_ static uint64_t h_now_ms(void) {
@@ -112,35 +119,58 @@ _unused_ static void h_teardown(struct harness *h) {
         imp_emu_rig_free(h->rig);
 }
 
+struct h_exec {
+        const struct harness *h;
+        const char *const *argv;
+};
+
+static int h_exec_child(void *userdata) {
+        const struct h_exec *x = userdata;
+        const char *err = x->h->stderr_path ? x->h->stderr_path : getenv("IMPASTO_TEST_VERBOSE") ? NULL : "/dev/null";
+        if (err) {
+                int fd = open(err, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+                if (fd >= 0)
+                        dup2(fd, 2);
+        }
+        execv(x->argv[0], (char **) x->argv);
+        _exit(127);
+}
+
+/* fork, or (new_pid_namespace, needs root) the raw clone(2) that is fork into a new PID
+ * namespace, then exec argv. */
+static pid_t h_spawn(const struct harness *h, const char *const *argv) {
+        struct h_exec x = { h, argv };
+        pid_t pid = h->new_pid_namespace ? (pid_t) syscall(SYS_clone, CLONE_NEWPID | SIGCHLD, NULL, NULL, NULL, NULL)
+                                         : fork();
+        if (pid < 0) {
+                perror(h->new_pid_namespace ? "clone(CLONE_NEWPID)" : "fork");
+                exit(2);
+        }
+        if (pid == 0)
+                h_exec_child(&x);
+        return pid;
+}
+
 /* Starts impastod with the harness paths and extra options (NULL-terminated). */
 _unused_ static void h_start(struct harness *h, const char *const *extra) {
         const char *argv[32];
         int n = 0;
-        argv[n++] = IMPASTO_BINARY_DIR "/daemon/impastod";
+        /* IMPASTO_TEST_IMPASTOD: another impastod binary (e.g. an older one, to see a test fail) */
+        argv[n++] = getenv("IMPASTO_TEST_IMPASTOD") ?: IMPASTO_BINARY_DIR "/daemon/impastod";
         argv[n++] = "--rig";
         argv[n++] = h->rigcfg;
         argv[n++] = "--socket";
         argv[n++] = h->socket;
         argv[n++] = "--state-dir";
         argv[n++] = h->state;
-        argv[n++] = "--operators-all";
+        if (!h->roles_from_credentials)
+                argv[n++] = "--operators-all";
         for (; extra && *extra && n < 30; extra++)
                 argv[n++] = *extra;
         argv[n] = NULL;
-        unlink(h->socket);
-        pid_t pid = fork();
-        if (pid < 0)
-                exit(2);
-        if (pid == 0) {
-                if (!getenv("IMPASTO_TEST_VERBOSE")) {
-                        int fd = open("/dev/null", O_WRONLY);
-                        if (fd >= 0)
-                                dup2(fd, 2);
-                }
-                execv(argv[0], (char **) argv);
-                _exit(127);
-        }
-        h->pid = pid;
+        if (!h->keep_socket)
+                unlink(h->socket);
+        h->pid = h_spawn(h, argv);
 }
 
 /* Waits for exit; returns the wait status, or -1 after timeout_ms (then kills). */
