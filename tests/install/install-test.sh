@@ -52,8 +52,8 @@ rig=$(opt_value --rig) worker=$(opt_value --worker-cmd) calib=$(opt_value --cali
 check "ExecStart binary $bin is installed and executable" test -x "$root$bin"
 check "ExecStart passes --rig (impastod cannot start without a rig config)" test -n "$rig"
 check "the --rig config $rig is installed" test -f "$root$rig"
-check "the worker $worker is installed and executable" test -x "$root$worker"
-check "the --calibrate-cmd $calib is installed and executable" test -x "$root$calib"
+check "the worker $worker is installed and executable" test -n "$worker" -a -x "$root$worker" -a ! -d "$root$worker"
+check "the --calibrate-cmd $calib is installed and executable" test -n "$calib" -a -x "$root$calib" -a ! -d "$root$calib"
 for pd in $(printf '%s\n' $exec_words | awk 'prev == "--plan-dir" { print } { prev = $0 }'); do
   case $pd in /var/lib/impasto/*) ;;   # made by tmpfiles/StateDirectory=
   *) check "plan dir $pd is installed (impastod refuses a missing one)" test -d "$root$pd" ;; esac
@@ -93,6 +93,8 @@ case $rc in
 77) echo "note: $(tail -n1 "$tmp/verify.log")" ;;
 *) cat "$tmp/verify.log"; echo "FAIL: systemd-analyze verify on the installed units"; failures=$((failures + 1)) ;;
 esac
+
+[ -n "$rig" ] && [ -f "$root$rig" ] || { echo "$failures failed (no rig config to start impastod with)"; exit 1; }
 
 # The emulated rig behind the installed rig config (its devices on 127.0.0.1, Modbus 15020);
 # rig.json, which the config names, written next to it as an operator's calibration would be.
