@@ -18,7 +18,16 @@ install(FILES ${IMPASTO_UNITS_BUILD}/impasto.tmpfiles DESTINATION lib/tmpfiles.d
 
 # Config: the documented rig config (the simulated rig's, to edit for real devices), the
 # plan presets in the folder the unit passes as --plan-dir, every example kept alongside.
-install(FILES config/rigs/sim.cfg DESTINATION ${CMAKE_INSTALL_SYSCONFDIR}/impasto RENAME rig.cfg)
+# rig.cfg is the operator's once edited: installed only where there is none yet (the
+# example stays in examples/rigs/sim.cfg).
+install(CODE "
+  set(rig \"\$ENV{DESTDIR}${IMPASTO_CONF_DIR}/rig.cfg\")
+  if(EXISTS \"\${rig}\")
+    message(STATUS \"Keeping: \${rig} (the example is examples/rigs/sim.cfg)\")
+  else()
+    file(INSTALL \"${PROJECT_SOURCE_DIR}/config/rigs/sim.cfg\" DESTINATION \"${IMPASTO_CONF_DIR}\"
+         RENAME rig.cfg)
+  endif()")
 install(DIRECTORY config/plans/ DESTINATION ${CMAKE_INSTALL_SYSCONFDIR}/impasto/plans)
 install(DIRECTORY config/ DESTINATION ${CMAKE_INSTALL_SYSCONFDIR}/impasto/examples)
 # What Documentation= in the units names.

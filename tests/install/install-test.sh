@@ -6,7 +6,8 @@
 # the prefix, and `systemd-analyze verify` on the installed units. Then starts the installed
 # impastod exactly as impastod.service does (paths moved into the DESTDIR, state in a temp
 # dir) in front of the emulated rig served by the installed `impasto sim serve`, and checks
-# that the installed `impasto status` answers with the rig and its calibration loaded.
+# that the installed `impasto status` answers with the rig and its calibration loaded, and
+# that installing again keeps an edited rig config.
 # Runs itself in a private network namespace (the emulator listens on fixed loopback
 # ports); exit 77 (skipped) when impastod is not built or no namespace can be made.
 set -u
@@ -137,6 +138,11 @@ daemon_pid=$!
 for _ in $(seq 150); do [ -S "$tmp/s2.sock" ] && break; sleep 0.1; done
 kill -TERM $daemon_pid; wait $daemon_pid; daemon_pid=""
 check "a missing worker is reported at start" grep -q "no-such-worker: .*every processing job will fail" "$tmp/impastod2.log"
+
+# Installing again (an upgrade) keeps the operator's rig config.
+echo "# edited by the operator" >>"$root$rig"
+DESTDIR=$root cmake --install "$build" --prefix "$prefix" >"$tmp/install2.log" 2>&1
+check "a second install keeps an edited rig config" grep -q "^# edited by the operator" "$root$rig"
 
 [ $failures -eq 0 ] || { echo "--- impastod.log"; cat "$tmp/impastod.log"; echo "$failures failed"; exit 1; }
 echo "install verified"
