@@ -257,7 +257,7 @@ int main(int argc, char **argv) {
         struct imp_error e = { 0 };
         int r = rigcfg_load(d.rig_config, &d.rigcfg, &e);
         if (r < 0) {
-                log_error_errno(r, "rig config: %s", e.msg);
+                log_error_errno(r, "rig config: %s (--rig PATH names another one)", e.msg);
                 return 1;
         }
         if (d.device_timeout_ms)
