@@ -15,6 +15,7 @@
 #include "client.h"
 #include "json-util.h"
 #include "log.h"
+#include "numparse.h"
 
 struct imp_client {
         int fd;
@@ -353,7 +354,8 @@ int imp_client_main_simple(int argc, char **argv, const char *cmd, void (*human)
                         return IMP_EXIT_USAGE;
                 }
         if (optind != argc) {
-                fprintf(stderr, "usage: impasto %s [--json] [--socket PATH]\n", cmd);
+                fprintf(stderr, "impasto %s: unexpected argument '%s'\nusage: impasto %s [--json] [--socket PATH]\n",
+                        cmd, argv[optind], cmd);
                 return IMP_EXIT_USAGE;
         }
         return imp_client_simple(&o, cmd, NULL, human);
@@ -374,14 +376,7 @@ int imp_client_subscribe(struct imp_client *c, json_t *events, unsigned long lon
 }
 
 int imp_client_parse_limit(const char *arg, long *ret) {
-        char *end;
-        long v = strtol(arg, &end, 10);
-        if (!*arg || *end || v < 1 || v > 1000) {
-                log_error("--limit: expected 1 to 1000, got '%s'", arg);
-                return IMP_EXIT_USAGE;
-        }
-        *ret = v;
-        return 0;
+        return imp_parse_long("--limit", arg, 1, 1000, ret) < 0 ? IMP_EXIT_USAGE : 0;
 }
 
 void imp_client_print_table(const json_t *rows, const struct imp_client_column *cols, size_t n_cols,

@@ -22,6 +22,7 @@
 #include "commands.h"
 #include "rig.h"
 #include "log.h"
+#include "numparse.h"
 #ifdef IMPASTO_HAVE_CV
 #include "cv-calib.h"
 #endif
@@ -87,14 +88,7 @@ bad:
 }
 
 static int parse_num(const char *opt, const char *s, double min, double *ret) {
-        char *end;
-        double v = strtod(s, &end);
-        if (end == s || *end || !isfinite(v) || v < min) {
-                log_error("%s: expected a number >= %g, got '%s'", opt, min, s);
-                return -EINVAL;
-        }
-        *ret = v;
-        return 0;
+        return imp_parse_double(opt, s, min, INFINITY, ret);
 }
 
 #ifdef IMPASTO_HAVE_CV

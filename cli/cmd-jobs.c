@@ -6,6 +6,7 @@
 #include <string.h>
 #include "client.h"
 #include "commands.h"
+#include "help.h"
 #include "log.h"
 
 static void usage(FILE *f) {
@@ -50,6 +51,21 @@ static void human_retry(const json_t *r) {
         printf("job %s: %s\n", imp_client_str(r, "job"), imp_client_str(r, "state"));
 }
 
+/* Says what was wrong with the words after `impasto jobs`. */
+static int bad_args(const char *verb, int n, long limit) {
+        static const char *const verbs[] = { "list", "show", "retry" };
+        if (strcmp(verb, "list") && strcmp(verb, "show") && strcmp(verb, "retry"))
+                return imp_cli_unknown_action("jobs", verb, verbs, ARRAY_SIZE(verbs));
+        if (!strcmp(verb, "list"))
+                fprintf(stderr, "impasto jobs list: takes no arguments besides --limit N\n");
+        else if (limit)
+                fprintf(stderr, "impasto jobs %s: --limit applies to 'jobs list' only\n", verb);
+        else
+                fprintf(stderr, "impasto jobs %s: expected one JOB id, got %d\n", verb, n - 1);
+        fprintf(stderr, "Run 'impasto help jobs' for the usage.\n");
+        return IMP_EXIT_USAGE;
+}
+
 static int run(int argc, char **argv) {
         struct imp_client_opts o = {};
         long limit = 0;
@@ -80,8 +96,7 @@ static int run(int argc, char **argv) {
                         return imp_client_simple(&o, "jobs.show", args, human_show);
                 return imp_client_simple(&o, "jobs.retry", args, human_retry);
         }
-        usage(stderr);
-        return IMP_EXIT_USAGE;
+        return bad_args(verb, n, limit);
 }
 
 const struct imp_command imp_cmd_jobs = {

@@ -4,6 +4,7 @@
 #include <string.h>
 #include "commands.h"
 #include "exit-codes.h"
+#include "help.h"
 #include "log.h"
 
 /* Subcommands are declared weak so that the client links while a subcommand's module is
@@ -21,7 +22,8 @@ static void usage(FILE *f) {
         for (size_t i = 0; i < sizeof commands / sizeof commands[0]; i++)
                 if (commands[i])
                         fprintf(f, "  %-10s %s\n", commands[i]->name, commands[i]->summary);
-        fprintf(f, "\nexit codes: 0 ok, 1 failure, 2 usage, 3 bad input, 4 daemon unreachable, 5 permission denied\n");
+        fprintf(f, "\n'impasto help COMMAND' (or impasto COMMAND --help) describes a command; impasto --version\n");
+        fprintf(f, "exit codes: 0 ok, 1 failure, 2 usage, 3 bad input, 4 daemon unreachable, 5 permission denied\n");
 }
 
 int main(int argc, char **argv) {
@@ -30,10 +32,11 @@ int main(int argc, char **argv) {
                 usage(argc < 2 ? stderr : stdout);
                 return argc < 2 ? IMP_EXIT_USAGE : IMP_EXIT_OK;
         }
+        int r = imp_cli_builtin(argc, argv, commands, sizeof commands / sizeof commands[0], usage);
+        if (r >= 0)
+                return r;
         for (size_t i = 0; i < sizeof commands / sizeof commands[0]; i++)
                 if (commands[i] && !strcmp(commands[i]->name, argv[1]))
                         return commands[i]->run(argc - 1, argv + 1);
-        fprintf(stderr, "impasto: unknown command '%s'\n", argv[1]);
-        usage(stderr);
-        return IMP_EXIT_USAGE;
+        return imp_cli_unknown_command(argv[1], commands, sizeof commands / sizeof commands[0]);
 }

@@ -13,12 +13,18 @@
 #include "log.h"
 #include "version.h"
 
+#ifndef IMPASTO_DEFAULT_RIG     /* from the install prefix: cmake/install.cmake */
+#define IMPASTO_DEFAULT_RIG "/etc/impasto/rig.cfg"
+#define IMPASTO_DEFAULT_WORKER "/usr/bin/impasto-worker"
+#define IMPASTO_DEFAULT_CLI "/usr/bin/impasto"
+#endif
+
 static void help(void) {
-        printf("usage: impastod --rig CONFIG [options]\n"
-               "  --rig PATH             rig config (devices and calibration)\n"
+        printf("usage: impastod [--rig CONFIG] [options]\n"
+               "  --rig PATH             rig config (devices and calibration; default " IMPASTO_DEFAULT_RIG ")\n"
                "  --socket PATH          control socket when not socket-activated (default /run/impasto/control.sock)\n"
                "  --state-dir DIR        sessions and jobs (default /var/lib/impasto)\n"
-               "  --worker-cmd PATH      processing worker, run as PATH JOBFILE (default /usr/bin/impasto-worker)\n"
+               "  --worker-cmd PATH      processing worker, run as PATH JOBFILE (default " IMPASTO_DEFAULT_WORKER ")\n"
                "  --worker-args \"ARGS\"   processing options stored in each job for the worker:\n"
                "                         --holdout N, --pitch MM, --cell N, --delta FRACTION, --no-btf\n"
                "  --no-spawn-workers     leave the queue in STATE/jobs to impasto-worker@ services\n"
@@ -42,8 +48,9 @@ static void help(void) {
                "  --plan-dir DIR         plans named by clients must lie below DIR (repeatable; also where\n"
                "                         `calibrate` finds a routine's default plan)\n"
                "  --calibrate-cmd PATH   the offline calibration routines, run as PATH calibrate ROUTINE …\n"
-               "                         (default /usr/bin/impasto)\n"
-               "  -v, --verbose          debug logging\n");
+               "                         (default " IMPASTO_DEFAULT_CLI ")\n"
+               "  -v, --verbose          debug logging\n"
+               "  --version              print the version and exit\n");
 }
 
 void daemon_notify_status(struct daemon *d) {
@@ -166,6 +173,7 @@ static int parse_args(int argc, char **argv, struct daemon *d) {
                 { "device-probe-interval-s", required_argument, NULL, ARG_PROBE },
                 { "verbose", no_argument, NULL, 'v' },
                 { "help", no_argument, NULL, 'h' },
+                { "version", no_argument, NULL, 'V' },
                 {},
         };
         int c;
@@ -235,15 +243,12 @@ static int parse_args(int argc, char **argv, struct daemon *d) {
                         break;
                 case 'v': imp_log_set_level(IMP_LOG_DEBUG); break;
                 case 'h': help(); exit(0);
+                case 'V': printf("impastod %s\n", imp_version()); exit(0);
                 default: return -EINVAL;
                 }
         }
         if (optind < argc) {
                 log_error("unexpected argument \"%s\"", argv[optind]);
-                return -EINVAL;
-        }
-        if (!d->rig_config) {
-                log_error("--rig CONFIG is required");
                 return -EINVAL;
         }
         return 0;
@@ -375,8 +380,9 @@ int main(int argc, char **argv) {
         struct daemon d = {
                 .socket_path = "/run/impasto/control.sock",
                 .state_dir = "/var/lib/impasto",
-                .worker_cmd = "/usr/bin/impasto-worker",
-                .calibrate_cmd = "/usr/bin/impasto",
+                .rig_config = IMPASTO_DEFAULT_RIG,
+                .worker_cmd = IMPASTO_DEFAULT_WORKER,
+                .calibrate_cmd = IMPASTO_DEFAULT_CLI,
                 .spawn_workers = true,
                 .max_clients = DAEMON_MAX_CLIENTS,
                 .max_clients_per_uid = DAEMON_MAX_CLIENTS_PER_UID,
@@ -395,6 +401,9 @@ int main(int argc, char **argv) {
         imp_log_set_ident("impastod");
         if (parse_args(argc, argv, &d) < 0)
                 return 2;
+        if (d.spawn_workers && access(d.worker_cmd, X_OK) < 0)
+                log_warning("worker %s: %m: every processing job will fail; install it or pass --worker-cmd PATH "
+                            "(--no-spawn-workers for impasto-worker@ services)", d.worker_cmd);
 
         /* Signals arrive through the loop; children and threads inherit the mask. */
         sigset_t mask;
@@ -432,7 +441,7 @@ int main(int argc, char **argv) {
                 return 1;
         r = rigcfg_load(d.rig_config, &d.rigcfg, &e);
         if (r < 0) {
-                log_error_errno(r, "rig config: %s", e.msg);
+                log_error_errno(r, "rig config: %s (--rig PATH names another one)", e.msg);
                 return 1;
         }
         if (d.device_timeout_ms)

@@ -1,13 +1,16 @@
 #!/bin/sh
-# systemd-verify.sh SYSTEMD_DIR IMPASTOD IMPASTO_WORKER: runs `systemd-analyze verify` on
-# impasto's units and fails on any message that names one of them. The units point at
-# /usr/sbin/impastod and /usr/bin/impasto-worker, which are not installed in a build tree,
-# so a temporary copy has ExecStart= rewritten to the given binaries (any executable
-# stands in when a binary is not built: verify only checks that it exists). Messages about
+# systemd-verify.sh UNIT_DIR IMPASTOD IMPASTO_WORKER [SYSUSERS TMPFILES]: runs
+# `systemd-analyze verify` on impasto's units (as configured into the build tree, or as
+# installed) and fails on any message that names one of them. The units point at the
+# installed impastod and impasto-worker, which may not exist yet, so a temporary copy has
+# the ExecStart= binary rewritten to the given ones (any executable stands in when a binary
+# is not built: verify only checks that it exists). SYSUSERS/TMPFILES default to
+# UNIT_DIR/impasto.sysusers and UNIT_DIR/impasto.tmpfiles. Messages about
 # other units of the host (its own broken units, missing man pages) are ignored.
 # Exit 77 (skipped) without systemd-analyze.
 set -u
 src=$1 impastod=$2 worker=$3
+sysusers=${4:-$src/impasto.sysusers} tmpfiles=${5:-$src/impasto.tmpfiles}
 command -v systemd-analyze >/dev/null 2>&1 || { echo "SKIP: systemd-analyze not found"; exit 77; }
 [ -x "$impastod" ] || impastod=/bin/true
 [ -x "$worker" ] || worker=/bin/true
@@ -16,18 +19,19 @@ trap 'rm -rf "$tmp"' EXIT INT TERM
 units="impastod.service impastod.socket impasto-worker@.service"
 for u in $units; do
         [ -f "$src/$u" ] || { echo "FAIL: $src/$u missing"; exit 1; }
-        sed -e "s|/usr/sbin/impastod|$impastod|g" -e "s|/usr/bin/impasto-worker|$worker|g" "$src/$u" >"$tmp/$u" || exit 2
+        sed -e "s|^ExecStart=[^ ]*/impastod |ExecStart=$impastod |" \
+            -e "s|^ExecStart=[^ ]*/impasto-worker |ExecStart=$worker |" "$src/$u" >"$tmp/$u" || exit 2
 done
 # a template is verified through an instance
 cp "$tmp/impasto-worker@.service" "$tmp/impasto-worker@1.service"
 # sysusers and tmpfiles: each line must parse (systemd-sysusers/tmpfiles --dry-run where available)
 fail=0
 if command -v systemd-sysusers >/dev/null 2>&1; then
-        out=$(systemd-sysusers --dry-run "$src/impasto.sysusers" 2>&1 | grep -E "impasto.sysusers:[0-9]+")
+        out=$(systemd-sysusers --dry-run "$sysusers" 2>&1 | grep -E "$(basename "$sysusers"):[0-9]+")
         [ -z "$out" ] || { echo "FAIL sysusers: $out"; fail=1; }
 fi
 if command -v systemd-tmpfiles >/dev/null 2>&1; then
-        out=$(systemd-tmpfiles --dry-run --create "$src/impasto.tmpfiles" 2>&1 | grep -Ei "impasto.tmpfiles:[0-9]+")
+        out=$(systemd-tmpfiles --dry-run --create "$tmpfiles" 2>&1 | grep -Ei "$(basename "$tmpfiles"):[0-9]+")
         # "--dry-run" appeared in systemd 253; an older tool says so and the check is skipped
         case "$out" in *"unrecognized option"*|"") ;; *) echo "FAIL tmpfiles: $out"; fail=1 ;; esac
 fi

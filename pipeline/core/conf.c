@@ -423,8 +423,7 @@ int imp_conf_get_list(const struct imp_conf *c, const config_setting_t *s, const
         return get_kind(c, s, path, required, true, ret, err);
 }
 
-/* Edit distance, to suggest the intended name for a typo. */
-static int distance(const char *a, const char *b) {
+int imp_edit_distance(const char *a, const char *b) {
         size_t la = strlen(a), lb = strlen(b);
         if (la > 63 || lb > 63)
                 return 99;
@@ -463,7 +462,7 @@ int imp_conf_check_known(const struct imp_conf *c, const config_setting_t *s,
                 for (int k = 0; known[k]; k++) {
                         size_t len = strlen(list);
                         snprintf(list + len, sizeof list - len, "%s%s", k ? ", " : "", known[k]);
-                        int d = distance(name, known[k]);
+                        int d = imp_edit_distance(name, known[k]);
                         if (d < best) {
                                 best = d;
                                 snprintf(hint, sizeof hint, "; did you mean %s?", known[k]);

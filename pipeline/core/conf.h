@@ -18,6 +18,10 @@ DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_conf *, imp_conf_free);
 const char *imp_conf_path(const struct imp_conf *c);
 config_setting_t *imp_conf_root(const struct imp_conf *c);
 
+/* Levenshtein distance of two names (99 when either is longer than 63 bytes), to suggest
+ * the intended name for a typo: unknown config fields, unknown commands. */
+int imp_edit_distance(const char *a, const char *b);
+
 /* Paths are libconfig paths relative to `s` ("camera.fx", "lights.[3].pos_mm").
  * `s` NULL means the root. Optional getters leave *ret untouched when absent and
  * return 0; required ones return -ENOENT with a message. */

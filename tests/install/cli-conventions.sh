@@ -1,0 +1,71 @@
+#!/bin/sh
+# cli-conventions.sh BUILD: the conventions an operator expects of `impasto` and `impastod`
+# (those of systemctl, git): --version; `impasto help [CMD]` prints what `impasto CMD --help`
+# prints; a mistyped command gets "did you mean" and the usage exit code 2; wrong arguments
+# say what was wrong; numbers are parsed strictly with the option named. No daemon needed.
+set -u
+build=$1
+imp=$build/cli/impasto impastod=$build/daemon/impastod
+[ -x "$imp" ] || { echo "SKIP: $imp not built"; exit 77; }
+tmp=$(mktemp -d "${TMPDIR:-/tmp}/impasto-conventions.XXXXXX") || exit 2
+trap 'rm -rf "$tmp"' EXIT
+failures=0
+check() {   # check DESCRIPTION COMMAND...
+  what=$1; shift
+  if "$@"; then echo "ok: $what"; else echo "FAIL: $what"; failures=$((failures + 1)); fi
+}
+run() {     # run NAME ARGS...: stdout, stderr and the exit code into $tmp/NAME.{out,err,rc}
+  name=$1; shift
+  "$@" >"$tmp/$name.out" 2>"$tmp/$name.err"
+  echo $? >"$tmp/$name.rc"
+}
+rc() { cat "$tmp/$1.rc"; }
+
+run version "$imp" --version
+check "impasto --version exits 0" [ "$(rc version)" = 0 ]
+check "impasto --version prints 'impasto X.Y.Z'" grep -Eq '^impasto [0-9]+\.[0-9]+\.[0-9]+' "$tmp/version.out"
+if [ -x "$impastod" ]; then
+  run dversion "$impastod" --version
+  check "impastod --version exits 0 (without a rig config)" [ "$(rc dversion)" = 0 ]
+  check "impastod --version prints 'impastod X.Y.Z'" grep -Eq '^impastod [0-9]+\.[0-9]+\.[0-9]+' "$tmp/dversion.out"
+fi
+
+for cmd in scan jobs status process; do
+  run help-$cmd "$imp" help $cmd
+  run dash-$cmd "$imp" $cmd --help
+  check "impasto help $cmd exits 0" [ "$(rc help-$cmd)" = 0 ]
+  check "impasto help $cmd prints a usage" grep -q "usage: impasto $cmd" "$tmp/help-$cmd.out"
+  check "impasto help $cmd = impasto $cmd --help" cmp -s "$tmp/help-$cmd.out" "$tmp/dash-$cmd.out"
+done
+run help "$imp" help
+check "impasto help lists the commands (exit 0)" sh -c '[ "$(cat "$0")" = 0 ] && grep -q "^  scan " "$1"' \
+  "$tmp/help.rc" "$tmp/help.out"
+
+run scna "$imp" scna
+check "impasto scna exits 2 (usage)" [ "$(rc scna)" = 2 ]
+check "impasto scna suggests scan" grep -q "unknown command 'scna'; did you mean 'scan'?" "$tmp/scna.err"
+run helpscna "$imp" help scna
+check "impasto help scna suggests scan, exit 2" sh -c '[ "$(cat "$0")" = 2 ] && grep -q "did you mean '"'scan'"'" "$1"' \
+  "$tmp/helpscna.rc" "$tmp/helpscna.err"
+run zzz "$imp" frobnicate
+check "a command with no near name: no suggestion, exit 2" \
+  sh -c '[ "$(cat "$0")" = 2 ] && grep -q "unknown command '"'frobnicate'"'$" "$1"' "$tmp/zzz.rc" "$tmp/zzz.err"
+
+# wrong arguments say what was wrong (no daemon is contacted: the socket does not exist)
+sock=$tmp/none.sock
+run jobsverb "$imp" jobs shwo --socket "$sock"
+check "impasto jobs shwo: unknown action, did you mean show, exit 2" \
+  sh -c '[ "$(cat "$0")" = 2 ] && grep -q "unknown action '"'shwo'"'; did you mean '"'show'"'" "$1"' \
+  "$tmp/jobsverb.rc" "$tmp/jobsverb.err"
+run jobsshow "$imp" jobs show --socket "$sock"
+check "impasto jobs show (no id): says a JOB id is expected" grep -q "expected one JOB id, got 0" "$tmp/jobsshow.err"
+run statusx "$imp" status extra --socket "$sock"
+check "impasto status extra: names the unexpected argument, exit 2" \
+  sh -c '[ "$(cat "$0")" = 2 ] && grep -q "unexpected argument '"'extra'"'" "$1"' "$tmp/statusx.rc" "$tmp/statusx.err"
+run limit "$imp" jobs list --limit abc --socket "$sock"
+check "impasto jobs --limit abc: refused naming the option, exit 2" \
+  sh -c '[ "$(cat "$0")" = 2 ] && grep -q -- "--limit: expected an integer from 1 to 1000, got '"'abc'"'" "$1"' \
+  "$tmp/limit.rc" "$tmp/limit.err"
+
+[ $failures -eq 0 ] || { echo "$failures failed"; exit 1; }
+echo "conventions verified"
