@@ -331,11 +331,12 @@ static int run_geometry(const struct process_opts *o, const struct imp_capturese
         double t0 = now_s();
         struct imp_image **imgs = calloc(n_stacks, sizeof *imgs);
         struct imp_pattern *pats = calloc(n_stacks, sizeof *pats);
+        struct imp_image **sats = calloc(n_stacks, sizeof *sats);   /* clipped in every exposure */
         struct imp_sl_result *sl = NULL;
         struct imp_range_image range = {};
         size_t n_sat = 0, n_dark = 0;
         double white_level = 0;
-        if (!imgs || !pats) {
+        if (!imgs || !pats || !sats) {
                 r = imp_error_set(err, -ENOMEM, "out of memory");
                 goto out;
         }
@@ -347,7 +348,10 @@ static int run_geometry(const struct process_opts *o, const struct imp_capturese
                 n_sat += h.n_saturated;
                 n_dark += h.n_dark;
                 imgs[i] = TAKE_PTR(h.value);
+                r = imp_hdr_saturated_mask(h.flags, &sats[i]);
                 imp_hdr_result_done(&h);
+                if (r < 0)
+                        goto out;
                 r = to_mono(&imgs[i]);
                 if (r < 0)
                         goto out;
@@ -373,14 +377,17 @@ static int run_geometry(const struct process_opts *o, const struct imp_capturese
         slp.projector_gamma = rig->projector.gamma;     /* phase response inverted (docs/structured-light.md) */
         if (o->opt->threads > 0)
                 slp.threads = o->opt->threads;
-        struct imp_sl_frames fr = { pats, (const struct imp_image *const *) imgs, (int) n_stacks };
+        struct imp_sl_frames fr = { pats, (const struct imp_image *const *) imgs, (int) n_stacks,
+                                    (const struct imp_image *const *) sats };
         r = imp_sl_decode(&fr, &slp, &sl, err);
         if (r < 0) {
                 imp_error_prefix(err, "%s: structured light: ", o->capture);
                 goto out;
         }
-        for (size_t i = 0; i < n_stacks; i++)   /* decoded: not held through triangulation */
+        for (size_t i = 0; i < n_stacks; i++) {   /* decoded: not held through triangulation */
                 imp_image_free(TAKE_PTR(imgs[i]));
+                imp_image_free(TAKE_PTR(sats[i]));
+        }
         progress(o, "decode", 1, 1);
         double t_sl = now_s();
 
@@ -441,10 +448,12 @@ static int run_geometry(const struct process_opts *o, const struct imp_capturese
                                       "rejected", sl->phase_rejected[0], sl->phase_rejected[1]));
         r = 0;
 out:
-        if (imgs)
-                for (size_t i = 0; i < n_stacks; i++)
-                        imp_image_free(imgs[i]);
+        for (size_t i = 0; imgs && sats && i < n_stacks; i++) {
+                imp_image_free(imgs[i]);
+                imp_image_free(sats[i]);
+        }
         free(imgs);
+        free(sats);
         free(pats);
         imp_sl_result_free(sl);
         imp_range_image_done(&range);
