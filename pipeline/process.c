@@ -610,7 +610,8 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
                 normal[3 * i + 1] = (float) ny;
                 normal[3 * i + 2] = (float) sqrt(s > 0 ? s : 0);
         }
-        struct imp_btf_heightfield bh = { hf->nx, hf->ny, hf->pitch_mm, hf->height_mm, normal, hf->mask, {} };
+        struct imp_btf_heightfield bh = { hf->nx, hf->ny, hf->pitch_mm, hf->height_mm, normal, hf->mask, {},
+                                          hf->sigma_mm };
         memcpy(bh.canvas_to_world, hf->canvas_to_world, sizeof bh.canvas_to_world);
         struct imp_btf_capture cap = { &cam->model, lights, (int) n_used,
                                        (const struct imp_image *const *) frames,
@@ -642,7 +643,8 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
                         goto out;
                 }
                 progress(o, "photometric normals", 0, 1);
-                r = imp_photometric_normals(&bh, &cap, &sp, &pp, pn_normal, pn_normal + nt * 3, pn_flags, &ps);
+                struct imp_photometric_out pout = { pn_normal, pn_normal + nt * 3, pn_flags, NULL, NULL };
+                r = imp_photometric_normals(&bh, &cap, &sp, &pp, &pout, &ps);
                 if (r < 0) {
                         imp_error_set(err, r, "%s: photometric normals failed: %s", o->capture, strerror(-r));
                         goto out;
@@ -675,11 +677,13 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
                 if (r < 0)
                         goto out;
                 json_object_set_new(stages, "photometric", json_pack(
-                        "{s:i,s:I,s:I,s:I,s:I,s:I,s:I,s:i,s:f,s:f,s:f,s:f,s:f,s:f}",
+                        "{s:i,s:I,s:I,s:I,s:I,s:I,s:I,s:I,s:I,s:I,s:i,s:f,s:f,s:f,s:f,s:f,s:f}",
                         "lights", (int) n_used, "refined", (json_int_t) ps.n_refined,
                         "resampled_samples", (json_int_t) ps.n_resampled, "lanczos", pp.lanczos,
                         "kept_few_samples", (json_int_t) ps.n_few, "kept_ill_conditioned", (json_int_t) ps.n_ill,
                         "kept_dark", (json_int_t) ps.n_dark, "kept_disagree", (json_int_t) ps.n_disagree,
+                        "kept_ambient", (json_int_t) ps.n_ambient, "kept_residual", (json_int_t) ps.n_residual,
+                        "kept_saturated", (json_int_t) ps.n_saturated,
                         "max_dev_deg", pp.max_dev_deg,
                         "dev_deg_mean", ps.dev_deg_mean, "dev_deg_median", ps.dev_deg_median,
                         "sigma_deg_median", ps.sigma_deg_median, "rms_median", ps.rms_median,

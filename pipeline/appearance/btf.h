@@ -24,6 +24,8 @@ struct imp_btf_heightfield {
         const float *normal;          /* 3 per texel, unit, canvas frame (z out of the paint) */
         const uint8_t *mask;          /* width·height, non-zero = paint; NULL = all */
         double canvas_to_world[16];
+        const float *sigma_mm;        /* width·height height σ, may be NULL (photometric.h
+                                         uses it for the σ of a kept geometric normal) */
 };
 
 /* Per-pixel flags of the optional validity images (one u8 channel per frame). */

@@ -111,7 +111,8 @@ static double grid_error(const struct imp_rig_light *L, int nl, int lanczos, int
         imp_btf_sample_params_default(&sp);
         imp_photometric_params_default(&p);
         p.lanczos = lanczos;
-        CHECK_OK(imp_photometric_normals(&hf, &cap, &sp, &p, out, outb, flags, &st));
+        struct imp_photometric_out po = { out, outb, flags, NULL, NULL };
+        CHECK_OK(imp_photometric_normals(&hf, &cap, &sp, &p, &po, &st));
         CHECK_INT_EQ(st.n_resampled > 0, lanczos > 0);
         double sum = 0, sumb = 0;
         int n = 0;
@@ -314,7 +315,8 @@ int main(void) {
                 CHECK_OK(imp_image_new(8, 8, 1, IMP_PIX_F32, &f));
                 const struct imp_image *fr[1] = { f };
                 struct imp_btf_capture cap = { &cam, L, 1, fr, NULL };
-                CHECK_ERR(imp_photometric_normals(&hf, &cap, &sp, &bad, out, NULL, NULL, NULL), -EINVAL);
+                struct imp_photometric_out po = { out, NULL, NULL, NULL, NULL };
+                CHECK_ERR(imp_photometric_normals(&hf, &cap, &sp, &bad, &po, NULL), -EINVAL);
                 imp_image_free(f);
         }
         test_cast_shadow(L, nl, &rng);
