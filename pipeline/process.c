@@ -259,15 +259,16 @@ static int classify_boxes(const struct process_opts *o, struct geometry_out *g, 
 /* Heights from the triangulated positions and the photometric normals (fuse.h, issue #4):
  * the heights take the normals' detail, the boxes follow the new heights. */
 static int fuse_heights(const struct process_opts *o, struct geometry_out *g, const float *normal,
-                        json_t *stages, struct imp_error *err) {
+                        const float *normal_sigma_deg, json_t *stages, struct imp_error *err) {
         struct imp_heightfield *hf = &g->hf;
         double t0 = now_s();
         struct imp_fuse_params fp;
         struct imp_fuse_stats fs = {};
         imp_fuse_params_default(&fp);
         progress(o, "height fusion", 0, 1);
+        struct imp_fuse_texels ft = { normal_sigma_deg, hf->sigma_mm, NULL };
         int r = imp_fuse_heights(hf->nx, hf->ny, hf->pitch_mm, hf->height_mm, normal, hf->sigma_mm, hf->mask,
-                                 &fp, &fs);
+                                 &fp, &ft, &fs);
         if (r < 0)
                 return imp_error_set(err, r, "%s: height fusion failed: %s", o->capture, strerror(-r));
         r = classify_boxes(o, g, err);
@@ -279,6 +280,9 @@ static int fuse_heights(const struct process_opts *o, struct geometry_out *g, co
                 "iterations", fs.iterations, "residual_rel", fs.residual_rel, "change_rms_um", fs.change_rms_mm * 1000,
                 "normal_agreement_deg_before", fs.agree_deg_before,
                 "normal_agreement_deg_after", fs.agree_deg_after, "seconds", now_s() - t0));
+        json_object_set_new(json_object_get(stages, "fusion"), "back_off", json_pack("{s:I,s:I,s:f}",
+                "rows_rejected", (json_int_t) fs.n_rows_rejected, "texels", (json_int_t) fs.n_backed_off,
+                "fill_sigma_max_um", fs.fill_sigma_max_mm * 1000));
         progress(o, "height fusion", 1, 1);
         return 0;
 }
@@ -546,6 +550,7 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
         size_t nt = (size_t) hf->nx * hf->ny;
         float *pn_normal = NULL;
         uint16_t *pn_flags = NULL;
+        float *pn_sigma = NULL;
         uint8_t *drop = NULL;
         struct imp_image **frames = calloc(n_stacks, sizeof *frames);
         struct imp_image **valid = calloc(n_stacks, sizeof *valid);
@@ -637,13 +642,14 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
                 imp_photometric_params_default(&pp);
                 pn_normal = malloc(nt * 6 * sizeof *pn_normal);
                 pn_flags = malloc(nt * sizeof *pn_flags);
+                pn_sigma = malloc(nt * sizeof *pn_sigma);
                 drop = malloc(nt);
-                if (!pn_normal || !pn_flags || !drop) {
+                if (!pn_normal || !pn_flags || !pn_sigma || !drop) {
                         r = imp_error_set(err, -ENOMEM, "out of memory");
                         goto out;
                 }
                 progress(o, "photometric normals", 0, 1);
-                struct imp_photometric_out pout = { pn_normal, pn_normal + nt * 3, pn_flags, NULL, NULL };
+                struct imp_photometric_out pout = { pn_normal, pn_normal + nt * 3, pn_flags, NULL, pn_sigma };
                 r = imp_photometric_normals(&bh, &cap, &sp, &pp, &pout, &ps);
                 if (r < 0) {
                         imp_error_set(err, r, "%s: photometric normals failed: %s", o->capture, strerror(-r));
@@ -671,7 +677,7 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
                                           "ill_conditioned", (json_int_t) why[1], "dark", (json_int_t) why[2],
                                           "disagree", (json_int_t) why[3], "masked", (json_int_t) why[4],
                                           "steep", (json_int_t) why[5]));
-                if (o->opt->fuse_heights && (r = fuse_heights(o, g, pn_normal, stages, err)) < 0)
+                if (o->opt->fuse_heights && (r = fuse_heights(o, g, pn_normal, pn_sigma, stages, err)) < 0)
                         goto out;
                 r = imp_heightfield_save(hf, o->out, err);
                 if (r < 0)
@@ -772,6 +778,7 @@ out:
         free(normal);
         free(pn_normal);
         free(pn_flags);
+        free(pn_sigma);
         free(drop);
         free(tex);
         return r;
