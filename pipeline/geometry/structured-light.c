@@ -869,9 +869,10 @@ static void combine_gray_row(const struct ctx *c, int y, float **R, int w, size_
 }
 
 /* The phase's disagreement with the Gray code on one row: Σ (u/q − (code + ½))² (q the
- * code's quantum) and its count per axis, over valid pixels whose phase was usable
- * (refined, or rejected on this pixel for leaving its cell: those count too, or the
- * estimate would only see the phase's good side) and whose Gray bits were all decided. */
+ * code's quantum) and its count per axis, over valid pixels refined by phase whose Gray
+ * bits were all decided. Pixels whose phase left its cell are rejected one by one and do
+ * not count: a band of them (a reflection, a clipped patch) must not condemn the phase of
+ * the whole axis; a phase that is poor everywhere still shows within the cells. */
 static void phase_stats_row(const struct ctx *c, int y, float **R, double st[4]) {
         const struct imp_sl_result *res = c->res;
         const size_t off = (size_t) y * res->width;
@@ -887,7 +888,7 @@ static void phase_stats_row(const struct ctx *c, int y, float **R, double st[4])
                 double s2 = 0, n = 0;
                 for (int x = 0; x < res->width; x++)
                         if ((res->flags[off + x] & need) && !weak[x] &&
-                            !(pst[x] & (PST_LOW_MOD | PST_DISAGREE))) {
+                            !(pst[x] & (PST_LOW_MOD | PST_DISAGREE | PST_OUTSIDE_CELL))) {
                                 double d = pos[x] / ax->quantum - ((double) code[x] + 0.5);
                                 s2 += d * d;
                                 n++;
