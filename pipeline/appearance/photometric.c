@@ -19,7 +19,8 @@ void imp_photometric_params_default(struct imp_photometric_params *ret) {
                 .min_albedo = 0.01, .max_dev_deg = 25, .passes = 5, .huber_delta = 1.345,
                 .sigma_floor = 0.002, .tol_deg = 0.01, .geo_sigma_deg = 0, .lanczos = 3,
                 .shadow_trim_sigma = 0, .filled_trim_sigma = 3, .filled_passes = 10, .filled_max_dev_deg = 60,
-                .max_ambient_rel = 0.05, .ambient_sigma = 4, .max_rms_ratio = 3, .max_sigma_deg = 3.3,
+                .max_ambient_rel = 0.05, .ambient_sigma = 4, .max_rms_ratio = 3, .max_rel_rms = 0.03,
+                .max_sigma_deg = 3.3,
                 .interp_sigma_deg = 0.55, .interp_sigma_per_deg = 0.1, .geo_min_sigma_deg = 1,
         };
 }
@@ -248,7 +249,14 @@ static void finish_texel(const struct pn_rows *R, const struct imp_photometric_p
         if (ambient_check(R, p, S, s, &c, &sc, &shift) && fabs(c) > p->ambient_sigma * sc &&
             fabs(c) > p->max_ambient_rel * gl)
                 why |= IMP_PN_AMBIENT;
-        if (S->rms > p->max_rms_ratio * S->sigma)
+        double ysum = 0, wsum = 0;
+        for (int i = 0; i < R->m; i++)
+                if (R->w[i] > 0 && takes_part(R, i, S->nc, S->cone, p->min_cos)) {
+                        ysum += R->w[i] * R->y[i];
+                        wsum += R->w[i];
+                }
+        double ymean = wsum > 0 ? ysum / wsum : 0;
+        if (S->rms > p->max_rms_ratio * S->sigma || S->rms > p->max_rel_rms * ymean)
                 why |= IMP_PN_RESIDUAL;
         double sig = hypot(sig_noise, shift);
         if (!(sig <= p->max_sigma_deg))
@@ -277,7 +285,7 @@ int imp_photometric_texel(const struct imp_btf_sample *s, int n, const struct im
                 return -E2BIG;
         if (!p || p->min_samples < 3 || p->passes < 1 || !(p->max_cond > 1) || !(p->huber_delta > 0) ||
             !(p->sigma_floor > 0) || !(p->max_dev_deg > 0) || !(p->max_sigma_deg > 0) ||
-            !(p->max_rms_ratio > 0) || !(p->max_ambient_rel > 0) || !(p->ambient_sigma >= 0))
+            !(p->max_rms_ratio > 0) || !(p->max_rel_rms > 0) || !(p->max_ambient_rel > 0) || !(p->ambient_sigma >= 0))
                 return -EINVAL;
         struct pn_rows R;
         load_rows(s, n, &R);

@@ -31,8 +31,9 @@ enum imp_pn_flag {
         IMP_PN_MASKED      = 1 << 4,  /* outside the mask or hidden: no samples at all */
         IMP_PN_AMBIENT     = 1 << 5,  /* a significant ambient term (> max_ambient_rel·|g|):
                                          inter-reflection suspected, Lambert does not fit */
-        IMP_PN_RESIDUAL    = 1 << 6,  /* residual RMS > max_rms_ratio × its robust σ, or
-                                         σ > max_sigma_deg: the model does not fit */
+        IMP_PN_RESIDUAL    = 1 << 6,  /* residual RMS > max_rms_ratio × its robust σ or
+                                         > max_rel_rms × the signal, or σ > max_sigma_deg:
+                                         the model does not fit */
         IMP_PN_SATURATED   = 1 << 7,  /* the extractor dropped saturated samples (set with
                                          FEW_SAMPLES when that is why too few are left) */
 };
@@ -82,6 +83,11 @@ struct imp_photometric_params {
         double ambient_sigma;         /* (4) */
         double max_rms_ratio;         /* weighted residual RMS above this × the robust σ
                                          (MAD) → RESIDUAL (3) */
+        double max_rel_rms;           /* weighted residual RMS above this × the mean V/E of
+                                         the samples taking part → RESIDUAL: a misfit that
+                                         is smooth (MAD ≈ RMS), e.g. light from a groove's
+                                         wall for half the dome; noise and interpolation
+                                         leave ≈ 0.7 % on the demo (0.03) */
         double max_sigma_deg;         /* σ above this → RESIDUAL (DARK when the noise term
                                          alone exceeds it): 3σ stays within 10° (3.3) */
         /* Interpolation floor of σ (what reading 50 µm pixels at a texel leaves on detail
