@@ -811,7 +811,7 @@ uint16_t imp_btf_texel_flags(uint16_t f) {
                 return 0;
         return (uint16_t) ((f & IMP_BTF_FEW_SAMPLES ? IMP_TEXEL_FEW_SAMPLES : 0) |
                            (f & IMP_BTF_SATURATED ? IMP_TEXEL_SATURATED : 0) |
-                           (f & (IMP_BTF_FIT_FAILED | IMP_BTF_K_BOUND) ? IMP_TEXEL_FIT_FAILED : 0));
+                           (f & IMP_BTF_FIT_FAILED ? IMP_TEXEL_FIT_FAILED : 0));
 }
 
 /* Whether a fitted texel is a physical one-lobe Lafortune BRDF (btf.h IMP_BTF_FIT_FAILED);

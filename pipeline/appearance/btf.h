@@ -83,8 +83,9 @@ enum imp_btf_flag {
 };
 
 /* The per-texel flags of quality.h (IMP_TEXEL_*) a texel's fit flags imply:
- * FEW_SAMPLES → FEW_SAMPLES, SATURATED → SATURATED, FIT_FAILED and K_BOUND (the fit hit
- * a bound) → FIT_FAILED; MASKED → 0. */
+ * FEW_SAMPLES → FEW_SAMPLES, SATURATED → SATURATED, FIT_FAILED → FIT_FAILED; MASKED → 0.
+ * K_BOUND and LOBE_UNCERTAIN say how well the lobe is known, not that the fit failed:
+ * they stay in fit-flags.exr (compare counts them apart). */
 uint16_t imp_btf_texel_flags(uint16_t btf_flags);
 
 struct imp_btf_sample_params {
