@@ -19,7 +19,7 @@ void imp_photometric_params_default(struct imp_photometric_params *ret) {
                 .min_albedo = 0.01, .max_dev_deg = 25, .passes = 5, .huber_delta = 1.345,
                 .sigma_floor = 0.002, .tol_deg = 0.01, .geo_sigma_deg = 0, .lanczos = 3,
                 .shadow_trim_sigma = 0, .filled_trim_sigma = 3, .filled_passes = 10, .filled_max_dev_deg = 60,
-                .max_ambient_rel = 0.05, .ambient_sigma = 4, .max_rms_ratio = 3, .max_rel_rms = 0.03,
+                .max_ambient_rel = 0.05, .ambient_sigma = 4, .max_rms_ratio = 3, .max_rel_rms = 0.06,
                 .max_sigma_deg = 3.3,
                 .interp_sigma_deg = 0.55, .interp_sigma_per_deg = 0.1, .geo_min_sigma_deg = 1,
         };

@@ -86,8 +86,10 @@ struct imp_photometric_params {
         double max_rel_rms;           /* weighted residual RMS above this × the mean V/E of
                                          the samples taking part → RESIDUAL: a misfit that
                                          is smooth (MAD ≈ RMS), e.g. light from a groove's
-                                         wall for half the dome; noise and interpolation
-                                         leave ≈ 0.7 % on the demo (0.03) */
+                                         wall for half the dome (≈ 9 % in
+                                         test-photometric-stability). 0.06: at 0.03 the
+                                         demo's glossy and steep texels (3–6 %) backed off
+                                         by the tens of thousands, normals 1.71° → 1.94° */
         double max_sigma_deg;         /* σ above this → RESIDUAL (DARK when the noise term
                                          alone exceeds it): 3σ stays within 10° (3.3) */
         /* Interpolation floor of σ (what reading 50 µm pixels at a texel leaves on detail
