@@ -8,7 +8,9 @@
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
+#include <stdarg.h>
 #include <sys/resource.h>
+#include <unistd.h>
 #include <time.h>
 #ifdef _OPENMP
 #include <omp.h>
@@ -23,6 +25,7 @@
 #include "json-util.h"
 #include "photometric.h"
 #include "process.h"
+#include "quality.h"
 #include "structured-light.h"
 #include "triangulate.h"
 #include "version.h"
@@ -237,6 +240,7 @@ struct geometry_out {
         struct imp_heightfield hf;
         struct imp_boxes boxes;
         json_t *stages;
+        bool refused;                 /* no plausible canvas: copy.json says why, nothing else */
 };
 
 /* Relief boxes of g->hf (replacing g->boxes) and boxes.json. */
@@ -402,11 +406,10 @@ static int run_geometry(const struct process_opts *o, const struct imp_capturese
                 ho.pitch_mm = o->opt->pitch_mm;
         if (o->opt->btf && o->opt->photometric_normals && o->opt->fuse_heights)
                 ho.shadow_fill_px = IMP_MAX(o->opt->shadow_fill_px, 0);   /* dropped later without normals */
-        r = imp_heightfield_from_range(&range, &ho, &g->hf);
+        r = imp_heightfield_extract(&range, &ho, &g->hf, err);
         if (r == -ENODATA) {
-                imp_error_set(err, r, "%s: heightfield failed: no canvas in the %zu triangulated points "
-                              "(fewer than 3, no usable seed near the image centre, or nothing left "
-                              "after the seed fill and erosion)", o->capture, range.n_valid);
+                imp_error_prefix(err, "%s: heightfield refused (%zu triangulated points): ", o->capture, range.n_valid);
+                g->refused = true;
                 goto out;
         }
         if (r < 0) {
@@ -764,20 +767,82 @@ out:
         return r;
 }
 
+/* The verdict on the copy (copy.json "quality", docs/copy-quality.md). */
+#define QUALITY_FLAGGED_DEGRADED 0.25 /* flagged fraction of the canvas texels */
+#define QUALITY_FILLED_DEGRADED  0.10 /* shadow-filled fraction */
+#define QUALITY_TILT_DEGRADED    20.0 /* degrees from the rig's canvas normal */
+#define QUALITY_VIEW_DEGRADED    45.0 /* degrees between canvas normal and camera ray */
+#define QUALITY_MIN_TEXELS       5000 /* fewer canvas texels: tiny coverage */
+
+static void reason(json_t *reasons, enum imp_verdict *v, enum imp_verdict at_least, const char *fmt, ...)
+        _printf_(4, 5);
+static void reason(json_t *reasons, enum imp_verdict *v, enum imp_verdict at_least, const char *fmt, ...) {
+        char buf[256];
+        va_list ap;
+        va_start(ap, fmt);
+        vsnprintf(buf, sizeof buf, fmt, ap);
+        va_end(ap);
+        json_array_append_new(reasons, json_string(buf));
+        if (*v < at_least)
+                *v = at_least;
+}
+
+static json_t *quality_json(const struct geometry_out *g, const char *refusal) {
+        enum imp_verdict v = IMP_VERDICT_OK;
+        json_t *reasons = json_array(), *flags = json_object();
+        const struct imp_heightfield *hf = &g->hf;
+        size_t n = (size_t) hf->nx * hf->ny, n_mask = 0, n_flagged = 0, per[IMP_TEXEL_FLAG_COUNT] = { 0 };
+        for (size_t t = 0; t < n && hf->texel_flags; t++) {
+                if (!hf->mask[t])
+                        continue;
+                n_mask++;
+                n_flagged += hf->texel_flags[t] != 0;
+                for (unsigned k = 0; k < IMP_TEXEL_FLAG_COUNT; k++)
+                        per[k] += (hf->texel_flags[t] >> k) & 1;
+        }
+        double den = n_mask ? (double) n_mask : 1, flagged = n_flagged / den;
+        for (unsigned k = 0; k < IMP_TEXEL_FLAG_COUNT; k++)
+                json_object_set_new(flags, imp_texel_flag_name(k), json_real(per[k] / den));
+        if (refusal)
+                reason(reasons, &v, IMP_VERDICT_UNUSABLE, "%s", refusal);
+        else {
+                if (flagged > QUALITY_FLAGGED_DEGRADED)
+                        reason(reasons, &v, IMP_VERDICT_DEGRADED, "%.0f %% of the canvas texels are flagged",
+                               100 * flagged);
+                if (hf->n_filled_texels > QUALITY_FILLED_DEGRADED * den)
+                        reason(reasons, &v, IMP_VERDICT_DEGRADED, "%.0f %% of the canvas was filled from normals",
+                               100.0 * hf->n_filled_texels / den);
+                if (hf->flags & (IMP_HF_PLANE_WEAK | IMP_HF_PLANE_NO_CONSENSUS))
+                        reason(reasons, &v, IMP_VERDICT_DEGRADED, "the canvas plane is weakly determined");
+                if (hf->plane_tilt_deg > QUALITY_TILT_DEGRADED)
+                        reason(reasons, &v, IMP_VERDICT_DEGRADED, "canvas %.0f° off the rig's canvas pose",
+                               hf->plane_tilt_deg);
+                if (hf->plane_view_deg > QUALITY_VIEW_DEGRADED)
+                        reason(reasons, &v, IMP_VERDICT_DEGRADED, "canvas seen %.0f° off its normal",
+                               hf->plane_view_deg);
+                if (n_mask < QUALITY_MIN_TEXELS)
+                        reason(reasons, &v, IMP_VERDICT_DEGRADED, "only %zu canvas texels", n_mask);
+        }
+        return json_pack("{s:s,s:o,s:f,s:o,s:I}", "verdict", imp_verdict_name(v), "reasons", reasons,
+                         "flagged_fraction", flagged, "flags", flags, "texels", (json_int_t) n_mask);
+}
+
 static int write_copy_json(const struct process_opts *o, const struct geometry_out *g,
-                           json_t *stages, double seconds, struct imp_error *err) {
+                           json_t *stages, double seconds, const char *refusal, struct imp_error *err) {
         const struct imp_heightfield *hf = &g->hf;
         json_t *m = json_array();
-        for (int i = 0; i < 16; i++)
+        for (int i = 0; i < 16 && !refusal; i++)
                 json_array_append_new(m, json_real(hf->canvas_to_world[i]));
         struct rusage ru;
         getrusage(RUSAGE_SELF, &ru);
-        _cleanup_json_ json_t *j = json_pack("{s:s,s:i,s:s,s:f,s:i,s:i,s:o,s:{s:s,s:s,s:f,s:I},s:O}",
+        _cleanup_json_ json_t *j = json_pack("{s:s,s:i,s:s,s:f,s:i,s:i,s:o,s:{s:s,s:s,s:f,s:I},s:O?,s:o}",
                 "format", "impasto-digital-copy", "version", 1, "units", "mm",
                 "pitch_mm", hf->pitch_mm, "nx", hf->nx, "ny", hf->ny, "canvas_to_world", m,
                 "provenance", "software", "impasto " IMPASTO_VERSION_STRING, "capture", o->capture,
                               "seconds", seconds, "peak_rss_kib", (json_int_t) ru.ru_maxrss,
-                "stages", stages);
+                "stages", stages, "quality", quality_json(g, refusal));
+        if (!j)
+                return imp_error_set(err, -ENOMEM, "copy.json: out of memory");
         char path[4096];
         snprintf(path, sizeof path, "%s/copy.json", o->out);
         return imp_json_save_atomic(path, j, err);
@@ -812,7 +877,14 @@ int imp_process_capture(const char *capture_dir, const char *copy_dir,
         if (r >= 0)
                 r = imp_copy_previews(copy_dir, &g.hf, err);
         if (r >= 0)
-                r = write_copy_json(&o, &g, g.stages, now_s() - t0, err);
+                r = write_copy_json(&o, &g, g.stages, now_s() - t0, NULL, err);
+        if (g.refused) {   /* no heightfield: copy.json alone, with the reason */
+                char path[4096];
+                snprintf(path, sizeof path, "%s/heightfield.exr", copy_dir);
+                unlink(path);
+                struct imp_error werr = {};
+                write_copy_json(&o, &g, g.stages, now_s() - t0, err && err->msg[0] ? err->msg : "no plausible canvas", &werr);
+        }
         json_decref(g.stages);
         imp_boxes_done(&g.boxes);
         imp_heightfield_done(&g.hf);

@@ -58,7 +58,12 @@ void imp_process_options_default(struct imp_process_options *o);
  * rmse_per_light[]}: the held-out frames against the copy shaded per texel
  * (V = E·cos θl·f(v, l)), over mask texels the camera sees that are lit, not
  * self-shadowed (ray cast on the heightfield), not saturated and not too dark; rmse of
- * V/E, so 1.0 = a white Lambertian at normal incidence (-1 when no sample qualified). -EINVAL/-EBADMSG for a capture set that cannot be processed (message names
+ * V/E, so 1.0 = a white Lambertian at normal incidence (-1 when no sample qualified).
+ * copy.json "quality" = {verdict ok|degraded|unusable, reasons[], flagged_fraction,
+ * flags {name: fraction of the canvas texels}, texels} (docs/copy-quality.md).
+ * -ENODATA when the data hold no plausible canvas (placement refused): copy.json is still
+ * written, with quality.verdict "unusable" and the reason, and no heightfield.
+ * -EINVAL/-EBADMSG for a capture set that cannot be processed (message names
  * the file and what is wrong), other negative errnos for I/O and memory. */
 int imp_process_capture(const char *capture_dir, const char *copy_dir,
                         const struct imp_process_options *o, struct imp_error *err);
