@@ -92,13 +92,21 @@ static int run(int argc, char **argv) {
                 { "no-shadow-test", no_argument, NULL, 'S' },
                 { "help", no_argument, NULL, 'h' }, {}
         };
-        int c;
+        int c, n;
         while ((c = getopt_long(argc, argv, "o:h", longopts, NULL)) >= 0)
                 switch (c) {
                 case 'o': out = optarg; break;
-                case 'p': o.pitch_mm = atof(optarg); break;
-                case 'n': o.cell_px = atoi(optarg); break;
-                case 'd': o.delta_frac = atof(optarg); break;
+                case 'p': o.heightfield.pitch_mm = atof(optarg); break;   /* <= 0: the footprint */
+                case 'n':
+                        if (int_arg("cell", optarg, 0, &n) < 0)
+                                return IMP_EXIT_PROCESS_USAGE;
+                        if (n > 0)   /* 0: the default */
+                                o.boxes.cell_px = n;
+                        break;
+                case 'd':
+                        if (atof(optarg) > 0)   /* <= 0: the default */
+                                o.boxes.delta_frac = atof(optarg);
+                        break;
                 case 'B': o.btf = false; break;
                 case 'P': o.photometric_normals = false; break;
                 case 'H':
@@ -110,15 +118,19 @@ static int run(int argc, char **argv) {
                                 return IMP_EXIT_PROCESS_USAGE;
                         break;
                 case 'I':
-                        if (int_arg("btf-iterations", optarg, 0, &o.btf_max_iter) < 0)
+                        if (int_arg("btf-iterations", optarg, 0, &n) < 0)
                                 return IMP_EXIT_PROCESS_USAGE;
+                        if (n > 0)   /* 0: the fit's default */
+                                o.btf_fit.max_iter = n;
                         break;
                 case 'R':
-                        if (int_arg("btf-robust-passes", optarg, -1, &o.btf_robust_passes) < 0)
+                        if (int_arg("btf-robust-passes", optarg, -1, &n) < 0)
                                 return IMP_EXIT_PROCESS_USAGE;
+                        if (n >= 0)   /* -1: the fit's default */
+                                o.btf_fit.robust_passes = n;
                         break;
                 case 'G': o.sl_gray_only = true; break;
-                case 'S': o.btf_no_shadow_test = true; break;
+                case 'S': o.btf_samples.march_step_texels = 0; break;   /* no ray: nothing blocked */
                 case 'q': o.progress = NULL; break;
                 case 'h': usage(stdout); return 0;
                 default: usage(stderr); return IMP_EXIT_PROCESS_USAGE;
