@@ -912,6 +912,8 @@ int imp_process_capture(const char *capture_dir, const char *copy_dir,
                 r = run_appearance(&o, cs, &g, err);
         else if (r >= 0)
                 drop_fill(&g, NULL);   /* no normals to shape the fill */
+        if (r >= 0 && (r = imp_heightfield_flag_edges(&g.hf, IMP_HF_FRAME_ADJACENT_PX)) < 0)
+                imp_error_set(err, r, "out of memory");   /* the mask and σ_n are final now */
         if (r >= 0)
                 r = classify_boxes(&o, &g, err);
         if (r >= 0)

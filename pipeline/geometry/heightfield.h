@@ -167,10 +167,14 @@ int imp_heightfield_save(const struct imp_heightfield *hf, const char *copy_dir,
 /* Only heightfield.exr (no copy.json). */
 int imp_heightfield_write_exr(const struct imp_heightfield *hf, const char *copy_dir, struct imp_error *err);
 
-/* Sets IMP_TEXEL_FRAME_ADJACENT on the mask texels within `px` texels (8-neighbour steps)
- * of the mask's outer edge (holes inside the canvas do not count) and IMP_TEXEL_FILLED on
- * the IMP_HF_MASK_FILLED ones; clears the flags off the mask. -ENOMEM. */
+/* The flags that follow from the heightfield itself, derived again from its current
+ * state (a stage that changes the mask or σ_n calls it): IMP_TEXEL_FRAME_ADJACENT on the
+ * mask texels within `px` texels (8-neighbour steps) of the mask's outer edge (holes
+ * inside the canvas do not count), IMP_TEXEL_FILLED on the IMP_HF_MASK_FILLED ones,
+ * IMP_TEXEL_NORMAL_UNCERTAIN where sigma_n_deg > IMP_TEXEL_NORMAL_SIGMA_MAX_DEG; the other
+ * bits are kept; every flag is cleared off the mask. -ENOMEM. */
 int imp_heightfield_flag_edges(struct imp_heightfield *hf, int px);
+#define IMP_HF_FRAME_ADJACENT_PX 3    /* texels from the mask's outer edge flagged */
 
 /* Symmetric 3×3 eigen-decomposition (Jacobi): eigenvalues ascending in ret_val, unit
  * eigenvectors as rows of ret_vec. Shared with compare.c and tests. */
