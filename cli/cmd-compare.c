@@ -33,9 +33,13 @@ static int run(int argc, char **argv) {
                 return 2;
         }
         struct imp_error err = {};
-        struct imp_compare_result res;
+        struct imp_compare_result res = {};
         int r = imp_compare_dirs(argv[optind], truth, &res, &err);
-        if (r < 0) {
+        char not_compared[sizeof err.msg] = "";
+        if (r == -ENODATA) {   /* no texel over the truth canvas: the rest is still reported */
+                log_warning("%s", err.msg);
+                snprintf(not_compared, sizeof not_compared, "%s", err.msg);
+        } else if (r < 0) {
                 log_error("%s", err.msg[0] ? err.msg : strerror(-r));
                 return 3;
         }
@@ -59,11 +63,15 @@ static int run(int argc, char **argv) {
                 _cleanup_json_ json_t *j = imp_compare_result_to_json(&res);
                 if (has_app)
                         imp_compare_appearance_to_json(&app, j);
+                if (not_compared[0])
+                        json_object_set_new(j, "not_compared", json_string(not_compared));
                 char *s = json_dumps(j, JSON_COMPACT);
                 printf("%s\n", s);
                 free(s);
                 return 0;
         }
+        if (not_compared[0])
+                printf("not compared: %s\n", not_compared);
         printf("height rmse        %8.2f µm   (offset %.4f mm removed, max |err| %.1f µm)\n",
                res.height_rmse_um, res.height_offset_mm, res.height_max_abs_um);
         printf("normal error mean  %8.3f °   (%.3f ° against truth band-limited to the copy pitch)\n", res.normal_err_deg_mean, res.normal_err_deg_mean_bandlimited);

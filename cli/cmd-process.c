@@ -147,7 +147,11 @@ static int run(int argc, char **argv) {
                 log_error("%s", err.msg[0] ? err.msg : strerror(-r));
                 if (r == -ENODATA && print_quality(out))
                         return IMP_EXIT_PROCESS_UNUSABLE;
-                return r == -EINVAL || r == -EBADMSG ? IMP_EXIT_PROCESS_INVALID : IMP_EXIT_PROCESS_FAILED;
+                if (r == -EINVAL || r == -EBADMSG) {   /* copy.json says unusable, with the message */
+                        print_quality(out);
+                        return IMP_EXIT_PROCESS_INVALID;
+                }
+                return IMP_EXIT_PROCESS_FAILED;
         }
         clock_gettime(CLOCK_MONOTONIC, &t1);
         printf("digital copy written to %s (%.1f s)\n", out,

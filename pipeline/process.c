@@ -920,7 +920,7 @@ int imp_process_capture(const char *capture_dir, const char *copy_dir,
                 r = write_outputs(&o, &g, err);
         if (r >= 0)
                 r = write_copy_json(&o, &g, g.stages, now_s() - t0, NULL, err);
-        if (g.refused)
+        if (g.refused || r == -EINVAL || r == -EBADMSG)   /* not a copy of this painting */
                 write_refusal(&o, &g, now_s() - t0, err);
         geometry_out_done(&g);
 #ifdef _OPENMP

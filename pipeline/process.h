@@ -68,6 +68,7 @@ void imp_process_options_default(struct imp_process_options *o);
  * -ENODATA when the data hold no plausible canvas (placement refused): copy.json is still
  * written, with quality.verdict "unusable" and the reason, and no heightfield.
  * -EINVAL/-EBADMSG for a capture set that cannot be processed (message names
- * the file and what is wrong), other negative errnos for I/O and memory. */
+ * the file and what is wrong; copy.json says "unusable" with that message too), other
+ * negative errnos for I/O and memory. */
 int imp_process_capture(const char *capture_dir, const char *copy_dir,
                         const struct imp_process_options *o, struct imp_error *err);

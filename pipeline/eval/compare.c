@@ -276,6 +276,69 @@ static void honesty(struct imp_compare_result *res, const double *d, const float
         res->unflagged_normal_over_10deg = over;
 }
 
+/* Height RMSE about the median offset, split by mask value, and the mean normal errors;
+ * diff holds the sorted-in-place differences, diff + n_tex the same unsorted. */
+static void height_figures(struct imp_compare_result *res, double *diff, const uint8_t *filled, size_t n,
+                           size_t n_tex, double sum_ang, double sum_ang_f, double sum_ang_bl) {
+        res->normal_err_deg_mean = sum_ang / n;
+        res->normal_err_deg_mean_bandlimited = sum_ang_bl / n;
+        qsort(diff, n, sizeof(double), cmp_double);
+        double med = n % 2 ? diff[n / 2] : 0.5 * (diff[n / 2 - 1] + diff[n / 2]);
+        double ss = 0, mx = 0;
+        for (size_t k = 0; k < n; k++) {
+                double d = diff[k] - med;
+                ss += d * d;
+                mx = fmax(mx, fabs(d));
+        }
+        double ss_k[2] = { 0, 0 };
+        for (size_t k = 0; k < n; k++) {
+                double d = diff[n_tex + k] - med;
+                ss_k[filled[k]] += d * d;
+                res->n_filled += filled[k];
+        }
+        size_t n_meas = n - res->n_filled;
+        if (res->n_filled) {
+                res->height_rmse_um_filled = sqrt(ss_k[1] / res->n_filled) * 1000.0;
+                res->normal_err_deg_mean_filled = sum_ang_f / res->n_filled;
+        }
+        if (n_meas) {
+                res->height_rmse_um_measured = sqrt(ss_k[0] / n_meas) * 1000.0;
+                res->normal_err_deg_mean_measured = (sum_ang - sum_ang_f) / n_meas;
+        }
+        res->height_offset_mm = med;
+        res->height_rmse_um = sqrt(ss / n) * 1000.0;
+        res->height_max_abs_um = mx * 1000.0;
+}
+
+/* Canvas-mask IoU over the truth grid (compare.h), and over the observable canvas. */
+static void mask_iou(const char *truth_dir, const struct truth *tt, const struct imp_image *cimg, int cm,
+                     const double *M, double cpitch, struct imp_compare_result *res) {
+        const struct truth t = *tt;
+        double ex[3] = { M[0], M[4], M[8] }, ey[3] = { M[1], M[5], M[9] }, o[3] = { M[3], M[7], M[11] };
+        _cleanup_free_ uint8_t *obs = observable_mask(truth_dir, &t);
+        size_t inter = 0, uni = 0, inter_o = 0, uni_o = 0;
+        for (int j = 0; j < t.ny; j++)
+                for (int i = 0; i < t.nx; i++) {
+                        bool a = truth_at(&t, i, j, t.c_m) >= 0.5;
+                        double X[3] = { t.origin[0] + i * t.pitch - o[0], t.origin[1] + j * t.pitch - o[1],
+                                        truth_at(&t, i, j, t.c_h) - o[2] };
+                        double u = (X[0] * ex[0] + X[1] * ex[1] + X[2] * ex[2]) / cpitch;
+                        double v = (X[0] * ey[0] + X[1] * ey[1] + X[2] * ey[2]) / cpitch;
+                        long ci = lround(u), cj = lround(v);
+                        bool b = isfinite(u) && isfinite(v) && ci >= 0 && cj >= 0 && ci < cimg->width &&
+                                 cj < cimg->height && *(imp_image_f32(cimg, (int) ci, (int) cj) + cm) >= 0.5;
+                        inter += a && b;
+                        uni += a || b;
+                        if (obs) {
+                                bool ao = a && obs[(size_t) j * t.nx + i];
+                                inter_o += ao && b;
+                                uni_o += ao || b;
+                        }
+                }
+        res->mask_iou = uni ? (double) inter / uni : 0;
+        res->mask_iou_observable = !obs ? -1 : uni_o ? (double) inter_o / uni_o : 0;
+}
+
 int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_compare_result *ret,
                      struct imp_error *err) {
         if (!copy_dir || !truth_dir || !ret)
@@ -374,63 +437,17 @@ int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_com
                 }
         res.n_compared = n;
 
-        _cleanup_free_ uint8_t *obs = observable_mask(truth_dir, &t);
-        size_t inter = 0, uni = 0, inter_o = 0, uni_o = 0;
-        for (int j = 0; j < t.ny; j++)
-                for (int i = 0; i < t.nx; i++) {
-                        bool a = truth_at(&t, i, j, t.c_m) >= 0.5;
-                        double X[3] = { t.origin[0] + i * t.pitch - o[0], t.origin[1] + j * t.pitch - o[1],
-                                        truth_at(&t, i, j, t.c_h) - o[2] };
-                        double u = (X[0] * ex[0] + X[1] * ex[1] + X[2] * ex[2]) / cpitch;
-                        double v = (X[0] * ey[0] + X[1] * ey[1] + X[2] * ey[2]) / cpitch;
-                        long ci = lround(u), cj = lround(v);
-                        bool b = isfinite(u) && isfinite(v) && ci >= 0 && cj >= 0 && ci < cimg->width &&
-                                 cj < cimg->height && *(imp_image_f32(cimg, (int) ci, (int) cj) + cm) >= 0.5;
-                        inter += a && b;
-                        uni += a || b;
-                        if (obs) {
-                                bool ao = a && obs[(size_t) j * t.nx + i];
-                                inter_o += ao && b;
-                                uni_o += ao || b;
-                        }
-                }
-        res.mask_iou = uni ? (double) inter / uni : 0;
+        mask_iou(truth_dir, &t, cimg, cm, M, cpitch, &res);
         res.placement_deg = placement_deg(&t, ez);
         res.frame_texel_fraction = frame_texels(cimg, cm, &t, M, cpitch);
-        res.mask_iou_observable = !obs ? -1 : uni_o ? (double) inter_o / uni_o : 0;
 
-        if (n == 0)
-                return imp_error_set(err, -ENODATA, "compare %s vs %s: no copy texel over the truth canvas",
-                                     copy_dir, truth_dir);
-        res.normal_err_deg_mean = sum_ang / n;
-        res.normal_err_deg_mean_bandlimited = sum_ang_bl / n;
-        qsort(diff, n, sizeof(double), cmp_double);
-        double med = n % 2 ? diff[n / 2] : 0.5 * (diff[n / 2 - 1] + diff[n / 2]);
-        double ss = 0, mx = 0;
-        for (size_t k = 0; k < n; k++) {
-                double d = diff[k] - med;
-                ss += d * d;
-                mx = fmax(mx, fabs(d));
+        if (n == 0) {   /* what could be computed is still reported */
+                *ret = res;
+                return imp_error_set(err, -ENODATA, "compare %s vs %s: no copy texel over the truth canvas: "
+                                     "heights and normals not compared", copy_dir, truth_dir);
         }
-        double ss_k[2] = { 0, 0 };
-        for (size_t k = 0; k < n; k++) {
-                double d = diff[n_tex + k] - med;
-                ss_k[filled[k]] += d * d;
-                res.n_filled += filled[k];
-        }
-        size_t n_meas = n - res.n_filled;
-        if (res.n_filled) {
-                res.height_rmse_um_filled = sqrt(ss_k[1] / res.n_filled) * 1000.0;
-                res.normal_err_deg_mean_filled = sum_ang_f / res.n_filled;
-        }
-        if (n_meas) {
-                res.height_rmse_um_measured = sqrt(ss_k[0] / n_meas) * 1000.0;
-                res.normal_err_deg_mean_measured = (sum_ang - sum_ang_f) / n_meas;
-        }
-        honesty(&res, diff + n_tex, tex_sig, n, med);
-        res.height_offset_mm = med;
-        res.height_rmse_um = sqrt(ss / n) * 1000.0;
-        res.height_max_abs_um = mx * 1000.0;
+        height_figures(&res, diff, filled, n, n_tex, sum_ang, sum_ang_f, sum_ang_bl);
+        honesty(&res, diff + n_tex, tex_sig, n, res.height_offset_mm);
         *ret = res;
         return 0;
 }

@@ -4,8 +4,9 @@
  *   test-hard-suite [--no-btf] NAME...
  *
  * Per scene: `sim render`; a scene named invalid-* must be refused by the loader with a
- * FILE:LINE message. Otherwise `process` must exit 0 (a copy) or 6 (unusable: copy.json
- * with verdict "unusable" and a reason, no heightfield.exr) and nothing else; a copy is
+ * FILE:LINE message. Otherwise `process` must exit 0 (a copy), 6 (unusable) or 3 (a
+ * capture set that cannot be processed), the last two with copy.json saying "unusable"
+ * with a reason and no heightfield.exr, and nothing else; a copy is
  * compared with its truth and must have: no NaN/Inf in any EXR channel; its canvas normal
  * within PLACEMENT_MAX_DEG of the truth's; at most FRAME_MAX of its canvas texels on the
  * truth frame; at most BEYOND_MAX of the unflagged texels beyond 3σ in height and in
@@ -26,6 +27,7 @@ extern char **environ;
 #define FRAME_MAX         0.01        /* frame texels claimed as canvas */
 #define BEYOND_MAX        0.01        /* unflagged texels beyond 3σ (height, normal) */
 #define EXIT_UNUSABLE     6           /* cli/cmd-process.c IMP_EXIT_PROCESS_UNUSABLE */
+#define EXIT_INVALID      3           /* cli/cmd-process.c IMP_EXIT_PROCESS_INVALID */
 
 static int run(char *const argv[], const char *out_path, const char *err_path) {
         posix_spawn_file_actions_t fa;
@@ -146,10 +148,10 @@ int main(int argc, char **argv) {
                 CHECK_MSG(rc == 0, "%s: render exited %d", name, rc);
                 char *process[] = { bin, "process", cap, "--out", copy, "--quiet", btf ? NULL : "--no-btf", NULL };
                 rc = run(process, "/dev/null", err_path);
-                CHECK_MSG(rc == 0 || rc == EXIT_UNUSABLE, "%s: process exited %d", name, rc);
+                CHECK_MSG(rc == 0 || rc == EXIT_UNUSABLE || rc == EXIT_INVALID, "%s: process exited %d", name, rc);
                 if (must_refuse)
                         CHECK_MSG(rc == EXIT_UNUSABLE, "%s: expected a refusal, process exited %d", name, rc);
-                if (rc == EXIT_UNUSABLE) {
+                if (rc == EXIT_UNUSABLE || rc == EXIT_INVALID) {
                         check_unusable(name, copy);
                         continue;
                 }
