@@ -627,8 +627,17 @@ static int photometric_stage(const struct process_opts *o, struct geometry_out *
         memcpy(normal, pn_normal + nt * 3, nt * 3 * sizeof *normal);
         for (size_t i = 0; i < nt; i++)
                 if (!hf->mask || hf->mask[i]) {
-                        hf->nx_[i] = pn_normal[3 * i];
-                        hf->ny_[i] = pn_normal[3 * i + 1];
+                        /* Until the photometric stage gives its own σ per texel, a replaced
+                         * normal's σ_n is at least its angle to the geometric one: where
+                         * they disagree, either may be wrong. */
+                        double gx = hf->nx_[i], gy = hf->ny_[i], gz = sqrt(fmax(1 - gx * gx - gy * gy, 0.0));
+                        double px = pn_normal[3 * i], py = pn_normal[3 * i + 1];
+                        double pz = sqrt(fmax(1 - px * px - py * py, 0.0));
+                        double dev = acos(IMP_CLAMP(gx * px + gy * py + gz * pz, -1.0, 1.0)) * 180 / M_PI;
+                        if (hf->mask[i] == IMP_HF_MASK_MEASURED && hf->sigma_n_deg)
+                                hf->sigma_n_deg[i] = (float) fmax(hf->sigma_n_deg[i], dev);
+                        hf->nx_[i] = (float) px;
+                        hf->ny_[i] = (float) py;
                 }
         long why[6] = { 0 };   /* filled texels dropped: few, ill, dark, disagree, masked, steep */
         for (size_t i = 0; i < nt; i++) {
