@@ -79,6 +79,16 @@ static void first_error(const char *path, char *buf, size_t size) {
         fclose(f);
 }
 
+/* Removes every occurrence of "prefix/" from s (the table names paths relative to the
+ * repository and the output directory). */
+static void strip_prefix(char *s, const char *prefix) {
+        char pat[1100];
+        snprintf(pat, sizeof pat, "%s/", prefix);
+        size_t n = strlen(pat);
+        for (char *p; n > 1 && (p = strstr(s, pat));)
+                memmove(p, p + n, strlen(p + n) + 1);
+}
+
 static void run_scene(const char *repo, const char *out, const char *name, struct hard_row *row) {
         char scene[1024], plan[1024], cap[1024], copy[1024], truth[1100], log_out[1024], log_err[1024];
         snprintf(row->name, sizeof row->name, "%s", name);
@@ -97,6 +107,7 @@ static void run_scene(const char *repo, const char *out, const char *name, struc
                 first_error(log_err, row->message, sizeof row->message);
                 snprintf(row->verdict, sizeof row->verdict, "refused");
                 row->seconds = now_s() - t0;
+                strip_prefix(row->message, repo);
                 return;
         }
         char *process[] = { "impasto", "process", cap, "--out", copy, "--quiet", NULL };
@@ -121,6 +132,8 @@ static void run_scene(const char *repo, const char *out, const char *name, struc
                         imp_json_load(path, &row->cmp, NULL);
         }
         row->seconds = now_s() - t0;
+        strip_prefix(row->message, out);
+        strip_prefix(row->message, repo);
 }
 
 static double num(const json_t *j, const char *key) {
