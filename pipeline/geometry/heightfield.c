@@ -874,9 +874,11 @@ static bool ransac_use(const struct imp_range_image *r, const struct ransac_set 
 }
 
 /* One RANSAC search: hypotheses from three usable points of the image's central half (the
- * canvas is centred in the shot, seed §4.2) within max_tilt_deg of the rig's canvas
- * normal; score = usable points within plane_tol_mm (a strided subsample). Deterministic
- * (fixed xorshift seed). Returns the best score (0: no hypothesis passed). */
+ * canvas is centred in the shot, seed §4.2); score = usable points within plane_tol_mm (a
+ * strided subsample). Any orientation is considered: were only planes near the rig's pose
+ * allowed, a canvas tilted far off it would leave its frame's walls as the best plane;
+ * the tilt is checked on the result (canvas_frame) and refused there. Deterministic
+ * (fixed xorshift seed). Returns the best score (0: every hypothesis degenerate). */
 static size_t ransac_search(const struct imp_range_image *r, const struct imp_heightfield_options *opt,
                             const struct ransac_set *set, uint32_t *central, double ret_p[3], double ret_n[3]) {
         int w = r->width, h = r->height;
@@ -890,7 +892,6 @@ static size_t ransac_search(const struct imp_range_image *r, const struct imp_he
         if (n_central < 3)
                 return 0;
         size_t stride = n_use > HF_RANSAC_MAX_SCORE ? n_use / HF_RANSAC_MAX_SCORE : 1;
-        double cos_tilt = cos(opt->max_tilt_deg * M_PI / 180);
         uint64_t st = 0x9e3779b97f4a7c15ull;
         for (int it = 0; it < HF_RANSAC_ITER; it++) {
                 size_t id[3];
@@ -900,8 +901,7 @@ static size_t ransac_search(const struct imp_range_image *r, const struct imp_he
                 }
                 const float *a = r->xyz + 3 * id[0];
                 double n[3], p[3] = { a[0], a[1], a[2] };
-                if (!plane3(a, r->xyz + 3 * id[1], r->xyz + 3 * id[2], r->camera_centre_mm, n) ||
-                    dot3(n, opt->expected_normal) < cos_tilt)
+                if (!plane3(a, r->xyz + 3 * id[1], r->xyz + 3 * id[2], r->camera_centre_mm, n))
                         continue;
                 size_t score = 0;
                 for (size_t i = 0; i < N; i += stride)
@@ -919,8 +919,8 @@ static size_t ransac_search(const struct imp_range_image *r, const struct imp_he
  * frame's walls and tops, or wild decode points, pull that off the canvas). RANSAC
  * (ransac_search); then, since a frame stands in front of its canvas, a plane parallel to
  * it (within 10°) behind it with at least a fifth of its support replaces it, as long as
- * there is one; then PCA on the inliers, HF_RANSAC_REFINE times. Returns false when no
- * hypothesis passed the tilt test. */
+ * there is one; then PCA on the inliers, HF_RANSAC_REFINE times. Returns false when every
+ * hypothesis was degenerate. */
 #define HF_BEHIND_MIN_SUPPORT 0.2
 #define HF_BEHIND_MAX_DEG     10.0
 static bool ransac_plane(const struct imp_range_image *r, const struct imp_heightfield_options *opt,
@@ -937,7 +937,6 @@ static bool ransac_plane(const struct imp_range_image *r, const struct imp_heigh
         if (best == 0)
                 return false;
         for (int k = 0; k < 3; k++) {
-                set.behind_p = bp, set.behind_n = bn;
                 double pp[3] = { bp[0], bp[1], bp[2] }, pn[3] = { bn[0], bn[1], bn[2] };
                 set.behind_p = pp, set.behind_n = pn;
                 size_t sc = ransac_search(r, opt, &set, central, p, n);
@@ -947,7 +946,6 @@ static bool ransac_plane(const struct imp_range_image *r, const struct imp_heigh
                 memcpy(bn, n, sizeof bn);
                 best = sc;
         }
-        double cos_tilt = cos(opt->max_tilt_deg * M_PI / 180);
         size_t n_in = 0;
         for (int pass = 0; pass < HF_RANSAC_REFINE; pass++) {
                 n_in = 0;
@@ -955,7 +953,7 @@ static bool ransac_plane(const struct imp_range_image *r, const struct imp_heigh
                         n_in += scratch[i] = r->valid[i] && fabs(plane_dist(r, i, bp, bn)) <= opt->plane_tol_mm;
                 bool weak;
                 double m[3];
-                if (n_in < 3 || pca_plane(r, scratch, m, n, &weak) < 3 || dot3(n, opt->expected_normal) < cos_tilt)
+                if (n_in < 3 || pca_plane(r, scratch, m, n, &weak) < 3)
                         break;
                 memcpy(bp, m, sizeof bp);
                 memcpy(bn, n, sizeof bn);

@@ -1,5 +1,5 @@
 /* Canvas extraction and heightfield (seed §4.2, §5): range image → robust canvas plane
- * (RANSAC under the rig's canvas pose, then PCA on its inliers; the seed's first PCA
+ * (RANSAC, then PCA on its inliers, checked against the rig's canvas pose; the seed's first PCA
  * over every point is pulled off the canvas by deep frames, oblique walls and outliers)
  * → points far off that plane excluded (frame tops, walls) → Sobel of the height → seed fill from the image centre stopped at high gradient → erosion → PCA on
  * the canvas points → resampling onto a regular grid in the canvas frame by rasterising
@@ -73,8 +73,7 @@ struct imp_heightfield_options {
          * rig.json: +z out of the paint); the camera looks at it from the front. */
         double expected_normal[3];    /* unit; default (0, 0, 1) */
         double max_tilt_deg;          /* refuse a canvas plane tilted more than this from
-                                         expected_normal (and the RANSAC does not consider
-                                         such planes); default 40 */
+                                         expected_normal; default 40 */
         double max_view_deg;          /* refuse a canvas seen more obliquely than this (angle
                                          between its normal and the ray to the camera);
                                          default 75 */
@@ -98,8 +97,8 @@ enum {
         IMP_HF_STEP_RAISED  = 1 << 2, /* the seed fill reached fewer than 5 % of the valid
                                          points: step_min was doubled until it spread (a
                                          Gray-only staircase), or the slope barrier dropped */
-        IMP_HF_PLANE_NO_CONSENSUS = 1 << 3, /* no RANSAC plane within max_tilt_deg of the
-                                         rig's canvas normal: the first PCA plane was used */
+        IMP_HF_PLANE_NO_CONSENSUS = 1 << 3, /* every RANSAC hypothesis was degenerate (points
+                                         on a line): the first PCA plane was used */
 };
 
 /* Mask values. */
