@@ -3,7 +3,8 @@
 # the refusals (invalid parameters at load, an implausible placement); the whole suite with
 # every stage under `slow` (`impasto bench hard` writes the table).
 impasto_test(test-hard-fast SOURCE unit/test-hard-suite.c LABELS stability TIMEOUT 900
-             ARGS --no-btf deep-frame oblique-frame invalid-k0 invalid-rho invalid-dark-dome tilted-55!)
+             ARGS --no-btf --plan hard-geometry deep-frame oblique-frame invalid-k0 invalid-rho
+                  invalid-dark-dome tilted-55!)
 impasto_test(test-hard-suite LABELS stability slow TIMEOUT 3600
              ARGS ambient black-glossy dark-paint deep-frame deep-frame-8mm distortion dropped-frames
                   flush-frame grazing-dome high-gain hot-pixels interreflection invalid-dark-dome

@@ -1,7 +1,7 @@
 /* The hard-case suite's promises (docs/hard-cases.md, docs/copy-quality.md), end to end
  * through the `impasto` binary on config/scenes/hard-NAME.cfg with config/plans/hard.cfg:
  *
- *   test-hard-suite [--no-btf] NAME...
+ *   test-hard-suite [--no-btf] [--plan PLAN] NAME...   (PLAN: config/plans/PLAN.cfg, default hard)
  *
  * Per scene: `sim render`; a scene named invalid-* must be refused by the loader with a
  * FILE:LINE message. Otherwise `process` must exit 0 (a copy), 6 (unusable) or 3 (a
@@ -125,6 +125,10 @@ int main(int argc, char **argv) {
         for (int a = 1; a < argc; a++) {
                 if (!strcmp(argv[a], "--no-btf")) {
                         btf = false;
+                        continue;
+                }
+                if (!strcmp(argv[a], "--plan") && a + 1 < argc) {
+                        snprintf(plan, sizeof plan, "%s/config/plans/%s.cfg", IMPASTO_SOURCE_DIR, argv[++a]);
                         continue;
                 }
                 char name[128], scene[4400], cap[4400], copy[4400], truth[4500], cmp[4400], err_path[4400];
