@@ -32,6 +32,7 @@
 #include "commands.h"
 #include "compare-appearance.h"
 #include "compare.h"
+#include "hard.h"
 #include "json-util.h"
 #include "log.h"
 #include "plan.h"
@@ -757,7 +758,9 @@ static void usage(FILE *f) {
                    "                (default without --quick: the current directory when it holds config/plans)\n"
                    "  --scenes DIR  where study-demo.cfg and study-glossy.cfg are (default config/scenes of\n"
                    "                the source tree)\n"
-                   "  --quick       the demo-like scene and %d configurations only\n",
+                   "  --quick       the demo-like scene and %d configurations only\n"
+                   "usage: impasto bench hard [--out DIR] [--repo DIR] [--only hard-NAME]...\n"
+                   "                the hard-case suite (config/scenes/hard-*.cfg) into DIR/docs/hard-cases.md\n",
                 (int) ({ int n = 0; for (size_t i = 0; i < ARRAY_SIZE(configs); i++) n += configs[i].quick; n; }));
 }
 
@@ -842,6 +845,8 @@ static int run(int argc, char **argv) {
         }
         if (!strcmp(argv[1], "accuracy"))
                 return cmd_accuracy(argc - 1, argv + 1);
+        if (!strcmp(argv[1], "hard"))
+                return imp_bench_hard(argc - 1, argv + 1);
         if (!strcmp(argv[1], "sim-effects") && argc == 4)
                 return cmd_sim_effects(argv[2], argv[3]);
         fprintf(stderr, "impasto bench: unknown subcommand '%s'\n", argv[1]);
