@@ -775,7 +775,9 @@ static void usage(FILE *f) {
                    "                (default without --quick: the current directory when it holds config/plans)\n"
                    "  --scenes DIR  where study-demo.cfg and study-glossy.cfg are (default config/scenes of\n"
                    "                the source tree)\n"
-                   "  --quick       the demo-like scene and %d configurations only\n",
+                   "  --quick       the demo-like scene and %d configurations only\n"
+                   "usage: impasto bench hard [--out DIR] [--repo DIR] [--only hard-NAME]...\n"
+                   "                the hard-case suite (config/scenes/hard-*.cfg) into DIR/docs/hard-cases.md\n",
                 (int) ({ int n = 0; for (size_t i = 0; i < ARRAY_SIZE(configs); i++) n += configs[i].quick; n; }));
 }
 

@@ -33,9 +33,13 @@ static int run(int argc, char **argv) {
                 return 2;
         }
         struct imp_error err = {};
-        struct imp_compare_result res;
+        struct imp_compare_result res = {};
         int r = imp_compare_dirs(argv[optind], truth, &res, &err);
-        if (r < 0) {
+        char not_compared[sizeof err.msg] = "";
+        if (r == -ENODATA) {   /* no texel over the truth canvas: the rest is still reported */
+                log_warning("%s", err.msg);
+                snprintf(not_compared, sizeof not_compared, "%s", err.msg);
+        } else if (r < 0) {
                 log_error("%s", err.msg[0] ? err.msg : strerror(-r));
                 return 3;
         }
@@ -46,27 +50,41 @@ static int run(int argc, char **argv) {
         struct imp_compare_appearance app = {};
         if (has_app) {
                 r = imp_compare_appearance(argv[optind], truth, &app, &err);
-                if (r < 0) {
+                if (r == -ENODATA) {   /* e.g. truth ρd below 0.05 everywhere: report the rest */
+                        log_warning("appearance not compared: %s", err.msg);
+                        has_app = false;
+                } else if (r < 0) {
                         log_error("%s", err.msg[0] ? err.msg : strerror(-r));
                         return 3;
-                }
-                res.nan_count += app.nan_count;
+                } else
+                        res.nan_count += app.nan_count;
         }
         if (as_json) {
                 _cleanup_json_ json_t *j = imp_compare_result_to_json(&res);
                 if (has_app)
                         imp_compare_appearance_to_json(&app, j);
+                if (not_compared[0])
+                        json_object_set_new(j, "not_compared", json_string(not_compared));
                 char *s = json_dumps(j, JSON_COMPACT);
                 printf("%s\n", s);
                 free(s);
                 return 0;
         }
+        if (not_compared[0])
+                printf("not compared: %s\n", not_compared);
         printf("height rmse        %8.2f µm   (offset %.4f mm removed, max |err| %.1f µm)\n",
                res.height_rmse_um, res.height_offset_mm, res.height_max_abs_um);
         printf("normal error mean  %8.3f °   (%.3f ° against truth band-limited to the copy pitch)\n", res.normal_err_deg_mean, res.normal_err_deg_mean_bandlimited);
         printf("canvas mask IoU    %8.4f   (%.4f over the canvas the rig can measure)\n", res.mask_iou, res.mask_iou_observable);
         printf("NaN/Inf samples    %8zu\n", res.nan_count);
         printf("texels compared    %8zu\n", res.n_compared);
+        printf("placement          %8.2f °   (copy canvas normal to the truth's)\n", res.placement_deg);
+        printf("frame as canvas    %8.4f     (fraction of the copy's canvas texels)\n", res.frame_texel_fraction);
+        printf("flagged            %8.4f     (fraction of the compared texels)\n", res.flagged_fraction);
+        printf("beyond 3σ          %8.4f height, %.4f normal (unflagged texels, %zu)\n",
+               res.beyond_3sigma_height, res.beyond_3sigma_normal, res.n_unflagged);
+        printf("unflagged normals  %8.2f ° max, %zu over 10°\n", res.unflagged_normal_err_deg_max,
+               res.unflagged_normal_over_10deg);
         if (!has_app)
                 return 0;
         printf("rho_d rel. error   %8.4f     median (90th pct %.4f) over %zu texel-channels\n",

@@ -8,10 +8,37 @@
 #include <time.h>
 #include <unistd.h>
 #include "commands.h"
+#include "json-util.h"
 #include "log.h"
 #include "process.h"
 #include "process-photometric.h"
 #include "process-range.h"
+
+/* Exit codes of `impasto process` (docs/copy-quality.md). */
+#define IMP_EXIT_PROCESS_FAILED   1   /* I/O, memory, a stage failed */
+#define IMP_EXIT_PROCESS_USAGE    2
+#define IMP_EXIT_PROCESS_INVALID  3   /* the capture set cannot be processed */
+#define IMP_EXIT_PROCESS_UNUSABLE 6   /* processed, but the copy's verdict is "unusable" */
+
+/* Prints copy.json's quality verdict and reasons; returns true when it is "unusable". */
+static bool print_quality(const char *out) {
+        char path[4096];
+        snprintf(path, sizeof path, "%s/copy.json", out);
+        _cleanup_json_ json_t *j = NULL;
+        if (imp_json_load(path, &j, NULL) < 0)
+                return false;
+        json_t *q = json_object_get(j, "quality");
+        const char *v = json_string_value(json_object_get(q, "verdict"));
+        if (!v)
+                return false;
+        printf("quality: %s (%.1f %% of the canvas texels flagged)\n", v,
+               100 * json_number_value(json_object_get(q, "flagged_fraction")));
+        size_t i;
+        json_t *r;
+        json_array_foreach(json_object_get(q, "reasons"), i, r)
+                printf("  %s\n", json_string_value(r));
+        return !strcmp(v, "unusable");
+}
 
 static void progress_bar(void *userdata, const char *stage, size_t done, size_t total) {
         int width = 30, fill = total ? (int) (width * done / total) : width;
@@ -77,43 +104,55 @@ static int run(int argc, char **argv) {
                 { "help", no_argument, NULL, 'h' }, {}
         };
         bool photometric_only = false, range_only = false;
-        int c;
+        int c, n;
         while ((c = getopt_long(argc, argv, "o:h", longopts, NULL)) >= 0)
                 switch (c) {
                 case 'o': out = optarg; break;
-                case 'p': o.pitch_mm = atof(optarg); break;
-                case 'n': o.cell_px = atoi(optarg); break;
-                case 'd': o.delta_frac = atof(optarg); break;
+                case 'p': o.heightfield.pitch_mm = atof(optarg); break;   /* <= 0: the footprint */
+                case 'n':
+                        if (int_arg("cell", optarg, 0, &n) < 0)
+                                return IMP_EXIT_PROCESS_USAGE;
+                        if (n > 0)   /* 0: the default */
+                                o.boxes.cell_px = n;
+                        break;
+                case 'd':
+                        if (atof(optarg) > 0)   /* <= 0: the default */
+                                o.boxes.delta_frac = atof(optarg);
+                        break;
                 case 'B': o.btf = false; break;
                 case 'P': o.photometric_normals = false; break;
                 case 'H':
                         if (int_arg("holdout", optarg, 0, &o.holdout_every) < 0)
-                                return 2;
+                                return IMP_EXIT_PROCESS_USAGE;
                         break;
                 case 't':
                         if (int_arg("threads", optarg, 0, &o.threads) < 0)
-                                return 2;
+                                return IMP_EXIT_PROCESS_USAGE;
                         break;
                 case 'I':
-                        if (int_arg("btf-iterations", optarg, 0, &o.btf_max_iter) < 0)
-                                return 2;
+                        if (int_arg("btf-iterations", optarg, 0, &n) < 0)
+                                return IMP_EXIT_PROCESS_USAGE;
+                        if (n > 0)   /* 0: the fit's default */
+                                o.btf_fit.max_iter = n;
                         break;
                 case 'R':
-                        if (int_arg("btf-robust-passes", optarg, -1, &o.btf_robust_passes) < 0)
-                                return 2;
+                        if (int_arg("btf-robust-passes", optarg, -1, &n) < 0)
+                                return IMP_EXIT_PROCESS_USAGE;
+                        if (n >= 0)   /* -1: the fit's default */
+                                o.btf_fit.robust_passes = n;
                         break;
                 case 'G': o.sl_gray_only = true; break;
-                case 'S': o.btf_no_shadow_test = true; break;
+                case 'S': o.btf_samples.march_step_texels = 0; break;   /* no ray: nothing blocked */
                 case 'A': o.allow_incomplete = true; break;
                 case 'q': o.progress = NULL; break;
                 case 'O': photometric_only = true; break;
                 case 'Z': range_only = true; break;
                 case 'h': usage(stdout); return 0;
-                default: usage(stderr); return 2;
+                default: usage(stderr); return IMP_EXIT_PROCESS_USAGE;
                 }
         if (optind + 1 != argc || !out) {
                 usage(stderr);
-                return 2;
+                return IMP_EXIT_PROCESS_USAGE;
         }
         struct timespec t0, t1;
         clock_gettime(CLOCK_MONOTONIC, &t0);
@@ -127,12 +166,18 @@ static int run(int argc, char **argv) {
                 : imp_process_capture(argv[optind], out, &o, &err);
         if (r < 0) {
                 log_error("%s", err.msg[0] ? err.msg : strerror(-r));
-                return r == -EINVAL || r == -EBADMSG || r == -ENODATA ? 3 : 1;
+                if (r == -ENODATA && print_quality(out))
+                        return IMP_EXIT_PROCESS_UNUSABLE;
+                if (r == -EINVAL || r == -EBADMSG || r == -ENODATA) {   /* an unusable copy.json says why */
+                        print_quality(out);
+                        return IMP_EXIT_PROCESS_INVALID;
+                }
+                return IMP_EXIT_PROCESS_FAILED;
         }
         clock_gettime(CLOCK_MONOTONIC, &t1);
         printf("digital copy written to %s (%.1f s)\n", out,
                (t1.tv_sec - t0.tv_sec) + (t1.tv_nsec - t0.tv_nsec) * 1e-9);
-        return 0;
+        return print_quality(out) ? IMP_EXIT_PROCESS_UNUSABLE : 0;
 }
 
 const struct imp_command imp_cmd_process = {

@@ -8,7 +8,9 @@
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
+#include <stdarg.h>
 #include <sys/resource.h>
+#include <unistd.h>
 #include <time.h>
 #ifdef _OPENMP
 #include <omp.h>
@@ -23,6 +25,7 @@
 #include "json-util.h"
 #include "photometric.h"
 #include "process.h"
+#include "quality.h"
 #include "structured-light.h"
 #include "triangulate.h"
 #include "version.h"
@@ -234,85 +237,105 @@ static double median_of(const float *v, size_t n) {
         return c[k];
 }
 
+/* The copy as it is built: every stage works on this in memory; write_outputs() writes each
+ * file once at the end. */
 struct geometry_out {
         struct imp_heightfield hf;
         struct imp_boxes boxes;
         json_t *stages;
+        bool refused;                 /* no plausible canvas: copy.json says why, nothing else */
+        struct imp_image *maps[4];    /* rho_d, rho_s, lobe, fit flags: NULL without a BTF fit */
 };
 
-/* Relief boxes of g->hf (replacing g->boxes) and boxes.json. */
-static int classify_boxes(const struct process_opts *o, struct geometry_out *g, struct imp_error *err) {
-        struct imp_boxes_options bo;
-        imp_boxes_options_default(&bo);
-        if (o->opt->cell_px > 0)
-                bo.cell_px = o->opt->cell_px;
-        if (o->opt->delta_frac > 0)
-                bo.delta_frac = o->opt->delta_frac;
+static void geometry_out_done(struct geometry_out *g) {
+        json_decref(g->stages);
         imp_boxes_done(&g->boxes);
-        int r = imp_boxes_classify(&g->hf, &bo, &g->boxes);
-        if (r < 0)
-                return imp_error_set(err, r, "%s: relief classification failed: %s", o->capture, strerror(-r));
-        char path[4096];
-        snprintf(path, sizeof path, "%s/boxes.json", o->out);
-        return imp_boxes_save(&g->boxes, path, err);
+        imp_heightfield_done(&g->hf);
+        for (int m = 0; m < 4; m++)
+                imp_image_free(g->maps[m]);
 }
 
-/* Heights from the triangulated positions and the photometric normals (fuse.h, issue #4):
- * the heights take the normals' detail, the boxes follow the new heights. */
+/* Relief boxes of the final heightfield (seed §4.3), into g->boxes and stages.boxes. */
+static int classify_boxes(const struct process_opts *o, struct geometry_out *g, struct imp_error *err) {
+        double t0 = now_s();
+        imp_boxes_done(&g->boxes);
+        int r = imp_boxes_classify(&g->hf, &o->opt->boxes, &g->boxes);
+        if (r < 0)
+                return imp_error_set(err, r, "%s: relief classification failed: %s", o->capture, strerror(-r));
+        json_object_set_new(g->stages, "boxes", json_pack("{s:i,s:I,s:f,s:f}", "cell_px", g->boxes.cell_px,
+                            "boxes", (json_int_t) g->boxes.n_boxes, "delta0_mm", g->boxes.delta0_mm,
+                            "seconds", now_s() - t0));
+        progress(o, "boxes", 1, 1);
+        return 0;
+}
+
+/* Heights from the triangulated positions and the photometric normals (fuse.h): the
+ * heights take the normals' detail. */
 static int fuse_heights(const struct process_opts *o, struct geometry_out *g, const float *normal,
-                        json_t *stages, struct imp_error *err) {
+                        const float *normal_sigma_deg, struct imp_error *err) {
         struct imp_heightfield *hf = &g->hf;
         double t0 = now_s();
-        struct imp_fuse_params fp;
+        const struct imp_fuse_params *fp = &o->opt->fuse;
         struct imp_fuse_stats fs = {};
-        imp_fuse_params_default(&fp);
         progress(o, "height fusion", 0, 1);
+        /* back-off where the normals contradict the heights beyond their σ; the σ of
+         * filled texels from the normals they were integrated from (fuse.h) */
+        struct imp_fuse_texels ft = { normal_sigma_deg, hf->sigma_mm, hf->texel_flags };
         int r = imp_fuse_heights(hf->nx, hf->ny, hf->pitch_mm, hf->height_mm, normal, hf->sigma_mm, hf->mask,
-                                 &fp, &fs);
+                                 fp, &ft, &fs);
         if (r < 0)
                 return imp_error_set(err, r, "%s: height fusion failed: %s", o->capture, strerror(-r));
-        r = classify_boxes(o, g, err);
-        if (r < 0)
-                return r;
-        json_object_set_new(json_object_get(stages, "boxes"), "boxes", json_integer((json_int_t) g->boxes.n_boxes));
-        json_object_set_new(stages, "fusion", json_pack("{s:f,s:I,s:I,s:i,s:f,s:f,s:f,s:f,s:f}",
-                "lambda", fp.lambda, "texels", (json_int_t) fs.n_texels, "gradient_rows", (json_int_t) fs.n_rows,
+        json_object_set_new(g->stages, "fusion", json_pack("{s:f,s:I,s:I,s:i,s:f,s:f,s:f,s:f,s:f}",
+                "lambda", fp->lambda, "texels", (json_int_t) fs.n_texels, "gradient_rows", (json_int_t) fs.n_rows,
                 "iterations", fs.iterations, "residual_rel", fs.residual_rel, "change_rms_um", fs.change_rms_mm * 1000,
                 "normal_agreement_deg_before", fs.agree_deg_before,
                 "normal_agreement_deg_after", fs.agree_deg_after, "seconds", now_s() - t0));
+        json_object_set_new(json_object_get(g->stages, "fusion"), "back_off", json_pack("{s:I,s:I,s:f}",
+                "rows_rejected", (json_int_t) fs.n_rows_rejected, "texels", (json_int_t) fs.n_backed_off,
+                "fill_sigma_max_um", fs.fill_sigma_max_mm * 1000));
         progress(o, "height fusion", 1, 1);
         return 0;
 }
 
 /* Shadow-filled texels (heightfield.h) without a usable photometric normal leave the
- * mask: drop[t] nonzero (NULL: all of them). With resave, heightfield.exr and the boxes
- * are written again (no fusion follows to do it). */
+ * mask: drop[t] nonzero (NULL: all of them); stages.heightfield is updated. */
 #define PROCESS_FILL_MIN_NZ 0.5   /* filled texels steeper than 60° are the frame's wall */
-static int drop_fill(const struct process_opts *o, struct geometry_out *g, const uint8_t *drop, bool resave,
-                     struct imp_error *err) {
+static void drop_fill(struct geometry_out *g, const uint8_t *drop) {
         struct imp_heightfield *hf = &g->hf;
         if (hf->n_filled_texels == 0)
-                return 0;
+                return;
         size_t before = hf->n_filled_texels;
         imp_heightfield_drop_filled(hf, drop);
         json_t *st = imp_heightfield_stage_json(hf);
         json_object_set(st, "seconds", json_object_get(json_object_get(g->stages, "heightfield"), "seconds"));
         json_object_set_new(st, "shadow_fill_dropped", json_integer((json_int_t) (before - hf->n_filled_texels)));
         json_object_set_new(g->stages, "heightfield", st);
-        if (!resave)
-                return 0;
-        int r = imp_heightfield_save(hf, o->out, err);
-        return r < 0 ? r : classify_boxes(o, g, err);
 }
 
-static int run_geometry(const struct process_opts *o, const struct imp_captureset *cs,
-                        struct geometry_out *g, struct imp_error *err) {
-        const struct imp_rig *rig = imp_captureset_rig(cs);
-        if (rig->n_cameras < 1 || !rig->has_projector)
-                return imp_error_set(err, -EINVAL, "%s/rig.json: a camera and a projector are needed "
-                                     "for the geometry (found %d cameras, %s projector)", o->capture,
-                                     rig->n_cameras, rig->has_projector ? "a" : "no");
-        const struct imp_rig_camera *cam = &rig->cameras[0];
+/* The structured-light stacks of camera 0, merged to linear mono images (imgs, pats), with
+ * the white frame's median level and the saturated / dark sample counts. */
+struct sl_frames {
+        struct imp_image **imgs;
+        struct imp_image **sats;      /* the merge's saturation masks (clipped in every exposure) */
+        struct imp_pattern *pats;
+        size_t n;
+        size_t n_sat, n_dark;
+        double white_level;
+};
+
+static void sl_frames_done(struct sl_frames *f) {
+        for (size_t i = 0; f->imgs && f->sats && i < f->n; i++) {
+                imp_image_free(f->imgs[i]);
+                imp_image_free(f->sats[i]);
+        }
+        free(f->imgs);
+        free(f->sats);
+        free(f->pats);
+        *f = (struct sl_frames) {};
+}
+
+static int sl_merge(const struct process_opts *o, const struct imp_captureset *cs, const struct imp_rig_camera *cam,
+                    struct sl_frames *f, struct imp_error *err) {
         _cleanup_free_ struct stack *stacks = NULL;
         size_t n_stacks;
         int r = collect_stacks(cs, "structured-light", cam->name, &stacks, &n_stacks);
@@ -328,45 +351,43 @@ static int run_geometry(const struct process_opts *o, const struct imp_capturese
         if (n_stacks == 0)
                 return imp_error_set(err, -EINVAL, "%s/manifest.jsonl: no structured-light frames "
                                      "for camera %s", o->capture, cam->name);
-
-        double t0 = now_s();
-        struct imp_image **imgs = calloc(n_stacks, sizeof *imgs);
-        struct imp_pattern *pats = calloc(n_stacks, sizeof *pats);
-        struct imp_sl_result *sl = NULL;
-        struct imp_range_image range = {};
-        size_t n_sat = 0, n_dark = 0;
-        double white_level = 0;
-        if (!imgs || !pats) {
-                r = imp_error_set(err, -ENOMEM, "out of memory");
-                goto out;
-        }
+        f->imgs = calloc(n_stacks, sizeof *f->imgs);
+        f->sats = calloc(n_stacks, sizeof *f->sats);
+        f->pats = calloc(n_stacks, sizeof *f->pats);
+        if (!f->imgs || !f->sats || !f->pats)
+                return imp_error_set(err, -ENOMEM, "out of memory");
+        f->n = n_stacks;
         for (size_t i = 0; i < n_stacks; i++) {
                 struct imp_hdr_result h = {};
-                r = merge_stack(cs, &stacks[i], &cam->sensor, &h, err);
-                if (r < 0)
-                        goto out;
-                n_sat += h.n_saturated;
-                n_dark += h.n_dark;
-                imgs[i] = TAKE_PTR(h.value);
+                if ((r = merge_stack(cs, &stacks[i], &cam->sensor, &h, err)) < 0)
+                        return r;
+                f->n_sat += h.n_saturated;
+                f->n_dark += h.n_dark;
+                f->imgs[i] = TAKE_PTR(h.value);
+                r = imp_hdr_saturated_mask(h.flags, &f->sats[i]);
                 imp_hdr_result_done(&h);
-                r = to_mono(&imgs[i]);
-                if (r < 0)
-                        goto out;
-                pats[i] = imp_captureset_record(cs, stacks[i].first)->pattern;
-                if (pats[i].kind == IMP_PAT_WHITE)
-                        white_level = median_of(imgs[i]->data, (size_t) imgs[i]->width * imgs[i]->height);
+                if (r < 0 || (r = to_mono(&f->imgs[i])) < 0)
+                        return imp_error_set(err, r, "out of memory");
+                f->pats[i] = imp_captureset_record(cs, stacks[i].first)->pattern;
+                if (f->pats[i].kind == IMP_PAT_WHITE)
+                        f->white_level = median_of(f->imgs[i]->data, (size_t) f->imgs[i]->width * f->imgs[i]->height);
                 progress(o, "hdr merge", i + 1, n_stacks);
         }
-        double t_hdr = now_s();
+        return 0;
+}
 
+/* Structured-light decode (thresholds scaled by the white level) and triangulation. */
+static int sl_range(const struct process_opts *o, const struct imp_rig *rig, struct sl_frames *f,
+                    struct imp_sl_result **ret_sl, struct imp_range_image *range, double *ret_t_decoded,
+                    struct imp_error *err) {
         struct imp_sl_params slp;
         imp_sl_params_default(&slp, IMP_PIX_F32);
-        if (white_level > 0) {
+        if (f->white_level > 0) {
                 /* Thresholds are fractions of white (defaults assume white = 1). */
-                slp.shadow_threshold *= white_level;
-                slp.min_bit_contrast *= white_level;
-                slp.min_direct *= white_level;
-                slp.min_modulation *= white_level;
+                slp.shadow_threshold *= f->white_level;
+                slp.min_bit_contrast *= f->white_level;
+                slp.min_direct *= f->white_level;
+                slp.min_modulation *= f->white_level;
         }
         slp.proj_width = rig->projector.model.width;
         slp.proj_height = rig->projector.model.height;
@@ -374,79 +395,82 @@ static int run_geometry(const struct process_opts *o, const struct imp_capturese
         slp.projector_gamma = rig->projector.gamma;     /* phase response inverted (docs/structured-light.md) */
         if (o->opt->threads > 0)
                 slp.threads = o->opt->threads;
-        struct imp_sl_frames fr = { pats, (const struct imp_image *const *) imgs, (int) n_stacks };
-        r = imp_sl_decode(&fr, &slp, &sl, err);
-        if (r < 0) {
-                imp_error_prefix(err, "%s: structured light: ", o->capture);
-                goto out;
+        struct imp_sl_frames fr = { f->pats, (const struct imp_image *const *) f->imgs, (int) f->n,
+                                    (const struct imp_image *const *) f->sats };
+        int r = imp_sl_decode(&fr, &slp, ret_sl, err);
+        if (r < 0)
+                return imp_error_prefix(err, "%s: structured light: ", o->capture);
+        for (size_t i = 0; i < f->n; i++) {   /* decoded: not held through triangulation */
+                imp_image_free(TAKE_PTR(f->imgs[i]));
+                imp_image_free(TAKE_PTR(f->sats[i]));
         }
-        for (size_t i = 0; i < n_stacks; i++)   /* decoded: not held through triangulation */
-                imp_image_free(TAKE_PTR(imgs[i]));
         progress(o, "decode", 1, 1);
-        double t_sl = now_s();
-
+        *ret_t_decoded = now_s();
         struct imp_projector_coords pc;
-        imp_projector_coords_from_sl(sl, &pc);
+        imp_projector_coords_from_sl(*ret_sl, &pc);
         struct imp_triangulate_options to;
         imp_triangulate_options_default(&to);
-        r = imp_triangulate(&cam->model, &rig->projector.model, &pc, &to, &range);
-        if (r < 0) {
-                imp_error_set(err, r, "%s: triangulation failed: %s", o->capture, strerror(-r));
-                goto out;
-        }
+        r = imp_triangulate(&rig->cameras[0].model, &rig->projector.model, &pc, &to, range);
+        if (r < 0)
+                return imp_error_set(err, r, "%s: triangulation failed: %s", o->capture, strerror(-r));
         progress(o, "triangulate", 1, 1);
-        double t_tri = now_s();
+        return 0;
+}
 
-        struct imp_heightfield_options ho;
-        imp_heightfield_options_default(&ho);
-        if (o->opt->pitch_mm > 0)
-                ho.pitch_mm = o->opt->pitch_mm;
-        if (o->opt->btf && o->opt->photometric_normals && o->opt->fuse_heights)
-                ho.shadow_fill_px = IMP_MAX(o->opt->shadow_fill_px, 0);   /* dropped later without normals */
-        r = imp_heightfield_from_range(&range, &ho, &g->hf);
+/* Canvas extraction and the heightfield (seed §4.2); a refusal marks g->refused. */
+static int heightfield_stage(const struct process_opts *o, const struct imp_range_image *range,
+                             struct geometry_out *g, struct imp_error *err) {
+        struct imp_heightfield_options ho = o->opt->heightfield;
+        if (!(o->opt->btf && o->opt->photometric_normals && o->opt->fuse_heights))
+                ho.shadow_fill_px = 0;   /* the fill needs normals to shape it */
+        int r = imp_heightfield_extract(range, &ho, &g->hf, err);
         if (r == -ENODATA) {
-                imp_error_set(err, r, "%s: heightfield failed: no canvas in the %zu triangulated points "
-                              "(fewer than 3, no usable seed near the image centre, or nothing left "
-                              "after the seed fill and erosion)", o->capture, range.n_valid);
-                goto out;
+                g->refused = true;
+                return imp_error_prefix(err, "%s: heightfield refused (%zu triangulated points): ", o->capture,
+                                        range->n_valid);
         }
-        if (r < 0) {
-                imp_error_set(err, r, "%s: heightfield failed: %s", o->capture, strerror(-r));
-                goto out;
-        }
-        r = imp_heightfield_save(&g->hf, o->out, err);
         if (r < 0)
-                goto out;
+                return imp_error_set(err, r, "%s: heightfield failed: %s", o->capture, strerror(-r));
         progress(o, "heightfield", 1, 1);
-        double t_hf = now_s();
+        return 0;
+}
 
-        r = classify_boxes(o, g, err);
-        if (r < 0)
-                goto out;
-        progress(o, "boxes", 1, 1);
-        double t_box = now_s();
-
-        g->stages = json_pack("{s:{s:i,s:I,s:I,s:f,s:f}, s:{s:I,s:I,s:I,s:I,s:I,s:f}, s:{s:I,s:f}, s:o, s:{s:i,s:I,s:f,s:f}}",
-                "hdr", "stacks", (int) n_stacks, "saturated_samples", (json_int_t) n_sat,
-                       "dark_samples", (json_int_t) n_dark, "white_level", white_level, "seconds", t_hdr - t0,
-                "structured_light", "valid_x", (json_int_t) sl->n_valid_x, "valid_y", (json_int_t) sl->n_valid_y,
-                       "valid_xy", (json_int_t) sl->n_valid_xy, "shadow", (json_int_t) sl->n_shadow,
-                       "disagree", (json_int_t) sl->n_disagree, "seconds", t_sl - t_hdr,
-                "triangulation", "points", (json_int_t) range.n_valid, "seconds", t_tri - t_sl,
-                "heightfield", imp_heightfield_stage_json(&g->hf),
-                "boxes", "cell_px", g->boxes.cell_px, "boxes", (json_int_t) g->boxes.n_boxes,
-                       "delta0_mm", g->boxes.delta0_mm, "seconds", t_box - t_hf);
-        json_object_set_new(json_object_get(g->stages, "heightfield"), "seconds", json_real(t_hf - t_tri));
-        json_object_set_new(json_object_get(g->stages, "structured_light"), "phase",
-                            json_pack("{s:[f,f],s:[b,b]}", "err_px", sl->phase_err_px[0], sl->phase_err_px[1],
-                                      "rejected", sl->phase_rejected[0], sl->phase_rejected[1]));
-        r = 0;
-out:
-        if (imgs)
-                for (size_t i = 0; i < n_stacks; i++)
-                        imp_image_free(imgs[i]);
-        free(imgs);
-        free(pats);
+static int run_geometry(const struct process_opts *o, const struct imp_captureset *cs,
+                        struct geometry_out *g, struct imp_error *err) {
+        const struct imp_rig *rig = imp_captureset_rig(cs);
+        if (rig->n_cameras < 1 || !rig->has_projector)
+                return imp_error_set(err, -EINVAL, "%s/rig.json: a camera and a projector are needed "
+                                     "for the geometry (found %d cameras, %s projector)", o->capture,
+                                     rig->n_cameras, rig->has_projector ? "a" : "no");
+        double t0 = now_s(), t_hdr = 0, t_sl = 0, t_tri = 0;
+        struct sl_frames f = {};
+        struct imp_sl_result *sl = NULL;
+        struct imp_range_image range = {};
+        int r = sl_merge(o, cs, &rig->cameras[0], &f, err);
+        if (r >= 0) {
+                t_hdr = now_s();
+                r = sl_range(o, rig, &f, &sl, &range, &t_sl, err);
+                t_tri = now_s();
+        }
+        if (r >= 0)
+                r = heightfield_stage(o, &range, g, err);
+        if (r >= 0) {
+                double t_hf = now_s();
+                g->stages = json_pack("{s:{s:i,s:I,s:I,s:f,s:f}, s:{s:I,s:I,s:I,s:I,s:I,s:f}, s:{s:I,s:f}, s:o}",
+                        "hdr", "stacks", (int) f.n, "saturated_samples", (json_int_t) f.n_sat,
+                               "dark_samples", (json_int_t) f.n_dark, "white_level", f.white_level,
+                               "seconds", t_hdr - t0,
+                        "structured_light", "valid_x", (json_int_t) sl->n_valid_x, "valid_y", (json_int_t) sl->n_valid_y,
+                               "valid_xy", (json_int_t) sl->n_valid_xy, "shadow", (json_int_t) sl->n_shadow,
+                               "disagree", (json_int_t) sl->n_disagree, "seconds", t_sl - t_hdr,
+                        "triangulation", "points", (json_int_t) range.n_valid, "seconds", t_tri - t_sl,
+                        "heightfield", imp_heightfield_stage_json(&g->hf));
+                json_object_set_new(json_object_get(g->stages, "heightfield"), "seconds", json_real(t_hf - t_tri));
+                json_object_set_new(json_object_get(g->stages, "structured_light"), "phase",
+                                    json_pack("{s:[f,f],s:[b,b]}", "err_px", sl->phase_err_px[0], sl->phase_err_px[1],
+                                              "rejected", sl->phase_rejected[0], sl->phase_rejected[1]));
+        }
+        sl_frames_done(&f);
         imp_sl_result_free(sl);
         imp_range_image_done(&range);
         return r;
@@ -518,195 +542,159 @@ fail:
         return r;
 }
 
-/* The dome sweep → per-texel Lafortune BRDF (seed 000 §4.4). */
-static int run_appearance(const struct process_opts *o, const struct imp_captureset *cs,
-                          struct geometry_out *g, json_t *stages, struct imp_error *err) {
-        const struct imp_rig *rig = imp_captureset_rig(cs);
-        const struct imp_rig_camera *cam = &rig->cameras[0];
-        _cleanup_free_ struct stack *stacks = NULL;
-        size_t n_stacks;
-        int r = collect_stacks(cs, "dome", cam->name, &stacks, &n_stacks);
-        if (r < 0)
-                return imp_error_set(err, r, "out of memory");
-        if (n_stacks == 0)   /* no dome sweep: a geometry-only copy, no normals for a fill */
-                return drop_fill(o, g, NULL, true, err);
-        if (n_stacks > IMP_BTF_MAX_SAMPLES)
-                n_stacks = IMP_BTF_MAX_SAMPLES;
+/* The dome sweep of camera 0, merged: the frames the fit uses and those held out for
+ * validation (every holdout_every-th), with their lights and validity masks. */
+struct dome {
+        struct imp_image **frames, **valid, **ho_frames, **ho_valid;
+        struct imp_rig_light *lights, *ho_lights;
+        size_t n_stacks, n_used, n_held;
+        double seconds;
+};
 
-        double t0 = now_s();
-        struct imp_heightfield *hf = &g->hf;
-        size_t nt = (size_t) hf->nx * hf->ny;
-        float *pn_normal = NULL;
-        uint16_t *pn_flags = NULL;
-        uint8_t *drop = NULL;
-        struct imp_image **frames = calloc(n_stacks, sizeof *frames);
-        struct imp_image **valid = calloc(n_stacks, sizeof *valid);
-        struct imp_rig_light *lights = calloc(n_stacks, sizeof *lights);
-        float *normal = malloc(nt * 3 * sizeof *normal);
-        struct imp_btf_texel *tex = calloc(nt, sizeof *tex);
-        struct imp_image *maps[4] = {};
-        struct imp_image **ho_frames = calloc(n_stacks, sizeof *ho_frames);
-        struct imp_image **ho_valid = calloc(n_stacks, sizeof *ho_valid);
-        struct imp_rig_light *ho_lights = calloc(n_stacks, sizeof *ho_lights);
-        size_t n_used = 0, n_held = 0;
-        json_t *validation = NULL;
-        if (!frames || !valid || !lights || !normal || !tex || !ho_frames || !ho_valid || !ho_lights) {
-                r = imp_error_set(err, -ENOMEM, "out of memory");
-                goto out;
+static void dome_done(struct dome *d) {
+        for (size_t i = 0; i < d->n_stacks; i++) {
+                if (d->frames) imp_image_free(d->frames[i]);
+                if (d->valid) imp_image_free(d->valid[i]);
+                if (d->ho_frames) imp_image_free(d->ho_frames[i]);
+                if (d->ho_valid) imp_image_free(d->ho_valid[i]);
         }
+        free(d->frames), free(d->valid), free(d->ho_frames), free(d->ho_valid);
+        free(d->lights), free(d->ho_lights);
+        *d = (struct dome) {};
+}
+
+static const struct imp_rig_light *rig_light(const struct imp_rig *rig, int id) {
+        for (int k = 0; k < rig->n_lights; k++)
+                if (rig->lights[k].id == id)
+                        return &rig->lights[k];
+        return NULL;
+}
+
+static int dome_load(const struct process_opts *o, const struct imp_captureset *cs, const struct stack *stacks,
+                     size_t n_stacks, struct dome *d, struct imp_error *err) {
+        const struct imp_rig *rig = imp_captureset_rig(cs);
+        double t0 = now_s();
+        d->n_stacks = n_stacks;
+        d->frames = calloc(n_stacks, sizeof *d->frames), d->valid = calloc(n_stacks, sizeof *d->valid);
+        d->ho_frames = calloc(n_stacks, sizeof *d->ho_frames), d->ho_valid = calloc(n_stacks, sizeof *d->ho_valid);
+        d->lights = calloc(n_stacks, sizeof *d->lights), d->ho_lights = calloc(n_stacks, sizeof *d->ho_lights);
+        if (!d->frames || !d->valid || !d->ho_frames || !d->ho_valid || !d->lights || !d->ho_lights)
+                return imp_error_set(err, -ENOMEM, "out of memory");
         for (size_t i = 0; i < n_stacks; i++) {
                 int id = imp_captureset_record(cs, stacks[i].first)->light;
-                const struct imp_rig_light *L = NULL;
-                for (int k = 0; k < rig->n_lights; k++)
-                        if (rig->lights[k].id == id)
-                                L = &rig->lights[k];
-                if (!L) {
-                        r = imp_error_set(err, -EINVAL, "%s/manifest.jsonl: frame %zu: light %d is not in rig.json",
-                                          o->capture, stacks[i].first, id);
-                        goto out;
-                }
+                const struct imp_rig_light *L = rig_light(rig, id);
+                if (!L)
+                        return imp_error_set(err, -EINVAL, "%s/manifest.jsonl: frame %zu: light %d is not in rig.json",
+                                             o->capture, stacks[i].first, id);
                 struct imp_hdr_result h = {};
-                r = merge_stack(cs, &stacks[i], &cam->sensor, &h, err);
+                int r = merge_stack(cs, &stacks[i], &rig->cameras[0].sensor, &h, err);
                 if (r < 0)
-                        goto out;
+                        return r;
                 /* Validity per pixel from the merge flags (any channel). */
                 struct imp_image *vimg;
                 r = imp_btf_valid_from_hdr(h.flags, &vimg);
                 if (r < 0) {
                         imp_hdr_result_done(&h);
-                        goto out;
+                        return imp_error_set(err, r, "out of memory");
                 }
                 int N = o->opt->holdout_every;
                 if (N > 0 && (i + 1) % (size_t) N == 0) {
-                        ho_frames[n_held] = TAKE_PTR(h.value);
-                        ho_valid[n_held] = vimg;
-                        ho_lights[n_held++] = *L;
+                        d->ho_frames[d->n_held] = TAKE_PTR(h.value);
+                        d->ho_valid[d->n_held] = vimg;
+                        d->ho_lights[d->n_held++] = *L;
                 } else {
-                        frames[n_used] = TAKE_PTR(h.value);
-                        valid[n_used] = vimg;
-                        lights[n_used++] = *L;
+                        d->frames[d->n_used] = TAKE_PTR(h.value);
+                        d->valid[d->n_used] = vimg;
+                        d->lights[d->n_used++] = *L;
                 }
                 imp_hdr_result_done(&h);
                 progress(o, "dome hdr merge", i + 1, n_stacks);
         }
-        double t_hdr = now_s();
-        if (n_used == 0) {
-                r = imp_error_set(err, -EINVAL, "%s: --holdout %d leaves no dome light for the fit",
-                                  o->capture, o->opt->holdout_every);
-                goto out;
-        }
+        d->seconds = now_s() - t0;
+        if (d->n_used == 0)
+                return imp_error_set(err, -EINVAL, "%s: --holdout %d leaves no dome light for the fit",
+                                     o->capture, o->opt->holdout_every);
+        return 0;
+}
 
+/* Photometric normals (pipeline/appearance/photometric.h) replace the heightfield's; the
+ * shadow fill keeps only texels whose normal the dome determines and that are not steeper
+ * than 60°; the heights are fused with the normals. heightfield.exr and the height fusion
+ * take the Lanczos re-reading's normals; the fit's local frames and the validation take
+ * the bilinear reading's (`normal`, replaced), the way the extractor reads the frames
+ * they fit and check (docs/geometry.md). */
+static int photometric_stage(const struct process_opts *o, struct geometry_out *g,
+                             const struct imp_btf_heightfield *bh, const struct imp_btf_capture *cap,
+                             float *normal, struct imp_error *err) {
+        struct imp_heightfield *hf = &g->hf;
+        size_t nt = (size_t) hf->nx * hf->ny;
+        double t0 = now_s();
+        const struct imp_photometric_params *pp = &o->opt->photometric;
+        struct imp_photometric_stats ps = {};
+        _cleanup_free_ float *pn_normal = malloc(nt * 6 * sizeof *pn_normal);
+        _cleanup_free_ uint16_t *pn_flags = malloc(nt * sizeof *pn_flags);
+        _cleanup_free_ uint16_t *pn_tflags = malloc(nt * sizeof *pn_tflags);
+        _cleanup_free_ float *pn_sigma = malloc(nt * sizeof *pn_sigma);
+        _cleanup_free_ uint8_t *drop = malloc(nt);
+        if (!pn_normal || !pn_flags || !pn_tflags || !pn_sigma || !drop)
+                return imp_error_set(err, -ENOMEM, "out of memory");
+        progress(o, "photometric normals", 0, 1);
+        struct imp_photometric_out pout = { pn_normal, pn_normal + nt * 3, pn_flags, pn_tflags, pn_sigma };
+        int r = imp_photometric_normals(bh, cap, &o->opt->btf_samples, pp, &pout, &ps);
+        if (r < 0)
+                return imp_error_set(err, r, "%s: photometric normals failed: %s", o->capture, strerror(-r));
+        memcpy(normal, pn_normal + nt * 3, nt * 3 * sizeof *normal);
+        for (size_t i = 0; i < nt; i++)
+                if (!hf->mask || hf->mask[i]) {
+                        /* The stage's flags join the heightfield's; a refined normal carries
+                         * the stage's σ (fit, model check, interpolation floor:
+                         * photometric.h), a kept one keeps the geometry's. */
+                        hf->texel_flags[i] |= pn_tflags[i];
+                        if (!(pn_flags[i] & IMP_PN_KEPT))
+                                hf->sigma_n_deg[i] = pn_sigma[i];
+                        hf->nx_[i] = pn_normal[3 * i];
+                        hf->ny_[i] = pn_normal[3 * i + 1];
+                }
+        long why[6] = { 0 };   /* filled texels dropped: few, ill, dark, disagree, masked, steep */
         for (size_t i = 0; i < nt; i++) {
-                double nx = hf->nx_[i], ny = hf->ny_[i], s = 1 - nx * nx - ny * ny;
-                normal[3 * i] = (float) nx;
-                normal[3 * i + 1] = (float) ny;
-                normal[3 * i + 2] = (float) sqrt(s > 0 ? s : 0);
+                bool steep = !(pn_normal[3 * i + 2] >= PROCESS_FILL_MIN_NZ);
+                drop[i] = (pn_flags[i] & IMP_PN_KEPT) || steep;
+                if (hf->mask[i] == IMP_HF_MASK_FILLED && drop[i])
+                        for (int k = 0; k < 6; k++)
+                                why[k] += k < 5 ? (pn_flags[i] >> k) & 1 : steep;
         }
-        struct imp_btf_heightfield bh = { hf->nx, hf->ny, hf->pitch_mm, hf->height_mm, normal, hf->mask, {} };
-        memcpy(bh.canvas_to_world, hf->canvas_to_world, sizeof bh.canvas_to_world);
-        struct imp_btf_capture cap = { &cam->model, lights, (int) n_used,
-                                       (const struct imp_image *const *) frames,
-                                       (const struct imp_image *const *) valid };
-        struct imp_btf_sample_params sp;
-        struct imp_btf_fit_params fp;
-        imp_btf_sample_params_default(&sp);
-        imp_btf_fit_params_default(&fp);
-        if (o->opt->btf_max_iter > 0)
-                fp.max_iter = o->opt->btf_max_iter;
-        if (o->opt->btf_robust_passes >= 0)
-                fp.robust_passes = o->opt->btf_robust_passes;
-        if (o->opt->btf_no_shadow_test)
-                sp.march_step_texels = 0;   /* a zero step casts no ray: nothing is blocked */
-        if (o->opt->photometric_normals && n_used >= 8) {
-                /* Photometric normals (issue #4): heightfield.exr and the height fusion take
-                 * the ones from the Lanczos re-reading; the fit's local frames and the
-                 * validation take the ones from bilinear reading, the way the extractor
-                 * reads the frames they fit and check (docs/geometry.md). */
-                double t_pn0 = now_s();
-                struct imp_photometric_params pp;
-                struct imp_photometric_stats ps = {};
-                imp_photometric_params_default(&pp);
-                pn_normal = malloc(nt * 6 * sizeof *pn_normal);
-                pn_flags = malloc(nt * sizeof *pn_flags);
-                drop = malloc(nt);
-                if (!pn_normal || !pn_flags || !drop) {
-                        r = imp_error_set(err, -ENOMEM, "out of memory");
-                        goto out;
-                }
-                progress(o, "photometric normals", 0, 1);
-                r = imp_photometric_normals(&bh, &cap, &sp, &pp, pn_normal, pn_normal + nt * 3, pn_flags, &ps);
-                if (r < 0) {
-                        imp_error_set(err, r, "%s: photometric normals failed: %s", o->capture, strerror(-r));
-                        goto out;
-                }
-                memcpy(normal, pn_normal + nt * 3, nt * 3 * sizeof *normal);
-                for (size_t i = 0; i < nt; i++)
-                        if (!hf->mask || hf->mask[i]) {
-                                hf->nx_[i] = pn_normal[3 * i];
-                                hf->ny_[i] = pn_normal[3 * i + 1];
-                        }
-                long why[6] = { 0 };   /* filled texels dropped: few, ill, dark, disagree, masked, steep */
-                for (size_t i = 0; i < nt; i++) {
-                        bool steep = !(pn_normal[3 * i + 2] >= PROCESS_FILL_MIN_NZ);
-                        drop[i] = (pn_flags[i] & IMP_PN_KEPT) || steep;
-                        if (hf->mask[i] == IMP_HF_MASK_FILLED && drop[i])
-                                for (int k = 0; k < 6; k++)
-                                        why[k] += k < 5 ? (pn_flags[i] >> k) & 1 : steep;
-                }
-                if ((r = drop_fill(o, g, drop, !o->opt->fuse_heights, err)) < 0)
-                        goto out;
-                if (hf->n_filled_texels || why[0] + why[1] + why[2] + why[3] + why[4] + why[5])
-                        json_object_set_new(json_object_get(stages, "heightfield"), "shadow_fill_dropped_why",
-                                json_pack("{s:I,s:I,s:I,s:I,s:I,s:I}", "few_samples", (json_int_t) why[0],
-                                          "ill_conditioned", (json_int_t) why[1], "dark", (json_int_t) why[2],
-                                          "disagree", (json_int_t) why[3], "masked", (json_int_t) why[4],
-                                          "steep", (json_int_t) why[5]));
-                if (o->opt->fuse_heights && (r = fuse_heights(o, g, pn_normal, stages, err)) < 0)
-                        goto out;
-                r = imp_heightfield_save(hf, o->out, err);
-                if (r < 0)
-                        goto out;
-                json_object_set_new(stages, "photometric", json_pack(
-                        "{s:i,s:I,s:I,s:I,s:I,s:I,s:I,s:i,s:f,s:f,s:f,s:f,s:f,s:f}",
-                        "lights", (int) n_used, "refined", (json_int_t) ps.n_refined,
-                        "resampled_samples", (json_int_t) ps.n_resampled, "lanczos", pp.lanczos,
-                        "kept_few_samples", (json_int_t) ps.n_few, "kept_ill_conditioned", (json_int_t) ps.n_ill,
-                        "kept_dark", (json_int_t) ps.n_dark, "kept_disagree", (json_int_t) ps.n_disagree,
-                        "max_dev_deg", pp.max_dev_deg,
-                        "dev_deg_mean", ps.dev_deg_mean, "dev_deg_median", ps.dev_deg_median,
-                        "sigma_deg_median", ps.sigma_deg_median, "rms_median", ps.rms_median,
-                        "seconds", now_s() - t_pn0));
-                progress(o, "photometric normals", 1, 1);
-        } else if ((r = drop_fill(o, g, NULL, true, err)) < 0)
-                goto out;
-        struct imp_btf_stats st = {};
-        progress(o, "btf fit", 0, 1);
-        r = imp_btf_fit_grid(&bh, &cap, &sp, &fp, 64, tex, &st);
-        if (r < 0) {
-                imp_error_set(err, r, "%s: BTF fit failed: %s", o->capture, strerror(-r));
-                goto out;
-        }
-        progress(o, "btf fit", 1, 1);
-        double t_fit = now_s();
+        drop_fill(g, drop);
+        if (hf->n_filled_texels || why[0] + why[1] + why[2] + why[3] + why[4] + why[5])
+                json_object_set_new(json_object_get(g->stages, "heightfield"), "shadow_fill_dropped_why",
+                        json_pack("{s:I,s:I,s:I,s:I,s:I,s:I}", "few_samples", (json_int_t) why[0],
+                                  "ill_conditioned", (json_int_t) why[1], "dark", (json_int_t) why[2],
+                                  "disagree", (json_int_t) why[3], "masked", (json_int_t) why[4],
+                                  "steep", (json_int_t) why[5]));
+        if (o->opt->fuse_heights && (r = fuse_heights(o, g, pn_normal, hf->sigma_n_deg, err)) < 0)
+                return r;
+        json_object_set_new(g->stages, "photometric", json_pack(
+                "{s:i,s:I,s:I,s:I,s:I,s:I,s:I,s:I,s:I,s:I,s:i,s:f,s:f,s:f,s:f,s:f,s:f}",
+                "lights", cap->n_lights, "refined", (json_int_t) ps.n_refined,
+                "resampled_samples", (json_int_t) ps.n_resampled, "lanczos", pp->lanczos,
+                "kept_few_samples", (json_int_t) ps.n_few, "kept_ill_conditioned", (json_int_t) ps.n_ill,
+                "kept_dark", (json_int_t) ps.n_dark, "kept_disagree", (json_int_t) ps.n_disagree,
+                "kept_ambient", (json_int_t) ps.n_ambient, "kept_residual", (json_int_t) ps.n_residual,
+                "kept_saturated", (json_int_t) ps.n_saturated,
+                "max_dev_deg", pp->max_dev_deg,
+                "dev_deg_mean", ps.dev_deg_mean, "dev_deg_median", ps.dev_deg_median,
+                "sigma_deg_median", ps.sigma_deg_median, "rms_median", ps.rms_median,
+                "seconds", now_s() - t0));
+        progress(o, "photometric normals", 1, 1);
+        return 0;
+}
 
-        if (n_held > 0) {
-                progress(o, "validation", 0, 1);
-                r = validate_holdout(&bh, &cam->model, ho_lights, ho_frames, ho_valid, (int) n_held, tex,
-                                     &validation);
-                if (r < 0) {
-                        imp_error_set(err, r, "%s: held-out validation failed: %s", o->capture, strerror(-r));
-                        goto out;
-                }
-                progress(o, "validation", 1, 1);
-        }
-        double t_val = now_s();
-
-        /* rho_d.exr, rho_s.exr (RGB half), lobe.exr (cx, cy, cz, k half): seed 000 §6;
-         * fit-flags.exr (flags, half: the flags are integers below 2048, exact in half). */
+/* rho_d, rho_s (RGB), lobe (cx, cy, cz, k) and fit flags (integers below 2048, exact in
+ * half) as images, seed 000 §6. */
+static int brdf_maps(const struct imp_heightfield *hf, const struct imp_btf_texel *tex, struct imp_image *maps[4]) {
         for (int m = 0; m < 4; m++) {
-                r = imp_image_new(hf->nx, hf->ny, m == 2 ? 4 : m == 3 ? 1 : 3, IMP_PIX_F32, &maps[m]);
+                int r = imp_image_new(hf->nx, hf->ny, m == 2 ? 4 : m == 3 ? 1 : 3, IMP_PIX_F32, &maps[m]);
                 if (r < 0)
-                        goto out;
+                        return r;
         }
         for (int y = 0; y < hf->ny; y++)
                 for (int x = 0; x < hf->nx; x++) {
@@ -720,65 +708,171 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
                         l[0] = t->cx; l[1] = t->cy; l[2] = t->cz; l[3] = t->k;
                         *imp_image_f32(maps[3], x, y) = t->flags;
                 }
-        static const char *const rgb[] = { "R", "G", "B" }, *const lobe[] = { "cx", "cy", "cz", "k" };
-        static const char *const flags[] = { "flags" };
-        static const char *const files[] = { "rho_d.exr", "rho_s.exr", "lobe.exr", "fit-flags.exr" };
-        for (int m = 0; m < 4; m++) {
-                char path[4096];
-                snprintf(path, sizeof path, "%s/%s", o->out, files[m]);
-                r = imp_exr_write(path, maps[m], m == 2 ? lobe : m == 3 ? flags : rgb, true, err);
+        return 0;
+}
+
+/* The shadow-aware Lafortune fit (seed 000 §4.4), the held-out validation, the maps. */
+static int btf_stage(const struct process_opts *o, struct geometry_out *g, const struct imp_btf_heightfield *bh,
+                     const struct imp_btf_capture *cap, const struct dome *d, struct imp_error *err) {
+        size_t nt = (size_t) g->hf.nx * g->hf.ny;
+        _cleanup_free_ struct imp_btf_texel *tex = calloc(nt, sizeof *tex);
+        if (!tex)
+                return imp_error_set(err, -ENOMEM, "out of memory");
+        double t0 = now_s();
+        struct imp_btf_stats st = {};
+        progress(o, "btf fit", 0, 1);
+        int r = imp_btf_fit_grid(bh, cap, &o->opt->btf_samples, &o->opt->btf_fit, 64, tex, &st);
+        if (r < 0)
+                return imp_error_set(err, r, "%s: BTF fit failed: %s", o->capture, strerror(-r));
+        progress(o, "btf fit", 1, 1);
+        for (size_t i = 0; i < nt; i++)   /* a non-physical fit is the copy's fit_failed */
+                if (g->hf.mask[i])
+                        g->hf.texel_flags[i] |= imp_btf_texel_flags(tex[i].flags) & IMP_TEXEL_FIT_FAILED;
+        double t_fit = now_s();
+        json_t *validation = NULL;
+        if (d->n_held > 0) {
+                progress(o, "validation", 0, 1);
+                r = validate_holdout(bh, cap->camera, d->ho_lights, d->ho_frames, d->ho_valid, (int) d->n_held, tex,
+                                     &validation);
                 if (r < 0)
-                        goto out;
+                        return imp_error_set(err, r, "%s: held-out validation failed: %s", o->capture, strerror(-r));
+                json_object_set_new(validation, "seconds", json_real(now_s() - t_fit));
+                progress(o, "validation", 1, 1);
         }
-        json_object_set_new(stages, "btf", json_pack("{s:i,s:I,s:I,s:I,s:I,s:I,s:I,s:I,s:I,s:f,s:f}",
-                "lights", (int) n_used, "fitted", (json_int_t) st.n_fitted, "matte", (json_int_t) st.n_matte,
+        json_t *btf = json_pack("{s:i,s:I,s:I,s:I,s:I,s:I,s:I,s:I,s:I,s:f,s:f}",
+                "lights", cap->n_lights, "fitted", (json_int_t) st.n_fitted, "matte", (json_int_t) st.n_matte,
                 "few_samples", (json_int_t) st.n_few, "hidden", (json_int_t) st.n_hidden,
                 "filled", (json_int_t) st.n_filled, "cx_eq_cy", (json_int_t) st.n_cx_eq_cy,
                 "samples", (json_int_t) st.n_samples, "shadowed", (json_int_t) st.n_shadowed,
-                "seconds_hdr", t_hdr - t0, "seconds_fit", t_fit - t_hdr));
-        if (validation) {
-                json_object_set_new(validation, "seconds", json_real(t_val - t_fit));
-                json_object_set_new(json_object_get(stages, "btf"), "validation", TAKE_PTR(validation));
+                "seconds_hdr", d->seconds, "seconds_fit", t_fit - t0);
+        if (validation)
+                json_object_set_new(btf, "validation", validation);
+        json_object_set_new(g->stages, "btf", btf);
+        if ((r = brdf_maps(&g->hf, tex, g->maps)) < 0)
+                return imp_error_set(err, r, "out of memory");
+        return 0;
+}
+
+/* The dome sweep → photometric normals, fused heights and the per-texel Lafortune BRDF. */
+static int run_appearance(const struct process_opts *o, const struct imp_captureset *cs, struct geometry_out *g,
+                          struct imp_error *err) {
+        const struct imp_rig *rig = imp_captureset_rig(cs);
+        _cleanup_free_ struct stack *stacks = NULL;
+        size_t n_stacks;
+        int r = collect_stacks(cs, "dome", rig->cameras[0].name, &stacks, &n_stacks);
+        if (r < 0)
+                return imp_error_set(err, r, "out of memory");
+        if (n_stacks == 0) {   /* no dome sweep: a geometry-only copy, no normals for a fill */
+                drop_fill(g, NULL);
+                return 0;
         }
-        r = 0;
+        struct imp_heightfield *hf = &g->hf;
+        size_t nt = (size_t) hf->nx * hf->ny;
+        struct dome d = {};
+        _cleanup_free_ float *normal = malloc(nt * 3 * sizeof *normal);
+        if (!normal)
+                return imp_error_set(err, -ENOMEM, "out of memory");
+        if ((r = dome_load(o, cs, stacks, IMP_MIN(n_stacks, (size_t) IMP_BTF_MAX_SAMPLES), &d, err)) < 0)
+                goto out;
+        for (size_t i = 0; i < nt; i++) {
+                double nx = hf->nx_[i], ny = hf->ny_[i], s = 1 - nx * nx - ny * ny;
+                normal[3 * i] = (float) nx;
+                normal[3 * i + 1] = (float) ny;
+                normal[3 * i + 2] = (float) sqrt(s > 0 ? s : 0);
+        }
+        struct imp_btf_heightfield bh = { hf->nx, hf->ny, hf->pitch_mm, hf->height_mm, normal, hf->mask, {},
+                                          hf->sigma_mm };
+        memcpy(bh.canvas_to_world, hf->canvas_to_world, sizeof bh.canvas_to_world);
+        struct imp_btf_capture cap = { &rig->cameras[0].model, d.lights, (int) d.n_used,
+                                       (const struct imp_image *const *) d.frames,
+                                       (const struct imp_image *const *) d.valid };
+        if (o->opt->photometric_normals && d.n_used >= 8)
+                r = photometric_stage(o, g, &bh, &cap, normal, err);
+        else
+                drop_fill(g, NULL);
+        if (r >= 0)
+                r = btf_stage(o, g, &bh, &cap, &d, err);
 out:
-        for (size_t i = 0; i < n_stacks; i++) {
-                if (frames) imp_image_free(frames[i]);
-                if (valid) imp_image_free(valid[i]);
-                if (ho_frames) imp_image_free(ho_frames[i]);
-                if (ho_valid) imp_image_free(ho_valid[i]);
-        }
-        json_decref(validation);
-        free(ho_frames);
-        free(ho_valid);
-        free(ho_lights);
-        for (int m = 0; m < 4; m++)
-                imp_image_free(maps[m]);
-        free(frames);
-        free(valid);
-        free(lights);
-        free(normal);
-        free(pn_normal);
-        free(pn_flags);
-        free(drop);
-        free(tex);
+        dome_done(&d);
         return r;
 }
 
+/* The verdict on the copy (copy.json "quality", docs/copy-quality.md). */
+#define QUALITY_FLAGGED_DEGRADED 0.25 /* flagged fraction of the canvas texels */
+#define QUALITY_FILLED_DEGRADED  0.10 /* shadow-filled fraction */
+#define QUALITY_TILT_DEGRADED    20.0 /* degrees from the rig's canvas normal */
+#define QUALITY_VIEW_DEGRADED    45.0 /* degrees between canvas normal and camera ray */
+#define QUALITY_MIN_TEXELS       5000 /* fewer canvas texels: tiny coverage */
+
+static void reason(json_t *reasons, enum imp_verdict *v, enum imp_verdict at_least, const char *fmt, ...)
+        _printf_(4, 5);
+static void reason(json_t *reasons, enum imp_verdict *v, enum imp_verdict at_least, const char *fmt, ...) {
+        char buf[256];
+        va_list ap;
+        va_start(ap, fmt);
+        vsnprintf(buf, sizeof buf, fmt, ap);
+        va_end(ap);
+        json_array_append_new(reasons, json_string(buf));
+        if (*v < at_least)
+                *v = at_least;
+}
+
+static json_t *quality_json(const struct geometry_out *g, const char *refusal) {
+        enum imp_verdict v = IMP_VERDICT_OK;
+        json_t *reasons = json_array(), *flags = json_object();
+        const struct imp_heightfield *hf = &g->hf;
+        size_t n = (size_t) hf->nx * hf->ny, n_mask = 0, n_flagged = 0, per[IMP_TEXEL_FLAG_COUNT] = { 0 };
+        for (size_t t = 0; t < n && hf->texel_flags; t++) {
+                if (!hf->mask[t])
+                        continue;
+                n_mask++;
+                n_flagged += hf->texel_flags[t] != 0;
+                for (unsigned k = 0; k < IMP_TEXEL_FLAG_COUNT; k++)
+                        per[k] += (hf->texel_flags[t] >> k) & 1;
+        }
+        double den = n_mask ? (double) n_mask : 1, flagged = n_flagged / den;
+        for (unsigned k = 0; k < IMP_TEXEL_FLAG_COUNT; k++)
+                json_object_set_new(flags, imp_texel_flag_name(k), json_real(per[k] / den));
+        if (refusal)
+                reason(reasons, &v, IMP_VERDICT_UNUSABLE, "%s", refusal);
+        else {
+                if (flagged > QUALITY_FLAGGED_DEGRADED)
+                        reason(reasons, &v, IMP_VERDICT_DEGRADED, "%.0f %% of the canvas texels are flagged",
+                               100 * flagged);
+                if (hf->n_filled_texels > QUALITY_FILLED_DEGRADED * den)
+                        reason(reasons, &v, IMP_VERDICT_DEGRADED, "%.0f %% of the canvas was filled from normals",
+                               100.0 * hf->n_filled_texels / den);
+                if (hf->flags & (IMP_HF_PLANE_WEAK | IMP_HF_PLANE_NO_CONSENSUS))
+                        reason(reasons, &v, IMP_VERDICT_DEGRADED, "the canvas plane is weakly determined");
+                if (hf->plane_tilt_deg > QUALITY_TILT_DEGRADED)
+                        reason(reasons, &v, IMP_VERDICT_DEGRADED, "canvas %.0f° off the rig's canvas pose",
+                               hf->plane_tilt_deg);
+                if (hf->plane_view_deg > QUALITY_VIEW_DEGRADED)
+                        reason(reasons, &v, IMP_VERDICT_DEGRADED, "canvas seen %.0f° off its normal",
+                               hf->plane_view_deg);
+                if (n_mask < QUALITY_MIN_TEXELS)
+                        reason(reasons, &v, IMP_VERDICT_DEGRADED, "only %zu canvas texels", n_mask);
+        }
+        return json_pack("{s:s,s:o,s:f,s:o,s:I}", "verdict", imp_verdict_name(v), "reasons", reasons,
+                         "flagged_fraction", flagged, "flags", flags, "texels", (json_int_t) n_mask);
+}
+
 static int write_copy_json(const struct process_opts *o, const struct geometry_out *g,
-                           json_t *stages, double seconds, struct imp_error *err) {
+                           json_t *stages, double seconds, const char *refusal, struct imp_error *err) {
         const struct imp_heightfield *hf = &g->hf;
         json_t *m = json_array();
-        for (int i = 0; i < 16; i++)
+        for (int i = 0; i < 16 && !refusal; i++)
                 json_array_append_new(m, json_real(hf->canvas_to_world[i]));
         struct rusage ru;
         getrusage(RUSAGE_SELF, &ru);
-        _cleanup_json_ json_t *j = json_pack("{s:s,s:i,s:s,s:f,s:i,s:i,s:o,s:{s:s,s:s,s:f,s:I},s:O}",
+        _cleanup_json_ json_t *j = json_pack("{s:s,s:i,s:s,s:f,s:i,s:i,s:o,s:{s:s,s:s,s:f,s:I},s:O?,s:o}",
                 "format", "impasto-digital-copy", "version", 1, "units", "mm",
                 "pitch_mm", hf->pitch_mm, "nx", hf->nx, "ny", hf->ny, "canvas_to_world", m,
                 "provenance", "software", "impasto " IMPASTO_VERSION_STRING, "capture", o->capture,
                               "seconds", seconds, "peak_rss_kib", (json_int_t) ru.ru_maxrss,
-                "stages", stages);
+                "stages", stages, "quality", quality_json(g, refusal));
+        if (!j)
+                return imp_error_set(err, -ENOMEM, "copy.json: out of memory");
         if (o->incomplete)
                 json_object_set(json_object_get(j, "provenance"), "incomplete", o->incomplete);
         char path[4096];
@@ -800,9 +894,46 @@ static int check_complete(struct process_opts *o, const struct imp_captureset *c
         return imp_error_set(err, -ENODATA, "%.900s; refused (--allow-incomplete processes it anyway)", msg);
 }
 
+/* Every output of the copy, each written once: heightfield.exr, boxes.json, the BRDF maps
+ * (half float), previews/. copy.json comes last (write_copy_json). */
+static int write_outputs(const struct process_opts *o, const struct geometry_out *g, struct imp_error *err) {
+        int r = imp_heightfield_write_exr(&g->hf, o->out, err);
+        if (r < 0)
+                return r;
+        char path[4096];
+        snprintf(path, sizeof path, "%s/boxes.json", o->out);
+        if ((r = imp_boxes_save(&g->boxes, path, err)) < 0)
+                return r;
+        static const char *const rgb[] = { "R", "G", "B" }, *const lobe[] = { "cx", "cy", "cz", "k" };
+        static const char *const flags[] = { "flags" };
+        static const char *const files[] = { "rho_d.exr", "rho_s.exr", "lobe.exr", "fit-flags.exr" };
+        for (int m = 0; m < 4 && g->maps[m]; m++) {
+                snprintf(path, sizeof path, "%s/%s", o->out, files[m]);
+                if ((r = imp_exr_write(path, g->maps[m], m == 2 ? lobe : m == 3 ? flags : rgb, true, err)) < 0)
+                        return r;
+        }
+        return imp_copy_previews(o->out, &g->hf, err);
+}
+
 void imp_process_options_default(struct imp_process_options *o) {
-        *o = (struct imp_process_options) { .btf = true, .btf_robust_passes = -1, .photometric_normals = true,
-                                            .fuse_heights = true, .shadow_fill_px = 80 };
+        *o = (struct imp_process_options) { .btf = true, .photometric_normals = true, .fuse_heights = true };
+        imp_heightfield_options_default(&o->heightfield);
+        o->heightfield.shadow_fill_px = 80;
+        imp_boxes_options_default(&o->boxes);
+        imp_btf_sample_params_default(&o->btf_samples);
+        imp_btf_fit_params_default(&o->btf_fit);
+        imp_photometric_params_default(&o->photometric);
+        imp_fuse_params_default(&o->fuse);
+}
+
+/* A refused copy: no heightfield, copy.json with the verdict and the reason. */
+static void write_refusal(const struct process_opts *o, const struct geometry_out *g, double seconds,
+                          const struct imp_error *err) {
+        char path[4096];
+        snprintf(path, sizeof path, "%s/heightfield.exr", o->out);
+        unlink(path);
+        struct imp_error werr = {};
+        write_copy_json(o, g, g->stages, seconds, err && err->msg[0] ? err->msg : "no plausible canvas", &werr);
 }
 
 int imp_process_capture(const char *capture_dir, const char *copy_dir,
@@ -825,15 +956,21 @@ int imp_process_capture(const char *capture_dir, const char *copy_dir,
         struct geometry_out g = {};
         r = run_geometry(&o, cs, &g, err);
         if (r >= 0 && opt->btf)
-                r = run_appearance(&o, cs, &g, g.stages, err);
+                r = run_appearance(&o, cs, &g, err);
+        else if (r >= 0)
+                drop_fill(&g, NULL);   /* no normals to shape the fill */
+        if (r >= 0 && (r = imp_heightfield_flag_edges(&g.hf, IMP_HF_FRAME_ADJACENT_PX)) < 0)
+                imp_error_set(err, r, "out of memory");   /* the mask and σ_n are final now */
         if (r >= 0)
-                r = imp_copy_previews(copy_dir, &g.hf, err);
+                r = classify_boxes(&o, &g, err);
         if (r >= 0)
-                r = write_copy_json(&o, &g, g.stages, now_s() - t0, err);
-        json_decref(g.stages);
+                r = write_outputs(&o, &g, err);
+        if (r >= 0)
+                r = write_copy_json(&o, &g, g.stages, now_s() - t0, NULL, err);
+        if (g.refused || r == -EINVAL || r == -EBADMSG)   /* not a copy of this painting */
+                write_refusal(&o, &g, now_s() - t0, err);
+        geometry_out_done(&g);
         json_decref(o.incomplete);
-        imp_boxes_done(&g.boxes);
-        imp_heightfield_done(&g.hf);
 #ifdef _OPENMP
         omp_set_num_threads(threads_before);
 #endif

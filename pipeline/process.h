@@ -3,26 +3,38 @@
 #pragma once
 #include <stdbool.h>
 #include <stddef.h>
+#include "boxes.h"
+#include "btf.h"
 #include "error.h"
+#include "fuse.h"
+#include "heightfield.h"
+#include "photometric.h"
 
+/* Every stage's options, with the values imp_process_options_default() sets; a caller
+ * changes the fields it means to. */
 struct imp_process_options {
-        double pitch_mm;              /* heightfield grid pitch; <= 0: camera footprint */
-        int cell_px;                  /* relief box cell size n; <= 0: default 20 */
-        double delta_frac;            /* δ0 as a fraction of the max height; <= 0: 0.3 */
+        struct imp_heightfield_options heightfield;   /* canvas extraction and grid (pitch_mm
+                                         0: the camera footprint); shadow_fill_px defaults
+                                         to 80 here and is used only when photometric
+                                         normals and fusion run: texels in projector shadow
+                                         between the measured canvas and the frame join the
+                                         mask (value 2) with heights integrated from their
+                                         photometric normals; those whose normal the dome
+                                         cannot determine, or steeper than 60°, are dropped
+                                         (docs/geometry.md "Shadow fill") */
+        struct imp_boxes_options boxes;               /* relief boxes: cell_px, delta_frac */
+        struct imp_btf_sample_params btf_samples;     /* samples of photometric normals and
+                                         the fit; march_step_texels = 0 casts no shadow ray */
+        struct imp_btf_fit_params btf_fit;            /* max_iter, robust_passes */
+        struct imp_photometric_params photometric;
+        struct imp_fuse_params fuse;
         bool btf;                     /* fit the BTF when the set holds a dome sweep */
         int holdout_every;            /* > 0: every Nth dome light (sweep positions N−1,
                                          2N−1, …) is left out of the fit and re-rendered
                                          with the fitted copy for validation; 0: none */
-        /* Cost/accuracy knobs (`impasto bench accuracy`); the values that
-         * imp_process_options_default() sets (all 0/false, btf_robust_passes −1) keep the
-         * standard processing. */
         bool sl_gray_only;            /* decode the Gray code alone, ignoring phase frames */
         int threads;                  /* OpenMP threads for every stage (the calling
-                                         thread's setting, restored on return); <= 0: as is */
-        int btf_max_iter;             /* LM iterations per pass; <= 0: the fit's default */
-        int btf_robust_passes;        /* Huber reweightings; < 0: the fit's default */
-        bool btf_no_shadow_test;      /* no ray casting on the heightfield: self-shadowed
-                                         and hidden samples are kept */
+                                         thread's setting, restored on return); 0: as is */
         bool allow_incomplete;        /* process a set missing frames of its plan (else
                                          refused, -ENODATA); copy.json provenance.incomplete
                                          then says what is missing */
@@ -35,14 +47,6 @@ struct imp_process_options {
                                          triangulated positions (low frequencies) and the
                                          normals (high ones), pipeline/geometry/fuse.h; copy.json
                                          stages.fusion. Default true */
-        int shadow_fill_px;           /* with photometric normals and fusion: canvas texels
-                                         in projector shadow between the measured canvas and
-                                         the frame, up to this many texels from it, join the
-                                         mask (value 2 in heightfield.exr) with heights
-                                         integrated from their photometric normals; those
-                                         whose normal the dome cannot determine, or steeper
-                                         than 60°, are dropped (docs/geometry.md "Shadow
-                                         fill"). Default 80; 0: off */
         /* Progress per stage (may be NULL); called from the calling thread. */
         void (*progress)(void *userdata, const char *stage, size_t done, size_t total);
         void *userdata;
@@ -61,7 +65,13 @@ void imp_process_options_default(struct imp_process_options *o);
  * rmse_per_light[]}: the held-out frames against the copy shaded per texel
  * (V = E·cos θl·f(v, l)), over mask texels the camera sees that are lit, not
  * self-shadowed (ray cast on the heightfield), not saturated and not too dark; rmse of
- * V/E, so 1.0 = a white Lambertian at normal incidence (-1 when no sample qualified). -EINVAL/-EBADMSG for a capture set that cannot be processed (message names
- * the file and what is wrong), other negative errnos for I/O and memory. */
+ * V/E, so 1.0 = a white Lambertian at normal incidence (-1 when no sample qualified).
+ * copy.json "quality" = {verdict ok|degraded|unusable, reasons[], flagged_fraction,
+ * flags {name: fraction of the canvas texels}, texels} (docs/copy-quality.md).
+ * -ENODATA when the data hold no plausible canvas (placement refused): copy.json is still
+ * written, with quality.verdict "unusable" and the reason, and no heightfield.
+ * -EINVAL/-EBADMSG for a capture set that cannot be processed (message names
+ * the file and what is wrong; copy.json says "unusable" with that message too), other
+ * negative errnos for I/O and memory. */
 int imp_process_capture(const char *capture_dir, const char *copy_dir,
                         const struct imp_process_options *o, struct imp_error *err);

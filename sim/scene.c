@@ -364,6 +364,10 @@ static int parse_projector(struct imp_scene *s, const struct imp_conf *c, const 
         TRY(imp_conf_get_double(c, g, "gamma", false, 0.1, 10, &p->gamma, err));
         TRY(imp_conf_get_double(c, g, "black_level", false, 0, 1, &p->black_level, err));
         TRY(imp_conf_get_double(c, g, "intensity", false, 0, 1e6, &p->intensity, err));
+        if (!(p->intensity > 0))
+                return imp_error_set(err, -EINVAL, "%s:%d: rig.projector.intensity: expected > 0 (a dark projector "
+                                     "measures nothing)", imp_conf_path(c),
+                                     line_of(config_setting_lookup((config_setting_t *) g, "intensity")));
         TRY(imp_conf_get_double(c, g, "defocus_px", false, 0, 50, &p->defocus_px, err));
         s->rig.has_projector = true;
         return 0;
@@ -391,6 +395,10 @@ static int parse_dome(struct imp_scene *s, const struct imp_conf *c, const confi
         TRY(get_vec3(c, g, "centre_mm", false, centre, err));
         TRY(imp_conf_get_double(c, g, "radius_mm", false, 1, 1e5, &radius, err));
         TRY(imp_conf_get_double(c, g, "intensity", false, 0, 1e6, &intensity, err));
+        if (!(intensity > 0))
+                return imp_error_set(err, -EINVAL, "%s:%d: rig.dome.intensity: expected > 0 (dark lights measure "
+                                     "nothing)", imp_conf_path(c),
+                                     line_of(config_setting_lookup((config_setting_t *) g, "intensity")));
         TRY(imp_conf_get_double(c, g, "profile_exp", false, 0, 1000, &pexp, err));
         TRY(get_vec3(c, g, "colour", false, colour, err));
         config_setting_t *rings = NULL, *lights = NULL;
@@ -453,6 +461,9 @@ static int parse_dome(struct imp_scene *s, const struct imp_conf *c, const confi
                 L->id = (int) id;
                 TRY(get_vec3(c, lg, "pos_mm", true, L->pos_mm, err));
                 TRY(imp_conf_get_double(c, lg, "intensity", false, 0, 1e6, &L->intensity, err));
+                if (!(L->intensity > 0))
+                        return imp_error_set(err, -EINVAL, "%s:%d: rig.dome.lights.[%d].intensity: expected > 0",
+                                             imp_conf_path(c), line_of(lg), i);
                 TRY(imp_conf_get_double(c, lg, "profile_exp", false, 0, 1000, &L->profile_exp, err));
                 TRY(get_vec3(c, lg, "colour", false, L->colour, err));
                 light_towards(L, centre);
@@ -486,10 +497,17 @@ static int parse_brdf(const struct imp_conf *c, const config_setting_t *g, struc
         TRY(get_vec3(c, g, "rho_s", false, rs, err));
         TRY(get_vec3(c, g, "lobe", false, lobe, err));
         TRY(imp_conf_get_double(c, g, "k", false, 0, 10000, &k, err));
+        /* A lobe exponent k <= 0 is no lobe (the fit's model cannot hold it); a diffuse
+         * albedo above 1 reflects more than it receives. */
+        if (!(k > 0))
+                return imp_error_set(err, -EINVAL, "%s:%d: %s.k: expected a lobe exponent > 0, got %g",
+                                     imp_conf_path(c), line_of(config_setting_lookup((config_setting_t *) g, "k")),
+                                     imp_conf_setting_path(g), k);
         for (int i = 0; i < 3; i++)
-                if (!(rd[i] >= 0 && rd[i] <= 10 && rs[i] >= 0 && rs[i] <= 1000))
-                        return imp_error_set(err, -EINVAL, "%s:%d: %s: expected rho_d in [0, 10] and rho_s in [0, 1000]",
-                                             imp_conf_path(c), line_of(g), imp_conf_setting_path(g));
+                if (!(rd[i] >= 0 && rd[i] <= 1 && rs[i] >= 0 && rs[i] <= 1000))
+                        return imp_error_set(err, -EINVAL, "%s:%d: %s: expected rho_d in [0, 1] (physical diffuse "
+                                             "albedo) and rho_s in [0, 1000], got rho_d %g, rho_s %g",
+                                             imp_conf_path(c), line_of(g), imp_conf_setting_path(g), rd[i], rs[i]);
         for (int i = 0; i < 3; i++) {
                 b->rho_d[i] = (float) rd[i];
                 b->rho_s[i] = (float) rs[i];

@@ -267,12 +267,13 @@ static int parse_worker_args(const char *args, struct imp_process_options *o, ch
                 }
                 if (!strcmp(w, "--holdout"))
                         o->holdout_every = (int) x;
-                else if (!strcmp(w, "--cell"))
-                        o->cell_px = (int) x;
-                else if (!strcmp(w, "--pitch"))
-                        o->pitch_mm = x;
-                else
-                        o->delta_frac = x;
+                else if (!strcmp(w, "--cell")) {
+                        if (x > 0)   /* 0: the default */
+                                o->boxes.cell_px = (int) x;
+                } else if (!strcmp(w, "--pitch"))
+                        o->heightfield.pitch_mm = x;
+                else if (x > 0)
+                        o->boxes.delta_frac = x;
         }
         return 0;
 }

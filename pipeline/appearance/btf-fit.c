@@ -11,6 +11,7 @@
 
 #include "btf.h"
 #include "numerics.h"
+#include "quality.h"
 
 #define MAXP 3                        /* lobe parameters: (cx, cy, log k) or (cxy, log k) */
 #define COND_MAX 1e12                 /* reported condition numbers are capped here */
@@ -609,8 +610,8 @@ static bool cx_cy_separable(const struct work *w, double tau) {
         return gz > 0.0 && lmin >= tau * gz;
 }
 
-int imp_btf_fit_texel(const struct imp_btf_sample *samples, int n, const struct imp_btf_fit_params *p,
-                      struct imp_btf_texel *ret) {
+static int fit_texel(const struct imp_btf_sample *samples, int n, const struct imp_btf_fit_params *p,
+                     struct imp_btf_texel *ret) {
         if (n < 0 || (n > 0 && !samples) || !p || !ret || !(p->k_min > 0.0) || !(p->k_max >= p->k_min) ||
             !(p->c_max > 0.0) || p->min_samples < 1 || !(p->c_prior_sigma > 0.0) || !(p->sigma_floor > 0.0) ||
             !(p->peak_seen_min > 0.0 && p->peak_seen_min <= 1.0))
@@ -726,6 +727,42 @@ int imp_btf_fit_texel(const struct imp_btf_sample *samples, int n, const struct 
         if (!(se_lk <= p->k_rel_uncertain) || extrapolated)
                 t.flags |= IMP_BTF_LOBE_UNCERTAIN;
         *ret = t;
+        return 0;
+}
+
+uint16_t imp_btf_texel_flags(uint16_t f) {
+        if (f & IMP_BTF_MASKED)
+                return 0;
+        return (uint16_t) ((f & IMP_BTF_FEW_SAMPLES ? IMP_TEXEL_FEW_SAMPLES : 0) |
+                           (f & IMP_BTF_SATURATED ? IMP_TEXEL_SATURATED : 0) |
+                           (f & IMP_BTF_FIT_FAILED ? IMP_TEXEL_FIT_FAILED : 0));
+}
+
+/* Whether a fitted texel is a physical one-lobe Lafortune BRDF (btf.h IMP_BTF_FIT_FAILED);
+ * a non-finite value is replaced by 0 so that every output stays finite. */
+static bool physical(struct imp_btf_texel *t, const struct imp_btf_fit_params *p) {
+        bool ok = true;
+        float *v[] = { &t->rho_d[0], &t->rho_d[1], &t->rho_d[2], &t->rho_s[0], &t->rho_s[1], &t->rho_s[2],
+                       &t->cx, &t->cy, &t->cz, &t->k, &t->rms, &t->cond };
+        for (size_t i = 0; i < ARRAY_SIZE(v); i++)
+                if (!isfinite(*v[i])) {
+                        *v[i] = 0.0f;
+                        ok = false;
+                }
+        for (int c = 0; c < 3; c++)
+                ok = ok && t->rho_d[c] >= 0.0f && t->rho_d[c] <= 1.0f && t->rho_s[c] >= 0.0f &&
+                     t->rho_s[c] < (float) RHO_S_MAX;
+        float cmax = fmaxf(fabsf(t->cx), fmaxf(fabsf(t->cy), fabsf(t->cz)));
+        return ok && t->k > 0.0f && t->k >= (float) p->k_min * (1 - 1e-6f) && fabsf(cmax - 1.0f) <= 1e-4f;
+}
+
+int imp_btf_fit_texel(const struct imp_btf_sample *samples, int n, const struct imp_btf_fit_params *p,
+                      struct imp_btf_texel *ret) {
+        int r = fit_texel(samples, n, p, ret);
+        if (r < 0)
+                return r;
+        if (!physical(ret, p))
+                ret->flags |= IMP_BTF_FIT_FAILED;
         return 0;
 }
 

@@ -24,6 +24,8 @@ struct imp_btf_heightfield {
         const float *normal;          /* 3 per texel, unit, canvas frame (z out of the paint) */
         const uint8_t *mask;          /* width·height, non-zero = paint; NULL = all */
         double canvas_to_world[16];
+        const float *sigma_mm;        /* width·height height σ, may be NULL (photometric.h
+                                         uses it for the σ of a kept geometric normal) */
 };
 
 /* Per-pixel flags of the optional validity images (one u8 channel per frame). */
@@ -74,7 +76,17 @@ enum imp_btf_flag {
         IMP_BTF_MASKED         = 1 << 6,  /* outside the paint mask (or no normal): zeros */
         IMP_BTF_K_BOUND        = 1 << 7,  /* k ended at k_min or k_max */
         IMP_BTF_LOBE_UNCERTAIN = 1 << 8,  /* lobe width poorly determined (see docs) */
+        IMP_BTF_FIT_FAILED     = 1 << 9,  /* the result is not a physical BRDF (ρd outside
+                                             [0, 1], ρs < 0 or at its cap, k ≤ 0, a lobe
+                                             not normalised, anything non-finite): values
+                                             finite but not to be trusted */
 };
+
+/* The per-texel flags of quality.h (IMP_TEXEL_*) a texel's fit flags imply:
+ * FEW_SAMPLES → FEW_SAMPLES, SATURATED → SATURATED, FIT_FAILED → FIT_FAILED; MASKED → 0.
+ * K_BOUND and LOBE_UNCERTAIN say how well the lobe is known, not that the fit failed:
+ * they stay in fit-flags.exr (compare counts them apart). */
+uint16_t imp_btf_texel_flags(uint16_t btf_flags);
 
 struct imp_btf_sample_params {
         double min_cos_l;             /* discard lights with cos θl below this (0.02) */

@@ -6,6 +6,7 @@
 #include "heightfield.h"
 #include "photometric.h"
 #include "macro.h"
+#include "quality.h"
 
 #define DEG (M_PI / 180.0)
 #define PN_SHADOW_FRAC  0.5           /* trimmed samples read below this × the fit */
@@ -18,7 +19,27 @@ void imp_photometric_params_default(struct imp_photometric_params *ret) {
                 .min_albedo = 0.01, .max_dev_deg = 25, .passes = 5, .huber_delta = 1.345,
                 .sigma_floor = 0.002, .tol_deg = 0.01, .geo_sigma_deg = 0, .lanczos = 3,
                 .shadow_trim_sigma = 0, .filled_trim_sigma = 3, .filled_passes = 10, .filled_max_dev_deg = 60,
+                .max_ambient_rel = 0.05, .ambient_sigma = 4, .max_rms_ratio = 3, .max_rel_rms = 0.06,
+                .max_sigma_deg = 3.3,
+                .interp_sigma_deg = 0.55, .interp_sigma_per_deg = 0.1, .geo_min_sigma_deg = 1,
         };
+}
+
+uint16_t imp_photometric_texel_flags(uint16_t f) {
+        if ((f & IMP_PN_MASKED) && !(f & ~(IMP_PN_MASKED | IMP_PN_FEW_SAMPLES)))
+                return 0;
+        uint16_t t = 0;
+        if (f & (IMP_PN_FEW_SAMPLES | IMP_PN_ILL_COND))
+                t |= IMP_TEXEL_FEW_SAMPLES;
+        if (f & IMP_PN_DARK)
+                t |= IMP_TEXEL_DARK;
+        if (f & IMP_PN_AMBIENT)
+                t |= IMP_TEXEL_INTERREFLECTION;
+        if (f & IMP_PN_SATURATED)
+                t |= IMP_TEXEL_SATURATED;
+        if (f & IMP_PN_KEPT)
+                t |= IMP_TEXEL_PHOTOMETRIC_REJECTED;
+        return t;
 }
 
 static int cmp_double(const void *a, const void *b) {
@@ -41,16 +62,14 @@ static void keep_geometric(struct imp_pn_texel *ret, uint16_t flags) {
         ret->flags |= flags;
 }
 
-int imp_photometric_texel(const struct imp_btf_sample *s, int n, const struct imp_photometric_params *p,
-                          struct imp_pn_texel *ret) {
-        *ret = (struct imp_pn_texel) { .n = { 0, 0, 1 }, .sigma_deg = 180 };
-        if (n < 0 || n > IMP_BTF_MAX_SAMPLES)
-                return -E2BIG;
-        if (!p || p->min_samples < 3 || p->passes < 1 || !(p->max_cond > 1) || !(p->huber_delta > 0) ||
-            !(p->sigma_floor > 0) || !(p->max_dev_deg > 0))
-                return -EINVAL;
+/* The usable samples of a texel as rows of V/E = g·l (at most IMP_BTF_MAX_SAMPLES). */
+struct pn_rows {
         double a[IMP_BTF_MAX_SAMPLES][3], y[IMP_BTF_MAX_SAMPLES], vv[IMP_BTF_MAX_SAMPLES][3];
         double w[IMP_BTF_MAX_SAMPLES], res[IMP_BTF_MAX_SAMPLES], tmp[IMP_BTF_MAX_SAMPLES];
+        int m;
+};
+
+static void load_rows(const struct imp_btf_sample *s, int n, struct pn_rows *R) {
         int m = 0;
         for (int i = 0; i < n; i++) {
                 const struct imp_btf_sample *q = &s[i];
@@ -62,13 +81,215 @@ int imp_photometric_texel(const struct imp_btf_sample *s, int n, const struct im
                 if (!isfinite(E) || !(E > 0))
                         continue;
                 for (int k = 0; k < 3; k++) {
-                        a[m][k] = q->l[k];
-                        vv[m][k] = q->v[k];
+                        R->a[m][k] = q->l[k];
+                        R->vv[m][k] = q->v[k];
                 }
-                y[m] = V / E;
-                w[m] = 1;
+                R->y[m] = V / E;
+                R->w[m] = 1;
                 m++;
         }
+        R->m = m;
+}
+
+/* Whether sample i takes part for normal nc: not near the mirror direction, not in
+ * attached shadow. */
+static bool takes_part(const struct pn_rows *R, int i, const double nc[3], double cone, double min_cos) {
+        double nv = nc[0] * R->vv[i][0] + nc[1] * R->vv[i][1] + nc[2] * R->vv[i][2], rl = 0, nl = 0;
+        for (int k = 0; k < 3; k++) {
+                rl += (2 * nv * nc[k] - R->vv[i][k]) * R->a[i][k];
+                nl += nc[k] * R->a[i][k];
+        }
+        return rl <= cone && nl >= min_cos;
+}
+
+struct pn_state {
+        double nc[3], g[3], Ainv[9], sigma, rms, cond, cone;
+        int used;
+};
+
+/* One weighted solve for the current normal: g, A⁻¹, cond. Returns 0 or the flag that
+ * keeps the geometric normal. */
+static uint16_t solve_pass(struct pn_rows *R, const struct imp_photometric_params *p, struct pn_state *S) {
+        double A[9] = {}, b[3] = {};
+        S->used = 0;
+        for (int i = 0; i < R->m; i++) {
+                double wi = takes_part(R, i, S->nc, S->cone, p->min_cos) ? R->w[i] : 0.0;
+                if (wi <= 0)
+                        continue;
+                S->used++;
+                for (int j = 0; j < 3; j++) {
+                        b[j] += wi * R->a[i][j] * R->y[i];
+                        for (int k = 0; k < 3; k++)
+                                A[3 * j + k] += wi * R->a[i][j] * R->a[i][k];
+                }
+        }
+        if (S->used < p->min_samples)
+                return IMP_PN_FEW_SAMPLES;
+        double lam[3], vec[9];
+        imp_heightfield_eigen3(A, lam, vec);
+        S->cond = lam[0] > 0 ? lam[2] / lam[0] : 1e12;
+        if (!(S->cond <= p->max_cond))
+                return IMP_PN_ILL_COND;
+        for (int j = 0; j < 9; j++)
+                S->Ainv[j] = 0;
+        for (int e = 0; e < 3; e++)
+                for (int j = 0; j < 3; j++)
+                        for (int k = 0; k < 3; k++)
+                                S->Ainv[3 * j + k] += vec[3 * e + j] * vec[3 * e + k] / lam[e];
+        for (int j = 0; j < 3; j++)
+                S->g[j] = S->Ainv[3 * j] * b[0] + S->Ainv[3 * j + 1] * b[1] + S->Ainv[3 * j + 2] * b[2];
+        double gl = sqrt(S->g[0] * S->g[0] + S->g[1] * S->g[1] + S->g[2] * S->g[2]);
+        if (!(gl >= p->min_albedo) || !isfinite(gl))
+                return IMP_PN_DARK;
+        return 0;
+}
+
+/* Residuals over every sample (an excluded one may come back), the robust σ (MAD) and
+ * weighted RMS of those taking part for normal nn, and the Huber (and cast-shadow) weights
+ * for the next solve when reweight. */
+static void residuals(struct pn_rows *R, const struct imp_photometric_params *p, const double nn[3],
+                      struct pn_state *S, bool reweight) {
+        const double *g = S->g;
+        int k2 = 0;
+        double ss = 0, sw = 0, mad[IMP_BTF_MAX_SAMPLES];
+        for (int i = 0; i < R->m; i++) {
+                R->res[i] = R->y[i] - (g[0] * R->a[i][0] + g[1] * R->a[i][1] + g[2] * R->a[i][2]);
+                if (takes_part(R, i, nn, S->cone, p->min_cos)) {
+                        R->tmp[k2++] = fabs(R->res[i]);
+                        ss += R->w[i] * R->res[i] * R->res[i];
+                        sw += R->w[i];
+                }
+        }
+        S->sigma = fmax(p->sigma_floor, 1.4826 * median_small(R->tmp, k2, mad));
+        S->rms = sqrt(ss / fmax(sw, 1e-30));
+        if (!reweight)
+                return;
+        for (int i = 0; i < R->m; i++) {
+                double u = fabs(R->res[i]) / S->sigma;
+                R->w[i] = u <= p->huber_delta ? 1.0 : p->huber_delta / u;
+                /* cast shadow: far below the fit and under half of it */
+                if (p->shadow_trim_sigma > 0 && R->res[i] < -p->shadow_trim_sigma * S->sigma &&
+                    R->y[i] < PN_SHADOW_FRAC * (R->y[i] - R->res[i]))
+                        R->w[i] = 0;
+        }
+}
+
+/* The model check: the same rows with a 4th unknown, an ambient term c (V/E = g·l + c).
+ * Returns c, its σ (residual scale s) and the angle between the two fits' normals. False
+ * when the 4×4 system is singular (then nothing is said). */
+static bool ambient_check(const struct pn_rows *R, const struct imp_photometric_params *p,
+                          const struct pn_state *S, double s, double *ret_c, double *ret_sc,
+                          double *ret_shift_deg) {
+        double M[4][5] = {};
+        for (int i = 0; i < R->m; i++) {
+                if (!takes_part(R, i, S->nc, S->cone, p->min_cos) || !(R->w[i] > 0))
+                        continue;
+                double r[4] = { R->a[i][0], R->a[i][1], R->a[i][2], 1 };
+                for (int j = 0; j < 4; j++) {
+                        for (int k = 0; k < 4; k++)
+                                M[j][k] += R->w[i] * r[j] * r[k];
+                        M[j][4] += R->w[i] * r[j] * R->y[i];
+                }
+        }
+        /* Gauss–Jordan with partial pivoting on [M | b], carrying the inverse's last column
+         * (e₄) for var(c). */
+        double inv[4] = { 0, 0, 0, 1 }, scale = M[0][0] + M[1][1] + M[2][2] + M[3][3];
+        for (int c = 0; c < 4; c++) {
+                int piv = c;
+                for (int r = c + 1; r < 4; r++)
+                        if (fabs(M[r][c]) > fabs(M[piv][c]))
+                                piv = r;
+                if (!(fabs(M[piv][c]) > 1e-9 * scale))
+                        return false;
+                for (int k = 0; k < 5; k++) {
+                        double t = M[c][k];
+                        M[c][k] = M[piv][k];
+                        M[piv][k] = t;
+                }
+                double t = inv[c];
+                inv[c] = inv[piv];
+                inv[piv] = t;
+                for (int r = 0; r < 4; r++) {
+                        if (r == c)
+                                continue;
+                        double f = M[r][c] / M[c][c];
+                        for (int k = c; k < 5; k++)
+                                M[r][k] -= f * M[c][k];
+                        inv[r] -= f * inv[c];
+                }
+        }
+        double g4[3], gl = 0, dot = 0;
+        for (int j = 0; j < 3; j++) {
+                g4[j] = M[j][4] / M[j][j];
+                gl += g4[j] * g4[j];
+                dot += g4[j] * S->nc[j];
+        }
+        gl = sqrt(gl);
+        *ret_c = M[3][4] / M[3][3];
+        *ret_sc = s * sqrt(fmax(inv[3] / M[3][3], 0));   /* (M⁻¹)₃₃ = e₄ᵀ M⁻¹ e₄ */
+        *ret_shift_deg = gl > 0 ? acos(fmax(-1.0, fmin(1.0, dot / gl))) / DEG : 90;
+        return isfinite(*ret_c) && isfinite(*ret_sc);
+}
+
+/* σ, checks and result of a texel whose Lambertian fit converged. */
+static void finish_texel(const struct pn_rows *R, const struct imp_photometric_params *p,
+                         const struct pn_state *S, struct imp_pn_texel *ret) {
+        double gl = sqrt(S->g[0] * S->g[0] + S->g[1] * S->g[1] + S->g[2] * S->g[2]);
+        double tr = S->Ainv[0] + S->Ainv[4] + S->Ainv[8], nAn = 0;
+        for (int j = 0; j < 3; j++)
+                for (int k = 0; k < 3; k++)
+                        nAn += S->nc[j] * S->Ainv[3 * j + k] * S->nc[k];
+        double var_t = fmax(0, tr - nAn);
+        /* The residual scale is the larger of the robust σ and the weighted RMS: a misfit
+         * that is systematic rather than noisy shows in the second. */
+        double s = fmax(S->sigma, S->rms);
+        double sig_noise = s * sqrt(var_t) / gl / DEG;
+        double c = 0, sc = 0, shift = 0;
+        uint16_t why = 0;
+        if (ambient_check(R, p, S, s, &c, &sc, &shift) && fabs(c) > p->ambient_sigma * sc &&
+            fabs(c) > p->max_ambient_rel * gl)
+                why |= IMP_PN_AMBIENT;
+        double ysum = 0, wsum = 0;
+        for (int i = 0; i < R->m; i++)
+                if (R->w[i] > 0 && takes_part(R, i, S->nc, S->cone, p->min_cos)) {
+                        ysum += R->w[i] * R->y[i];
+                        wsum += R->w[i];
+                }
+        double ymean = wsum > 0 ? ysum / wsum : 0;
+        if (S->rms > p->max_rms_ratio * S->sigma || S->rms > p->max_rel_rms * ymean)
+                why |= IMP_PN_RESIDUAL;
+        double sig = hypot(sig_noise, shift);
+        if (!(sig <= p->max_sigma_deg))
+                why |= !(sig_noise <= p->max_sigma_deg) && gl < 10 * p->min_albedo ? IMP_PN_DARK : IMP_PN_RESIDUAL;
+        ret->albedo = (float) gl;
+        ret->rms = (float) S->rms;
+        ret->cond = (float) S->cond;
+        ret->n_used = (uint16_t) S->used;
+        ret->ambient = (float) c;
+        ret->sigma_deg = (float) fmin(180.0, sig);
+        ret->dev_deg = (float) (acos(fmax(-1.0, fmin(1.0, S->nc[2]))) / DEG);
+        if (!(ret->dev_deg <= p->max_dev_deg))
+                why |= IMP_PN_DISAGREES;
+        if (why) {
+                keep_geometric(ret, why);
+                return;
+        }
+        for (int k = 0; k < 3; k++)
+                ret->n[k] = (float) S->nc[k];
+}
+
+int imp_photometric_texel(const struct imp_btf_sample *s, int n, const struct imp_photometric_params *p,
+                          struct imp_pn_texel *ret) {
+        *ret = (struct imp_pn_texel) { .n = { 0, 0, 1 }, .sigma_deg = 180 };
+        if (n < 0 || n > IMP_BTF_MAX_SAMPLES)
+                return -E2BIG;
+        if (!p || p->min_samples < 3 || p->passes < 1 || !(p->max_cond > 1) || !(p->huber_delta > 0) ||
+            !(p->sigma_floor > 0) || !(p->max_dev_deg > 0) || !(p->max_sigma_deg > 0) ||
+            !(p->max_rms_ratio > 0) || !(p->max_rel_rms > 0) || !(p->max_ambient_rel > 0) || !(p->ambient_sigma >= 0))
+                return -EINVAL;
+        struct pn_rows R;
+        load_rows(s, n, &R);
+        int m = R.m;
         if (m < p->min_samples) {
                 keep_geometric(ret, m == 0 ? IMP_PN_MASKED | IMP_PN_FEW_SAMPLES : IMP_PN_FEW_SAMPLES);
                 ret->n_used = (uint16_t) m;
@@ -78,123 +299,32 @@ int imp_photometric_texel(const struct imp_btf_sample *s, int n, const struct im
                 /* Cast shadows expected: the first solve leaves out the samples darker than
                  * PN_SHADOW_START × the median, so that the shadows do not bias the fit the
                  * trimming starts from; they come back when the fit explains them. */
-                double ymed = median_small(y, m, tmp);
+                double ymed = median_small(R.y, m, R.tmp);
                 for (int i = 0; i < m; i++)
-                        if (y[i] < PN_SHADOW_START * ymed)
-                                w[i] = 0;
+                        if (R.y[i] < PN_SHADOW_START * ymed)
+                                R.w[i] = 0;
         }
-        double nc[3] = { 0, 0, 1 }, g[3] = { 0, 0, 0 }, sigma = p->sigma_floor, cone = cos(p->spec_cone_deg * DEG);
-        double cond = 1e12, Ainv[9] = {}, rms = 0;
-        int used = 0;
+        struct pn_state S = { .nc = { 0, 0, 1 }, .sigma = p->sigma_floor, .cond = 1e12,
+                              .cone = cos(p->spec_cone_deg * DEG) };
         for (int pass = 0; pass < p->passes; pass++) {
-                /* Which samples take part for the current normal: not near the mirror
-                 * direction, not in attached shadow. */
-                double A[9] = {}, b[3] = {}, sw = 0;
-                used = 0;
-                for (int i = 0; i < m; i++) {
-                        double nv = nc[0] * vv[i][0] + nc[1] * vv[i][1] + nc[2] * vv[i][2];
-                        double r[3], rl = 0, nl = 0;
-                        for (int k = 0; k < 3; k++) {
-                                r[k] = 2 * nv * nc[k] - vv[i][k];
-                                rl += r[k] * a[i][k];
-                                nl += nc[k] * a[i][k];
-                        }
-                        double wi = (rl > cone || nl < p->min_cos) ? 0.0 : w[i];
-                        if (wi <= 0)
-                                continue;
-                        used++;
-                        sw += wi;
-                        for (int j = 0; j < 3; j++) {
-                                b[j] += wi * a[i][j] * y[i];
-                                for (int k = 0; k < 3; k++)
-                                        A[3 * j + k] += wi * a[i][j] * a[i][k];
-                        }
-                }
-                if (used < p->min_samples) {
-                        keep_geometric(ret, IMP_PN_FEW_SAMPLES);
-                        ret->n_used = (uint16_t) used;
+                uint16_t fail = solve_pass(&R, p, &S);
+                if (fail) {
+                        ret->cond = (float) fmin(S.cond, 1e12);
+                        ret->n_used = (uint16_t) S.used;
+                        keep_geometric(ret, fail);
                         return 0;
                 }
-                double lam[3], vec[9];
-                imp_heightfield_eigen3(A, lam, vec);
-                cond = lam[0] > 0 ? lam[2] / lam[0] : 1e12;
-                if (!(cond <= p->max_cond)) {
-                        ret->cond = (float) fmin(cond, 1e12);
-                        ret->n_used = (uint16_t) used;
-                        keep_geometric(ret, IMP_PN_ILL_COND);
-                        return 0;
-                }
-                for (int j = 0; j < 9; j++)
-                        Ainv[j] = 0;
-                for (int e = 0; e < 3; e++)
-                        for (int j = 0; j < 3; j++)
-                                for (int k = 0; k < 3; k++)
-                                        Ainv[3 * j + k] += vec[3 * e + j] * vec[3 * e + k] / lam[e];
-                for (int j = 0; j < 3; j++)
-                        g[j] = Ainv[3 * j] * b[0] + Ainv[3 * j + 1] * b[1] + Ainv[3 * j + 2] * b[2];
-                double gl = sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
-                if (!(gl >= p->min_albedo) || !isfinite(gl)) {
-                        ret->cond = (float) cond;
-                        ret->n_used = (uint16_t) used;
-                        keep_geometric(ret, IMP_PN_DARK);
-                        return 0;
-                }
-                double nn[3] = { g[0] / gl, g[1] / gl, g[2] / gl };
-                double moved = acos(fmin(1.0, fabs(nn[0] * nc[0] + nn[1] * nc[1] + nn[2] * nc[2]))) / DEG;
-                /* Residuals over every sample (an excluded sample may come back), robust σ
-                 * from the ones that took part, Huber weights for the next solve. */
-                int k2 = 0;
-                double ss = 0;
-                for (int i = 0; i < m; i++) {
-                        res[i] = y[i] - (g[0] * a[i][0] + g[1] * a[i][1] + g[2] * a[i][2]);
-                        double nv = nn[0] * vv[i][0] + nn[1] * vv[i][1] + nn[2] * vv[i][2];
-                        double rl = 0, nl = 0;
-                        for (int k = 0; k < 3; k++) {
-                                rl += (2 * nv * nn[k] - vv[i][k]) * a[i][k];
-                                nl += nn[k] * a[i][k];
-                        }
-                        if (rl <= cone && nl >= p->min_cos) {
-                                tmp[k2] = fabs(res[i]);
-                                ss += w[i] * res[i] * res[i];
-                                k2++;
-                        }
-                }
-                double mad[IMP_BTF_MAX_SAMPLES];
-                sigma = fmax(p->sigma_floor, 1.4826 * median_small(tmp, k2, mad));
-                rms = sqrt(ss / fmax(sw, 1e-30));
+                double gl = sqrt(S.g[0] * S.g[0] + S.g[1] * S.g[1] + S.g[2] * S.g[2]);
+                double nn[3] = { S.g[0] / gl, S.g[1] / gl, S.g[2] / gl };
+                double moved = acos(fmin(1.0, fabs(nn[0] * S.nc[0] + nn[1] * S.nc[1] + nn[2] * S.nc[2]))) / DEG;
+                bool more = pass + 1 < p->passes;
+                residuals(&R, p, nn, &S, more);
                 for (int k = 0; k < 3; k++)
-                        nc[k] = nn[k];
-                if (pass + 1 < p->passes) {
-                        for (int i = 0; i < m; i++) {
-                                double u = fabs(res[i]) / sigma;
-                                w[i] = u <= p->huber_delta ? 1.0 : p->huber_delta / u;
-                                /* cast shadow: far below the fit and under half of it */
-                                if (p->shadow_trim_sigma > 0 && res[i] < -p->shadow_trim_sigma * sigma &&
-                                    y[i] < PN_SHADOW_FRAC * (y[i] - res[i]))
-                                        w[i] = 0;
-                        }
-                        if (pass > 0 && moved < p->tol_deg)
-                                break;
-                }
+                        S.nc[k] = nn[k];
+                if (more && pass > 0 && moved < p->tol_deg)
+                        break;
         }
-        double gl = sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
-        double tr = Ainv[0] + Ainv[4] + Ainv[8], nAn = 0;
-        for (int j = 0; j < 3; j++)
-                for (int k = 0; k < 3; k++)
-                        nAn += nc[j] * Ainv[3 * j + k] * nc[k];
-        double var_t = fmax(0, tr - nAn);
-        ret->albedo = (float) gl;
-        ret->rms = (float) rms;
-        ret->cond = (float) cond;
-        ret->n_used = (uint16_t) used;
-        ret->sigma_deg = (float) fmin(180.0, sigma * sqrt(var_t) / gl / DEG);
-        ret->dev_deg = (float) (acos(fmax(-1.0, fmin(1.0, nc[2]))) / DEG);
-        if (!(ret->dev_deg <= p->max_dev_deg)) {
-                keep_geometric(ret, IMP_PN_DISAGREES);
-                return 0;
-        }
-        for (int k = 0; k < 3; k++)
-                ret->n[k] = (float) nc[k];
+        finish_texel(&R, p, &S, ret);
         return 0;
 }
 
@@ -335,13 +465,125 @@ static void to_canvas(const float *ng, const struct imp_pn_texel *t, const struc
                 out[c] = (float) (nn[c] / len);
 }
 
+/* σ of the geometric normal kept at texel i: the slope σ of a central difference of
+ * heights with σh, √2·σh / (2·pitch), at least geo_min_sigma_deg; 180 without σh. */
+static float geometric_sigma_deg(const struct imp_btf_heightfield *hf, const struct imp_photometric_params *p,
+                                 size_t i) {
+        if (!hf->sigma_mm || !(hf->sigma_mm[i] >= 0))
+                return 180.0f;
+        double s = atan(M_SQRT2 * hf->sigma_mm[i] / (2 * hf->pitch_mm)) / DEG;
+        return (float) fmin(180.0, fmax(s, p->geo_min_sigma_deg));
+}
+
+/* The interpolation floor of a refined normal (canvas frame, unit) added to its σ. */
+static float refined_sigma_deg(const struct imp_photometric_params *p, const float *n, float sigma_deg) {
+        double tilt = acos(fmax(-1.0, fmin(1.0, n[2]))) / DEG;
+        return (float) fmin(180.0, hypot(sigma_deg, p->interp_sigma_deg + p->interp_sigma_per_deg * tilt));
+}
+
+struct pn_grid {
+        const struct imp_btf_heightfield *hf;
+        const struct imp_photometric_params *p, *pf;   /* pf: shadow-filled texels */
+        const struct imp_photometric_out *out;
+        struct resample rs;
+        double *dev, *sig, *rmsv;                    /* per texel, NAN where not refined */
+};
+
+/* Refines every texel of the tile just extracted into smp. */
+static void refine_tile(const struct pn_grid *G, struct imp_btf_samples *smp, int x0, int y0, int w, int h,
+                        struct imp_photometric_stats *st) {
+        const struct imp_btf_heightfield *hf = G->hf;
+        const struct imp_photometric_out *out = G->out;
+        long few = 0, ill = 0, dark = 0, dis = 0, msk = 0, res = 0, amb = 0, rsd = 0, sat = 0;
+#pragma omp parallel for schedule(dynamic, 16) reduction(+ : few, ill, dark, dis, msk, res, amb, rsd, sat)
+        for (int k = 0; k < w * h; k++) {
+                size_t i = (size_t) (y0 + k / w) * hf->width + x0 + k % w;
+                struct imp_pn_texel t;
+                bool masked = (smp->flags[k] & (IMP_BTF_MASKED | IMP_BTF_HIDDEN)) || (hf->mask && !hf->mask[i]);
+                if (masked) {
+                        t = (struct imp_pn_texel) { .n = { 0, 0, 1 }, .sigma_deg = 180, .flags = IMP_PN_MASKED };
+                } else {
+                        struct imp_btf_sample *ts = &smp->samples[(size_t) k * smp->max_per_texel];
+                        const struct imp_photometric_params *pt = hf->mask && hf->mask[i] == 2 ? G->pf : G->p;
+                        if (out->normal_bilinear) {
+                                struct imp_pn_texel tb;
+                                imp_photometric_texel(ts, smp->count[k], pt, &tb);
+                                to_canvas(&hf->normal[3 * i], &tb, pt, &out->normal_bilinear[3 * i]);
+                        }
+                        res += resample_texel(&G->rs, x0 + k % w, y0 + k / w, ts, smp->count[k]);
+                        imp_photometric_texel(ts, smp->count[k], pt, &t);
+                        if ((smp->flags[k] & IMP_BTF_SATURATED) && (t.flags & IMP_PN_FEW_SAMPLES))
+                                t.flags |= IMP_PN_SATURATED;
+                }
+                if (out->flags)
+                        out->flags[i] = t.flags;
+                if (out->texel_flags)
+                        out->texel_flags[i] = imp_photometric_texel_flags(t.flags);
+                few += !!(t.flags & IMP_PN_FEW_SAMPLES) && !(t.flags & IMP_PN_MASKED);
+                ill += !!(t.flags & IMP_PN_ILL_COND);
+                dark += !!(t.flags & IMP_PN_DARK);
+                dis += !!(t.flags & IMP_PN_DISAGREES);
+                msk += !!(t.flags & IMP_PN_MASKED);
+                amb += !!(t.flags & IMP_PN_AMBIENT);
+                rsd += !!(t.flags & IMP_PN_RESIDUAL);
+                sat += !!(t.flags & IMP_PN_SATURATED);
+                G->dev[i] = G->sig[i] = G->rmsv[i] = NAN;
+                if (t.flags & IMP_PN_KEPT) {
+                        if (out->sigma_deg)
+                                out->sigma_deg[i] = masked ? 0.0f : geometric_sigma_deg(hf, G->p, i);
+                        continue;
+                }
+                to_canvas(&hf->normal[3 * i], &t, G->p, &out->normal[3 * i]);
+                float sd = refined_sigma_deg(G->p, &out->normal[3 * i], t.sigma_deg);
+                if (out->sigma_deg)
+                        out->sigma_deg[i] = sd;
+                G->dev[i] = t.dev_deg;
+                G->sig[i] = sd;
+                G->rmsv[i] = t.rms;
+        }
+        st->n_few += few;
+        st->n_ill += ill;
+        st->n_dark += dark;
+        st->n_disagree += dis;
+        st->n_masked += msk;
+        st->n_ambient += amb;
+        st->n_residual += rsd;
+        st->n_saturated += sat;
+        st->n_resampled += res;
+}
+
+/* Figures over the refined texels (compacts the finite entries of dev, sig, rmsv). */
+static void summarise(double *dev, double *sig, double *rmsv, size_t nt, struct imp_photometric_stats *st) {
+        size_t n_ref = 0;
+        double dev_sum = 0;
+        for (size_t i = 0; i < nt; i++)
+                if (isfinite(dev[i])) {
+                        dev_sum += dev[i];
+                        dev[n_ref] = dev[i];
+                        sig[n_ref] = sig[i];
+                        rmsv[n_ref] = rmsv[i];
+                        n_ref++;
+                }
+        st->n_refined = (long) n_ref;
+        if (!n_ref)
+                return;
+        st->dev_deg_mean = dev_sum / n_ref;
+        qsort(dev, n_ref, sizeof *dev, cmp_double);
+        qsort(sig, n_ref, sizeof *sig, cmp_double);
+        qsort(rmsv, n_ref, sizeof *rmsv, cmp_double);
+        st->dev_deg_median = dev[n_ref / 2];
+        st->sigma_deg_median = sig[n_ref / 2];
+        st->rms_median = rmsv[n_ref / 2];
+}
+
 int imp_photometric_normals(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
                             const struct imp_btf_sample_params *sp, const struct imp_photometric_params *p,
-                            float *ret_normal, float *ret_normal_bilinear, uint16_t *ret_flags,
-                            struct imp_photometric_stats *ret_stats) {
-        if (!hf || !cap || !sp || !p || !ret_normal || ret_normal == hf->normal || !hf->normal ||
-            ret_normal_bilinear == hf->normal || ret_normal_bilinear == ret_normal ||
+                            const struct imp_photometric_out *out, struct imp_photometric_stats *ret_stats) {
+        if (!hf || !cap || !sp || !p || !out || !out->normal || out->normal == hf->normal || !hf->normal ||
+            out->normal_bilinear == hf->normal || out->normal_bilinear == out->normal ||
             hf->width <= 0 || hf->height <= 0)
+                return -EINVAL;
+        if (p->lanczos < 0 || p->lanczos > PN_MAX_LANCZOS)
                 return -EINVAL;
         size_t nt = (size_t) hf->width * hf->height;
         _cleanup_btf_samples_ struct imp_btf_samples *smp = NULL;
@@ -354,36 +596,32 @@ int imp_photometric_normals(const struct imp_btf_heightfield *hf, const struct i
                 return r;
         _cleanup_free_ double *dev = malloc(nt * sizeof *dev), *sig = malloc(nt * sizeof *sig),
                               *rmsv = malloc(nt * sizeof *rmsv);
-        if (!dev || !sig || !rmsv)
-                return -ENOMEM;
-        if (p->lanczos < 0 || p->lanczos > PN_MAX_LANCZOS)
-                return -EINVAL;
         _cleanup_free_ double (*light_c)[3] = malloc((size_t) cap->n_lights * sizeof *light_c);
-        if (!light_c)
+        if (!dev || !sig || !rmsv || !light_c)
                 return -ENOMEM;
         /* Shadow-filled texels (mask value 2): cast-shadow trimming (photometric.h). */
         struct imp_photometric_params pf = *p;
         pf.shadow_trim_sigma = p->filled_trim_sigma;
         pf.passes = IMP_MAX(p->passes, p->filled_passes);
         pf.max_dev_deg = p->filled_max_dev_deg > 0 ? p->filled_max_dev_deg : p->max_dev_deg;
-        struct resample rs = { .hf = hf, .cap = cap, .light_c = light_c, .sat = sp->saturation_value, .a = p->lanczos };
+        struct pn_grid G = { .hf = hf, .p = p, .pf = &pf, .out = out, .dev = dev, .sig = sig, .rmsv = rmsv,
+                             .rs = { .hf = hf, .cap = cap, .light_c = light_c, .sat = sp->saturation_value,
+                                     .a = p->lanczos } };
         for (int i = 0; i < 3; i++) {
                 for (int k = 0; k < 3; k++)
-                        rs.R[3 * i + k] = hf->canvas_to_world[4 * i + k];
-                rs.t[i] = hf->canvas_to_world[4 * i + 3];
+                        G.rs.R[3 * i + k] = hf->canvas_to_world[4 * i + k];
+                G.rs.t[i] = hf->canvas_to_world[4 * i + 3];
         }
         for (int j = 0; j < cap->n_lights; j++)   /* canvas = Rᵀ (world − t) */
                 for (int i = 0; i < 3; i++) {
                         light_c[j][i] = 0;
                         for (int k = 0; k < 3; k++)
-                                light_c[j][i] += rs.R[3 * k + i] * (cap->lights[j].pos_mm[k] - rs.t[k]);
+                                light_c[j][i] += G.rs.R[3 * k + i] * (cap->lights[j].pos_mm[k] - G.rs.t[k]);
                 }
-        memcpy(ret_normal, hf->normal, nt * 3 * sizeof *ret_normal);
-        if (ret_normal_bilinear)
-                memcpy(ret_normal_bilinear, hf->normal, nt * 3 * sizeof *ret_normal_bilinear);
+        memcpy(out->normal, hf->normal, nt * 3 * sizeof *out->normal);
+        if (out->normal_bilinear)
+                memcpy(out->normal_bilinear, hf->normal, nt * 3 * sizeof *out->normal_bilinear);
         struct imp_photometric_stats st = { .n_texels = (long) nt };
-        size_t n_ref = 0;
-        double dev_sum = 0;
         for (int y0 = 0; y0 < hf->height; y0 += TILE)
                 for (int x0 = 0; x0 < hf->width; x0 += TILE) {
                         int w = hf->width - x0 < TILE ? hf->width - x0 : TILE;
@@ -391,68 +629,9 @@ int imp_photometric_normals(const struct imp_btf_heightfield *hf, const struct i
                         r = imp_btf_samples_extract_pyramid(hf, cap, sp, py, x0, y0, w, h, smp);
                         if (r < 0)
                                 return r;
-                        long few = 0, ill = 0, dark = 0, dis = 0, msk = 0, res = 0;
-#pragma omp parallel for schedule(dynamic, 16) reduction(+ : few, ill, dark, dis, msk, res)
-                        for (int k = 0; k < w * h; k++) {
-                                size_t i = (size_t) (y0 + k / w) * hf->width + x0 + k % w;
-                                struct imp_pn_texel t;
-                                bool masked = (smp->flags[k] & (IMP_BTF_MASKED | IMP_BTF_HIDDEN)) ||
-                                              (hf->mask && !hf->mask[i]);
-                                if (masked) {
-                                        t = (struct imp_pn_texel) { .n = { 0, 0, 1 }, .sigma_deg = 180,
-                                                                    .flags = IMP_PN_MASKED };
-                                } else {
-                                        struct imp_btf_sample *ts = &smp->samples[(size_t) k * smp->max_per_texel];
-                                        const struct imp_photometric_params *pt = hf->mask && hf->mask[i] == 2 ? &pf : p;
-                                        if (ret_normal_bilinear) {
-                                                struct imp_pn_texel tb;
-                                                imp_photometric_texel(ts, smp->count[k], pt, &tb);
-                                                to_canvas(&hf->normal[3 * i], &tb, pt, &ret_normal_bilinear[3 * i]);
-                                        }
-                                        res += resample_texel(&rs, x0 + k % w, y0 + k / w, ts, smp->count[k]);
-                                        imp_photometric_texel(ts, smp->count[k], pt, &t);
-                                }
-                                if (ret_flags)
-                                        ret_flags[i] = t.flags;
-                                few += !!(t.flags & IMP_PN_FEW_SAMPLES) && !(t.flags & IMP_PN_MASKED);
-                                ill += !!(t.flags & IMP_PN_ILL_COND);
-                                dark += !!(t.flags & IMP_PN_DARK);
-                                dis += !!(t.flags & IMP_PN_DISAGREES);
-                                msk += !!(t.flags & IMP_PN_MASKED);
-                                dev[i] = sig[i] = rmsv[i] = NAN;
-                                if (t.flags & IMP_PN_KEPT)
-                                        continue;
-                                dev[i] = t.dev_deg;
-                                sig[i] = t.sigma_deg;
-                                rmsv[i] = t.rms;
-                                to_canvas(&hf->normal[3 * i], &t, p, &ret_normal[3 * i]);
-                        }
-                        st.n_few += few;
-                        st.n_ill += ill;
-                        st.n_dark += dark;
-                        st.n_disagree += dis;
-                        st.n_masked += msk;
-                        st.n_resampled += res;
+                        refine_tile(&G, smp, x0, y0, w, h, &st);
                 }
-        /* Figures over the refined texels (compact the finite entries). */
-        for (size_t i = 0; i < nt; i++)
-                if (isfinite(dev[i])) {
-                        dev_sum += dev[i];
-                        dev[n_ref] = dev[i];
-                        sig[n_ref] = sig[i];
-                        rmsv[n_ref] = rmsv[i];
-                        n_ref++;
-                }
-        st.n_refined = (long) n_ref;
-        if (n_ref) {
-                st.dev_deg_mean = dev_sum / n_ref;
-                qsort(dev, n_ref, sizeof *dev, cmp_double);
-                qsort(sig, n_ref, sizeof *sig, cmp_double);
-                qsort(rmsv, n_ref, sizeof *rmsv, cmp_double);
-                st.dev_deg_median = dev[n_ref / 2];
-                st.sigma_deg_median = sig[n_ref / 2];
-                st.rms_median = rmsv[n_ref / 2];
-        }
+        summarise(dev, sig, rmsv, nt, &st);
         if (ret_stats)
                 *ret_stats = st;
         return 0;

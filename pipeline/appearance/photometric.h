@@ -9,9 +9,16 @@
  * geo_sigma_deg > 0, is fused with) the geometric normal; where the data cannot
  * determine it (too few samples, ill-conditioned lighting, black paint, or a normal that
  * disagrees with the geometry by more than max_dev_deg) the geometric normal is kept and
- * the texel is flagged. Parameterisation, bounds, initial guess and stopping rule:
- * docs/geometry.md "Photometric normals". Library code: no logging; errors are negative
- * errno. */
+ * the texel is flagged. The stage checks its own model before a normal replaces the
+ * geometric one: a significant ambient term (a 4th unknown c in V/E = g·l + c: light that
+ * arrives whatever the light direction, i.e. inter-reflection or a wrong irradiance), a
+ * residual far above its robust noise, or a σ above max_sigma_deg make it back off to the
+ * geometric normal with a flag. Every texel gets a σ in degrees (imp_pn_texel.sigma_deg,
+ * imp_photometric_out.sigma_deg) meant to cover its error: the fit's covariance with the
+ * residual scale, the normal's shift when the ambient term is freed, and the
+ * interpolation floor measured on the demo (grows with the surface's slope).
+ * Parameterisation, bounds, initial guess and stopping rule: docs/geometry.md
+ * "Photometric normals". Library code: no logging; errors are negative errno. */
 #pragma once
 #include <stdint.h>
 #include "btf.h"
@@ -22,8 +29,22 @@ enum imp_pn_flag {
         IMP_PN_DARK        = 1 << 2,  /* |g| below min_albedo: no shading signal */
         IMP_PN_DISAGREES   = 1 << 3,  /* photometric and geometric normals > max_dev_deg apart */
         IMP_PN_MASKED      = 1 << 4,  /* outside the mask or hidden: no samples at all */
+        IMP_PN_AMBIENT     = 1 << 5,  /* a significant ambient term (> max_ambient_rel·|g|):
+                                         inter-reflection suspected, Lambert does not fit */
+        IMP_PN_RESIDUAL    = 1 << 6,  /* residual RMS > max_rms_ratio × its robust σ or
+                                         > max_rel_rms × the signal, or σ > max_sigma_deg:
+                                         the model does not fit */
+        IMP_PN_SATURATED   = 1 << 7,  /* the extractor dropped saturated samples (set with
+                                         FEW_SAMPLES when that is why too few are left) */
 };
-#define IMP_PN_KEPT (IMP_PN_FEW_SAMPLES | IMP_PN_ILL_COND | IMP_PN_DARK | IMP_PN_DISAGREES | IMP_PN_MASKED)
+#define IMP_PN_KEPT (IMP_PN_FEW_SAMPLES | IMP_PN_ILL_COND | IMP_PN_DARK | IMP_PN_DISAGREES | IMP_PN_MASKED | \
+                     IMP_PN_AMBIENT | IMP_PN_RESIDUAL)
+
+/* The per-texel flags of quality.h (IMP_TEXEL_*) that a texel's IMP_PN_* flags imply:
+ * FEW_SAMPLES, ILL_COND → FEW_SAMPLES; DARK → DARK; AMBIENT → INTERREFLECTION; RESIDUAL,
+ * DISAGREES → PHOTOMETRIC_REJECTED; SATURATED → SATURATED; and PHOTOMETRIC_REJECTED
+ * with any kept flag (the geometric normal was kept). MASKED alone → 0 (not paint). */
+uint16_t imp_photometric_texel_flags(uint16_t pn_flags);
 
 struct imp_photometric_params {
         int min_samples;              /* fewer usable samples → FEW_SAMPLES (6) */
@@ -56,6 +77,27 @@ struct imp_photometric_params {
         double filled_trim_sigma;     /* 3 */
         int filled_passes;            /* 10 */
         double filled_max_dev_deg;    /* 60 */
+        /* Model checks (texel flags above). */
+        double max_ambient_rel;       /* ambient term c above this × |g| and above
+                                         ambient_sigma × its σ → AMBIENT (0.05) */
+        double ambient_sigma;         /* (4) */
+        double max_rms_ratio;         /* weighted residual RMS above this × the robust σ
+                                         (MAD) → RESIDUAL (3) */
+        double max_rel_rms;           /* weighted residual RMS above this × the mean V/E of
+                                         the samples taking part → RESIDUAL: a misfit that
+                                         is smooth (MAD ≈ RMS), e.g. light from a groove's
+                                         wall for half the dome (≈ 9 % in
+                                         test-photometric-stability). 0.06: at 0.03 the
+                                         demo's glossy and steep texels (3–6 %) backed off
+                                         by the tens of thousands, normals 1.71° → 1.94° */
+        double max_sigma_deg;         /* σ above this → RESIDUAL (DARK when the noise term
+                                         alone exceeds it): 3σ stays within 10° (3.3) */
+        /* Interpolation floor of σ (what reading 50 µm pixels at a texel leaves on detail
+         * of a few pixels; docs/geometry.md "Normal error: diagnosis", demo table by slope):
+         * interp_sigma_deg + interp_sigma_per_deg × the normal's tilt in degrees
+         * (0.55, 0.1). */
+        double interp_sigma_deg, interp_sigma_per_deg;
+        double geo_min_sigma_deg;     /* floor of the σ given to a kept geometric normal (1) */
 };
 void imp_photometric_params_default(struct imp_photometric_params *ret);
 
@@ -65,7 +107,11 @@ struct imp_pn_texel {
         float n[3];
         float albedo;                 /* |g|: the Lambertian albedo (mean of the channels) */
         float dev_deg;                /* angle between the photometric and the sample normal */
-        float sigma_deg;              /* 1σ angular uncertainty from the residuals (180 if unknown) */
+        float sigma_deg;              /* 1σ angular uncertainty (RMS angle): covariance with the
+                                         residual scale ⊕ the ambient-term shift (no
+                                         interpolation floor: that needs the canvas tilt,
+                                         imp_photometric_normals adds it); 180 if unknown */
+        float ambient;                /* the ambient term c of the 4-unknown check (V/E units) */
         float rms;                    /* weighted RMS residual of V/E */
         float cond;                   /* condition number of the normal matrix (≤ 1e12) */
         uint16_t n_used;              /* samples in the last solve */
@@ -80,6 +126,7 @@ int imp_photometric_texel(const struct imp_btf_sample *samples, int n, const str
 
 struct imp_photometric_stats {
         long n_texels, n_refined, n_few, n_ill, n_dark, n_disagree, n_masked;
+        long n_ambient, n_residual, n_saturated;
         double dev_deg_mean, dev_deg_median;   /* over refined texels */
         double sigma_deg_median, rms_median;   /* over refined texels */
         long n_resampled;             /* samples whose value was read with the Lanczos kernel
@@ -87,15 +134,30 @@ struct imp_photometric_stats {
                                          frame or touching a saturated/invalid pixel) */
 };
 
+/* Where imp_photometric_normals() writes (every array nx·ny texels of hf; NULL: not
+ * wanted, except normal).
+ * normal: 3 floats per texel, canvas frame, unit; the refined normal where refined and
+ *   hf->normal elsewhere (may not alias hf->normal).
+ * normal_bilinear: the same from the extractor's bilinear values, before the Lanczos
+ *   re-reading — the normals whose shading matches frames read bilinearly, as the BTF fit
+ *   and its validation read them (may alias neither).
+ * flags: enum imp_pn_flag per texel (of normal).
+ * texel_flags: quality.h IMP_TEXEL_* bits per texel (imp_photometric_texel_flags()).
+ * sigma_deg: 1σ of normal in degrees (RMS angle), finite: for a refined texel its
+ *   sigma_deg with the interpolation floor; where the geometric normal was kept, that
+ *   normal's σ from hf->sigma_mm (slope σ of a central difference, √2·σh / 2·pitch,
+ *   at least geo_min_sigma_deg) or 180 without hf->sigma_mm; 0 off the mask. */
+struct imp_photometric_out {
+        float *normal;
+        float *normal_bilinear;
+        uint16_t *flags;
+        uint16_t *texel_flags;
+        float *sigma_deg;
+};
+
 /* The whole grid: tile by tile, extract the samples (shadow rays on the heightfield) and
- * refine each texel (OpenMP). ret_normal: 3 floats per texel, canvas frame, unit; filled
- * with the refined normal where refined and hf->normal elsewhere (may not alias
- * hf->normal). ret_normal_bilinear (may be NULL; may alias neither): the same from the
- * extractor's bilinear values, before the Lanczos re-reading — the normals whose shading
- * matches frames read bilinearly, as the BTF fit and its validation read them. ret_flags
- * (may be NULL): enum imp_pn_flag per texel (of ret_normal). ret_stats may be NULL.
- * Errors as imp_btf_samples_extract(), -EINVAL, -ENOMEM. */
+ * refine each texel (OpenMP) into out. ret_stats may be NULL. Errors as
+ * imp_btf_samples_extract(), -EINVAL, -ENOMEM. */
 int imp_photometric_normals(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
                             const struct imp_btf_sample_params *sp, const struct imp_photometric_params *p,
-                            float *ret_normal, float *ret_normal_bilinear, uint16_t *ret_flags,
-                            struct imp_photometric_stats *ret_stats);
+                            const struct imp_photometric_out *out, struct imp_photometric_stats *ret_stats);

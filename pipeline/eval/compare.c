@@ -213,6 +213,132 @@ int imp_compare_load_grids(const char *copy_dir, const char *truth_dir, json_t *
         return 0;
 }
 
+/* Angle between the copy's canvas normal ez and the truth canvas's mean normal. */
+static double placement_deg(const struct truth *t, const double ez[3]) {
+        double m[3] = { 0, 0, 0 };
+        for (int j = 0; j < t->ny; j++)
+                for (int i = 0; i < t->nx; i++)
+                        if (truth_at(t, i, j, t->c_m) >= 0.5) {
+                                m[0] += truth_at(t, i, j, t->c_nx);
+                                m[1] += truth_at(t, i, j, t->c_ny);
+                                m[2] += truth_at(t, i, j, t->c_nz);
+                        }
+        double l = sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]);
+        if (!(l > 0))
+                return -1;
+        return acos(IMP_CLAMP((m[0] * ez[0] + m[1] * ez[1] + m[2] * ez[2]) / l, -1.0, 1.0)) * 180 / M_PI;
+}
+
+/* Copy mask texels whose world point (x, y) is on the truth frame, over those inside the
+ * truth grid. */
+static double frame_texels(const struct imp_image *cimg, int cm, const struct truth *t, const double *M,
+                           double cpitch) {
+        size_t on_frame = 0, inside = 0;
+        for (int j = 0; j < cimg->height; j++)
+                for (int i = 0; i < cimg->width; i++) {
+                        if (!(*(imp_image_f32(cimg, i, j) + cm) >= 0.5))
+                                continue;
+                        double x = M[3] + i * cpitch * M[0] + j * cpitch * M[1];
+                        double y = M[7] + i * cpitch * M[4] + j * cpitch * M[5];
+                        long ti = lround((x - t->origin[0]) / t->pitch), tj = lround((y - t->origin[1]) / t->pitch);
+                        if (ti < 0 || tj < 0 || ti >= t->nx || tj >= t->ny)
+                                continue;
+                        inside++;
+                        on_frame += truth_at(t, (int) ti, (int) tj, t->c_m) < 0.5;
+                }
+        return inside ? (double) on_frame / inside : 0;
+}
+
+/* The honesty figures over the compared texels: d the height differences, sg per texel
+ * (σ_h or −1 when flagged, σ_n or −1 when unknown, normal error in degrees). */
+#define CMP_NORMAL_BAD_DEG 10.0
+static void honesty(struct imp_compare_result *res, const double *d, const float *sg, size_t n, double med) {
+        size_t nu = 0, bh = 0, bn = 0, over = 0, sn_known = 0;
+        double mx = 0;
+        for (size_t k = 0; k < n; k++) {
+                const float *q = sg + 3 * k;
+                if (q[0] < 0)
+                        continue;
+                nu++;
+                bh += fabs(d[k] - med) > 3 * q[0];
+                if (q[1] >= 0) {
+                        sn_known++;
+                        bn += q[2] > 3 * q[1];
+                }
+                over += q[2] > CMP_NORMAL_BAD_DEG;
+                mx = fmax(mx, q[2]);
+        }
+        res->n_unflagged = nu;
+        res->flagged_fraction = n ? (double) (n - nu) / n : 0;
+        res->beyond_3sigma_height = nu ? (double) bh / nu : 0;
+        res->beyond_3sigma_normal = sn_known ? (double) bn / sn_known : -1;
+        res->unflagged_normal_err_deg_max = mx;
+        res->unflagged_normal_over_10deg = over;
+}
+
+/* Height RMSE about the median offset, split by mask value, and the mean normal errors;
+ * diff holds the sorted-in-place differences, diff + n_tex the same unsorted. */
+static void height_figures(struct imp_compare_result *res, double *diff, const uint8_t *filled, size_t n,
+                           size_t n_tex, double sum_ang, double sum_ang_f, double sum_ang_bl) {
+        res->normal_err_deg_mean = sum_ang / n;
+        res->normal_err_deg_mean_bandlimited = sum_ang_bl / n;
+        qsort(diff, n, sizeof(double), cmp_double);
+        double med = n % 2 ? diff[n / 2] : 0.5 * (diff[n / 2 - 1] + diff[n / 2]);
+        double ss = 0, mx = 0;
+        for (size_t k = 0; k < n; k++) {
+                double d = diff[k] - med;
+                ss += d * d;
+                mx = fmax(mx, fabs(d));
+        }
+        double ss_k[2] = { 0, 0 };
+        for (size_t k = 0; k < n; k++) {
+                double d = diff[n_tex + k] - med;
+                ss_k[filled[k]] += d * d;
+                res->n_filled += filled[k];
+        }
+        size_t n_meas = n - res->n_filled;
+        if (res->n_filled) {
+                res->height_rmse_um_filled = sqrt(ss_k[1] / res->n_filled) * 1000.0;
+                res->normal_err_deg_mean_filled = sum_ang_f / res->n_filled;
+        }
+        if (n_meas) {
+                res->height_rmse_um_measured = sqrt(ss_k[0] / n_meas) * 1000.0;
+                res->normal_err_deg_mean_measured = (sum_ang - sum_ang_f) / n_meas;
+        }
+        res->height_offset_mm = med;
+        res->height_rmse_um = sqrt(ss / n) * 1000.0;
+        res->height_max_abs_um = mx * 1000.0;
+}
+
+/* Canvas-mask IoU over the truth grid (compare.h), and over the observable canvas. */
+static void mask_iou(const char *truth_dir, const struct truth *tt, const struct imp_image *cimg, int cm,
+                     const double *M, double cpitch, struct imp_compare_result *res) {
+        const struct truth t = *tt;
+        double ex[3] = { M[0], M[4], M[8] }, ey[3] = { M[1], M[5], M[9] }, o[3] = { M[3], M[7], M[11] };
+        _cleanup_free_ uint8_t *obs = observable_mask(truth_dir, &t);
+        size_t inter = 0, uni = 0, inter_o = 0, uni_o = 0;
+        for (int j = 0; j < t.ny; j++)
+                for (int i = 0; i < t.nx; i++) {
+                        bool a = truth_at(&t, i, j, t.c_m) >= 0.5;
+                        double X[3] = { t.origin[0] + i * t.pitch - o[0], t.origin[1] + j * t.pitch - o[1],
+                                        truth_at(&t, i, j, t.c_h) - o[2] };
+                        double u = (X[0] * ex[0] + X[1] * ex[1] + X[2] * ex[2]) / cpitch;
+                        double v = (X[0] * ey[0] + X[1] * ey[1] + X[2] * ey[2]) / cpitch;
+                        long ci = lround(u), cj = lround(v);
+                        bool b = isfinite(u) && isfinite(v) && ci >= 0 && cj >= 0 && ci < cimg->width &&
+                                 cj < cimg->height && *(imp_image_f32(cimg, (int) ci, (int) cj) + cm) >= 0.5;
+                        inter += a && b;
+                        uni += a || b;
+                        if (obs) {
+                                bool ao = a && obs[(size_t) j * t.nx + i];
+                                inter_o += ao && b;
+                                uni_o += ao || b;
+                        }
+                }
+        res->mask_iou = uni ? (double) inter / uni : 0;
+        res->mask_iou_observable = !obs ? -1 : uni_o ? (double) inter_o / uni_o : 0;
+}
+
 int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_compare_result *ret,
                      struct imp_error *err) {
         if (!copy_dir || !truth_dir || !ret)
@@ -236,6 +362,8 @@ int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_com
         }
         int ch = channel(cnames, "height", copy_dir, err), cnxc = channel(cnames, "nx", copy_dir, err),
             cnyc = channel(cnames, "ny", copy_dir, err), cm = channel(cnames, "mask", copy_dir, err);
+        int csig = imp_image_channel_index(cnames, "sigma"), cfl = imp_image_channel_index(cnames, "flags");
+        int csn = imp_image_channel_index(cnames, "sigma_n_deg");
         t.c_h = channel(tnames, "height", truth_dir, err), t.c_nx = channel(tnames, "nx", truth_dir, err);
         t.c_ny = channel(tnames, "ny", truth_dir, err), t.c_nz = channel(tnames, "nz", truth_dir, err);
         t.c_m = channel(tnames, "mask", truth_dir, err);
@@ -262,8 +390,9 @@ int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_com
         size_t n_tex = (size_t) cimg->width * cimg->height;
         _cleanup_free_ double *diff = malloc((n_tex ? n_tex : 1) * sizeof(double) * 2);
         _cleanup_free_ uint8_t *filled = malloc(n_tex ? n_tex : 1);
+        _cleanup_free_ float *tex_sig = malloc((n_tex ? n_tex : 1) * sizeof(float) * 3);
         double sum_ang_f = 0;
-        if (!diff || !filled)
+        if (!diff || !filled || !tex_sig)
                 return imp_error_set(err, -ENOMEM, "compare: out of memory");
         double sum_ang = 0, sum_ang_bl = 0;
         size_t n = 0;
@@ -299,70 +428,32 @@ int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_com
                         double ang = acos(IMP_CLAMP(nw[0] * tn[0] + nw[1] * tn[1] + nw[2] * tn[2], -1.0, 1.0)) * 180.0 / M_PI;
                         sum_ang += ang;
                         sum_ang_f += filled[n - 1] ? ang : 0;
+                        /* σ_h, σ_n, angle; a flagged texel gets σ_h = −1 */
+                        bool flagged = cfl >= 0 && p[cfl] != 0;
+                        tex_sig[3 * (n - 1)] = flagged ? -1.0f : csig >= 0 ? p[csig] : 0.0f;
+                        tex_sig[3 * (n - 1) + 1] = csn >= 0 ? p[csn] : -1.0f;
+                        tex_sig[3 * (n - 1) + 2] = (float) ang;
                         sum_ang_bl += acos(IMP_CLAMP(nw[0] * tb[0] + nw[1] * tb[1] + nw[2] * tb[2], -1.0, 1.0)) * 180.0 / M_PI;
                 }
         res.n_compared = n;
 
-        _cleanup_free_ uint8_t *obs = observable_mask(truth_dir, &t);
-        size_t inter = 0, uni = 0, inter_o = 0, uni_o = 0;
-        for (int j = 0; j < t.ny; j++)
-                for (int i = 0; i < t.nx; i++) {
-                        bool a = truth_at(&t, i, j, t.c_m) >= 0.5;
-                        double X[3] = { t.origin[0] + i * t.pitch - o[0], t.origin[1] + j * t.pitch - o[1],
-                                        truth_at(&t, i, j, t.c_h) - o[2] };
-                        double u = (X[0] * ex[0] + X[1] * ex[1] + X[2] * ex[2]) / cpitch;
-                        double v = (X[0] * ey[0] + X[1] * ey[1] + X[2] * ey[2]) / cpitch;
-                        long ci = lround(u), cj = lround(v);
-                        bool b = isfinite(u) && isfinite(v) && ci >= 0 && cj >= 0 && ci < cimg->width &&
-                                 cj < cimg->height && *(imp_image_f32(cimg, (int) ci, (int) cj) + cm) >= 0.5;
-                        inter += a && b;
-                        uni += a || b;
-                        if (obs) {
-                                bool ao = a && obs[(size_t) j * t.nx + i];
-                                inter_o += ao && b;
-                                uni_o += ao || b;
-                        }
-                }
-        res.mask_iou = uni ? (double) inter / uni : 0;
-        res.mask_iou_observable = !obs ? -1 : uni_o ? (double) inter_o / uni_o : 0;
+        mask_iou(truth_dir, &t, cimg, cm, M, cpitch, &res);
+        res.placement_deg = placement_deg(&t, ez);
+        res.frame_texel_fraction = frame_texels(cimg, cm, &t, M, cpitch);
 
-        if (n == 0)
-                return imp_error_set(err, -ENODATA, "compare %s vs %s: no copy texel over the truth canvas",
-                                     copy_dir, truth_dir);
-        res.normal_err_deg_mean = sum_ang / n;
-        res.normal_err_deg_mean_bandlimited = sum_ang_bl / n;
-        qsort(diff, n, sizeof(double), cmp_double);
-        double med = n % 2 ? diff[n / 2] : 0.5 * (diff[n / 2 - 1] + diff[n / 2]);
-        double ss = 0, mx = 0;
-        for (size_t k = 0; k < n; k++) {
-                double d = diff[k] - med;
-                ss += d * d;
-                mx = fmax(mx, fabs(d));
+        if (n == 0) {   /* what could be computed is still reported */
+                *ret = res;
+                return imp_error_set(err, -ENODATA, "compare %s vs %s: no copy texel over the truth canvas: "
+                                     "heights and normals not compared", copy_dir, truth_dir);
         }
-        double ss_k[2] = { 0, 0 };
-        for (size_t k = 0; k < n; k++) {
-                double d = diff[n_tex + k] - med;
-                ss_k[filled[k]] += d * d;
-                res.n_filled += filled[k];
-        }
-        size_t n_meas = n - res.n_filled;
-        if (res.n_filled) {
-                res.height_rmse_um_filled = sqrt(ss_k[1] / res.n_filled) * 1000.0;
-                res.normal_err_deg_mean_filled = sum_ang_f / res.n_filled;
-        }
-        if (n_meas) {
-                res.height_rmse_um_measured = sqrt(ss_k[0] / n_meas) * 1000.0;
-                res.normal_err_deg_mean_measured = (sum_ang - sum_ang_f) / n_meas;
-        }
-        res.height_offset_mm = med;
-        res.height_rmse_um = sqrt(ss / n) * 1000.0;
-        res.height_max_abs_um = mx * 1000.0;
+        height_figures(&res, diff, filled, n, n_tex, sum_ang, sum_ang_f, sum_ang_bl);
+        honesty(&res, diff + n_tex, tex_sig, n, res.height_offset_mm);
         *ret = res;
         return 0;
 }
 
 json_t *imp_compare_result_to_json(const struct imp_compare_result *r) {
-        return json_pack("{s:f,s:f,s:f,s:f,s:f,s:f,s:f,s:I,s:I,s:I,s:f,s:f,s:f,s:f}",
+        return json_pack("{s:f,s:f,s:f,s:f,s:f,s:f,s:f,s:I,s:I,s:I,s:f,s:f,s:f,s:f,s:f,s:f,s:I,s:f,s:f,s:f,s:I,s:f}",
                          "height_rmse_um", r->height_rmse_um,
                          "height_offset_mm", r->height_offset_mm,
                          "height_max_abs_um", r->height_max_abs_um,
@@ -376,5 +467,12 @@ json_t *imp_compare_result_to_json(const struct imp_compare_result *r) {
                          "height_rmse_um_filled", r->height_rmse_um_filled,
                          "normal_err_deg_mean_filled", r->normal_err_deg_mean_filled,
                          "height_rmse_um_measured", r->height_rmse_um_measured,
-                         "normal_err_deg_mean_measured", r->normal_err_deg_mean_measured);
+                         "normal_err_deg_mean_measured", r->normal_err_deg_mean_measured,
+                         "placement_deg", r->placement_deg, "frame_texel_fraction", r->frame_texel_fraction,
+                         "n_unflagged", (json_int_t) r->n_unflagged,
+                         "beyond_3sigma_height", r->beyond_3sigma_height,
+                         "beyond_3sigma_normal", r->beyond_3sigma_normal,
+                         "unflagged_normal_err_deg_max", r->unflagged_normal_err_deg_max,
+                         "unflagged_normal_over_10deg", (json_int_t) r->unflagged_normal_over_10deg,
+                         "flagged_fraction", r->flagged_fraction);
 }

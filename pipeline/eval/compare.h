@@ -46,6 +46,21 @@ struct imp_compare_result {
         size_t n_filled;
         double height_rmse_um_filled, normal_err_deg_mean_filled;
         double height_rmse_um_measured, normal_err_deg_mean_measured;
+        /* Honesty figures (docs/hard-cases.md). Placement: angle between the copy's canvas
+         * normal and the truth canvas's mean normal. Frame texels: copy mask texels whose
+         * world point lies on the truth frame, as a fraction of the copy mask texels over
+         * the truth grid. Over the compared texels whose heightfield.exr flags are 0 (all
+         * of them when the copy has no flags channel): the fraction whose height error
+         * (after the median offset) exceeds 3 σ, whose normal error exceeds 3 σ_n
+         * (sigma_n_deg; −1 without that channel), the largest normal error and the count
+         * above 10°; flagged_fraction over the compared texels. */
+        double placement_deg;
+        double frame_texel_fraction;
+        size_t n_unflagged;
+        double beyond_3sigma_height, beyond_3sigma_normal;
+        double unflagged_normal_err_deg_max;
+        size_t unflagged_normal_over_10deg;
+        double flagged_fraction;
 };
 
 /* Reads COPY_DIR/{copy.json,heightfield.exr} and TRUTH_DIR/{truth.json,heightfield.exr}.

@@ -8,6 +8,7 @@
 #define BOXES_DEFAULT_CELL_PX      20
 #define BOXES_DEFAULT_MIN_COMP     8
 #define BOXES_DEFAULT_REF_PCT      5.0
+#define BOXES_DEFAULT_NOISE_K      6.0
 
 void imp_boxes_options_default(struct imp_boxes_options *opt) {
         *opt = (struct imp_boxes_options) {
@@ -15,6 +16,7 @@ void imp_boxes_options_default(struct imp_boxes_options *opt) {
                 .cell_px = BOXES_DEFAULT_CELL_PX,
                 .min_component_px = BOXES_DEFAULT_MIN_COMP,
                 .ref_percentile = BOXES_DEFAULT_REF_PCT,
+                .noise_k = BOXES_DEFAULT_NOISE_K,
         };
 }
 
@@ -73,6 +75,20 @@ static int clean_components(uint8_t *sig, int w, int h, size_t min_px, size_t *r
         return 0;
 }
 
+/* Median height σ over the measured texels (mask 1), 0 without σ; tmp: room for nx·ny. */
+static double median_sigma(const struct imp_heightfield *hf, float *tmp) {
+        if (!hf->sigma_mm)
+                return 0;
+        size_t N = (size_t) hf->nx * hf->ny, m = 0;
+        for (size_t i = 0; i < N; i++)
+                if (hf->mask[i] == IMP_HF_MASK_MEASURED && isfinite(hf->sigma_mm[i]) && hf->sigma_mm[i] > 0)
+                        tmp[m++] = hf->sigma_mm[i];
+        if (!m)
+                return 0;
+        qsort(tmp, m, sizeof *tmp, cmp_float);
+        return tmp[m / 2];
+}
+
 int imp_boxes_classify(const struct imp_heightfield *hf, const struct imp_boxes_options *opt,
                        struct imp_boxes *ret) {
         struct imp_boxes_options defaults;
@@ -83,7 +99,7 @@ int imp_boxes_classify(const struct imp_heightfield *hf, const struct imp_boxes_
                 opt = &defaults;
         }
         if (opt->cell_px <= 0 || !(opt->delta_frac >= 0 && opt->delta_frac <= 1) ||
-            !(opt->ref_percentile >= 0 && opt->ref_percentile <= 100))
+            !(opt->ref_percentile >= 0 && opt->ref_percentile <= 100) || !(opt->noise_k >= 0))
                 return -EINVAL;
         int w = hf->nx, h = hf->ny, r;
         size_t N = (size_t) w * h, n = 0;
@@ -101,7 +117,8 @@ int imp_boxes_classify(const struct imp_heightfield *hf, const struct imp_boxes_
                 return -ENODATA;
         qsort(hv, n, sizeof(float), cmp_float);
         double href = hv[(size_t) llround(opt->ref_percentile / 100.0 * (double) (n - 1))];
-        double H = fmax(hmax - href, 0.0), delta0 = opt->delta_frac * H;
+        double H = fmax(hmax - href, 0.0), floor_mm = opt->noise_k * median_sigma(hf, hv);
+        double delta0 = fmax(opt->delta_frac * H, floor_mm);
         for (size_t i = 0; i < N; i++)
                 sig[i] = H > 0 && hf->mask[i] && isfinite(hf->height_mm[i]) && hf->height_mm[i] - href > delta0;
 
@@ -109,7 +126,8 @@ int imp_boxes_classify(const struct imp_heightfield *hf, const struct imp_boxes_
                 .cell_px = opt->cell_px, .nx = w, .ny = h, .pitch_mm = hf->pitch_mm,
                 .cells_u = (w + opt->cell_px - 1) / opt->cell_px,
                 .cells_v = (h + opt->cell_px - 1) / opt->cell_px,
-                .h_ref_mm = href, .H_mm = H, .delta0_mm = delta0,
+                .h_ref_mm = href, .H_mm = H, .delta0_mm = delta0, .delta0_floor_mm = floor_mm,
+                .below_noise = floor_mm > opt->delta_frac * H,
         };
         if ((r = clean_components(sig, w, h, opt->min_component_px, &b.n_components, &b.n_components_removed)) < 0)
                 return r;
@@ -155,11 +173,12 @@ json_t *imp_boxes_to_json(const struct imp_boxes *b) {
                         "w", x->w, "h", x->h, "hmax", (double) x->hmax_mm, "umax", x->umax,
                         "vmax", x->vmax, "significant_texels", (json_int_t) x->n_significant));
         }
-        return json_pack("{s:s,s:f,s:i,s:i,s:i,s:i,s:i,s:f,s:f,s:f,s:f,s:I,s:I,s:o}",
+        return json_pack("{s:s,s:f,s:i,s:i,s:i,s:i,s:i,s:f,s:f,s:f,s:f,s:f,s:b,s:I,s:I,s:o}",
                          "units", "mm", "pitch_mm", b->pitch_mm, "nx", b->nx, "ny", b->ny,
                          "cell_px", b->cell_px, "cells_u", b->cells_u, "cells_v", b->cells_v,
                          "h_ref", b->h_ref_mm, "H", b->H_mm, "delta0", b->delta0_mm,
                          "bump_plane", b->h_ref_mm + b->delta0_mm,
+                         "delta0_noise_floor", b->delta0_floor_mm, "below_noise", b->below_noise,
                          "significant_texels", (json_int_t) b->n_significant,
                          "components_removed", (json_int_t) b->n_components_removed,
                          "boxes", arr);

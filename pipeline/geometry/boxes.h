@@ -6,9 +6,12 @@
  * Heights are taken relative to the canvas base h_ref = the 5th percentile (ref_percentile)
  * of the heights over the canvas mask — robust to a few deep holes, unlike the minimum, and
  * not pulled up by the relief, unlike the mean or the PCA plane (height 0). H = max height −
- * h_ref; δ0 = delta_frac · H; a texel is significant when height − h_ref > δ0. In file
+ * h_ref; δ0 = max(delta_frac · H, noise_k · σ̃) with σ̃ the median height σ of the measured
+ * texels, so that relief within the noise (a flat canvas: H is then only the noise's
+ * extreme) makes no boxes; a texel is significant when height − h_ref > δ0. In file
  * units: the bump plane sits at h_ref + δ0, boxes span [h_ref + δ0, h_ref + H]. */
 #pragma once
+#include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <jansson.h>
@@ -21,6 +24,9 @@ struct imp_boxes_options {
         size_t min_component_px;      /* 8-connected components smaller than this are
                                          dropped; default 8 */
         double ref_percentile;        /* h_ref percentile; default 5 */
+        double noise_k;               /* δ0 floor in median height σ; default 6 (h_ref, the 5th
+                                         percentile, sits ≈ 1.6σ below a flat canvas: a texel
+                                         of pure noise is then > 4σ above its mean) */
 };
 void imp_boxes_options_default(struct imp_boxes_options *opt);
 
@@ -37,6 +43,8 @@ struct imp_boxes {
         int nx, ny;                   /* grid the boxes refer to */
         double pitch_mm;
         double h_ref_mm, H_mm, delta0_mm;   /* see above; H and δ0 relative to h_ref */
+        double delta0_floor_mm;       /* noise_k · σ̃ (0 without σ) */
+        bool below_noise;             /* the floor, not delta_frac · H, set δ0 */
         size_t n_significant;         /* texels left after component removal */
         size_t n_components, n_components_removed;
         size_t n_boxes;

@@ -8,12 +8,14 @@
 #include <string.h>
 #include "fuse.h"
 #include "macro.h"
+#include "quality.h"
 
 #define DEG (180.0 / M_PI)
 #define FUSE_WEIGHT_RATIO_MAX 100.0   /* (σ_ref/σ_t)² is kept within [1/100, 100] */
 
 void imp_fuse_params_default(struct imp_fuse_params *ret) {
-        *ret = (struct imp_fuse_params) { .lambda = 0.3, .min_nz = 0.2, .max_iter = 500, .tol = 1e-6 };
+        *ret = (struct imp_fuse_params) { .lambda = 0.3, .min_nz = 0.2, .max_iter = 500, .tol = 1e-6,
+                                          .max_row_sigma = 3, .fill_normal_sigma_deg = 3 };
 }
 
 struct system {
@@ -106,25 +108,39 @@ static double sigma_ref(const float *sigma, const uint8_t *in, const uint8_t *ma
         return v[m / 2];
 }
 
-int imp_fuse_heights(int nx, int ny, double pitch_mm, float *height_mm, const float *normal,
-                     const float *sigma_mm, const uint8_t *mask, const struct imp_fuse_params *p,
-                     struct imp_fuse_stats *ret_stats) {
-        if (nx <= 0 || ny <= 0 || !(pitch_mm > 0) || !height_mm || !normal || !p || !(p->lambda > 0) ||
-            p->max_iter < 0 || !(p->tol >= 0))
-                return -EINVAL;
+/* Slope σ of a normal with angular σ sd (degrees): d(tan θ)/dθ = 1/cos²θ = 1/nz². */
+static double slope_sigma(const float *n, double sd) {
+        double nz = fmax(n[2], 0.05);
+        return tan(fmin(sd, 80.0) / DEG) / (nz * nz);
+}
+
+/* Whether the gradient row over texels a, b (centred on t) agrees with the measured
+ * heights within max_row_sigma × its σ. Rows touching a filled texel have no position
+ * to disagree with. */
+static bool row_consistent(const float *h, const float *sigma, const uint8_t *mask, double sd,
+                           const float *n, double grad, double pitch, size_t a, size_t b,
+                           const struct imp_fuse_params *p) {
+        if (mask && (mask[a] == 2 || mask[b] == 2))
+                return true;
+        double sa = sigma ? sigma[a] : 0, sb = sigma ? sigma[b] : 0;
+        double sg = 2 * pitch * slope_sigma(n, sd);
+        double sr = sqrt(sa * sa + sb * sb + sg * sg);
+        return fabs((h[b] - h[a]) - 2 * pitch * grad) <= p->max_row_sigma * sr;
+}
+
+/* Unknowns, gradient rows (with the back-off), position weights and z0. */
+static void setup_rows(int nx, int ny, double pitch_mm, const float *height_mm, const float *normal,
+                       const float *sigma_mm, const uint8_t *mask, const struct imp_fuse_params *p,
+                       const struct imp_fuse_texels *tex, struct system *sys, double *z,
+                       struct imp_fuse_stats *st) {
+        uint8_t *in = (uint8_t *) sys->in, *rx = (uint8_t *) sys->rx, *ry = (uint8_t *) sys->ry;
+        double *w = (double *) sys->w, *tx = sys->tx, *ty = sys->ty;
         size_t n = (size_t) nx * ny;
-        _cleanup_free_ uint8_t *flags = calloc(n, 3);
-        _cleanup_free_ double *buf = malloc(n * 10 * sizeof(double));
-        if (!flags || !buf)
-                return -ENOMEM;
-        uint8_t *in = flags, *rx = flags + n, *ry = flags + 2 * n;
-        double *z = buf, *b = buf + n, *r = buf + 2 * n, *d = buf + 3 * n, *q = buf + 4 * n, *s = buf + 5 * n;
-        double *w = buf + 6 * n, *prec = buf + 7 * n, *tx = buf + 8 * n, *ty = buf + 9 * n;
-        struct imp_fuse_stats st = {};
         for (size_t t = 0; t < n; t++) {
                 in[t] = (!mask || mask[t]) && isfinite(height_mm[t]);
-                st.n_texels += in[t];
+                st->n_texels += in[t];
         }
+        const float *nsd = tex ? tex->normal_sigma_deg : NULL;
         double sref = sigma_ref(sigma_mm, in, mask, n);
         for (int j = 0; j < ny; j++)
                 for (int i = 0; i < nx; i++) {
@@ -133,7 +149,21 @@ int imp_fuse_heights(int nx, int ny, double pitch_mm, float *height_mm, const fl
                         bool g = in[t] && slope(&normal[3 * t], p->min_nz, &gx, &gy);
                         rx[t] = g && i > 0 && i + 1 < nx && in[t - 1] && in[t + 1];
                         ry[t] = g && j > 0 && j + 1 < ny && in[t - nx] && in[t + nx];
-                        st.n_rows += rx[t] + ry[t];
+                        if (nsd && (rx[t] || ry[t])) {
+                                bool okx = !rx[t] || row_consistent(height_mm, sigma_mm, mask, nsd[t], &normal[3 * t],
+                                                                    gx, pitch_mm, t - 1, t + 1, p);
+                                bool oky = !ry[t] || row_consistent(height_mm, sigma_mm, mask, nsd[t], &normal[3 * t],
+                                                                    gy, pitch_mm, t - nx, t + nx, p);
+                                st->n_rows_rejected += !okx + !oky;
+                                if (!okx || !oky) {
+                                        st->n_backed_off += (!okx || !rx[t]) && (!oky || !ry[t]);
+                                        if (tex->flags)
+                                                tex->flags[t] |= IMP_TEXEL_PHOTOMETRIC_REJECTED;
+                                }
+                                rx[t] = rx[t] && okx;
+                                ry[t] = ry[t] && oky;
+                        }
+                        st->n_rows += rx[t] + ry[t];
                         tx[t] = rx[t] ? 2 * pitch_mm * gx : 0;
                         ty[t] = ry[t] ? 2 * pitch_mm * gy : 0;
                         double ratio = 1;
@@ -145,26 +175,14 @@ int imp_fuse_heights(int nx, int ny, double pitch_mm, float *height_mm, const fl
                         w[t] = in[t] && !(mask && mask[t] == 2) ? p->lambda * ratio : 0;
                         z[t] = in[t] ? height_mm[t] : 0;
                 }
-        /* b = W z0 + Dxᵀ tx + Dyᵀ ty, Jacobi diagonal. */
-        for (int j = 0; j < ny; j++)
-                for (int i = 0; i < nx; i++) {
-                        size_t t = (size_t) j * nx + i;
-                        if (!in[t]) {
-                                b[t] = 0, prec[t] = 0;
-                                continue;
-                        }
-                        double a = w[t] * z[t], dg = w[t];
-                        if (i > 0) a += tx[t - 1], dg += rx[t - 1];
-                        if (i + 1 < nx) a -= tx[t + 1], dg += rx[t + 1];
-                        if (j > 0) a += ty[t - nx], dg += ry[t - nx];
-                        if (j + 1 < ny) a -= ty[t + nx], dg += ry[t + nx];
-                        b[t] = a;
-                        prec[t] = dg > 0 ? 1 / dg : 0;   /* 0: a filled texel in no row keeps z0 */
-                }
-        struct system sys = { nx, ny, in, rx, ry, w, tx, ty };
-        st.agree_deg_before = agreement_deg(&sys, z, normal, pitch_mm);
-        /* CG from z0. */
-        apply(&sys, z, q);
+}
+
+/* Jacobi-preconditioned CG from z (b: right-hand side, prec: inverse diagonal). */
+static void solve_cg(const struct system *sys, const double *b, const double *prec, double *z, double *buf,
+                     const struct imp_fuse_params *p, struct imp_fuse_stats *st) {
+        size_t n = (size_t) sys->nx * sys->ny;
+        double *r = buf, *d = buf + n, *q = buf + 2 * n, *s = buf + 3 * n;
+        apply(sys, z, q);
         for (size_t t = 0; t < n; t++) {
                 r[t] = b[t] - q[t];
                 s[t] = prec[t] * r[t];
@@ -173,7 +191,7 @@ int imp_fuse_heights(int nx, int ny, double pitch_mm, float *height_mm, const fl
         double bn = sqrt(dot(b, b, n)), rs = dot(r, s, n), rn = sqrt(dot(r, r, n));
         int it = 0;
         while (it < p->max_iter && bn > 0 && rn > p->tol * bn) {
-                apply(&sys, d, q);
+                apply(sys, d, q);
                 double dq = dot(d, q, n);
                 if (!(dq > 0))
                         break;
@@ -192,9 +210,111 @@ int imp_fuse_heights(int nx, int ny, double pitch_mm, float *height_mm, const fl
                 rn = sqrt(dot(r, r, n));
                 it++;
         }
-        st.iterations = it;
-        st.residual_rel = bn > 0 ? rn / bn : 0;
+        st->iterations = it;
+        st->residual_rel = bn > 0 ? rn / bn : 0;
+}
+
+#define FILL_SWEEPS_MAX 64
+#define FUSE_SIGMA_UNKNOWN_MM 1e3f   /* σ of a filled texel no measured texel reaches */
+
+/* σ of the filled texels (imp_fuse_texels.sigma_mm): the cheapest path from a measured
+ * texel, relaxed by alternating raster sweeps until nothing changes. */
+static int fill_sigma(int nx, int ny, double pitch_mm, const float *normal, const float *sigma_mm,
+                      const uint8_t *mask, const uint8_t *in, const struct imp_fuse_params *p,
+                      const struct imp_fuse_texels *tex, struct imp_fuse_stats *st) {
+        size_t n = (size_t) nx * ny;
+        _cleanup_free_ float *out = malloc(n * sizeof *out);   /* tex->sigma_mm may alias sigma_mm */
+        if (!out)
+                return -ENOMEM;
+        for (size_t t = 0; t < n; t++) {
+                if (!in[t])
+                        continue;
+                bool filled = mask && mask[t] == 2;
+                double s0 = sigma_mm && isfinite(sigma_mm[t]) ? sigma_mm[t] : 0;
+                out[t] = filled ? INFINITY : (float) s0;
+        }
+        bool changed = true;
+        for (int sweep = 0; sweep < FILL_SWEEPS_MAX && changed; sweep++) {
+                changed = false;
+                bool fwd = !(sweep & 1);
+                for (size_t k = 0; k < n; k++) {
+                        size_t t = fwd ? k : n - 1 - k;
+                        if (!in[t] || !(mask && mask[t] == 2))
+                                continue;
+                        int i = (int) (t % nx), j = (int) (t / nx);
+                        double sd = tex->normal_sigma_deg ? tex->normal_sigma_deg[t] : p->fill_normal_sigma_deg;
+                        double step = pitch_mm * slope_sigma(&normal[3 * t], sd), best = out[t];
+                        size_t nb[4] = { t - 1, t + 1, t - nx, t + nx };
+                        bool ok[4] = { i > 0, i + 1 < nx, j > 0, j + 1 < ny };
+                        for (int e = 0; e < 4; e++)
+                                if (ok[e] && in[nb[e]] && out[nb[e]] + step < best)
+                                        best = out[nb[e]] + step;
+                        if (best < out[t]) {
+                                out[t] = (float) best;
+                                changed = true;
+                        }
+                }
+        }
+        for (size_t t = 0; t < n; t++) {
+                if (!in[t])
+                        continue;
+                double s0 = sigma_mm && isfinite(sigma_mm[t]) ? sigma_mm[t] : 0;
+                if (!(mask && mask[t] == 2)) {
+                        tex->sigma_mm[t] = (float) s0;
+                        continue;
+                }
+                /* unreachable from a measured texel: its σ says nothing is known */
+                float v = isfinite(out[t]) ? (float) fmax(out[t], s0) : FUSE_SIGMA_UNKNOWN_MM;
+                tex->sigma_mm[t] = v;
+                st->fill_sigma_max_mm = fmax(st->fill_sigma_max_mm, v);
+        }
+        return 0;
+}
+
+int imp_fuse_heights(int nx, int ny, double pitch_mm, float *height_mm, const float *normal,
+                     const float *sigma_mm, const uint8_t *mask, const struct imp_fuse_params *p,
+                     const struct imp_fuse_texels *tex, struct imp_fuse_stats *ret_stats) {
+        if (nx <= 0 || ny <= 0 || !(pitch_mm > 0) || !height_mm || !normal || !p || !(p->lambda > 0) ||
+            p->max_iter < 0 || !(p->tol >= 0) || !(p->max_row_sigma > 0) || !(p->fill_normal_sigma_deg >= 0))
+                return -EINVAL;
+        size_t n = (size_t) nx * ny;
+        _cleanup_free_ uint8_t *flags = calloc(n, 3);
+        _cleanup_free_ double *buf = malloc(n * 10 * sizeof(double));
+        if (!flags || !buf)
+                return -ENOMEM;
+        uint8_t *in = flags, *rx = flags + n, *ry = flags + 2 * n;
+        double *z = buf, *b = buf + n, *w = buf + 6 * n, *prec = buf + 7 * n, *tx = buf + 8 * n, *ty = buf + 9 * n;
+        struct imp_fuse_stats st = {};
+        struct system sys = { nx, ny, in, rx, ry, w, tx, ty };
+        setup_rows(nx, ny, pitch_mm, height_mm, normal, sigma_mm, mask, p, tex, &sys, z, &st);
+        /* b = W z0 + Dxᵀ tx + Dyᵀ ty, Jacobi diagonal. */
+        for (int j = 0; j < ny; j++)
+                for (int i = 0; i < nx; i++) {
+                        size_t t = (size_t) j * nx + i;
+                        if (!in[t]) {
+                                b[t] = 0, prec[t] = 0;
+                                continue;
+                        }
+                        double a = w[t] * z[t], dg = w[t];
+                        if (i > 0) a += tx[t - 1], dg += rx[t - 1];
+                        if (i + 1 < nx) a -= tx[t + 1], dg += rx[t + 1];
+                        if (j > 0) a += ty[t - nx], dg += ry[t - nx];
+                        if (j + 1 < ny) a -= ty[t + nx], dg += ry[t + nx];
+                        b[t] = a;
+                        prec[t] = dg > 0 ? 1 / dg : 0;   /* 0: a filled texel in no row keeps z0 */
+                }
+        st.agree_deg_before = agreement_deg(&sys, z, normal, pitch_mm);
+        solve_cg(&sys, b, prec, z, buf + 2 * n, p, &st);
         st.agree_deg_after = agreement_deg(&sys, z, normal, pitch_mm);
+        if (tex && tex->sigma_mm) {
+                int r = fill_sigma(nx, ny, pitch_mm, normal, sigma_mm, mask, in, p, tex, &st);
+                if (r < 0)
+                        return r;
+        }
+        if (tex && tex->flags && mask)
+                for (size_t t = 0; t < n; t++)
+                        if (in[t] && mask[t] == 2)
+                                tex->flags[t] |= IMP_TEXEL_FILLED;
         double ss = 0;
         for (size_t t = 0; t < n; t++)
                 if (in[t] && isfinite(z[t])) {

@@ -26,6 +26,13 @@ struct imp_fuse_params {
         double min_nz;                /* normals with nz below this give no gradient row (0.2) */
         int max_iter;                 /* CG iterations (500) */
         double tol;                   /* stop when |r| ≤ tol·|b| (1e-6) */
+        /* Back-off (with imp_fuse_texels.normal_sigma_deg): a gradient row whose measured
+         * heights disagree with the normal's slope by more than max_row_sigma × the
+         * row's σ (both heights' σ and the slope σ the normal's σ implies) is left out:
+         * the measured heights stay there and the texel is flagged. (3) */
+        double max_row_sigma;
+        double fill_normal_sigma_deg; /* σ of a normal when none is given, for the σ of
+                                         filled texels (3) */
 };
 void imp_fuse_params_default(struct imp_fuse_params *ret);
 
@@ -37,6 +44,26 @@ struct imp_fuse_stats {
         double change_rms_mm;         /* rms of (z − z0) over the mask */
         double agree_deg_before, agree_deg_after;  /* mean angle between the normals and the
                                                       central-difference normals of z0 / z */
+        long n_rows_rejected;         /* gradient rows left out by the back-off */
+        long n_backed_off;            /* texels whose rows were all left out that way */
+        double fill_sigma_max_mm;     /* largest σ given to a filled texel (0: none) */
+};
+
+/* Optional per-texel inputs and outputs of imp_fuse_heights (each may be NULL).
+ * normal_sigma_deg: in, 1σ of each normal in degrees (photometric.h sigma_deg): turns
+ *   the back-off on and sets the σ of filled texels.
+ * sigma_mm: out (may alias the sigma_mm input): the height σ after fusion. Measured
+ *   texels keep theirs (fusion only lowers the noise); a filled texel (mask 2) gets the
+ *   σ its shape inherits from the normals it was integrated from: the cheapest path from
+ *   a measured texel, σ of that texel + Σ pitch · σ_slope over the path (σ_slope the
+ *   slope σ of each normal, tan σn / nz², accumulated linearly because a normal's error
+ *   is mostly a bias, not noise), and never below the input σ.
+ * flags: out, quality.h IMP_TEXEL_* ORed in: FILLED on mask-2 texels,
+ *   PHOTOMETRIC_REJECTED where the back-off left out a row centred on the texel. */
+struct imp_fuse_texels {
+        const float *normal_sigma_deg;
+        float *sigma_mm;
+        uint16_t *flags;
 };
 
 /* Fuses in place: height_mm (nx·ny, row-major) is replaced by z on mask texels (others
@@ -48,4 +75,4 @@ struct imp_fuse_stats {
  * nothing can be solved (no mask texel) the heights are left as they are. */
 int imp_fuse_heights(int nx, int ny, double pitch_mm, float *height_mm, const float *normal,
                      const float *sigma_mm, const uint8_t *mask, const struct imp_fuse_params *p,
-                     struct imp_fuse_stats *ret_stats);
+                     const struct imp_fuse_texels *tex, struct imp_fuse_stats *ret_stats);

@@ -447,3 +447,22 @@ int imp_hdr_merge(const struct imp_hdr_exposure *stack, size_t n, const struct i
         };
         return 0;
 }
+
+int imp_hdr_saturated_mask(const struct imp_image *flags, struct imp_image **ret) {
+        if (!flags || flags->type != IMP_PIX_U8 || flags->channels < 1 || !ret)
+                return -EINVAL;
+        struct imp_image *m;
+        int r = imp_image_new(flags->width, flags->height, 1, IMP_PIX_U8, &m);
+        if (r < 0)
+                return r;
+        for (int y = 0; y < flags->height; y++)
+                for (int x = 0; x < flags->width; x++) {
+                        const uint8_t *f = imp_image_u8(flags, x, y);
+                        uint8_t o = 0;
+                        for (int c = 0; c < flags->channels; c++)
+                                o |= (f[c] & IMP_HDR_SATURATED) != 0;
+                        *imp_image_u8(m, x, y) = o;
+                }
+        *ret = m;
+        return 0;
+}

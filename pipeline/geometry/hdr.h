@@ -76,5 +76,11 @@ int imp_hdr_merge(const struct imp_hdr_exposure *stack, size_t n, const struct i
                   const struct imp_hdr_options *opt, struct imp_hdr_result *ret);
 void imp_hdr_result_done(struct imp_hdr_result *r);   /* frees members; accepts zeroed */
 
+/* A u8 1-channel image, 1 where any channel of the merge's flags (u8, as in
+ * imp_hdr_result.flags) has IMP_HDR_SATURATED, else 0: the saturation mask a decoder of
+ * the merged values needs (structured-light.h imp_sl_frames.saturated). Caller frees *ret
+ * with imp_image_free(). -EINVAL, -ENOMEM. */
+int imp_hdr_saturated_mask(const struct imp_image *flags, struct imp_image **ret);
+
 /* Electrons per DN at gain_db: gain_e_per_dn · 10^(−gain_db/20). */
 double imp_hdr_e_per_dn(const struct imp_sensor *sensor, double gain_db);

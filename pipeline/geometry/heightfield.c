@@ -7,6 +7,7 @@
 #include "heightfield.h"
 #include "image.h"
 #include "json-util.h"
+#include "quality.h"
 
 #define HF_DEFAULT_GRADIENT_REL   0.25
 #define HF_DEFAULT_GRADIENT_FLOOR 1e-3
@@ -19,6 +20,12 @@
 #define HF_MAX_TEXELS             ((size_t) 1 << 28)
 #define HF_PLANE_WEAK_RATIO       0.99
 #define HF_MIN_FILL_FRAC          0.05   /* a seed fill over fewer valid points is retried */
+#define HF_DEFAULT_MAX_TILT_DEG   40.0   /* a frame wall's plane is ~90° off */
+#define HF_DEFAULT_MAX_VIEW_DEG   75.0
+#define HF_DEFAULT_PLANE_TOL      0.5    /* mm: most of a painting's area lies this close */
+#define HF_DEFAULT_RELIEF_MAX     3.0    /* mm: impasto rarely stands higher */
+#define HF_DEFAULT_MIN_CANVAS_FRAC 0.02
+#define HF_DEFAULT_MIN_CANVAS_PTS 200
 
 void imp_heightfield_options_default(struct imp_heightfield_options *opt) {
         *opt = (struct imp_heightfield_options) {
@@ -29,6 +36,13 @@ void imp_heightfield_options_default(struct imp_heightfield_options *opt) {
                 .slope_max = HF_DEFAULT_SLOPE_MAX,
                 .step_min_mm = HF_DEFAULT_STEP_MIN,
                 .normal_radius = HF_DEFAULT_NORMAL_RADIUS,
+                .expected_normal = { 0, 0, 1 },
+                .max_tilt_deg = HF_DEFAULT_MAX_TILT_DEG,
+                .max_view_deg = HF_DEFAULT_MAX_VIEW_DEG,
+                .plane_tol_mm = HF_DEFAULT_PLANE_TOL,
+                .relief_max_mm = HF_DEFAULT_RELIEF_MAX,
+                .min_canvas_frac = HF_DEFAULT_MIN_CANVAS_FRAC,
+                .min_canvas_points = HF_DEFAULT_MIN_CANVAS_PTS,
         };
 }
 
@@ -40,6 +54,8 @@ void imp_heightfield_done(struct imp_heightfield *hf) {
         free(hf->ny_);
         free(hf->sigma_mm);
         free(hf->mask);
+        free(hf->texel_flags);
+        free(hf->sigma_n_deg);
         *hf = (struct imp_heightfield) {};
 }
 
@@ -343,15 +359,20 @@ static bool find_seed(const float *g, int w, int h, float T, size_t *ret) {
         return false;
 }
 
-/* Per-pixel data in the canvas frame: (u, v, h) and the vertex normal, σ_h. */
+/* Per-pixel data in the canvas frame: (u, v, h) and the vertex normal, σ_h, σ_n. */
 struct hf_ctx {
         const struct imp_range_image *r;
         const uint8_t *canvas;
         float *uvh;          /* 3 per pixel */
         float *nrm;          /* 3 per pixel */
         float *sig;
+        float *sig_n_deg;    /* vertex normal σ, degrees */
+        double footprint;    /* mm */
         double max_edge2;
 };
+
+#define HF_FEW_SAMPLES_EDGE 2.0       /* a triangle with an edge longer than this × the
+                                         footprint spans missing range points */
 
 static bool edge_ok(const struct hf_ctx *c, size_t a, size_t b) {
         double s = 0;
@@ -360,6 +381,50 @@ static bool edge_ok(const struct hf_ctx *c, size_t a, size_t b) {
                 s += d * d;
         }
         return s <= c->max_edge2;
+}
+
+/* Vertex normal σ (rms angle, degrees), from the data around the vertex: the
+ * least-squares plane h = a + b·u + c·v through the canvas points of its 3×3
+ * neighbourhood has residual rms s (n − 3 degrees of freedom), which holds the range noise
+ * and the relief the footprint does not resolve; var(b) = s²/Σ(u − ū)², var(c) likewise,
+ * and the normal's rms angle is atan √(var b + var c). With fewer than 5 points, the range
+ * σ_h through the same fit on a full 3×3 grid: atan(σ_h / (√3·d)), d the footprint. The
+ * standard error of the mean of the surrounding triangle normals (their rms angle to it
+ * over √n) is added in quadrature for what the plane does not see. */
+static float vertex_sigma_deg(const struct hf_ctx *c, int x, int y, double sig_h, const double tri[][3], int n_tri,
+                              const double mean[3]) {
+        int w = c->r->width, h = c->r->height;
+        size_t i = (size_t) y * w + x;
+        double S = 0, Su = 0, Sv = 0, Suu = 0, Svv = 0, Suv = 0, Sh = 0, Suh = 0, Svh = 0, Shh = 0;
+        for (int dy = -1; dy <= 1; dy++)
+                for (int dx = -1; dx <= 1; dx++) {
+                        int xx = x + dx, yy = y + dy;
+                        if (xx < 0 || yy < 0 || xx >= w || yy >= h)
+                                continue;
+                        size_t j = (size_t) yy * w + xx;
+                        if (!c->canvas[j] || !edge_ok(c, i, j))
+                                continue;
+                        double u = c->uvh[3 * j] - c->uvh[3 * i], v = c->uvh[3 * j + 1] - c->uvh[3 * i + 1];
+                        double hh = c->uvh[3 * j + 2] - c->uvh[3 * i + 2];
+                        S += 1, Su += u, Sv += v, Suu += u * u, Svv += v * v, Suv += u * v;
+                        Sh += hh, Suh += u * hh, Svh += v * hh, Shh += hh * hh;
+                }
+        double noise = c->footprint > 0 ? atan(sig_h / (sqrt(3.0) * c->footprint)) : 0;
+        if (S >= 5) {
+                double cuu = Suu - Su * Su / S, cvv = Svv - Sv * Sv / S, cuv = Suv - Su * Sv / S;
+                double cuh = Suh - Su * Sh / S, cvh = Svh - Sv * Sh / S, chh = Shh - Sh * Sh / S;
+                double det = cuu * cvv - cuv * cuv;
+                if (det > 1e-12 * (cuu * cvv + 1e-300)) {
+                        double b = (cvv * cuh - cuv * cvh) / det, cc = (cuu * cvh - cuv * cuh) / det;
+                        double s2 = fmax(chh - b * cuh - cc * cvh, 0.0) / (S - 3);
+                        noise = atan(sqrt(s2 * (cvv + cuu) / det));   /* var b = s²·cvv/det, var c = s²·cuu/det */
+                }
+        }
+        double ss = 0;
+        for (int k = 0; k < n_tri; k++)
+                ss += pow(acos(IMP_CLAMP(dot3(tri[k], mean), -1.0, 1.0)), 2);
+        double spread2 = n_tri ? ss / ((double) n_tri * n_tri) : 0;   /* of their mean */
+        return (float) (sqrt(noise * noise + spread2) * 180 / M_PI);
 }
 
 static void vertex_normals(struct hf_ctx *c) {
@@ -371,7 +436,8 @@ static void vertex_normals(struct hf_ctx *c) {
                         size_t i = (size_t) y * w + x;
                         if (!c->canvas[i])
                                 continue;
-                        double sum[3] = { 0, 0, 0 };
+                        double sum[3] = { 0, 0, 0 }, tri[8][3];
+                        int n_tri = 0;
                         for (int k = 0; k < 8; k++) {
                                 int x1 = x + ox[k], y1 = y + oy[k], x2 = x + ox[(k + 1) % 8], y2 = y + oy[(k + 1) % 8];
                                 if (x1 < 0 || y1 < 0 || x1 >= w || y1 >= h || x2 < 0 || y2 < 0 || x2 >= w || y2 >= h)
@@ -390,25 +456,68 @@ static void vertex_normals(struct hf_ctx *c) {
                                 if (!normalize3(n))
                                         continue;
                                 for (int q = 0; q < 3; q++)
-                                        sum[q] += n[q];
+                                        sum[q] += tri[n_tri][q] = n[q];
+                                n_tri++;
                         }
                         if (!normalize3(sum))
                                 sum[0] = 0, sum[1] = 0, sum[2] = 1;
                         for (int q = 0; q < 3; q++)
                                 c->nrm[3 * i + q] = (float) sum[q];
+                        c->sig_n_deg[i] = vertex_sigma_deg(c, x, y, c->sig[i], tri, n_tri, sum);
                 }
+}
+
+/* σ_n pooled over the 3×3 vertex neighbourhood: the larger of a vertex's own σ and the
+ * rms of its canvas neighbours'. One 3×3 fit has 6 degrees of freedom, so its residual
+ * alone understates the noise at one vertex in a hundred by a factor of 2.6 or more (χ²₆
+ * 1 % quantile 0.87 vs 6); pooling nine overlapping fits narrows that, and a texel next to
+ * steep relief inherits its neighbours' doubt. */
+static int pool_sigma_n(struct hf_ctx *c) {
+        int w = c->r->width, h = c->r->height;
+        size_t N = (size_t) w * h;
+        _cleanup_free_ float *own = malloc(N * sizeof(float));
+        if (!own)
+                return -ENOMEM;
+        memcpy(own, c->sig_n_deg, N * sizeof(float));
+        #pragma omp parallel for schedule(static)
+        for (int y = 0; y < h; y++)
+                for (int x = 0; x < w; x++) {
+                        size_t i = (size_t) y * w + x;
+                        if (!c->canvas[i])
+                                continue;
+                        double ss = 0;
+                        int n = 0;
+                        for (int dy = -1; dy <= 1; dy++)
+                                for (int dx = -1; dx <= 1; dx++) {
+                                        int xx = x + dx, yy = y + dy;
+                                        size_t j = (size_t) yy * w + xx;
+                                        if (xx < 0 || yy < 0 || xx >= w || yy >= h || !c->canvas[j])
+                                                continue;
+                                        ss += (double) own[j] * own[j];
+                                        n++;
+                                }
+                        c->sig_n_deg[i] = (float) fmax(own[i], sqrt(ss / n));
+                }
+        return 0;
 }
 
 /* Rasterise triangle (a, b, c) of range pixels into the grid. */
 static void raster_tri(const struct hf_ctx *c, size_t a, size_t b, size_t d, struct imp_heightfield *hf,
                        double umin, double vmin) {
         double p = hf->pitch_mm;
-        double X[3], Y[3];
+        double X[3], Y[3], e2max = 0;
         size_t id[3] = { a, b, d };
         for (int k = 0; k < 3; k++) {
                 X[k] = (c->uvh[3 * id[k]] - umin) / p;
                 Y[k] = (c->uvh[3 * id[k] + 1] - vmin) / p;
         }
+        for (int k = 0; k < 3; k++) {
+                double e2 = 0;
+                for (int q = 0; q < 3; q++)
+                        e2 += pow(c->uvh[3 * id[k] + q] - c->uvh[3 * id[(k + 1) % 3] + q], 2);
+                e2max = fmax(e2max, e2);
+        }
+        uint16_t tri_flags = sqrt(e2max) > HF_FEW_SAMPLES_EDGE * c->footprint ? IMP_TEXEL_FEW_SAMPLES : 0;
         double area = (X[1] - X[0]) * (Y[2] - Y[0]) - (X[2] - X[0]) * (Y[1] - Y[0]);
         if (fabs(area) < 1e-12)
                 return;
@@ -423,10 +532,11 @@ static void raster_tri(const struct hf_ctx *c, size_t a, size_t b, size_t d, str
                         double l0 = 1 - l1 - l2;
                         if (l0 < eps || l1 < eps || l2 < eps)
                                 continue;
-                        double L[3] = { l0, l1, l2 }, hh = 0, s = 0, n[3] = { 0, 0, 0 };
+                        double L[3] = { l0, l1, l2 }, hh = 0, s = 0, sn = 0, n[3] = { 0, 0, 0 };
                         for (int k = 0; k < 3; k++) {
                                 hh += L[k] * c->uvh[3 * id[k] + 2];
                                 s += L[k] * c->sig[id[k]];
+                                sn += L[k] * c->sig_n_deg[id[k]];
                                 for (int q = 0; q < 3; q++)
                                         n[q] += L[k] * c->nrm[3 * id[k] + q];
                         }
@@ -435,8 +545,10 @@ static void raster_tri(const struct hf_ctx *c, size_t a, size_t b, size_t d, str
                         size_t t = (size_t) j * hf->nx + i;
                         hf->height_mm[t] = (float) hh;
                         hf->sigma_mm[t] = (float) s;
+                        hf->sigma_n_deg[t] = (float) sn;
                         hf->nx_[t] = (float) n[0];
                         hf->ny_[t] = (float) n[1];
+                        hf->texel_flags[t] = tri_flags;
                         hf->mask[t] = 1;
                 }
 }
@@ -618,6 +730,8 @@ static long shadow_fill(struct imp_heightfield *hf, const struct imp_range_image
                         hf->height_mm[u] = hf->height_mm[s];
                         hf->nx_[u] = 0, hf->ny_[u] = 0;
                         hf->sigma_mm[u] = (float) hypot(hf->sigma_mm[s], ds);
+                        hf->sigma_n_deg[u] = 90;   /* unknown until normals come */
+                        hf->texel_flags[u] = IMP_TEXEL_FILLED;
                         stack[tail++] = (uint32_t) u;
                         filled++;
                 }
@@ -648,12 +762,24 @@ static int crop_to_mask(struct imp_heightfield *hf, double *umin, double *vmin) 
                 *f[k] = o;
         }
         uint8_t *o = malloc((size_t) w * h);
-        if (!o)
+        uint16_t *of = malloc((size_t) w * h * sizeof *of);
+        float *osn = malloc((size_t) w * h * sizeof *osn);
+        if (!o || !of || !osn) {
+                free(o), free(of), free(osn);
                 return -ENOMEM;
-        for (int j = 0; j < h; j++)
-                memcpy(o + (size_t) j * w, hf->mask + (size_t) (j + j0) * hf->nx + i0, w);
+        }
+        for (int j = 0; j < h; j++) {
+                size_t src = (size_t) (j + j0) * hf->nx + i0;
+                memcpy(o + (size_t) j * w, hf->mask + src, w);
+                memcpy(of + (size_t) j * w, hf->texel_flags + src, w * sizeof *of);
+                memcpy(osn + (size_t) j * w, hf->sigma_n_deg + src, w * sizeof *osn);
+        }
         free(hf->mask);
+        free(hf->texel_flags);
+        free(hf->sigma_n_deg);
         hf->mask = o;
+        hf->texel_flags = of;
+        hf->sigma_n_deg = osn;
         hf->nx = w, hf->ny = h;
         *umin += i0 * hf->pitch_mm, *vmin += j0 * hf->pitch_mm;
         return 0;
@@ -692,167 +818,166 @@ void imp_heightfield_drop_filled(struct imp_heightfield *hf, const uint8_t *drop
                 else if (hf->mask[t] != IMP_HF_MASK_MEASURED) {
                         hf->mask[t] = 0;
                         hf->height_mm[t] = hf->nx_[t] = hf->ny_[t] = hf->sigma_mm[t] = 0;
+                        if (hf->sigma_n_deg)
+                                hf->sigma_n_deg[t] = 0;
+                        if (hf->texel_flags)
+                                hf->texel_flags[t] = 0;
                 }
                 hf->n_mask_texels += hf->mask[t] != 0;
                 hf->n_filled_texels += hf->mask[t] == IMP_HF_MASK_FILLED;
         }
 }
 
-int imp_heightfield_from_range(const struct imp_range_image *range,
-                               const struct imp_heightfield_options *opt, struct imp_heightfield *ret) {
-        struct imp_heightfield_options defaults;
-        if (!range || !ret || range->width <= 0 || range->height <= 0 || !range->xyz || !range->valid)
-                return -EINVAL;
-        if (!opt) {
-                imp_heightfield_options_default(&defaults);
-                opt = &defaults;
+/* ---- robust canvas plane (placement) ---- */
+
+#define HF_RANSAC_ITER       400
+#define HF_RANSAC_MAX_SCORE  20000    /* points scored per hypothesis (strided subsample) */
+#define HF_RANSAC_REFINE     3        /* PCA passes on the inliers */
+
+static double angle_deg(const double a[3], const double b[3]) {
+        return acos(IMP_CLAMP(dot3(a, b), -1.0, 1.0)) * 180 / M_PI;
+}
+
+/* Plane through points a, b, c, turned towards the camera; false when degenerate. */
+static bool plane3(const float *a, const float *b, const float *c, const double C[3], double ret_n[3]) {
+        double e1[3], e2[3], toc[3];
+        for (int q = 0; q < 3; q++) {
+                e1[q] = (double) b[q] - a[q];
+                e2[q] = (double) c[q] - a[q];
+                toc[q] = C[q] - a[q];
         }
-        if (opt->erode_px < 0 || !(opt->gradient_rel > 0) || !(opt->max_edge_factor > 0) ||
-            opt->normal_radius < 0 || opt->normal_radius > HF_MAX_NORMAL_RADIUS || isnan(opt->slope_max) ||
-            !(opt->step_min_mm >= 0) || opt->shadow_fill_px < 0 || opt->shadow_fill_px > UINT16_MAX - 1)
-                return -EINVAL;
-        int w = range->width, h = range->height, r;
-        size_t N = (size_t) w * h;
-        if (N > UINT32_MAX)
-                return -E2BIG;
-        struct imp_heightfield hf = {};
-        double m1[3], n1[3];
-        bool weak;
-        hf.n_range_points = pca_plane(range, NULL, m1, n1, &weak);
-        if (hf.n_range_points < 3)
-                return -ENODATA;
+        cross3(e1, e2, ret_n);
+        double l = sqrt(dot3(ret_n, ret_n));
+        if (!(l > 1e-3 * dot3(e1, e1) && l > 1e-3 * dot3(e2, e2)))   /* sin(angle) > 1e-3 */
+                return false;
+        normalize3(ret_n);
+        if (dot3(ret_n, toc) < 0)
+                ret_n[0] = -ret_n[0], ret_n[1] = -ret_n[1], ret_n[2] = -ret_n[2];
+        return true;
+}
 
-        /* Canvas mask on the range grid: first-PCA height, Sobel, seed fill, erosion. */
-        _cleanup_free_ uint8_t *canvas = malloc(N);
-        if (!canvas)
-                return -ENOMEM;
-        if (opt->skip_extraction) {
-                for (size_t i = 0; i < N; i++)
-                        canvas[i] = range->valid[i] != 0;
-        } else {
-                _cleanup_free_ float *h1 = malloc(N * sizeof(float)), *g = malloc(N * sizeof(float));
-                _cleanup_free_ float *hv = malloc(hf.n_range_points * sizeof(float));
-                if (!h1 || !g || !hv)
-                        return -ENOMEM;
-                size_t k = 0;
-                for (size_t i = 0; i < N; i++) {
-                        if (!range->valid[i]) {
-                                h1[i] = 0;
-                                continue;
-                        }
-                        double d[3] = { range->xyz[3 * i] - m1[0], range->xyz[3 * i + 1] - m1[1], range->xyz[3 * i + 2] - m1[2] };
-                        h1[i] = hv[k++] = (float) dot3(d, n1);
-                }
-                float p1, p99;
-                if ((r = percentile(hv, k, 1, &p1)) < 0 || (r = percentile(hv, k, 99, &p99)) < 0)
-                        return r;
-                float T = (float) fmax(opt->gradient_rel * (p99 - p1), opt->gradient_floor_mm);
-                hf.gradient_threshold_mm = T;
-                sobel(h1, range->valid, w, h, g);
-                size_t seed, centre = (size_t) (h / 2) * w + w / 2;
-                if (!find_seed(g, w, h, T, &seed))
-                        return -ENODATA;
-                if (seed != centre)
-                        hf.flags |= IMP_HF_SEED_MOVED;
-                struct fill_barrier b = { .xyz = range->xyz, .h1 = h1, .n1 = { n1[0], n1[1], n1[2] },
-                                          .slope_max = opt->slope_max, .step_min = opt->step_min_mm };
-                if ((r = seed_fill(g, w, h, seed, T, &b, canvas)) < 0)
-                        return r;
-                /* A fill that stops almost at once is a staircase, not a frame: a Gray-only
-                 * decode with a camera finer than the projector gives terraces one
-                 * projector column wide whose risers pass for near-vertical steps. Raise
-                 * step_min (doubling) until the fill spreads; with no level below the
-                 * relief span that does, drop the slope barrier. */
-                while (b.slope_max > 0 && count_set(canvas, N) < HF_MIN_FILL_FRAC * hf.n_range_points) {
-                        b.step_min = fmax(2 * b.step_min, 0.05);
-                        if (b.step_min > 0.5 * (p99 - p1))
-                                b.slope_max = 0;
-                        hf.flags |= IMP_HF_STEP_RAISED;
-                        if ((r = seed_fill(g, w, h, seed, T, &b, canvas)) < 0)
-                                return r;
-                }
-                hf.step_min_used_mm = b.slope_max > 0 ? b.step_min : INFINITY;
-                if (opt->keep_holes) {
-                        if ((r = erode(canvas, w, h, opt->erode_px)) < 0)
-                                return r;
-                } else {
-                        /* Erode the hole-filled mask, then keep only filled pixels: holes
-                         * do not grow, the outer rim shrinks by erode_px. */
-                        _cleanup_free_ uint8_t *solid = malloc(N);
-                        if (!solid)
-                                return -ENOMEM;
-                        if ((r = fill_holes(canvas, w, h, solid)) < 0 || (r = erode(solid, w, h, opt->erode_px)) < 0)
-                                return r;
-                        for (size_t i = 0; i < N; i++)
-                                canvas[i] = canvas[i] && solid[i];
-                }
-        }
+/* Signed distance of point i in front of the plane (p, n), towards the camera. */
+static double plane_dist(const struct imp_range_image *r, size_t i, const double p[3], const double n[3]) {
+        const float *X = r->xyz + 3 * i;
+        double d[3] = { X[0] - p[0], X[1] - p[1], X[2] - p[2] };
+        return dot3(d, n);
+}
 
-        /* Canvas frame from the canvas points. */
-        double m[3], ez[3];
-        hf.n_canvas_points = pca_plane(range, canvas, m, ez, &weak);
-        if (hf.n_canvas_points < 3)
-                return -ENODATA;
-        if (weak)
-                hf.flags |= IMP_HF_PLANE_WEAK;
-        double ex[3] = { 1, 0, 0 }, ey[3];
-        if (fabs(ez[0]) > 0.9)
-                ex[0] = 0, ex[1] = 1;
-        double pr = dot3(ex, ez);
-        for (int q = 0; q < 3; q++)
-                ex[q] -= pr * ez[q];
-        normalize3(ex);
-        cross3(ez, ex, ey);
+/* Points RANSAC may use: valid and, with a previous plane (behind_n not NULL), more than
+ * 2·plane_tol_mm behind it. */
+struct ransac_set {
+        const double *behind_p, *behind_n;
+        double tol;
+};
+static bool ransac_use(const struct imp_range_image *r, const struct ransac_set *set, size_t i) {
+        return r->valid[i] && (!set->behind_n || plane_dist(r, i, set->behind_p, set->behind_n) < -2 * set->tol);
+}
 
-        _cleanup_free_ float *uvh = malloc(N * 3 * sizeof(float)), *nrm = malloc(N * 3 * sizeof(float));
-        _cleanup_free_ float *sig = malloc(N * sizeof(float));
-        if (!uvh || !nrm || !sig)
-                return -ENOMEM;
-        double umin = INFINITY, vmin = INFINITY, umax = -INFINITY, vmax = -INFINITY, ss = 0;
-        for (size_t i = 0; i < N; i++) {
-                if (!canvas[i])
+/* One RANSAC search: hypotheses from three usable points of the image's central half (the
+ * canvas is centred in the shot, seed §4.2); score = usable points within plane_tol_mm (a
+ * strided subsample). Any orientation is considered: were only planes near the rig's pose
+ * allowed, a canvas tilted far off it would leave its frame's walls as the best plane;
+ * the tilt is checked on the result (canvas_frame) and refused there. Deterministic
+ * (fixed xorshift seed). Returns the best score (0: every hypothesis degenerate). */
+static size_t ransac_search(const struct imp_range_image *r, const struct imp_heightfield_options *opt,
+                            const struct ransac_set *set, uint32_t *central, double ret_p[3], double ret_n[3]) {
+        int w = r->width, h = r->height;
+        size_t N = (size_t) w * h, n_use = 0, n_central = 0, best = 0;
+        for (size_t i = 0; i < N; i++)
+                n_use += ransac_use(r, set, i);
+        for (int y = h / 4; y < h - h / 4; y++)
+                for (int x = w / 4; x < w - w / 4; x++)
+                        if (ransac_use(r, set, (size_t) y * w + x))
+                                central[n_central++] = (uint32_t) ((size_t) y * w + x);
+        if (n_central < 3)
+                return 0;
+        size_t stride = n_use > HF_RANSAC_MAX_SCORE ? n_use / HF_RANSAC_MAX_SCORE : 1;
+        uint64_t st = 0x9e3779b97f4a7c15ull;
+        for (int it = 0; it < HF_RANSAC_ITER; it++) {
+                size_t id[3];
+                for (int k = 0; k < 3; k++) {
+                        st ^= st << 13, st ^= st >> 7, st ^= st << 17;
+                        id[k] = central[st % n_central];
+                }
+                const float *a = r->xyz + 3 * id[0];
+                double n[3], p[3] = { a[0], a[1], a[2] };
+                if (!plane3(a, r->xyz + 3 * id[1], r->xyz + 3 * id[2], r->camera_centre_mm, n))
                         continue;
-                const float *X = range->xyz + 3 * i;
-                double d[3] = { X[0] - m[0], X[1] - m[1], X[2] - m[2] };
-                double u = dot3(d, ex), v = dot3(d, ey), hh = dot3(d, ez);
-                uvh[3 * i] = (float) u, uvh[3 * i + 1] = (float) v, uvh[3 * i + 2] = (float) hh;
-                double ray[3] = { X[0] - range->camera_centre_mm[0], X[1] - range->camera_centre_mm[1],
-                                  X[2] - range->camera_centre_mm[2] };
-                double cosr = normalize3(ray) ? fabs(dot3(ray, ez)) : 1.0;
-                sig[i] = range->sigma_mm ? (float) (range->sigma_mm[i] * cosr) : 0.0f;
-                umin = fmin(umin, u), umax = fmax(umax, u), vmin = fmin(vmin, v), vmax = fmax(vmax, v);
-                ss += hh * hh;
+                size_t score = 0;
+                for (size_t i = 0; i < N; i += stride)
+                        score += ransac_use(r, set, i) && fabs(plane_dist(r, i, p, n)) <= opt->plane_tol_mm;
+                if (score > best) {
+                        best = score;
+                        memcpy(ret_n, n, 3 * sizeof *n);
+                        memcpy(ret_p, p, 3 * sizeof *p);
+                }
         }
-        hf.plane_rms_mm = sqrt(ss / hf.n_canvas_points);
-        bool fill = opt->shadow_fill_px > 0 && !opt->skip_extraction;
-        if (fill) {   /* frame threshold: canvas h99 + (h99 − h1) */
-                _cleanup_free_ float *hv = malloc(hf.n_canvas_points * sizeof(float));
-                if (!hv)
-                        return -ENOMEM;
-                size_t k = 0;
-                for (size_t i = 0; i < N; i++)
-                        if (canvas[i])
-                                hv[k++] = uvh[3 * i + 2];
-                float c1, c99;
-                if ((r = percentile(hv, k, 1, &c1)) < 0 || (r = percentile(hv, k, 99, &c99)) < 0)
-                        return r;
-                hf.frame_height_mm = c99 + fmax((double) c99 - c1, opt->step_min_mm);
-        }
+        return best;
+}
 
-        /* Footprint: median 3D distance between horizontally (or vertically) adjacent
-         * canvas points. */
-        {
-                _cleanup_free_ float *dist = malloc(N * sizeof(float));
-                if (!dist)
-                        return -ENOMEM;
-                size_t nd = 0;
-                for (int y = 0; y < h; y++)
-                        for (int x = 0; x < w; x++) {
-                                size_t i = (size_t) y * w + x;
-                                if (!canvas[i])
-                                        continue;
-                                size_t j = x + 1 < w ? i + 1 : (y + 1 < h ? i + w : i);
-                                if (j == i || !canvas[j])
+/* The canvas plane, robustly (seed §4.2 takes the PCA of every point; a deep or oblique
+ * frame's walls and tops, or wild decode points, pull that off the canvas). RANSAC
+ * (ransac_search); then, since a frame stands in front of its canvas, a plane parallel to
+ * it (within 10°) behind it with at least a fifth of its support replaces it, as long as
+ * there is one; then PCA on the inliers, HF_RANSAC_REFINE times. Returns false when every
+ * hypothesis was degenerate. */
+#define HF_BEHIND_MIN_SUPPORT 0.2
+#define HF_BEHIND_MAX_DEG     10.0
+static bool ransac_plane(const struct imp_range_image *r, const struct imp_heightfield_options *opt,
+                         uint8_t *scratch, double ret_m[3], double ret_n[3], double *ret_frac) {
+        size_t N = (size_t) r->width * r->height, n_valid = 0;
+        for (size_t i = 0; i < N; i++)
+                n_valid += r->valid[i] != 0;
+        _cleanup_free_ uint32_t *central = malloc((N ? N : 1) * sizeof(uint32_t));
+        if (!central || n_valid < 3)
+                return false;
+        struct ransac_set set = { .tol = opt->plane_tol_mm };
+        double bp[3], bn[3], p[3], n[3];
+        size_t best = ransac_search(r, opt, &set, central, bp, bn);
+        if (best == 0)
+                return false;
+        for (int k = 0; k < 3; k++) {
+                double pp[3] = { bp[0], bp[1], bp[2] }, pn[3] = { bn[0], bn[1], bn[2] };
+                set.behind_p = pp, set.behind_n = pn;
+                size_t sc = ransac_search(r, opt, &set, central, p, n);
+                if (sc < HF_BEHIND_MIN_SUPPORT * best || angle_deg(n, pn) > HF_BEHIND_MAX_DEG)
+                        break;
+                memcpy(bp, p, sizeof bp);
+                memcpy(bn, n, sizeof bn);
+                best = sc;
+        }
+        size_t n_in = 0;
+        for (int pass = 0; pass < HF_RANSAC_REFINE; pass++) {
+                n_in = 0;
+                for (size_t i = 0; i < N; i++)
+                        n_in += scratch[i] = r->valid[i] && fabs(plane_dist(r, i, bp, bn)) <= opt->plane_tol_mm;
+                bool weak;
+                double m[3];
+                if (n_in < 3 || pca_plane(r, scratch, m, n, &weak) < 3)
+                        break;
+                memcpy(bp, m, sizeof bp);
+                memcpy(bn, n, sizeof bn);
+        }
+        memcpy(ret_m, bp, sizeof bp);
+        memcpy(ret_n, bn, sizeof bn);
+        *ret_frac = (double) n_in / n_valid;
+        return true;
+}
+
+/* Median 3D distance between horizontally adjacent canvas points (vertically when no
+ * row holds two): the camera footprint. 0 when no pair exists. */
+static int footprint_mm(const struct imp_range_image *range, const uint8_t *canvas, double *ret) {
+        int w = range->width, h = range->height;
+        size_t N = (size_t) w * h;
+        _cleanup_free_ float *dist = malloc(N * sizeof(float));
+        if (!dist)
+                return -ENOMEM;
+        size_t nd = 0;
+        for (int dir = 0; dir < 2 && nd == 0; dir++)
+                for (int y = 0; y + dir < h; y++)
+                        for (int x = 0; x + 1 - dir < w; x++) {
+                                size_t i = (size_t) y * w + x, j = dir ? i + w : i + 1;
+                                if (!canvas[i] || !canvas[j])
                                         continue;
                                 double s2 = 0;
                                 for (int q = 0; q < 3; q++) {
@@ -861,96 +986,344 @@ int imp_heightfield_from_range(const struct imp_range_image *range,
                                 }
                                 dist[nd++] = (float) sqrt(s2);
                         }
-                if (nd == 0)
-                        for (int y = 0; y + 1 < h; y++)
-                                for (int x = 0; x < w; x++) {
-                                        size_t i = (size_t) y * w + x, j = i + w;
-                                        if (!canvas[i] || !canvas[j])
-                                                continue;
-                                        double s2 = 0;
-                                        for (int q = 0; q < 3; q++) {
-                                                double dd = range->xyz[3 * i + q] - range->xyz[3 * j + q];
-                                                s2 += dd * dd;
-                                        }
-                                        dist[nd++] = (float) sqrt(s2);
-                                }
-                float med;
-                if (nd == 0 || (r = percentile(dist, nd, 50, &med)) < 0 || !(med > 0))
-                        return -ENODATA;
-                hf.footprint_mm = med;
-        }
-        hf.pitch_mm = opt->pitch_mm > 0 ? opt->pitch_mm : hf.footprint_mm;
-        if (fill) {   /* room for the fill; cropped again below */
-                double pad = opt->shadow_fill_px * hf.pitch_mm;
-                umin -= pad, vmin -= pad, umax += pad, vmax += pad;
-        }
-        double gx = floor((umax - umin) / hf.pitch_mm + 1e-9) + 1, gy = floor((vmax - vmin) / hf.pitch_mm + 1e-9) + 1;
-        if (!(gx * gy <= (double) HF_MAX_TEXELS))
-                return -E2BIG;
-        hf.nx = (int) gx, hf.ny = (int) gy;
-        size_t n_tex = (size_t) hf.nx * hf.ny;
-        hf.height_mm = calloc(n_tex, sizeof(float));
-        hf.nx_ = calloc(n_tex, sizeof(float));
-        hf.ny_ = calloc(n_tex, sizeof(float));
-        hf.sigma_mm = calloc(n_tex, sizeof(float));
-        hf.mask = calloc(n_tex, 1);
-        if (!hf.height_mm || !hf.nx_ || !hf.ny_ || !hf.sigma_mm || !hf.mask) {
-                imp_heightfield_done(&hf);
+        float med = 0;
+        int r = nd ? percentile(dist, nd, 50, &med) : 0;
+        *ret = med;
+        return r;
+}
+
+/* The canvas on the range grid (seed §4.2 with a robust plane): heights h1 over the robust
+ * plane (m1, n1), points beyond relief_max_mm excluded, Sobel, seed fill from the centre
+ * stopped at high gradient and near-vertical steps, erosion. */
+static int canvas_mask(const struct imp_range_image *range, const struct imp_heightfield_options *opt,
+                       const double m1[3], const double n1[3], struct imp_heightfield *hf, uint8_t *canvas) {
+        int w = range->width, h = range->height, r;
+        size_t N = (size_t) w * h, k = 0;
+        _cleanup_free_ float *h1 = malloc(N * sizeof(float)), *g = malloc(N * sizeof(float));
+        _cleanup_free_ float *hv = malloc(hf->n_range_points * sizeof(float));
+        if (!h1 || !g || !hv)
                 return -ENOMEM;
-        }
-
-        double max_edge = opt->max_edge_factor * fmax(hf.footprint_mm, hf.pitch_mm);
-        struct hf_ctx c = { .r = range, .canvas = canvas, .uvh = uvh, .nrm = nrm, .sig = sig,
-                            .max_edge2 = max_edge * max_edge };
-        vertex_normals(&c);
-        for (int y = 0; y + 1 < h; y++)
-                for (int x = 0; x + 1 < w; x++) {
-                        size_t a = (size_t) y * w + x, b = a + 1, d = a + w, e = d + 1;
-                        if (canvas[a] && canvas[b] && canvas[d] && edge_ok(&c, a, b) && edge_ok(&c, a, d) &&
-                            edge_ok(&c, b, d))
-                                raster_tri(&c, a, b, d, &hf, umin, vmin);
-                        if (canvas[b] && canvas[e] && canvas[d] && edge_ok(&c, b, e) && edge_ok(&c, e, d) &&
-                            edge_ok(&c, b, d))
-                                raster_tri(&c, b, e, d, &hf, umin, vmin);
+        for (size_t i = 0; i < N; i++) {
+                if (!range->valid[i]) {
+                        h1[i] = 0;
+                        continue;
                 }
-        if (opt->normal_radius > 0 && (r = plane_normals(&hf, opt->normal_radius)) < 0) {
-                imp_heightfield_done(&hf);
+                double d[3] = { range->xyz[3 * i] - m1[0], range->xyz[3 * i + 1] - m1[1], range->xyz[3 * i + 2] - m1[2] };
+                h1[i] = hv[k++] = (float) dot3(d, n1);
+        }
+        float p1, p99;
+        if ((r = percentile(hv, k, 1, &p1)) < 0 || (r = percentile(hv, k, 99, &p99)) < 0)
                 return r;
-        }
-        if (fill) {
-                struct fill_frame ff = { m, ex, ey, ez, umin, vmin, hf.frame_height_mm };
-                long nf = shadow_fill(&hf, range, canvas, &ff, opt->shadow_fill_px);
-                if (nf < 0 || (r = crop_to_mask(&hf, &umin, &vmin)) < 0) {
-                        imp_heightfield_done(&hf);
-                        return nf < 0 ? (int) nf : r;
+        float T = (float) fmax(opt->gradient_rel * (p99 - p1), opt->gradient_floor_mm);
+        hf->gradient_threshold_mm = T;
+        sobel(h1, range->valid, w, h, g);
+        for (size_t i = 0; i < N; i++)   /* the frame by geometry: far off the canvas plane */
+                if (range->valid[i] && fabs(h1[i]) > opt->relief_max_mm) {
+                        g[i] = INFINITY;
+                        hf->n_excluded_points++;
                 }
-                hf.n_filled_texels = (size_t) nf;
-        }
-        n_tex = (size_t) hf.nx * hf.ny;   /* the fill may have cropped the grid */
-        for (size_t t = 0; t < n_tex; t++)
-                hf.n_mask_texels += hf.mask[t] != 0;
-        if (hf.n_mask_texels == 0) {
-                imp_heightfield_done(&hf);
+        size_t seed, centre = (size_t) (h / 2) * w + w / 2;
+        if (!find_seed(g, w, h, T, &seed))
                 return -ENODATA;
+        if (seed != centre)
+                hf->flags |= IMP_HF_SEED_MOVED;
+        struct fill_barrier b = { .xyz = range->xyz, .h1 = h1, .n1 = { n1[0], n1[1], n1[2] },
+                                  .slope_max = opt->slope_max, .step_min = opt->step_min_mm };
+        if ((r = seed_fill(g, w, h, seed, T, &b, canvas)) < 0)
+                return r;
+        /* A fill that stops almost at once is a staircase, not a frame: a Gray-only
+         * decode with a camera finer than the projector gives terraces one projector
+         * column wide whose risers pass for near-vertical steps. Raise step_min (doubling)
+         * until the fill spreads; with no level below the relief span that does, drop
+         * the slope barrier. */
+        while (b.slope_max > 0 && count_set(canvas, N) < HF_MIN_FILL_FRAC * hf->n_range_points) {
+                b.step_min = fmax(2 * b.step_min, 0.05);
+                if (b.step_min > 0.5 * (p99 - p1))
+                        b.slope_max = 0;
+                hf->flags |= IMP_HF_STEP_RAISED;
+                if ((r = seed_fill(g, w, h, seed, T, &b, canvas)) < 0)
+                        return r;
         }
-
-        double o[3];
-        for (int q = 0; q < 3; q++)
-                o[q] = m[q] + umin * ex[q] + vmin * ey[q];
-        double *M = hf.canvas_to_world;
-        for (int q = 0; q < 3; q++) {
-                M[4 * q + 0] = ex[q];
-                M[4 * q + 1] = ey[q];
-                M[4 * q + 2] = ez[q];
-                M[4 * q + 3] = o[q];
-        }
-        M[12] = M[13] = M[14] = 0, M[15] = 1;
-        *ret = hf;
+        hf->step_min_used_mm = b.slope_max > 0 ? b.step_min : INFINITY;
+        if (opt->keep_holes)
+                return erode(canvas, w, h, opt->erode_px);
+        /* Erode the hole-filled mask, then keep only filled pixels: holes do not grow, the
+         * outer rim shrinks by erode_px. */
+        _cleanup_free_ uint8_t *solid = malloc(N);
+        if (!solid)
+                return -ENOMEM;
+        if ((r = fill_holes(canvas, w, h, solid)) < 0 || (r = erode(solid, w, h, opt->erode_px)) < 0)
+                return r;
+        for (size_t i = 0; i < N; i++)
+                canvas[i] = canvas[i] && solid[i];
         return 0;
 }
 
+/* The canvas frame from the canvas points (second PCA, seed §4.2) and the placement checks
+ * against the rig: tilt from the expected normal, viewing angle, amount of canvas. */
+static int canvas_frame(const struct imp_range_image *range, const struct imp_heightfield_options *opt,
+                        const uint8_t *canvas, struct imp_heightfield *hf, double m[3], double ex[3],
+                        double ey[3], double ez[3], struct imp_error *err) {
+        bool weak;
+        hf->n_canvas_points = pca_plane(range, canvas, m, ez, &weak);
+        if (hf->n_canvas_points < 3)
+                return imp_error_set(err, -ENODATA, "no canvas: %zu of %zu valid range points left after the "
+                                     "seed fill", hf->n_canvas_points, hf->n_range_points);
+        if (weak)
+                hf->flags |= IMP_HF_PLANE_WEAK;
+        double toc[3] = { range->camera_centre_mm[0] - m[0], range->camera_centre_mm[1] - m[1],
+                          range->camera_centre_mm[2] - m[2] };
+        normalize3(toc);
+        hf->plane_tilt_deg = angle_deg(ez, opt->expected_normal);
+        hf->plane_view_deg = angle_deg(ez, toc);
+        if (!opt->skip_extraction) {
+                size_t min_pts = (size_t) fmax((double) opt->min_canvas_points,
+                                               opt->min_canvas_frac * (double) hf->n_range_points);
+                if (hf->plane_tilt_deg > opt->max_tilt_deg)
+                        return imp_error_set(err, -ENODATA, "no plausible canvas: its plane is %.0f° off the "
+                                             "rig's canvas normal (at most %.0f° expected)",
+                                             hf->plane_tilt_deg, opt->max_tilt_deg);
+                if (hf->plane_view_deg > opt->max_view_deg)
+                        return imp_error_set(err, -ENODATA, "no plausible canvas: seen %.0f° off its normal "
+                                             "(at most %.0f°)", hf->plane_view_deg, opt->max_view_deg);
+                if (hf->n_canvas_points < min_pts)
+                        return imp_error_set(err, -ENODATA, "too little canvas: %zu of %zu valid range points "
+                                             "(at least %zu needed)", hf->n_canvas_points,
+                                             hf->n_range_points, min_pts);
+        }
+        ex[0] = 1, ex[1] = 0, ex[2] = 0;
+        if (fabs(ez[0]) > 0.9)
+                ex[0] = 0, ex[1] = 1;
+        double pr = dot3(ex, ez);
+        for (int q = 0; q < 3; q++)
+                ex[q] -= pr * ez[q];
+        normalize3(ex);
+        cross3(ez, ex, ey);
+        return 0;
+}
+
+/* Canvas points in the canvas frame (uvh), their σ_h (range σ projected on the normal),
+ * their bounding box, the plane rms and the shadow fill's frame threshold. */
+struct frame_pts {
+        double m[3], ex[3], ey[3], ez[3];
+        double umin, vmin, umax, vmax;
+};
+
+static int project_canvas(const struct imp_range_image *range, const struct imp_heightfield_options *opt,
+                          const uint8_t *canvas, struct frame_pts *f, float *uvh, float *sig,
+                          struct imp_heightfield *hf) {
+        size_t N = (size_t) range->width * range->height, k = 0;
+        double ss = 0;
+        f->umin = f->vmin = INFINITY, f->umax = f->vmax = -INFINITY;
+        _cleanup_free_ float *hv = malloc(hf->n_canvas_points * sizeof(float));
+        if (!hv)
+                return -ENOMEM;
+        for (size_t i = 0; i < N; i++) {
+                if (!canvas[i])
+                        continue;
+                const float *X = range->xyz + 3 * i;
+                double d[3] = { X[0] - f->m[0], X[1] - f->m[1], X[2] - f->m[2] };
+                double u = dot3(d, f->ex), v = dot3(d, f->ey), hh = dot3(d, f->ez);
+                uvh[3 * i] = (float) u, uvh[3 * i + 1] = (float) v, uvh[3 * i + 2] = (float) hh;
+                hv[k++] = (float) hh;
+                double ray[3] = { X[0] - range->camera_centre_mm[0], X[1] - range->camera_centre_mm[1],
+                                  X[2] - range->camera_centre_mm[2] };
+                double cosr = normalize3(ray) ? fabs(dot3(ray, f->ez)) : 1.0;
+                sig[i] = range->sigma_mm ? (float) (range->sigma_mm[i] * cosr) : 0.0f;
+                f->umin = fmin(f->umin, u), f->umax = fmax(f->umax, u);
+                f->vmin = fmin(f->vmin, v), f->vmax = fmax(f->vmax, v);
+                ss += hh * hh;
+        }
+        hf->plane_rms_mm = sqrt(ss / hf->n_canvas_points);
+        if (opt->shadow_fill_px > 0 && !opt->skip_extraction) {   /* frame threshold: h99 + (h99 − h1) */
+                float c1, c99;
+                int r;
+                if ((r = percentile(hv, k, 1, &c1)) < 0 || (r = percentile(hv, k, 99, &c99)) < 0)
+                        return r;
+                hf->frame_height_mm = c99 + fmax((double) c99 - c1, opt->step_min_mm);
+        }
+        return 0;
+}
+
+static int alloc_grid(struct imp_heightfield *hf) {
+        size_t n_tex = (size_t) hf->nx * hf->ny;
+        hf->height_mm = calloc(n_tex, sizeof(float));
+        hf->nx_ = calloc(n_tex, sizeof(float));
+        hf->ny_ = calloc(n_tex, sizeof(float));
+        hf->sigma_mm = calloc(n_tex, sizeof(float));
+        hf->sigma_n_deg = calloc(n_tex, sizeof(float));
+        hf->texel_flags = calloc(n_tex, sizeof(uint16_t));
+        hf->mask = calloc(n_tex, 1);
+        return hf->height_mm && hf->nx_ && hf->ny_ && hf->sigma_mm && hf->sigma_n_deg && hf->texel_flags && hf->mask
+               ? 0 : -ENOMEM;
+}
+
+/* The range mesh rasterised into the canvas-frame grid, then the shadow fill (the grid is
+ * padded for it and cropped to the mask again). */
+static int rasterise(const struct imp_range_image *range, const struct imp_heightfield_options *opt,
+                     const uint8_t *canvas, struct frame_pts *f, struct hf_ctx *c, struct imp_heightfield *hf) {
+        int w = range->width, h = range->height, r;
+        bool fill = opt->shadow_fill_px > 0 && !opt->skip_extraction;
+        if (fill) {   /* room for the fill; cropped again below */
+                double pad = opt->shadow_fill_px * hf->pitch_mm;
+                f->umin -= pad, f->vmin -= pad, f->umax += pad, f->vmax += pad;
+        }
+        double gx = floor((f->umax - f->umin) / hf->pitch_mm + 1e-9) + 1;
+        double gy = floor((f->vmax - f->vmin) / hf->pitch_mm + 1e-9) + 1;
+        if (!(gx * gy <= (double) HF_MAX_TEXELS))
+                return -E2BIG;
+        hf->nx = (int) gx, hf->ny = (int) gy;
+        if ((r = alloc_grid(hf)) < 0)
+                return r;
+        vertex_normals(c);
+        if ((r = pool_sigma_n(c)) < 0)
+                return r;
+        for (int y = 0; y + 1 < h; y++)
+                for (int x = 0; x + 1 < w; x++) {
+                        size_t a = (size_t) y * w + x, b = a + 1, d = a + w, e = d + 1;
+                        if (canvas[a] && canvas[b] && canvas[d] && edge_ok(c, a, b) && edge_ok(c, a, d) &&
+                            edge_ok(c, b, d))
+                                raster_tri(c, a, b, d, hf, f->umin, f->vmin);
+                        if (canvas[b] && canvas[e] && canvas[d] && edge_ok(c, b, e) && edge_ok(c, e, d) &&
+                            edge_ok(c, b, d))
+                                raster_tri(c, b, e, d, hf, f->umin, f->vmin);
+                }
+        if (opt->normal_radius > 0 && (r = plane_normals(hf, opt->normal_radius)) < 0)
+                return r;
+        if (fill) {
+                struct fill_frame ff = { f->m, f->ex, f->ey, f->ez, f->umin, f->vmin, hf->frame_height_mm };
+                long nf = shadow_fill(hf, range, canvas, &ff, opt->shadow_fill_px);
+                if (nf < 0)
+                        return (int) nf;
+                if ((r = crop_to_mask(hf, &f->umin, &f->vmin)) < 0)
+                        return r;
+                hf->n_filled_texels = (size_t) nf;
+        }
+        return 0;
+}
+
+int imp_heightfield_flag_edges(struct imp_heightfield *hf, int px) {
+        size_t n = (size_t) hf->nx * hf->ny;
+        _cleanup_free_ uint8_t *solid = malloc(n ? n : 1);
+        if (!solid)
+                return -ENOMEM;
+        int r = fill_holes(hf->mask, hf->nx, hf->ny, solid);
+        if (r < 0 || (r = erode(solid, hf->nx, hf->ny, px)) < 0)
+                return r;
+        for (size_t t = 0; t < n; t++) {
+                if (!hf->mask[t]) {
+                        hf->texel_flags[t] = 0;
+                        continue;
+                }
+                hf->texel_flags[t] &= (uint16_t) ~(IMP_TEXEL_FRAME_ADJACENT | IMP_TEXEL_FILLED |
+                                                   IMP_TEXEL_NORMAL_UNCERTAIN);
+                if (!solid[t])
+                        hf->texel_flags[t] |= IMP_TEXEL_FRAME_ADJACENT;
+                if (!(hf->sigma_n_deg[t] <= IMP_TEXEL_NORMAL_SIGMA_MAX_DEG))
+                        hf->texel_flags[t] |= IMP_TEXEL_NORMAL_UNCERTAIN;
+                if (hf->mask[t] == IMP_HF_MASK_FILLED)
+                        hf->texel_flags[t] |= IMP_TEXEL_FILLED;
+        }
+        return 0;
+}
+
+
+static bool options_ok(const struct imp_heightfield_options *opt) {
+        return opt->erode_px >= 0 && opt->gradient_rel > 0 && opt->max_edge_factor > 0 && opt->normal_radius >= 0 &&
+               opt->normal_radius <= HF_MAX_NORMAL_RADIUS && !isnan(opt->slope_max) && opt->step_min_mm >= 0 &&
+               opt->shadow_fill_px >= 0 && opt->shadow_fill_px <= UINT16_MAX - 1 && opt->max_tilt_deg > 0 &&
+               opt->max_tilt_deg <= 90 && opt->max_view_deg > 0 && opt->max_view_deg <= 90 && opt->plane_tol_mm > 0 &&
+               opt->relief_max_mm > 0 && opt->min_canvas_frac >= 0 && opt->min_canvas_frac < 1 &&
+               fabs(sqrt(dot3(opt->expected_normal, opt->expected_normal)) - 1) < 1e-6;
+}
+
+/* The canvas plane to extract against: robust (RANSAC) or, when no plane fits the rig's
+ * pose, the PCA of every point (flagged; the placement checks then decide). */
+static int first_plane(const struct imp_range_image *range, const struct imp_heightfield_options *opt,
+                       uint8_t *scratch, struct imp_heightfield *hf, double m1[3], double n1[3]) {
+        bool weak;
+        hf->n_range_points = pca_plane(range, NULL, m1, n1, &weak);
+        if (hf->n_range_points < 3)
+                return -ENODATA;
+        if (!ransac_plane(range, opt, scratch, m1, n1, &hf->ransac_inlier_frac))
+                hf->flags |= IMP_HF_PLANE_NO_CONSENSUS;
+        return 0;
+}
+
+int imp_heightfield_extract(const struct imp_range_image *range, const struct imp_heightfield_options *opt,
+                            struct imp_heightfield *ret, struct imp_error *err) {
+        struct imp_heightfield_options defaults;
+        if (!range || !ret || range->width <= 0 || range->height <= 0 || !range->xyz || !range->valid)
+                return -EINVAL;
+        if (!opt) {
+                imp_heightfield_options_default(&defaults);
+                opt = &defaults;
+        }
+        if (!options_ok(opt))
+                return -EINVAL;
+        size_t N = (size_t) range->width * range->height;
+        if (N > UINT32_MAX)
+                return -E2BIG;
+        _cleanup_(imp_heightfield_done) struct imp_heightfield hf = {};
+        struct frame_pts f;
+        double n1[3];
+        _cleanup_free_ uint8_t *canvas = malloc(N);
+        if (!canvas)
+                return -ENOMEM;
+        int r = first_plane(range, opt, canvas, &hf, f.m, n1);
+        if (r < 0)
+                return imp_error_set(err, r, "no canvas: fewer than 3 valid range points");
+        if (opt->skip_extraction) {
+                for (size_t i = 0; i < N; i++)
+                        canvas[i] = range->valid[i] != 0;
+        } else if ((r = canvas_mask(range, opt, f.m, n1, &hf, canvas)) < 0)
+                return r == -ENODATA ? imp_error_set(err, r, "no canvas: no seed point of low gradient near "
+                                                     "the image centre") : r;
+        if ((r = canvas_frame(range, opt, canvas, &hf, f.m, f.ex, f.ey, f.ez, err)) < 0)
+                return r;
+        _cleanup_free_ float *uvh = malloc(N * 3 * sizeof(float)), *nrm = malloc(N * 3 * sizeof(float));
+        _cleanup_free_ float *sig = malloc(N * sizeof(float)), *sig_n = malloc(N * sizeof(float));
+        if (!uvh || !nrm || !sig || !sig_n)
+                return -ENOMEM;
+        if ((r = project_canvas(range, opt, canvas, &f, uvh, sig, &hf)) < 0)
+                return r;
+        if ((r = footprint_mm(range, canvas, &hf.footprint_mm)) < 0)
+                return r;
+        if (!(hf.footprint_mm > 0))
+                return imp_error_set(err, -ENODATA, "no canvas: no two neighbouring canvas points");
+        hf.pitch_mm = opt->pitch_mm > 0 ? opt->pitch_mm : hf.footprint_mm;
+        double max_edge = opt->max_edge_factor * fmax(hf.footprint_mm, hf.pitch_mm);
+        struct hf_ctx c = { .r = range, .canvas = canvas, .uvh = uvh, .nrm = nrm, .sig = sig, .sig_n_deg = sig_n,
+                            .footprint = hf.footprint_mm, .max_edge2 = max_edge * max_edge };
+        if ((r = rasterise(range, opt, canvas, &f, &c, &hf)) < 0)
+                return r;
+        if ((r = imp_heightfield_flag_edges(&hf, IMP_HF_FRAME_ADJACENT_PX)) < 0)
+                return r;
+        size_t n_tex = (size_t) hf.nx * hf.ny;
+        for (size_t t = 0; t < n_tex; t++)
+                hf.n_mask_texels += hf.mask[t] != 0;
+        if (hf.n_mask_texels == 0)
+                return imp_error_set(err, -ENODATA, "no canvas: no texel covered by the range mesh");
+        double *M = hf.canvas_to_world;
+        for (int q = 0; q < 3; q++) {
+                M[4 * q + 0] = f.ex[q];
+                M[4 * q + 1] = f.ey[q];
+                M[4 * q + 2] = f.ez[q];
+                M[4 * q + 3] = f.m[q] + f.umin * f.ex[q] + f.vmin * f.ey[q];
+        }
+        M[12] = M[13] = M[14] = 0, M[15] = 1;
+        *ret = hf;
+        hf = (struct imp_heightfield) {};
+        return 0;
+}
+
+int imp_heightfield_from_range(const struct imp_range_image *range,
+                               const struct imp_heightfield_options *opt, struct imp_heightfield *ret) {
+        return imp_heightfield_extract(range, opt, ret, NULL);
+}
+
 json_t *imp_heightfield_stage_json(const struct imp_heightfield *hf) {
-        return json_pack("{s:I,s:I,s:I,s:I,s:f,s:f,s:f,s:f,s:f,s:b,s:b,s:b,s:f}",
+        return json_pack("{s:I,s:I,s:I,s:I,s:f,s:f,s:f,s:f,s:f,s:b,s:b,s:b,s:f,s:f,s:f,s:f,s:I,s:b}",
                          "range_points", (json_int_t) hf->n_range_points,
                          "canvas_points", (json_int_t) hf->n_canvas_points,
                          "mask_texels", (json_int_t) hf->n_mask_texels,
@@ -964,17 +1337,21 @@ json_t *imp_heightfield_stage_json(const struct imp_heightfield *hf) {
                          "plane_weak", (hf->flags & IMP_HF_PLANE_WEAK) != 0,
                          "step_raised", (hf->flags & IMP_HF_STEP_RAISED) != 0,
                          /* −1: the slope barrier had to go */
-                         "step_min_mm", isfinite(hf->step_min_used_mm) ? hf->step_min_used_mm : -1.0);
+                         "step_min_mm", isfinite(hf->step_min_used_mm) ? hf->step_min_used_mm : -1.0,
+                         "plane_tilt_deg", hf->plane_tilt_deg, "plane_view_deg", hf->plane_view_deg,
+                         "ransac_inlier_frac", hf->ransac_inlier_frac,
+                         "excluded_points", (json_int_t) hf->n_excluded_points,
+                         "plane_no_consensus", (hf->flags & IMP_HF_PLANE_NO_CONSENSUS) != 0);
 }
 
-int imp_heightfield_save(const struct imp_heightfield *hf, const char *copy_dir, struct imp_error *err) {
+int imp_heightfield_write_exr(const struct imp_heightfield *hf, const char *copy_dir, struct imp_error *err) {
         if (!hf || !copy_dir || hf->nx <= 0 || hf->ny <= 0)
                 return imp_error_set(err, -EINVAL, "heightfield save: bad arguments");
         int r = imp_mkdir_p(copy_dir, 0755);
         if (r < 0)
                 return imp_error_set(err, r, "%s: cannot create directory: %s", copy_dir, strerror(-r));
         _cleanup_image_ struct imp_image *img = NULL;
-        if ((r = imp_image_new(hf->nx, hf->ny, 5, IMP_PIX_F32, &img)) < 0)
+        if ((r = imp_image_new(hf->nx, hf->ny, 7, IMP_PIX_F32, &img)) < 0)
                 return imp_error_set(err, r, "heightfield %dx%d: cannot allocate: %s", hf->nx, hf->ny, strerror(-r));
         for (int j = 0; j < hf->ny; j++)
                 for (int i = 0; i < hf->nx; i++) {
@@ -985,13 +1362,20 @@ int imp_heightfield_save(const struct imp_heightfield *hf, const char *copy_dir,
                         p[2] = hf->ny_[t];
                         p[3] = hf->sigma_mm[t];
                         p[4] = hf->mask[t];
+                        p[5] = hf->texel_flags ? hf->texel_flags[t] : 0;
+                        p[6] = hf->sigma_n_deg ? hf->sigma_n_deg[t] : 0;
                 }
-        static const char *const names[] = { "height", "nx", "ny", "sigma", "mask" };
+        static const char *const names[] = { "height", "nx", "ny", "sigma", "mask", "flags", "sigma_n_deg" };
         char path[4096];
         snprintf(path, sizeof path, "%s/heightfield.exr", copy_dir);
-        if ((r = imp_exr_write(path, img, names, false, err)) < 0)
-                return r;
+        return imp_exr_write(path, img, names, false, err);
+}
 
+int imp_heightfield_save(const struct imp_heightfield *hf, const char *copy_dir, struct imp_error *err) {
+        int r = imp_heightfield_write_exr(hf, copy_dir, err);
+        if (r < 0)
+                return r;
+        char path[4096];
         snprintf(path, sizeof path, "%s/copy.json", copy_dir);
         _cleanup_json_ json_t *j = NULL;
         struct stat st;

@@ -1,5 +1,7 @@
-/* Canvas extraction and heightfield (seed §4.2, §5): range image → PCA plane → Sobel of
- * the height → seed fill from the image centre stopped at high gradient → erosion → PCA on
+/* Canvas extraction and heightfield (seed §4.2, §5): range image → robust canvas plane
+ * (RANSAC, then PCA on its inliers, checked against the rig's canvas pose; the seed's first PCA
+ * over every point is pulled off the canvas by deep frames, oblique walls and outliers)
+ * → points far off that plane excluded (frame tops, walls) → Sobel of the height → seed fill from the image centre stopped at high gradient → erosion → PCA on
  * the canvas points → resampling onto a regular grid in the canvas frame by rasterising
  * the range-image mesh (no invented surface across holes) → normals averaged over the
  * 8-neighbourhood triangles. Library code: no logging.
@@ -66,6 +68,22 @@ struct imp_heightfield_options {
          * shape has to come from normals (imp_fuse_heights with mask value 2). 0: off
          * (default; imp_process turns it on when photometric normals and fusion run). */
         int shadow_fill_px;
+        /* Placement (robust plane and its checks). The canvas lies near the plane through
+         * the rig's world origin with normal expected_normal (world = canvas frame in
+         * rig.json: +z out of the paint); the camera looks at it from the front. */
+        double expected_normal[3];    /* unit; default (0, 0, 1) */
+        double max_tilt_deg;          /* refuse a canvas plane tilted more than this from
+                                         expected_normal; default 40 */
+        double max_view_deg;          /* refuse a canvas seen more obliquely than this (angle
+                                         between its normal and the ray to the camera);
+                                         default 75 */
+        double plane_tol_mm;          /* RANSAC inlier band about the plane; default 0.5 */
+        double relief_max_mm;         /* points farther than this from the robust plane are
+                                         never canvas (frame tops, walls): they stop the fill;
+                                         default 3 */
+        double min_canvas_frac;       /* refuse when the canvas holds fewer than this
+                                         fraction of the valid range points; default 0.02 */
+        size_t min_canvas_points;     /* ... or fewer than this many; default 200 */
 };
 void imp_heightfield_options_default(struct imp_heightfield_options *opt);
 
@@ -79,6 +97,8 @@ enum {
         IMP_HF_STEP_RAISED  = 1 << 2, /* the seed fill reached fewer than 5 % of the valid
                                          points: step_min was doubled until it spread (a
                                          Gray-only staircase), or the slope barrier dropped */
+        IMP_HF_PLANE_NO_CONSENSUS = 1 << 3, /* every RANSAC hypothesis was degenerate (points
+                                         on a line): the first PCA plane was used */
 };
 
 /* Mask values. */
@@ -94,6 +114,11 @@ struct imp_heightfield {
         float *nx_, *ny_;             /* normal x, y in the canvas frame; 0 where mask = 0 */
         float *sigma_mm;              /* height σ (range σ projected on the normal); 0 off mask */
         uint8_t *mask;                /* 0 off the canvas; IMP_HF_MASK_MEASURED; IMP_HF_MASK_FILLED */
+        uint16_t *texel_flags;        /* IMP_TEXEL_* bits (quality.h); 0 off the mask */
+        float *sigma_n_deg;           /* normal σ, degrees (rms angle): range noise over the
+                                         footprint and the spread of the mesh normals around
+                                         the vertex (detail the footprint cannot resolve);
+                                         0 off the mask */
         double canvas_to_world[16];   /* row-major 4×4 */
         /* figures */
         size_t n_range_points, n_canvas_points, n_mask_texels;
@@ -103,13 +128,23 @@ struct imp_heightfield {
         double plane_rms_mm;          /* rms height about the canvas plane */
         double gradient_threshold_mm; /* the Sobel threshold that was used */
         double footprint_mm;          /* median neighbour distance */
+        double plane_tilt_deg;        /* canvas normal to the rig's expected normal */
+        double plane_view_deg;        /* canvas normal to the ray to the camera */
+        double ransac_inlier_frac;    /* valid points within plane_tol_mm of the robust plane */
+        size_t n_excluded_points;     /* valid points beyond relief_max_mm (frame, walls) */
         unsigned flags;               /* IMP_HF_* */
 };
 
 /* Builds the heightfield. Returns 0; -EINVAL on bad arguments; -ENODATA when fewer than 3
- * valid points, no usable seed or an empty canvas (the data cannot determine a canvas);
+ * valid points, no usable seed or an empty canvas (the data cannot determine a canvas), or
+ * the placement is not plausible (canvas plane more than max_tilt_deg off the rig's canvas
+ * normal, seen more obliquely than max_view_deg, fewer canvas points than
+ * min_canvas_frac / min_canvas_points): then err (may be NULL) names the cause;
  * -E2BIG when the grid would exceed 2^28 texels; -ENOMEM. On success the caller frees
  * *ret with imp_heightfield_done(); on failure *ret is untouched. */
+int imp_heightfield_extract(const struct imp_range_image *range, const struct imp_heightfield_options *opt,
+                            struct imp_heightfield *ret, struct imp_error *err);
+/* The same without the message. */
 int imp_heightfield_from_range(const struct imp_range_image *range,
                                const struct imp_heightfield_options *opt, struct imp_heightfield *ret);
 void imp_heightfield_done(struct imp_heightfield *hf);   /* frees members; accepts zeroed */
@@ -122,11 +157,23 @@ json_t *imp_heightfield_stage_json(const struct imp_heightfield *hf);
  * filled ones; their values are zeroed. Updates n_mask_texels, n_filled_texels. */
 void imp_heightfield_drop_filled(struct imp_heightfield *hf, const uint8_t *drop);
 
-/* Writes COPY_DIR/heightfield.exr (float channels height, nx, ny, sigma, mask; mask holds
- * the IMP_HF_MASK_* value: 1 measured, 2 filled from the normals, with a larger sigma) and
- * creates or updates COPY_DIR/copy.json (units, pitch_mm, nx, ny, canvas_to_world,
- * provenance {} kept, stages.heightfield). Creates COPY_DIR. */
+/* Writes COPY_DIR/heightfield.exr (float channels height, nx, ny, sigma, mask, flags,
+ * sigma_n_deg; mask holds the IMP_HF_MASK_* value: 1 measured, 2 filled from the normals,
+ * with a larger sigma; flags the IMP_TEXEL_* bits, exact in float) and creates or updates
+ * COPY_DIR/copy.json (units, pitch_mm, nx, ny, canvas_to_world, provenance {} kept,
+ * stages.heightfield). Creates COPY_DIR. */
 int imp_heightfield_save(const struct imp_heightfield *hf, const char *copy_dir, struct imp_error *err);
+/* Only heightfield.exr (no copy.json). */
+int imp_heightfield_write_exr(const struct imp_heightfield *hf, const char *copy_dir, struct imp_error *err);
+
+/* The flags that follow from the heightfield itself, derived again from its current
+ * state (a stage that changes the mask or σ_n calls it): IMP_TEXEL_FRAME_ADJACENT on the
+ * mask texels within `px` texels (8-neighbour steps) of the mask's outer edge (holes
+ * inside the canvas do not count), IMP_TEXEL_FILLED on the IMP_HF_MASK_FILLED ones,
+ * IMP_TEXEL_NORMAL_UNCERTAIN where sigma_n_deg > IMP_TEXEL_NORMAL_SIGMA_MAX_DEG; the other
+ * bits are kept; every flag is cleared off the mask. -ENOMEM. */
+int imp_heightfield_flag_edges(struct imp_heightfield *hf, int px);
+#define IMP_HF_FRAME_ADJACENT_PX 3    /* texels from the mask's outer edge flagged */
 
 /* Symmetric 3×3 eigen-decomposition (Jacobi): eigenvalues ascending in ret_val, unit
  * eigenvectors as rows of ret_vec. Shared with compare.c and tests. */

@@ -72,6 +72,7 @@ void imp_sl_params_default(struct imp_sl_params *p, enum imp_pixel_type type) {
                 .saturation = 0.0,
                 .min_modulation = 5 * scale,
                 .max_disagreement_px = 2.0,
+                .phase_margin_px = 0.5,
                 .dg_planes = 4,
                 .robust = true,
         };
@@ -161,6 +162,12 @@ static int check_images(const struct imp_sl_frames *in, struct plan *pl, struct 
                 }
                 if (im->stride < (size_t) im->width * imp_pixel_type_size(im->type))
                         return imp_error_set(err, -EINVAL, "structured light: frame %d: stride too small", i);
+                const struct imp_image *m = in->saturated ? in->saturated[i] : NULL;
+                if (m && (!m->data || m->type != IMP_PIX_U8 || m->channels != 1 ||
+                          m->width != im->width || m->height != im->height))
+                        return imp_error_set(err, -EINVAL, "structured light: frame %d: saturation "
+                                             "mask is not a 1-channel u8 image of %dx%d", i,
+                                             im->width, im->height);
         }
         return 0;
 }
@@ -259,16 +266,13 @@ static bool build_response(struct phase_group *g, double gamma, double sigma_px)
         return true;
 }
 
-static int build_plan(const struct imp_sl_frames *in, const struct imp_sl_params *p,
-                      struct plan *pl, struct imp_error *err) {
-        int r = check_images(in, pl, err);
-        if (r < 0)
-                return r;
+/* Sorts the frames into the plan: white, black, Gray planes (and inverses) per axis,
+ * phase groups. Frames of other kinds are ignored. */
+static int collect_frames(const struct imp_sl_frames *in, struct plan *pl, struct imp_error *err) {
         pl->white = pl->black = -1;
         for (int a = 0; a < 2; a++)
                 for (int k = 0; k < MAX_BITS; k++)
                         pl->ax[a].p[k] = pl->ax[a].q[k] = -1;
-
         for (int i = 0; i < in->n; i++) {
                 const struct imp_pattern *pt = &in->patterns[i];
                 if (pt->kind == IMP_PAT_WHITE || pt->kind == IMP_PAT_BLACK) {
@@ -287,7 +291,7 @@ static int build_plan(const struct imp_sl_frames *in, const struct imp_sl_params
                                              "expected 0 or 1", i, pt->axis);
                 struct axis_plan *ax = &pl->ax[pt->axis];
                 if (pt->kind == IMP_PAT_PHASE) {
-                        r = add_phase(ax, pt, i, err);
+                        int r = add_phase(ax, pt, i, err);
                         if (r < 0)
                                 return r;
                         continue;
@@ -308,76 +312,101 @@ static int build_plan(const struct imp_sl_frames *in, const struct imp_sl_params
                                              pt->bit, pt->inverse ? ", inverse" : "");
                 *slot = i;
         }
+        return 0;
+}
 
+/* The Gray planes of axis a: which are present (the finest may be left out when phase
+ * frames resolve the stripes), inverses all or none, the code's quantum and extent. */
+static int plan_gray_axis(const struct imp_sl_params *p, struct plan *pl, int a, struct imp_error *err) {
+        struct axis_plan *ax = &pl->ax[a];
+        int full = ax->nbits, m = 0;
+        while (m < full && (ax->p[m] >= 0 || ax->q[m] >= 0))
+                m++;
+        for (int k = m; k < full; k++)
+                if (ax->p[k] >= 0 || ax->q[k] >= 0 || !ax->nphase)
+                        return imp_error_set(err, -EINVAL, "structured light: axis %d: Gray "
+                                             "bit %d of %d missing%s", a, m, full,
+                                             ax->nphase ? "" : " (only phase frames can "
+                                             "stand in for the finest planes)");
+        ax->nbits = m;
+        ax->shift = full - m;
+        ax->quantum = (float) (1 << ax->shift);
+        int nq = 0;
+        for (int k = 0; k < ax->nbits; k++) {
+                if (ax->p[k] < 0)
+                        return imp_error_set(err, -EINVAL, "structured light: axis %d: Gray "
+                                             "bit %d of %d missing", a, k, full);
+                nq += ax->q[k] >= 0;
+        }
+        if (nq && nq != ax->nbits)
+                return imp_error_set(err, -EINVAL, "structured light: axis %d: %d of %d Gray "
+                                     "planes have inverses (all or none)", a, nq, ax->nbits);
+        ax->inverse = ax->nbits > 0 && nq == ax->nbits;
+        if (ax->nbits && !ax->inverse && (pl->white < 0 || pl->black < 0))
+                return imp_error_set(err, -EINVAL, "structured light: axis %d: Gray planes "
+                                     "without inverses need white and black frames", a);
+        int want = a == 0 ? p->proj_width : p->proj_height;
+        ax->extent = want > 0 ? want : full ? 1 << full : 0;
+        ax->ncodes = (ax->extent + (1 << ax->shift) - 1) >> ax->shift;
+        if (full && want > 0 && imp_sl_gray_bits(want) > full)
+                return imp_error_set(err, -EINVAL, "structured light: axis %d: %d Gray bits "
+                                     "cannot code %d projector pixels", a, full, want);
+        return 0;
+}
+
+/* The phase groups of axis a: coarsest first, complete, with their response tables, and
+ * able to unwrap against the Gray stripes (or to stand alone). */
+static int plan_phase_axis(const struct imp_sl_params *p, struct axis_plan *ax, int a,
+                           struct imp_error *err) {
+        qsort(ax->ph, ax->nphase, sizeof ax->ph[0], cmp_period_desc);
+        /* Nearest-period unwrapping against a stripe centre is off by up to half a
+         * stripe: a stripe of at most half the coarsest period leaves a quarter
+         * period for the phase's own error. */
+        if (ax->shift && !(ax->ph[0].period_px >= 2 * ax->quantum))
+                return imp_error_set(err, -EINVAL, "structured light: axis %d: Gray code "
+                                     "without its %d finest planes (stripes of %g px) needs a "
+                                     "phase period ≥ %g px, got %g", a, ax->shift,
+                                     ax->quantum, 2 * ax->quantum, ax->ph[0].period_px);
+        for (int j = 0; j < ax->nphase; j++) {
+                struct phase_group *g = &ax->ph[j];
+                for (int s = 0; s < g->steps; s++) {
+                        if (g->idx[s] < 0)
+                                return imp_error_set(err, -EINVAL, "structured light: axis %d "
+                                                     "period %g: phase step %d of %d missing",
+                                                     a, g->period_px, s, g->steps);
+                        g->cosd[s] = (float) cos(2 * M_PI * s / g->steps);
+                        g->sind[s] = (float) sin(2 * M_PI * s / g->steps);
+                }
+                g->corr_on = p->projector_gamma > 0 && p->projector_gamma != 1 &&
+                             build_response(g, p->projector_gamma,
+                                            fmax(p->projector_defocus_px, 0));
+        }
+        if (ax->nphase && !ax->nbits) {
+                if (ax->extent <= 0)
+                        return imp_error_set(err, -EINVAL, "structured light: axis %d: phase "
+                                             "without Gray code needs the projector size", a);
+                if (ax->ph[0].period_px < ax->extent)
+                        return imp_error_set(err, -EINVAL, "structured light: axis %d: phase "
+                                             "without Gray code needs a period ≥ %d px",
+                                             a, ax->extent);
+        }
+        return 0;
+}
+
+static int build_plan(const struct imp_sl_frames *in, const struct imp_sl_params *p,
+                      struct plan *pl, struct imp_error *err) {
+        int r = check_images(in, pl, err);
+        if (r < 0)
+                return r;
+        r = collect_frames(in, pl, err);
+        if (r < 0)
+                return r;
         bool any = false;
         for (int a = 0; a < 2; a++) {
-                struct axis_plan *ax = &pl->ax[a];
-                /* The finest planes may be left out when phase frames resolve the stripes. */
-                int full = ax->nbits, m = 0;
-                while (m < full && (ax->p[m] >= 0 || ax->q[m] >= 0))
-                        m++;
-                for (int k = m; k < full; k++)
-                        if (ax->p[k] >= 0 || ax->q[k] >= 0 || !ax->nphase)
-                                return imp_error_set(err, -EINVAL, "structured light: axis %d: Gray "
-                                                     "bit %d of %d missing%s", a, m, full,
-                                                     ax->nphase ? "" : " (only phase frames can "
-                                                     "stand in for the finest planes)");
-                ax->nbits = m;
-                ax->shift = full - m;
-                ax->quantum = (float) (1 << ax->shift);
-                int nq = 0;
-                for (int k = 0; k < ax->nbits; k++) {
-                        if (ax->p[k] < 0)
-                                return imp_error_set(err, -EINVAL, "structured light: axis %d: Gray "
-                                                     "bit %d of %d missing", a, k, full);
-                        nq += ax->q[k] >= 0;
-                }
-                if (nq && nq != ax->nbits)
-                        return imp_error_set(err, -EINVAL, "structured light: axis %d: %d of %d Gray "
-                                             "planes have inverses (all or none)", a, nq, ax->nbits);
-                ax->inverse = ax->nbits > 0 && nq == ax->nbits;
-                if (ax->nbits && !ax->inverse && (pl->white < 0 || pl->black < 0))
-                        return imp_error_set(err, -EINVAL, "structured light: axis %d: Gray planes "
-                                             "without inverses need white and black frames", a);
-                int want = a == 0 ? p->proj_width : p->proj_height;
-                ax->extent = want > 0 ? want : full ? 1 << full : 0;
-                ax->ncodes = (ax->extent + (1 << ax->shift) - 1) >> ax->shift;
-                if (full && want > 0 && imp_sl_gray_bits(want) > full)
-                        return imp_error_set(err, -EINVAL, "structured light: axis %d: %d Gray bits "
-                                             "cannot code %d projector pixels", a, full, want);
-                qsort(ax->ph, ax->nphase, sizeof ax->ph[0], cmp_period_desc);
-                /* Nearest-period unwrapping against a stripe centre is off by up to half a
-                 * stripe: a stripe of at most half the coarsest period leaves a quarter
-                 * period for the phase's own error. */
-                if (ax->shift && !(ax->ph[0].period_px >= 2 * ax->quantum))
-                        return imp_error_set(err, -EINVAL, "structured light: axis %d: Gray code "
-                                             "without its %d finest planes (stripes of %g px) needs a "
-                                             "phase period ≥ %g px, got %g", a, ax->shift,
-                                             ax->quantum, 2 * ax->quantum, ax->ph[0].period_px);
-                for (int j = 0; j < ax->nphase; j++) {
-                        struct phase_group *g = &ax->ph[j];
-                        for (int s = 0; s < g->steps; s++) {
-                                if (g->idx[s] < 0)
-                                        return imp_error_set(err, -EINVAL, "structured light: axis %d "
-                                                             "period %g: phase step %d of %d missing",
-                                                             a, g->period_px, s, g->steps);
-                                g->cosd[s] = (float) cos(2 * M_PI * s / g->steps);
-                                g->sind[s] = (float) sin(2 * M_PI * s / g->steps);
-                        }
-                        g->corr_on = p->projector_gamma > 0 && p->projector_gamma != 1 &&
-                                     build_response(g, p->projector_gamma,
-                                                    fmax(p->projector_defocus_px, 0));
-                }
-                if (ax->nphase && !ax->nbits) {
-                        if (ax->extent <= 0)
-                                return imp_error_set(err, -EINVAL, "structured light: axis %d: phase "
-                                                     "without Gray code needs the projector size", a);
-                        if (ax->ph[0].period_px < ax->extent)
-                                return imp_error_set(err, -EINVAL, "structured light: axis %d: phase "
-                                                     "without Gray code needs a period ≥ %d px",
-                                                     a, ax->extent);
-                }
-                any |= ax->nbits > 0 || ax->nphase > 0;
+                if ((r = plan_gray_axis(p, pl, a, err)) < 0 ||
+                    (r = plan_phase_axis(p, &pl->ax[a], a, err)) < 0)
+                        return r;
+                any |= pl->ax[a].nbits > 0 || pl->ax[a].nphase > 0;
         }
         if (!any)
                 return imp_error_set(err, -EINVAL, "structured light: no Gray or phase frames");
@@ -440,7 +469,14 @@ static void load_row(const struct imp_image *im, int y, float *restrict dst, int
 
 enum { R_WHITE, R_BLACK, R_LMAX, R_LMIN, R_LD, R_LG, R_P, R_Q, R_HI, R_S, R_C, R_A,
        R_CMIN0, R_CMIN1, R_CODE0, R_CODE1, R_CUR0, R_CUR1, R_WEAK0, R_WEAK1,
-       R_POS0, R_POS1, R_MOD0, R_MOD1, R_PCONF0, R_PCONF1, R_NROWS };
+       R_POS0, R_POS1, R_MOD0, R_MOD1, R_PCONF0, R_PCONF1, R_SATM, R_DIS0, R_DIS1, R_NROWS };
+
+/* Bits of the R_SATM row (saturation masks of imp_sl_frames.saturated). */
+enum { SATM_ANY = 1u << 0, SATM_PHASE0 = 1u << 1, SATM_PHASE1 = 1u << 2 };
+/* Bits of the R_PCONF rows (phase status per axis). */
+enum { PST_LOW_MOD = 1u << 0, PST_DISAGREE = 1u << 1, PST_OUTSIDE_CELL = 1u << 2 };
+#define INV_SQRT12 0.28867513f   /* σ of a uniform position in a cell of 1 */
+#define WEAK_SIGMA 0.57735027f   /* √(1/12 + 1/4): a weak bit may put the code one off */
 
 struct ctx {
         const struct imp_sl_frames *in;
@@ -764,6 +800,7 @@ static void combine_gray_row(const struct ctx *c, int y, float **R, int w, size_
         float *restrict ox = c->res->proj_x + off, *restrict oy = c->res->proj_y + off;
         float *restrict oc = c->res->confidence + off, *restrict od = c->res->direct + off;
         float *restrict og = c->res->global + off, *restrict om = c->res->modulation + off;
+        float *restrict os = c->res->sigma_px + off;
         uint16_t *restrict of = c->res->flags + off;
         const float *restrict wr = R[R_WHITE], *restrict br = R[R_BLACK], *restrict hi = R[R_HI];
         const float *restrict ld = R[R_LD], *restrict lg = R[R_LG];
@@ -808,6 +845,10 @@ static void combine_gray_row(const struct ctx *c, int y, float **R, int w, size_
                 ox[x] = ok0 ? ((float) (int32_t) cd0[x] + 0.5f) * q0 : IMP_SL_INVALID_COORD;
                 oy[x] = ok1 ? ((float) (int32_t) cd1[x] + 0.5f) * q1 : IMP_SL_INVALID_COORD;
                 oc[x] = ok0 | ok1 ? conf : 0.0f;
+                /* Gray centres: q/√12, √(1/12 + 1/4)·q with a weak bit (one code off). */
+                float s0 = ok0 ? (wb0 ? WEAK_SIGMA : INV_SQRT12) * q0 : 0.0f;
+                float s1 = ok1 ? (wb1 ? WEAK_SIGMA : INV_SQRT12) * q1 : 0.0f;
+                os[x] = MAXF(s0, s1);
                 of[x] = (uint16_t) f;
                 od[x] = isfinite(ld[x]) ? ld[x] : 0.0f;
                 og[x] = isfinite(lg[x]) ? lg[x] : 0.0f;
@@ -828,8 +869,10 @@ static void combine_gray_row(const struct ctx *c, int y, float **R, int w, size_
 }
 
 /* The phase's disagreement with the Gray code on one row: Σ (u/q − (code + ½))² (q the
- * code's quantum) and its count per axis, over pixels refined by phase whose Gray bits
- * were all decided. */
+ * code's quantum) and its count per axis, over valid pixels refined by phase whose Gray
+ * bits were all decided. Pixels whose phase left its cell are rejected one by one and do
+ * not count: a band of them (a reflection, a clipped patch) must not condemn the phase of
+ * the whole axis; a phase that is poor everywhere still shows within the cells. */
 static void phase_stats_row(const struct ctx *c, int y, float **R, double st[4]) {
         const struct imp_sl_result *res = c->res;
         const size_t off = (size_t) y * res->width;
@@ -839,11 +882,13 @@ static void phase_stats_row(const struct ctx *c, int y, float **R, double st[4])
                         continue;
                 const uint32_t *code = (const uint32_t *) R[R_CODE0 + a];
                 const uint32_t *weak = (const uint32_t *) R[R_WEAK0 + a];
-                const float *pos = (a == 0 ? res->proj_x : res->proj_y) + off;
-                const uint16_t need = a == 0 ? IMP_SL_SUBPIXEL_X : IMP_SL_SUBPIXEL_Y;
+                const uint32_t *pst = (const uint32_t *) R[R_PCONF0 + a];
+                const float *pos = R[R_POS0 + a];
+                const uint16_t need = a == 0 ? IMP_SL_VALID_X : IMP_SL_VALID_Y;
                 double s2 = 0, n = 0;
                 for (int x = 0; x < res->width; x++)
-                        if ((res->flags[off + x] & need) && !weak[x]) {
+                        if ((res->flags[off + x] & need) && !weak[x] &&
+                            !(pst[x] & (PST_LOW_MOD | PST_DISAGREE | PST_OUTSIDE_CELL))) {
                                 double d = pos[x] / ax->quantum - ((double) code[x] + 0.5);
                                 s2 += d * d;
                                 n++;
@@ -853,25 +898,14 @@ static void phase_stats_row(const struct ctx *c, int y, float **R, double st[4])
         }
 }
 
-static void decode_row(const struct ctx *c, int y, float **R, size_t counts[8]) {
+/* Float path of the Gray code: white, black, L_d / L_g from the finest planes (Moreno &
+ * Taubin §3, after Nayar et al.: L_d = (L_max − L_min)/(1 − b), L_g = 2 (L_min − b L_max)/
+ * (1 − b²); L_g < 0, noise or an overestimated b, is clamped to 0), then each axis. */
+static void float_gray_row(const struct ctx *c, int y, float **R, int w) {
         const struct plan *pl = c->pl;
-        const struct imp_sl_params *p = c->p;
-        struct imp_sl_result *res = c->res;
-        const int w = pl->width;
-        const float b = c->b, sat = c->sat;
+        const float b = c->b;
         float *restrict lmax = R[R_LMAX], *restrict lmin = R[R_LMIN], *restrict pr = R[R_P];
         float *restrict ld = R[R_LD], *restrict lg = R[R_LG], *restrict hi = R[R_HI];
-        bool have_wb = pl->white >= 0 && pl->black >= 0;
-
-        if (c->int_path == IMP_PIX_U8) {
-                gray_int_u8(c, y, R, w);
-                goto phase;
-        }
-        if (c->int_path == IMP_PIX_U16) {
-                gray_int_u16(c, y, R, w);
-                goto phase;
-        }
-
         SIMD
         for (int x = 0; x < w; x++)
                 hi[x] = 0.0f;
@@ -883,10 +917,6 @@ static void decode_row(const struct ctx *c, int y, float **R, size_t counts[8]) 
         }
         if (pl->black >= 0)
                 load_row(c->in->images[pl->black], y, R[R_BLACK], w);
-
-        /* Direct and global light (Moreno & Taubin §3, after Nayar et al.):
-         * L_d = (L_max − L_min)/(1 − b), L_g = 2 (L_min − b L_max)/(1 − b²); L_g < 0 (noise or
-         * an overestimated b) is clamped to 0. */
         if (pl->ndg > 0) {
                 SIMD
                 for (int x = 0; x < w; x++) {
@@ -929,133 +959,209 @@ static void decode_row(const struct ctx *c, int y, float **R, size_t counts[8]) 
                         lmin[x] = R[R_A][x] - R[R_C][x];
                 }
         }
-
         for (int a = 0; a < 2; a++)
                 if (pl->ax[a].nbits)
                         decode_gray_axis(c, a, y, R, w);
+}
 
-phase:
-        if (!pl->ax[0].nphase && !pl->ax[1].nphase) {
-                combine_gray_row(c, y, R, w, counts);
+static void or_mask_row(const struct imp_image *m, int y, uint32_t bit, uint32_t *restrict dst, int w) {
+        if (!m)
                 return;
-        }
+        const uint8_t *restrict s = imp_image_row(m, y);
+        SIMD
+        for (int x = 0; x < w; x++)
+                dst[x] |= s[x] ? bit : 0u;
+}
 
-        /* Phase: unwrap each group, coarsest first, against the previous estimate (the Gray
-         * centre at first): k = round((ref − u_f)/P) is the period nearest to it, which
-         * also settles the ±1-period ambiguity where a code boundary meets a phase wrap. */
+/* The R_SATM row from the caller's saturation masks: SATM_ANY for any frame the decode
+ * reads, SATM_PHASE0/1 for the phase frames of each axis. False when there are none. */
+static bool saturation_row(const struct ctx *c, int y, float **R, int w) {
+        const struct imp_image *const *m = c->in->saturated;
+        if (!m)
+                return false;
+        const struct plan *pl = c->pl;
+        uint32_t *restrict sm = (uint32_t *) R[R_SATM];
+        SIMD
+        for (int x = 0; x < w; x++)
+                sm[x] = 0;
+        if (pl->white >= 0)
+                or_mask_row(m[pl->white], y, SATM_ANY, sm, w);
         for (int a = 0; a < 2; a++) {
                 const struct axis_plan *ax = &pl->ax[a];
-                float *restrict pos = R[R_POS0 + a], *restrict mod = R[R_MOD0 + a];
-                uint32_t *restrict pst = (uint32_t *) R[R_PCONF0 + a];  /* 0 ok, 1 low mod, 2 disagree */
-                const uint32_t *code = (const uint32_t *) R[R_CODE0 + a];
-                SIMD
-                for (int x = 0; x < w; x++) {
-                        pos[x] = ax->nbits ? ((float) code[x] + 0.5f) * ax->quantum : 0.0f;
-                        mod[x] = INFINITY;
-                        pst[x] = 0;
+                for (int k = 0; k < ax->nbits; k++) {
+                        or_mask_row(m[ax->p[k]], y, SATM_ANY, sm, w);
+                        if (ax->inverse)
+                                or_mask_row(m[ax->q[k]], y, SATM_ANY, sm, w);
                 }
-                for (int j = 0; j < ax->nphase; j++) {
-                        const struct phase_group *g = &ax->ph[j];
-                        phase_group_row(c, g, y, R, w);
-                        float P = (float) g->period_px;
-                        /* Later levels: the coarser phase is trusted to a quarter period
-                         * of this one (nearest-k alone guarantees half a period). */
-                        float tol = j == 0 ? (float) p->max_disagreement_px + (ax->quantum - 1) / 2
-                                           : maxf((float) p->max_disagreement_px, P / 4);
-                        bool absolute = j == 0 && !ax->nbits;   /* period covers the projector */
-                        const float *uf = R[R_S], *B = R[R_C], *ph_hi = R[R_Q];
-                        SIMD
-                        for (int x = 0; x < w; x++) {
-                                float u = uf[x];
-                                if (!absolute) {
-                                        float k = rintf((pos[x] - u) / P);
-                                        u += k * P;
-                                        if (fabsf(u - pos[x]) > tol)
-                                                pst[x] |= 2;
-                                }
-                                if (B[x] < (float) p->min_modulation || ph_hi[x] >= sat || !(B[x] >= 0))
-                                        pst[x] |= 1;
-                                mod[x] = minf(mod[x], B[x]);
-                                hi[x] = maxf(hi[x], ph_hi[x]);
-                                pos[x] = u;
-                        }
-                }
+                for (int j = 0; j < ax->nphase; j++)
+                        for (int s = 0; s < ax->ph[j].steps; s++)
+                                or_mask_row(m[ax->ph[j].idx[s]], y, SATM_ANY | (a ? SATM_PHASE1 : SATM_PHASE0),
+                                            sm, w);
         }
+        return true;
+}
 
-        /* Combine into flags, coordinates and confidence. */
-        size_t off = (size_t) y * w;
-        float minc_d = (float) p->min_direct;
+/* Phase of axis a: unwrap each group, coarsest first, against the previous estimate (the
+ * Gray centre at first): k = round((ref − u_f)/P) is the period nearest to it, which also
+ * settles the ±1-period ambiguity where a code boundary meets a phase wrap. Status per
+ * pixel in R_PCONF (PST_*); R_DIS: |phase − Gray centre| at the first level. */
+static void unwrap_phase_axis(const struct ctx *c, int a, int y, float **R, int w, bool have_satm) {
+        const struct imp_sl_params *p = c->p;
+        const struct axis_plan *ax = &c->pl->ax[a];
+        const float sat = c->sat;
+        float *restrict pos = R[R_POS0 + a], *restrict mod = R[R_MOD0 + a], *restrict hi = R[R_HI];
+        float *restrict dis = R[R_DIS0 + a];
+        uint32_t *restrict pst = (uint32_t *) R[R_PCONF0 + a];
+        const uint32_t *code = (const uint32_t *) R[R_CODE0 + a];
+        const uint32_t *weak = (const uint32_t *) R[R_WEAK0 + a];
+        const uint32_t *satm = (const uint32_t *) R[R_SATM];
+        const uint32_t satbit = have_satm ? (a ? SATM_PHASE1 : SATM_PHASE0) : 0;
         SIMD
         for (int x = 0; x < w; x++) {
+                pos[x] = ax->nbits ? ((float) code[x] + 0.5f) * ax->quantum : 0.0f;
+                mod[x] = INFINITY;
+                pst[x] = have_satm && (satm[x] & satbit) ? PST_LOW_MOD : 0;
+                dis[x] = 0.0f;
+        }
+        /* The Gray cell holds the true position: a phase farther than half a cell plus the
+         * margin (one code more where a bit was weak) contradicts it. */
+        const float cell = 0.5f * ax->quantum + (float) p->phase_margin_px;
+        for (int j = 0; j < ax->nphase; j++) {
+                const struct phase_group *g = &ax->ph[j];
+                phase_group_row(c, g, y, R, w);
+                float P = (float) g->period_px;
+                /* Later levels: the coarser phase is trusted to a quarter period
+                 * of this one (nearest-k alone guarantees half a period). */
+                float tol = j == 0 ? (float) p->max_disagreement_px + (ax->quantum - 1) / 2
+                                   : maxf((float) p->max_disagreement_px, P / 4);
+                bool absolute = j == 0 && !ax->nbits;   /* period covers the projector */
+                bool first = j == 0 && ax->nbits;
+                const float *uf = R[R_S], *B = R[R_C], *ph_hi = R[R_Q];
+                SIMD
+                for (int x = 0; x < w; x++) {
+                        float u = uf[x];
+                        if (!absolute) {
+                                float k = rintf((pos[x] - u) / P);
+                                u += k * P;
+                                float d = fabsf(u - pos[x]);
+                                if (d > tol)
+                                        pst[x] |= PST_DISAGREE;
+                                if (first && d > cell + (weak[x] ? ax->quantum : 0.0f)) {
+                                        pst[x] |= PST_OUTSIDE_CELL;
+                                        dis[x] = d;
+                                }
+                        }
+                        if (B[x] < (float) p->min_modulation || ph_hi[x] >= sat || !(B[x] >= 0))
+                                pst[x] |= PST_LOW_MOD;
+                        mod[x] = minf(mod[x], B[x]);
+                        hi[x] = maxf(hi[x], ph_hi[x]);
+                        pos[x] = u;
+                }
+        }
+}
+
+/* One axis of one pixel of the phase path: flags, position, confidence, σ. False when
+ * the axis is not valid there. */
+static bool combine_axis(const struct ctx *c, int a, int x, float **R, float span, bool shadow,
+                         uint32_t *f, float *ret_pos, float *ret_conf, float *ret_sigma, float *modv) {
+        const struct axis_plan *ax = &c->pl->ax[a];
+        bool ok = !shadow;
+        float ca = 1.0f, pos = R[R_POS0 + a][x], sig = 0.0f;
+        const float gray = ax->nbits ? ((float) ((uint32_t *) R[R_CODE0 + a])[x] + 0.5f) * ax->quantum : 0.0f;
+        float gsig = INV_SQRT12 * ax->quantum;
+        if (ax->nbits) {
+                uint32_t nweak = ((uint32_t *) R[R_WEAK0 + a])[x];
+                uint32_t code = ((uint32_t *) R[R_CODE0 + a])[x];
+                if (nweak > GRAY_WEAK_ALLOWED) {
+                        *f |= IMP_SL_UNDECODABLE;
+                        ok = false;
+                } else if (nweak) {
+                        *f |= IMP_SL_WEAK_BIT;
+                        ca = 0.5f;
+                        gsig = WEAK_SIGMA * ax->quantum;
+                }
+                if (code >= (uint32_t) ax->ncodes) {
+                        *f |= IMP_SL_OUT_OF_RANGE;
+                        ok = false;
+                }
+                ca *= span > 0 ? clamp01(R[R_CMIN0 + a][x] / span) : 0.0f;
+                sig = gsig;
+        }
+        if (ax->nphase) {
+                uint32_t st = ((uint32_t *) R[R_PCONF0 + a])[x];
+                *modv = minf(*modv, R[R_MOD0 + a][x]);
+                if (st & PST_LOW_MOD) {
+                        *f |= IMP_SL_LOW_MODULATION;
+                        if (!ax->nbits)
+                                ok = false;
+                        pos = gray;
+                } else if (st & PST_DISAGREE) {
+                        *f |= IMP_SL_DISAGREE;
+                        ok = false;
+                } else if (st & PST_OUTSIDE_CELL) {
+                        /* Gray and phase cannot both be right: the Gray centre, with a σ
+                         * that covers the phase's answer too. */
+                        if (ok)
+                                *f |= IMP_SL_PHASE_REJECTED;
+                        pos = gray;
+                        float d = R[R_DIS0 + a][x];
+                        sig = sqrtf(gsig * gsig + d * d);
+                } else {
+                        if (ok)
+                                *f |= a == 0 ? IMP_SL_SUBPIXEL_X : IMP_SL_SUBPIXEL_Y;
+                        ca = span > 0 ? clamp01(2 * R[R_MOD0 + a][x] / span) : 0.0f;
+                        sig = 0.0f;     /* raised to the axis's measured phase error later */
+                }
+        }
+        if (ok && !isfinite(pos))
+                ok = false;
+        if (ok && (c->rejected >> a & 1))
+                *f |= IMP_SL_PHASE_REJECTED;
+        *ret_pos = pos;
+        *ret_conf = ca;
+        *ret_sigma = sig;
+        return ok;
+}
+
+/* Flags, coordinates, confidence and σ of a row decoded with phase frames. */
+static void combine_phase_row(const struct ctx *c, int y, float **R, int w, bool have_satm,
+                              size_t counts[8]) {
+        const struct plan *pl = c->pl;
+        const struct imp_sl_params *p = c->p;
+        struct imp_sl_result *res = c->res;
+        const float *ld = R[R_LD], *lg = R[R_LG], *hi = R[R_HI];
+        const uint32_t *satm = (const uint32_t *) R[R_SATM];
+        const bool have_wb = pl->white >= 0 && pl->black >= 0;
+        const float minc_d = (float) p->min_direct;
+        size_t off = (size_t) y * w;
+        for (int x = 0; x < w; x++) {
                 uint32_t f = 0;
-                bool shadow = false;
-                if (have_wb && !(R[R_WHITE][x] - R[R_BLACK][x] > (float) p->shadow_threshold))
-                        shadow = true;
-                if (p->robust && !(ld[x] >= minc_d))
-                        shadow = true;
+                bool shadow = (have_wb && !(R[R_WHITE][x] - R[R_BLACK][x] > (float) p->shadow_threshold)) ||
+                              (p->robust && !(ld[x] >= minc_d));
                 if (shadow)
                         f |= IMP_SL_SHADOW;
-                if (hi[x] >= sat)
+                if (hi[x] >= c->sat || (have_satm && satm[x]))
                         f |= IMP_SL_SATURATED;
-                float span = ld[x] * (1 - b);                   /* = L_max − L_min */
+                float span = ld[x] * (1 - c->b);                /* = L_max − L_min */
                 float conf = 1.0f, out[2] = { IMP_SL_INVALID_COORD, IMP_SL_INVALID_COORD };
-                float modv = INFINITY;
+                float modv = INFINITY, sigma = 0.0f;
                 int nvalid = 0;
                 for (int a = 0; a < 2; a++) {
-                        const struct axis_plan *ax = &pl->ax[a];
-                        if (!ax->nbits && !ax->nphase)
+                        if (!pl->ax[a].nbits && !pl->ax[a].nphase)
                                 continue;
-                        bool ok = !shadow;
-                        float ca = 1.0f, pos = R[R_POS0 + a][x];
-                        if (ax->nbits) {
-                                uint32_t nweak = ((uint32_t *) R[R_WEAK0 + a])[x];
-                                uint32_t code = ((uint32_t *) R[R_CODE0 + a])[x];
-                                if (nweak > GRAY_WEAK_ALLOWED) {
-                                        f |= IMP_SL_UNDECODABLE;
-                                        ok = false;
-                                } else if (nweak) {
-                                        f |= IMP_SL_WEAK_BIT;
-                                        ca = 0.5f;
-                                }
-                                if (code >= (uint32_t) ax->ncodes) {
-                                        f |= IMP_SL_OUT_OF_RANGE;
-                                        ok = false;
-                                }
-                                ca *= span > 0 ? clamp01(R[R_CMIN0 + a][x] / span) : 0.0f;
-                        }
-                        if (ax->nphase) {
-                                uint32_t st = ((uint32_t *) R[R_PCONF0 + a])[x];
-                                float m = R[R_MOD0 + a][x];
-                                modv = minf(modv, m);
-                                if (st & 1) {
-                                        f |= IMP_SL_LOW_MODULATION;
-                                        if (!ax->nbits)
-                                                ok = false;
-                                        pos = ax->nbits ? ((float) ((uint32_t *) R[R_CODE0 + a])[x] + 0.5f) *
-                                                                  ax->quantum : 0;
-                                } else if (st & 2) {
-                                        f |= IMP_SL_DISAGREE;
-                                        ok = false;
-                                } else {
-                                        if (ok)
-                                                f |= a == 0 ? IMP_SL_SUBPIXEL_X : IMP_SL_SUBPIXEL_Y;
-                                        ca = span > 0 ? clamp01(2 * m / span) : 0.0f;
-                                }
-                        }
-                        if (ok && !isfinite(pos))
-                                ok = false;
-                        if (ok && (c->rejected >> a & 1))
-                                f |= IMP_SL_PHASE_REJECTED;
-                        if (ok) {
+                        float pos, ca, sa;
+                        if (combine_axis(c, a, x, R, span, shadow, &f, &pos, &ca, &sa, &modv)) {
                                 f |= a == 0 ? IMP_SL_VALID_X : IMP_SL_VALID_Y;
                                 out[a] = pos;
                                 conf = minf(conf, ca);
+                                sigma = maxf(sigma, sa);
                                 nvalid++;
                         }
                 }
                 res->proj_x[off + x] = out[0];
                 res->proj_y[off + x] = out[1];
                 res->confidence[off + x] = nvalid ? conf : 0.0f;
+                res->sigma_px[off + x] = nvalid ? sigma : 0.0f;
                 res->flags[off + x] = (uint16_t) f;
                 res->direct[off + x] = isfinite(ld[x]) ? ld[x] : 0.0f;
                 res->global[off + x] = isfinite(lg[x]) ? lg[x] : 0.0f;
@@ -1068,6 +1174,38 @@ phase:
                 counts[5] += !!(f & IMP_SL_WEAK_BIT);
                 counts[6] += !!(f & IMP_SL_DISAGREE);
         }
+}
+
+/* Saturation masks on a Gray-only row: the flag, and the counts it changes. */
+static void gray_row_saturation(const struct ctx *c, int y, float **R, int w, size_t counts[8]) {
+        const uint32_t *satm = (const uint32_t *) R[R_SATM];
+        uint16_t *f = c->res->flags + (size_t) y * w;
+        for (int x = 0; x < w; x++)
+                if (satm[x] && !(f[x] & IMP_SL_SATURATED)) {
+                        f[x] |= IMP_SL_SATURATED;
+                        counts[4]++;
+                }
+}
+
+static void decode_row(const struct ctx *c, int y, float **R, size_t counts[8]) {
+        const struct plan *pl = c->pl;
+        const int w = pl->width;
+        if (c->int_path == IMP_PIX_U8)
+                gray_int_u8(c, y, R, w);
+        else if (c->int_path == IMP_PIX_U16)
+                gray_int_u16(c, y, R, w);
+        else
+                float_gray_row(c, y, R, w);
+        bool have_satm = saturation_row(c, y, R, w);
+        if (!pl->ax[0].nphase && !pl->ax[1].nphase) {
+                combine_gray_row(c, y, R, w, counts);
+                if (have_satm)
+                        gray_row_saturation(c, y, R, w, counts);
+                return;
+        }
+        for (int a = 0; a < 2; a++)
+                unwrap_phase_axis(c, a, y, R, w, have_satm);
+        combine_phase_row(c, y, R, w, have_satm, counts);
 }
 
 /* ---- entry points ---------------------------------------------------------------------- */
@@ -1084,11 +1222,11 @@ static int result_new(int w, int h, struct imp_sl_result **ret) {
         _cleanup_free_ struct imp_sl_result *r = calloc(1, sizeof *r);
         if (!r)
                 return -ENOMEM;
-        /* 6 float maps + 1 u16 map; floats first keep alignment. The block is 26 bytes a
+        /* 7 float maps + 1 u16 map; floats first keep alignment. The block is 30 bytes a
          * pixel, written once: with 4 KiB pages, faulting it in costs about as much as the
          * Gray decoding itself, so it asks for transparent huge pages (a hint; ignored
          * where THP is off). */
-        size_t bytes = n * (6 * sizeof(float) + sizeof(uint16_t));
+        size_t bytes = n * (7 * sizeof(float) + sizeof(uint16_t));
         char *blk;
         if (bytes >= RESULT_HUGE_BYTES) {
                 size_t round = (bytes + RESULT_HUGE_BYTES - 1) & ~(size_t) (RESULT_HUGE_BYTES - 1);
@@ -1107,7 +1245,8 @@ static int result_new(int w, int h, struct imp_sl_result **ret) {
         r->direct = fl + 3 * n;
         r->global = fl + 4 * n;
         r->modulation = fl + 5 * n;
-        r->flags = (uint16_t *) (fl + 6 * n);
+        r->sigma_px = fl + 6 * n;
+        r->flags = (uint16_t *) (fl + 7 * n);
         r->width = w;
         r->height = h;
         *ret = TAKE_PTR(r);
@@ -1161,6 +1300,19 @@ static void decode_pass(const struct ctx *c, int nthreads, float *scratch, size_
         }
 }
 
+/* A phase-refined axis is as good as its measured error (phase_err_px), at best. */
+static void raise_phase_sigma(struct imp_sl_result *res) {
+        size_t n = (size_t) res->width * res->height;
+        const float e0 = fmaxf(res->phase_err_px[0], 0.0f), e1 = fmaxf(res->phase_err_px[1], 0.0f);
+        for (size_t i = 0; i < n; i++) {
+                uint16_t f = res->flags[i];
+                float s = res->sigma_px[i];
+                s = (f & IMP_SL_SUBPIXEL_X) && (f & IMP_SL_VALID_X) ? fmaxf(s, e0) : s;
+                s = (f & IMP_SL_SUBPIXEL_Y) && (f & IMP_SL_VALID_Y) ? fmaxf(s, e1) : s;
+                res->sigma_px[i] = s;
+        }
+}
+
 int imp_sl_decode(const struct imp_sl_frames *in, const struct imp_sl_params *p,
                   struct imp_sl_result **ret, struct imp_error *err) {
         if (!p || !ret)
@@ -1170,9 +1322,10 @@ int imp_sl_decode(const struct imp_sl_frames *in, const struct imp_sl_params *p,
                                      p->black_level);
         if (!isfinite(p->shadow_threshold) || !isfinite(p->min_bit_contrast) ||
             !isfinite(p->min_direct) || !isfinite(p->min_modulation) ||
-            !(p->max_disagreement_px > 0) || !isfinite(p->max_disagreement_px))
+            !(p->max_disagreement_px > 0) || !isfinite(p->max_disagreement_px) ||
+            !(p->phase_margin_px >= 0))
                 return imp_error_set(err, -EINVAL, "structured light: thresholds must be finite "
-                                     "(max_disagreement_px > 0)");
+                                     "(max_disagreement_px > 0, phase_margin_px ≥ 0)");
         struct plan *pl = calloc(1, sizeof *pl);
         if (!pl)
                 return -ENOMEM;
@@ -1233,6 +1386,7 @@ int imp_sl_decode(const struct imp_sl_frames *in, const struct imp_sl_params *p,
                 c.rejected = reject;
                 decode_pass(&c, nthreads, scratch, wpad, NULL);
         }
+        raise_phase_sigma(res);
         *ret = TAKE_PTR(res);
         return 0;
 }

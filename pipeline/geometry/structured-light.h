@@ -31,9 +31,13 @@ enum {
                                             than max_disagreement_px: axis invalid */
         IMP_SL_SUBPIXEL_X     = 1 << 9,  /* proj_x refined by phase */
         IMP_SL_SUBPIXEL_Y     = 1 << 10, /* proj_y refined by phase */
-        IMP_SL_PHASE_REJECTED = 1 << 11, /* the axis's phase disagreed with its Gray code
-                                            more than the Gray code's own quantisation
-                                            (imp_sl_result.phase_rejected): Gray centre */
+        IMP_SL_PHASE_REJECTED = 1 << 11, /* the Gray centre was kept instead of the phase:
+                                            the axis's phase as a whole disagreed with its
+                                            Gray code more than the code's quantisation
+                                            (imp_sl_result.phase_rejected), or this pixel's
+                                            phase lies outside its Gray cell by more than
+                                            phase_margin_px (sigma_px covers the
+                                            disagreement) */
 };
 
 /* Value written to proj_x / proj_y where the axis is not valid (finite, out of range). */
@@ -61,6 +65,13 @@ struct imp_sl_params {
         double projector_gamma;
         double projector_defocus_px;  /* Gaussian σ of the projector's blur, projector px,
                                          for the phase response (0: sharp) */
+        double phase_margin_px;       /* a pixel whose phase lies farther than q/2 + this
+                                         from its Gray centre (q the code's quantum; one
+                                         code more with a weak bit) but within
+                                         max_disagreement_px keeps the Gray centre and is
+                                         flagged IMP_SL_PHASE_REJECTED: Gray and phase
+                                         cannot both be right there. Default 0.5 px;
+                                         INFINITY: off */
         bool keep_phase;              /* false (default): an axis whose phase disagrees with
                                          its Gray code more than the code's quantisation
                                          falls back to the Gray centre; true: keep it */
@@ -74,11 +85,18 @@ void imp_sl_params_default(struct imp_sl_params *p, enum imp_pixel_type type);
 
 /* The frames of one camera view: patterns[i] was projected while images[i] was taken.
  * Images: 1 channel, all the same size and pixel type (u8, u16 or f32). Order is free.
- * Gray planes need their inverses, or else WHITE and BLACK frames (then p̄ = W + B − p). */
+ * Gray planes need their inverses, or else WHITE and BLACK frames (then p̄ = W + B − p).
+ * saturated (may be NULL, entries may be NULL): a u8 image per frame, same size, nonzero
+ * where the sample was clipped — what a value cannot say once an HDR merge has turned
+ * the frames into f32 (the merge's IMP_HDR_SATURATED; imp_hdr_saturated_mask()). A pixel
+ * saturated in any frame the decode reads is IMP_SL_SATURATED; saturation in a phase
+ * frame also sets IMP_SL_LOW_MODULATION (the clipped sinusoid's phase is biased: the
+ * Gray centre is kept, with its σ). */
 struct imp_sl_frames {
         const struct imp_pattern *patterns;
         const struct imp_image *const *images;
         int n;
+        const struct imp_image *const *saturated;
 };
 
 struct imp_sl_result {
@@ -89,6 +107,14 @@ struct imp_sl_result {
         uint16_t *flags;              /* IMP_SL_* */
         float *direct, *global;       /* L_d, L_g estimates (input units, ≥ 0) */
         float *modulation;            /* phase amplitude B (min over axes), 0 without phase */
+        /* 1σ of the decoded projector coordinate, projector px, the larger over the valid
+         * axes (0 where none is valid): what the decoder knows of its own error. A Gray
+         * centre: q/√12 (q the code's quantum), √(q²/12 + q²/4) with a weak bit (one code
+         * may be wrong); a phase rejected on this pixel: √(q²/12 + d²), d its
+         * disagreement with the Gray centre; a phase: phase_err_px of the axis where
+         * measured, else 0 (the caller's own model applies, e.g. imp_triangulate's
+         * sigma_proj_px / confidence, which takes the larger of the two). */
+        float *sigma_px;
         size_t n_valid_x, n_valid_y, n_valid_xy;
         size_t n_shadow, n_saturated, n_weak, n_disagree;
         /* Per axis (x, y), for axes with Gray code and phase: the phase's error RMS in

@@ -27,7 +27,7 @@ void imp_projector_coords_from_sl(const struct imp_sl_result *sl, struct imp_pro
         *ret = (struct imp_projector_coords) {
                 .width = sl->width, .height = sl->height,
                 .proj_x = sl->proj_x, .proj_y = sl->proj_y,
-                .sl_flags = sl->flags, .confidence = sl->confidence,
+                .sl_flags = sl->flags, .confidence = sl->confidence, .sigma_px = sl->sigma_px,
         };
 }
 
@@ -38,11 +38,13 @@ int imp_range_image_init(struct imp_range_image *r, int width, int height) {
         _cleanup_free_ float *xyz = calloc(n * 3, sizeof(float));
         _cleanup_free_ float *sig = calloc(n, sizeof(float));
         _cleanup_free_ uint8_t *val = calloc(n, 1);
-        if (!xyz || !sig || !val)
+        _cleanup_free_ uint16_t *fl = calloc(n, sizeof(uint16_t));
+        if (!xyz || !sig || !val || !fl)
                 return -ENOMEM;
         *r = (struct imp_range_image) {
                 .width = width, .height = height,
                 .xyz = TAKE_PTR(xyz), .sigma_mm = TAKE_PTR(sig), .valid = TAKE_PTR(val),
+                .flags = TAKE_PTR(fl),
         };
         return 0;
 }
@@ -53,6 +55,7 @@ void imp_range_image_done(struct imp_range_image *r) {
         free(r->xyz);
         free(r->sigma_mm);
         free(r->valid);
+        free(r->flags);
         *r = (struct imp_range_image) {};
 }
 
@@ -203,6 +206,12 @@ static bool refine_lambda(const struct imp_pinhole *proj, const double C[3], con
         return true;
 }
 
+/* What a point inherits from the decoder's flags. */
+static uint16_t texel_flags(uint16_t sl) {
+        return (uint16_t) ((sl & IMP_SL_SATURATED ? IMP_TEXEL_SATURATED : 0) |
+                           (sl & IMP_SL_PHASE_REJECTED ? IMP_TEXEL_PHASE_REJECTED : 0));
+}
+
 int imp_triangulate(const struct imp_pinhole *cam, const struct imp_pinhole *proj,
                     const struct imp_projector_coords *pc, const struct imp_triangulate_options *opt,
                     struct imp_range_image *ret) {
@@ -227,8 +236,9 @@ int imp_triangulate(const struct imp_pinhole *cam, const struct imp_pinhole *pro
         double cos_min = cos(opt->min_angle_rad);
         int w = pc->width, h = pc->height;
         size_t n_valid = 0;
+        double foot_sum = 0, inv_f = 1 / sqrt(cam->fx * cam->fy);
 
-        #pragma omp parallel for schedule(dynamic, 8) reduction(+:n_valid)
+        #pragma omp parallel for schedule(dynamic, 8) reduction(+:n_valid, foot_sum)
         for (int y = 0; y < h; y++)
                 for (int x = 0; x < w; x++) {
                         size_t i = (size_t) y * w + x;
@@ -259,16 +269,22 @@ int imp_triangulate(const struct imp_pinhole *cam, const struct imp_pinhole *pro
                         double lv = sqrt(dot3(v, v));
                         if (!(lv > 0) || fabs(dot3(v, d)) / lv > cos_min)
                                 continue;
-                        double sigma = opt->sigma_proj_px / fmin(conf, 1.0) / sqrt(jj);
+                        double sp = opt->sigma_proj_px / fmin(conf, 1.0);
+                        if (pc->sigma_px && pc->sigma_px[i] > sp)
+                                sp = pc->sigma_px[i];
+                        double sigma = sp / sqrt(jj);
                         if (!isfinite(sigma))
                                 continue;
                         for (int c = 0; c < 3; c++)
                                 r.xyz[3 * i + c] = (float) X[c];
                         r.sigma_mm[i] = (float) sigma;
                         r.valid[i] = axis < 0 ? IMP_RANGE_BOTH : axis == 0 ? IMP_RANGE_COLUMN : IMP_RANGE_ROW;
+                        r.flags[i] = texel_flags(pc->sl_flags ? pc->sl_flags[i] : 0);
+                        foot_sum += fabs(lam) * inv_f;
                         n_valid++;
                 }
         r.n_valid = n_valid;
+        r.footprint_mm = n_valid ? foot_sum / n_valid : 0;
         *ret = r;
         return 0;
 }

@@ -16,6 +16,7 @@
 #include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
+#include "quality.h"
 #include "rig.h"
 #include "structured-light.h"
 
@@ -29,12 +30,16 @@ struct imp_projector_coords {
         const uint16_t *sl_flags;     /* if not NULL: the decoder's IMP_SL_VALID_X / _Y bits
                                          decide validity (valid_x / valid_y ignored) */
         const float *confidence;      /* 0..1, may be NULL (= 1 everywhere) */
+        const float *sigma_px;        /* the decoder's own 1σ of the coordinate (projector px,
+                                         imp_sl_result.sigma_px), may be NULL (= 0) */
 };
 
 struct imp_triangulate_options {
         double sigma_proj_px;         /* σ of a projector coordinate at confidence 1; default 0.1 */
-        double min_confidence;        /* below: pixel invalid; σ_p = sigma_proj_px / confidence
-                                         otherwise; default 0.05 */
+        double min_confidence;        /* below: pixel invalid; otherwise σ_p = the larger of
+                                         sigma_proj_px / confidence and the decoder's
+                                         sigma_px (a Gray centre is not better than q/√12,
+                                         whatever its contrast); default 0.05 */
         double min_angle_rad;         /* smaller triangulation angle: invalid; default 2° */
         double proj_offset_px;        /* see above; default 0.5 */
         bool use_both;                /* both coordinates when both valid (default true); false:
@@ -58,7 +63,15 @@ struct imp_range_image {
         float *xyz;                   /* w·h·3, world mm; 0 where invalid */
         float *sigma_mm;              /* w·h, σ along the viewing ray, mm; 0 where invalid */
         uint8_t *valid;               /* w·h, IMP_RANGE_* */
+        /* w·h, per-texel flags (quality.h IMP_TEXEL_*) the decoder's flags imply for the
+         * point: SATURATED (a frame it read was clipped), PHASE_REJECTED (the Gray centre
+         * was kept; sigma_mm says how much worse that is); 0 where invalid. */
+        uint16_t *flags;
         double camera_centre_mm[3];   /* world position of the camera centre */
+        /* Mean camera footprint at the valid points, mm: ray length / √(fx·fy). Unlike the
+         * distance between neighbouring 3-D points it does not grow with range noise (a
+         * grid pitch from it stays put on a noisy scan). 0 when nothing is valid. */
+        double footprint_mm;
         size_t n_valid;
 };
 

@@ -3,7 +3,7 @@
 
 static const char *const flag_names[IMP_TEXEL_FLAG_COUNT] = {
         "saturated", "dark", "shadowed", "interreflection", "photometric_rejected",
-        "filled", "few_samples", "frame_adjacent", "phase_rejected", "fit_failed",
+        "filled", "few_samples", "frame_adjacent", "phase_rejected", "fit_failed", "normal_uncertain",
 };
 
 const char *imp_texel_flag_name(unsigned bit_index) {

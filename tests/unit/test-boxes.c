@@ -155,8 +155,38 @@ static void test_flat_and_errors(void) {
         imp_heightfield_done(&hf);
 }
 
+/* A flat canvas whose heights are only noise (0.4 µm, with σ saying so): no boxes. With
+ * the noise floor off (noise_k = 0, δ0 = delta_frac · H alone) the noise's extremes make
+ * boxes: the floor is what keeps them away. */
+static void test_flat_noise(void) {
+        struct imp_heightfield hf;
+        make_hf(&hf, true);
+        uint64_t rng = 3;
+        for (size_t t = 0; t < (size_t) NX * NY; t++) {
+                hf.height_mm[t] = (float) (0.0004 * test_nrand(&rng));
+                hf.sigma_mm[t] = 0.0004f;
+        }
+        struct imp_boxes b = {}, nofloor = {};
+        CHECK_OK(imp_boxes_classify(&hf, NULL, &b));
+        fprintf(stderr, "flat noisy canvas: H %.2f µm, δ0 %.2f µm (floor %.2f µm), %zu boxes\n",
+                b.H_mm * 1000, b.delta0_mm * 1000, b.delta0_floor_mm * 1000, b.n_boxes);
+        CHECK_INT_EQ(b.n_boxes, 0);
+        CHECK(b.below_noise);
+        CHECK_NEAR(b.delta0_floor_mm, 6 * 0.0004, 1e-7);
+        struct imp_boxes_options o;
+        imp_boxes_options_default(&o);
+        o.noise_k = 0;
+        CHECK_OK(imp_boxes_classify(&hf, &o, &nofloor));
+        fprintf(stderr, "without the floor: δ0 %.2f µm, %zu boxes\n", nofloor.delta0_mm * 1000, nofloor.n_boxes);
+        CHECK(nofloor.n_boxes > 0);
+        imp_boxes_done(&b);
+        imp_boxes_done(&nofloor);
+        imp_heightfield_done(&hf);
+}
+
 int main(void) {
         test_classify();
         test_flat_and_errors();
+        test_flat_noise();
         return TEST_DONE();
 }

@@ -4,6 +4,7 @@
 #include <stdlib.h>
 
 #include "btf.h"
+#include "quality.h"
 #include "unit/btf-synth.h"
 #include "unit/test.h"
 
@@ -91,6 +92,37 @@ static void test_matte_and_black(void) {
         check_finite(&t, "black + noise");
         CHECK(t.flags & IMP_BTF_MATTE);
         CHECK_LE(t.rho_d[0], 0.002);
+}
+
+/* Nothing non-physical passes silently: paint reflecting 1.6× the light (a wrong light
+ * intensity, a calibration slip) is fitted, finite, and flagged FIT_FAILED, which the
+ * copy's texel flags carry; the same paint at 0.5 is not flagged; a k bound ≤ 0 is refused. */
+static void test_non_physical(void) {
+        struct imp_lafortune ok = { .rho_d = { 0.5f, 0.5f, 0.5f }, .rho_s = { 0.1f, 0.1f, 0.1f },
+                                    .cx = -1, .cy = -1, .cz = 1, .k = 20 };
+        struct imp_lafortune bright = ok;
+        for (int c = 0; c < 3; c++)
+                bright.rho_d[c] = 1.6f;
+        uint64_t rng = 5;
+        const double P[3] = { 10, 20, 0 };
+        struct imp_btf_texel t;
+        int n = synth_samples(P, n_up, eye, dome, 48, &ok, 0.005, &rng, s);
+        CHECK_OK(imp_btf_fit_texel(s, n, &fp, &t));
+        check_finite(&t, "physical");
+        CHECK(!(t.flags & IMP_BTF_FIT_FAILED));
+        CHECK(!(imp_btf_texel_flags(t.flags) & IMP_TEXEL_FIT_FAILED));
+        n = synth_samples(P, n_up, eye, dome, 48, &bright, 0.005, &rng, s);
+        CHECK_OK(imp_btf_fit_texel(s, n, &fp, &t));
+        check_finite(&t, "ρd 1.6");
+        CHECK(t.rho_d[0] > 1.0f);
+        CHECK(t.flags & IMP_BTF_FIT_FAILED);
+        CHECK(imp_btf_texel_flags(t.flags) & IMP_TEXEL_FIT_FAILED);
+        CHECK_INT_EQ(imp_btf_texel_flags(IMP_BTF_MASKED | IMP_BTF_FIT_FAILED), 0);
+        struct imp_btf_fit_params bad = fp;
+        bad.k_min = 0;
+        CHECK_ERR(imp_btf_fit_texel(s, n, &bad, &t), -EINVAL);
+        bad.k_min = -1;
+        CHECK_ERR(imp_btf_fit_texel(s, n, &bad, &t), -EINVAL);
 }
 
 static void test_few(void) {
@@ -197,5 +229,6 @@ int main(void) {
         test_few();
         test_all_saturated();
         test_fill();
+        test_non_physical();
         return TEST_DONE();
 }

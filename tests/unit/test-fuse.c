@@ -69,7 +69,7 @@ int main(void) {
 
         /* Noise-free positions consistent with the normals: the answer is the input. */
         make(zt, z, nrm, 0, 0);
-        CHECK_OK(imp_fuse_heights(NX, NY, PITCH, z, nrm, NULL, NULL, &p, &st));
+        CHECK_OK(imp_fuse_heights(NX, NY, PITCH, z, nrm, NULL, NULL, &p, NULL, &st));
         CHECK_LE(rms_err(z, zt, NULL), 1e-6);
         CHECK_INT_EQ(st.n_texels, NX * NY);
         CHECK_INT_EQ(st.n_rows, (NX - 2) * NY + NX * (NY - 2));
@@ -79,7 +79,7 @@ int main(void) {
         make(zt, z0, nrm, 0, 42);
         memcpy(z, z0, sizeof z);
         double before = rms_err(z0, zt, NULL);
-        CHECK_OK(imp_fuse_heights(NX, NY, PITCH, z, nrm, NULL, NULL, &p, &st));
+        CHECK_OK(imp_fuse_heights(NX, NY, PITCH, z, nrm, NULL, NULL, &p, NULL, &st));
         double after = rms_err(z, zt, NULL);
         fprintf(stderr, "noisy positions: rms %.2f µm -> %.2f µm, %d iterations, agreement %.2f° -> %.2f°\n",
                 before * 1e3, after * 1e3, st.iterations, st.agree_deg_before, st.agree_deg_after);
@@ -95,7 +95,7 @@ int main(void) {
          * heights stay near the truth. */
         make(zt, z0, nrm, 0.01, 7);
         memcpy(z, z0, sizeof z);
-        CHECK_OK(imp_fuse_heights(NX, NY, PITCH, z, nrm, NULL, NULL, &p, &st));
+        CHECK_OK(imp_fuse_heights(NX, NY, PITCH, z, nrm, NULL, NULL, &p, NULL, &st));
         after = rms_err(z, zt, NULL);
         fprintf(stderr, "biased normals: rms %.2f µm\n", after * 1e3);
         CHECK_LE(after, 0.6 * NOISE_MM);
@@ -114,7 +114,7 @@ int main(void) {
         z[5 * NX + 5] = NAN;
         nrm[3 * (6 * NX + 6) + 2] = 0.1f;
         z[40 * NX + 40] = 123.0f;                 /* masked: must stay */
-        CHECK_OK(imp_fuse_heights(NX, NY, PITCH, z, nrm, sigma, mask, &p, &st));
+        CHECK_OK(imp_fuse_heights(NX, NY, PITCH, z, nrm, sigma, mask, &p, NULL, &st));
         CHECK_NEAR(z[40 * NX + 40], 123.0, 0);
         CHECK(isnan(z[5 * NX + 5]));
         long finite = 0;
@@ -126,10 +126,10 @@ int main(void) {
         CHECK_LE(after, 0.5 * NOISE_MM);
 
         /* Bad arguments. */
-        CHECK_ERR(imp_fuse_heights(0, NY, PITCH, z, nrm, NULL, NULL, &p, NULL), -EINVAL);
-        CHECK_ERR(imp_fuse_heights(NX, NY, 0, z, nrm, NULL, NULL, &p, NULL), -EINVAL);
-        CHECK_ERR(imp_fuse_heights(NX, NY, PITCH, z, NULL, NULL, NULL, &p, NULL), -EINVAL);
+        CHECK_ERR(imp_fuse_heights(0, NY, PITCH, z, nrm, NULL, NULL, &p, NULL, NULL), -EINVAL);
+        CHECK_ERR(imp_fuse_heights(NX, NY, 0, z, nrm, NULL, NULL, &p, NULL, NULL), -EINVAL);
+        CHECK_ERR(imp_fuse_heights(NX, NY, PITCH, z, NULL, NULL, NULL, &p, NULL, NULL), -EINVAL);
         p.lambda = 0;
-        CHECK_ERR(imp_fuse_heights(NX, NY, PITCH, z, nrm, NULL, NULL, &p, NULL), -EINVAL);
+        CHECK_ERR(imp_fuse_heights(NX, NY, PITCH, z, nrm, NULL, NULL, &p, NULL, NULL), -EINVAL);
         return TEST_DONE();
 }

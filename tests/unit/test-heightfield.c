@@ -8,6 +8,7 @@
 #include <string.h>
 #include "compare.h"
 #include "heightfield.h"
+#include "quality.h"
 #include "image.h"
 #include "json-util.h"
 #include "unit/test.h"
@@ -198,9 +199,25 @@ static void test_save_and_compare(void) {
         CHECK_OK(imp_exr_read(path, &img, &names, &err));
         if (img) {
                 CHECK_INT_EQ(img->width, hf.nx);
-                CHECK_INT_EQ(img->channels, 5);
+                CHECK_INT_EQ(img->channels, 7);
                 CHECK_INT_EQ(imp_image_channel_index(names, "sigma") >= 0, 1);
                 CHECK_INT_EQ(imp_image_channel_index(names, "mask") >= 0, 1);
+                int cf = imp_image_channel_index(names, "flags"), cs = imp_image_channel_index(names, "sigma_n_deg");
+                int cm = imp_image_channel_index(names, "mask");
+                CHECK(cf >= 0 && cs >= 0);
+                /* Every canvas texel has a finite normal σ > 0; the rim is flagged frame-adjacent. */
+                size_t bad_sn = 0, rim = 0;
+                for (int y = 0; cf >= 0 && cs >= 0 && y < img->height; y++)
+                        for (int x = 0; x < img->width; x++) {
+                                const float *p = imp_image_f32(img, x, y);
+                                if (p[cm] < 0.5)
+                                        continue;
+                                bad_sn += !(isfinite(p[cs]) && p[cs] > 0 && p[cs] < 90);
+                                rim += ((unsigned) p[cf] & IMP_TEXEL_FRAME_ADJACENT) != 0;
+                        }
+                CHECK_INT_EQ(bad_sn, 0);
+                fprintf(stderr, "canvas rim flagged frame-adjacent: %zu texels\n", rim);
+                CHECK(rim > 0);
         }
         imp_image_free(img);
         imp_strv_free(names);

@@ -5,6 +5,7 @@
 #include <errno.h>
 #include <stdlib.h>
 #include "btf-synth.h"
+#include "pn-synth.h"
 #include "photometric.h"
 #include "test.h"
 
@@ -34,26 +35,6 @@ static int make_samples(const double P[3], const double nt[3], const double ng[3
                 s->e_cos = (float) (E * lg[2]);
         }
         return m;
-}
-
-static void tilt(const double n0[3], double deg, double az, double ret[3]) {
-        double t[3], b[3], th = deg * SYNTH_DEG;
-        imp_local_frame(n0, t, b);
-        for (int k = 0; k < 3; k++)
-                ret[k] = cos(th) * n0[k] + sin(th) * (cos(az) * t[k] + sin(az) * b[k]);
-}
-
-/* Local photometric normal (frame of ng) → world; angle to nt in degrees. */
-static double err_deg(const struct imp_pn_texel *r, const double ng[3], const double nt[3]) {
-        double t[3], b[3], n[3], d = 0, len = 0;
-        imp_local_frame(ng, t, b);
-        for (int k = 0; k < 3; k++) {
-                n[k] = r->n[0] * t[k] + r->n[1] * b[k] + r->n[2] * ng[k];
-                len += n[k] * n[k];
-        }
-        for (int k = 0; k < 3; k++)
-                d += n[k] * nt[k] / sqrt(len);
-        return acos(fmin(1.0, d)) / SYNTH_DEG;
 }
 
 static int cmp(const void *a, const void *b) {
@@ -111,7 +92,8 @@ static double grid_error(const struct imp_rig_light *L, int nl, int lanczos, int
         imp_btf_sample_params_default(&sp);
         imp_photometric_params_default(&p);
         p.lanczos = lanczos;
-        CHECK_OK(imp_photometric_normals(&hf, &cap, &sp, &p, out, outb, flags, &st));
+        struct imp_photometric_out po = { out, outb, flags, NULL, NULL };
+        CHECK_OK(imp_photometric_normals(&hf, &cap, &sp, &p, &po, &st));
         CHECK_INT_EQ(st.n_resampled > 0, lanczos > 0);
         double sum = 0, sumb = 0;
         int n = 0;
@@ -314,7 +296,8 @@ int main(void) {
                 CHECK_OK(imp_image_new(8, 8, 1, IMP_PIX_F32, &f));
                 const struct imp_image *fr[1] = { f };
                 struct imp_btf_capture cap = { &cam, L, 1, fr, NULL };
-                CHECK_ERR(imp_photometric_normals(&hf, &cap, &sp, &bad, out, NULL, NULL, NULL), -EINVAL);
+                struct imp_photometric_out po = { out, NULL, NULL, NULL, NULL };
+                CHECK_ERR(imp_photometric_normals(&hf, &cap, &sp, &bad, &po, NULL), -EINVAL);
                 imp_image_free(f);
         }
         test_cast_shadow(L, nl, &rng);

@@ -78,10 +78,10 @@ int main(void) {
 
         struct imp_process_options o;
         imp_process_options_default(&o);
-        CHECK_INT_GE(o.shadow_fill_px, 1);   /* on by default */
+        CHECK_INT_GE(o.heightfield.shadow_fill_px, 1);   /* on by default */
         struct imp_error err = {};
         struct imp_compare_result a = {}, b = {};
-        o.shadow_fill_px = 0;
+        o.heightfield.shadow_fill_px = 0;
         CHECK_OK(imp_process_capture(set, off, &o, &err));
         imp_process_options_default(&o);
         CHECK_OK(imp_process_capture(set, on, &o, &err));

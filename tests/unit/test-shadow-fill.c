@@ -156,7 +156,7 @@ static void test_framed(void) {
         struct imp_fuse_params fp;
         struct imp_fuse_stats st;
         imp_fuse_params_default(&fp);
-        CHECK_OK(imp_fuse_heights(on.nx, on.ny, on.pitch_mm, on.height_mm, nrm, on.sigma_mm, on.mask, &fp, &st));
+        CHECK_OK(imp_fuse_heights(on.nx, on.ny, on.pitch_mm, on.height_mm, nrm, on.sigma_mm, on.mask, &fp, NULL, &st));
         double after = strip_rmse(&on);
         fprintf(stderr, "strip height rmse: flat extension %.1f µm, fused %.1f µm (%d iterations)\n",
                 before * 1000, after * 1000, st.iterations);
@@ -174,7 +174,7 @@ static void test_framed(void) {
                         m1[t] = m1[t] != 0;
                 CHECK_OK(imp_heightfield_from_range(&r, &o, &tmp));
                 memcpy(h1, tmp.height_mm, n * sizeof *h1);
-                CHECK_OK(imp_fuse_heights(tmp.nx, tmp.ny, tmp.pitch_mm, h1, nrm, tmp.sigma_mm, m1, &fp, NULL));
+                CHECK_OK(imp_fuse_heights(tmp.nx, tmp.ny, tmp.pitch_mm, h1, nrm, tmp.sigma_mm, m1, &fp, NULL, NULL));
                 memcpy(tmp.height_mm, h1, n * sizeof *h1);
                 double pinned = strip_rmse(&tmp);
                 fprintf(stderr, "strip height rmse with a position term on the strip: %.1f µm\n", pinned * 1000);

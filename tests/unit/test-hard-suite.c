@@ -1,0 +1,171 @@
+/* The hard-case suite's promises (docs/hard-cases.md, docs/copy-quality.md), end to end
+ * through the `impasto` binary on config/scenes/hard-NAME.cfg with config/plans/hard.cfg:
+ *
+ *   test-hard-suite [--no-btf] [--plan PLAN] NAME...   (PLAN: config/plans/PLAN.cfg, default hard)
+ *
+ * Per scene: `sim render`; a scene named invalid-* must be refused by the loader with a
+ * FILE:LINE message. Otherwise `process` must exit 0 (a copy), 6 (unusable) or 3 (a
+ * capture set that cannot be processed), the last two with copy.json saying "unusable"
+ * with a reason and no heightfield.exr, and nothing else; a copy is
+ * compared with its truth and must have: no NaN/Inf in any EXR channel; its canvas normal
+ * within PLACEMENT_MAX_DEG of the truth's; at most FRAME_MAX of its canvas texels on the
+ * truth frame; at most BEYOND_MAX of the unflagged texels beyond 3σ in height and in
+ * normal angle; no unflagged normal more than 10° off. A scene listed with a trailing
+ * "!" must be refused (exit 6). */
+#include <fcntl.h>
+#include <stdbool.h>
+#include <spawn.h>
+#include <unistd.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <jansson.h>
+#include "test.h"
+
+extern char **environ;
+
+#define PLACEMENT_MAX_DEG 2.0         /* canvas normal vs the truth's: "placement right" */
+#define FRAME_MAX         0.01        /* frame texels claimed as canvas */
+#define BEYOND_MAX        0.01        /* unflagged texels beyond 3σ (height, normal) */
+#define EXIT_UNUSABLE     6           /* cli/cmd-process.c IMP_EXIT_PROCESS_UNUSABLE */
+#define EXIT_INVALID      3           /* cli/cmd-process.c IMP_EXIT_PROCESS_INVALID */
+
+static int run(char *const argv[], const char *out_path, const char *err_path) {
+        posix_spawn_file_actions_t fa;
+        posix_spawn_file_actions_init(&fa);
+        if (out_path)
+                posix_spawn_file_actions_addopen(&fa, 1, out_path, O_WRONLY | O_CREAT | O_TRUNC, 0644);
+        if (err_path)
+                posix_spawn_file_actions_addopen(&fa, 2, err_path, O_WRONLY | O_CREAT | O_TRUNC, 0644);
+        pid_t pid;
+        int r = posix_spawn(&pid, argv[0], &fa, NULL, argv, environ);
+        posix_spawn_file_actions_destroy(&fa);
+        if (r != 0)
+                return -1;
+        int st;
+        if (waitpid(pid, &st, 0) < 0)
+                return -1;
+        return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
+}
+
+static char *slurp(const char *path) {
+        FILE *f = fopen(path, "re");
+        if (!f)
+                return strdup("");
+        char *buf = calloc(1, 65536);
+        size_t n = fread(buf, 1, 65535, f);
+        buf[n] = 0;
+        fclose(f);
+        return buf;
+}
+
+/* The loader names the file and the line: ".../hard-NAME.cfg:LINE:". */
+static void check_refused_at_load(const char *name, const char *err_path) {
+        char *e = slurp(err_path), pat[256];
+        snprintf(pat, sizeof pat, "hard-%s.cfg:", name);
+        const char *p = strstr(e, pat);
+        CHECK_MSG(p && p[strlen(pat)] >= '1' && p[strlen(pat)] <= '9', "%s: no FILE:LINE in: %s", name, e);
+        fprintf(stderr, "%s: refused at load: %s", name, e);
+        free(e);
+}
+
+static void check_unusable(const char *name, const char *copy) {
+        char path[4500];
+        snprintf(path, sizeof path, "%s/copy.json", copy);
+        json_error_t je;
+        json_t *j = json_load_file(path, 0, &je);
+        CHECK_MSG(j != NULL, "%s: %s: %s", name, path, je.text);
+        json_t *q = json_object_get(j, "quality");
+        const char *v = json_string_value(json_object_get(q, "verdict"));
+        const char *why = json_string_value(json_array_get(json_object_get(q, "reasons"), 0));
+        CHECK_MSG(v && !strcmp(v, "unusable"), "%s: verdict %s", name, v ? v : "(none)");
+        CHECK_MSG(why && *why, "%s: unusable without a reason", name);
+        fprintf(stderr, "%s: refused: %s\n", name, why ? why : "");
+        snprintf(path, sizeof path, "%s/heightfield.exr", copy);
+        struct stat st;
+        CHECK_MSG(stat(path, &st) != 0, "%s: a refused copy has a heightfield", name);
+        json_decref(j);
+}
+
+static void check_copy(const char *name, const char *cmp_path) {
+        json_error_t je;
+        json_t *c = json_load_file(cmp_path, 0, &je);
+        CHECK_MSG(c != NULL, "%s: %s: %s", name, cmp_path, je.text);
+        if (!c)
+                return;
+#define NUM(k) json_number_value(json_object_get(c, k))
+        long long nan = json_integer_value(json_object_get(c, "nan_count")) +
+                        json_integer_value(json_object_get(c, "appearance_nan_count"));
+        long long over = json_integer_value(json_object_get(c, "unflagged_normal_over_10deg"));
+        fprintf(stderr, "%s: placement %.2f°, frame %.4f, beyond 3σ h %.4f n %.4f, max n %.1f° (%lld > 10°), "
+                "flagged %.3f, NaN %lld\n", name, NUM("placement_deg"), NUM("frame_texel_fraction"),
+                NUM("beyond_3sigma_height"), NUM("beyond_3sigma_normal"), NUM("unflagged_normal_err_deg_max"), over,
+                NUM("flagged_fraction"), nan);
+        CHECK_INT_EQ(nan, 0);
+        CHECK_MSG(NUM("placement_deg") >= 0 && NUM("placement_deg") <= PLACEMENT_MAX_DEG, "%s: placement %.2f°",
+                  name, NUM("placement_deg"));
+        CHECK_MSG(NUM("frame_texel_fraction") <= FRAME_MAX, "%s: frame as canvas %.4f", name,
+                  NUM("frame_texel_fraction"));
+        CHECK_MSG(NUM("beyond_3sigma_height") <= BEYOND_MAX, "%s: beyond 3σ height %.4f", name,
+                  NUM("beyond_3sigma_height"));
+        CHECK_MSG(NUM("beyond_3sigma_normal") >= 0 && NUM("beyond_3sigma_normal") <= BEYOND_MAX,
+                  "%s: beyond 3σ normal %.4f", name, NUM("beyond_3sigma_normal"));
+        CHECK_MSG(over == 0, "%s: %lld unflagged normals more than 10° off", name, over);
+#undef NUM
+        json_decref(c);
+}
+
+int main(int argc, char **argv) {
+        const char *tmp = test_tmpdir();
+        char bin[4096], plan[4096];
+        snprintf(bin, sizeof bin, "%s/cli/impasto", IMPASTO_BINARY_DIR);
+        snprintf(plan, sizeof plan, "%s/config/plans/hard.cfg", IMPASTO_SOURCE_DIR);
+        if (access(bin, X_OK) != 0)
+                TEST_SKIP("%s not built", bin);
+        bool btf = true;
+        for (int a = 1; a < argc; a++) {
+                if (!strcmp(argv[a], "--no-btf")) {
+                        btf = false;
+                        continue;
+                }
+                if (!strcmp(argv[a], "--plan") && a + 1 < argc) {
+                        snprintf(plan, sizeof plan, "%s/config/plans/%s.cfg", IMPASTO_SOURCE_DIR, argv[++a]);
+                        continue;
+                }
+                char name[128], scene[4400], cap[4400], copy[4400], truth[4500], cmp[4400], err_path[4400];
+                snprintf(name, sizeof name, "%s", argv[a]);
+                bool must_refuse = name[strlen(name) - 1] == '!';
+                if (must_refuse)
+                        name[strlen(name) - 1] = 0;
+                snprintf(scene, sizeof scene, "%s/config/scenes/hard-%s.cfg", IMPASTO_SOURCE_DIR, name);
+                snprintf(cap, sizeof cap, "%s/%s/capture", tmp, name);
+                snprintf(copy, sizeof copy, "%s/%s/copy", tmp, name);
+                snprintf(truth, sizeof truth, "%s/truth", cap);
+                snprintf(cmp, sizeof cmp, "%s/%s.json", tmp, name);
+                snprintf(err_path, sizeof err_path, "%s/%s.err", tmp, name);
+                char *render[] = { bin, "sim", "render", "--scene", scene, "--plan", plan, "--out", cap, NULL };
+                int rc = run(render, "/dev/null", err_path);
+                if (!strncmp(name, "invalid-", 8)) {
+                        CHECK_MSG(rc != 0, "%s: the loader accepted an invalid scene", name);
+                        check_refused_at_load(name, err_path);
+                        continue;
+                }
+                CHECK_MSG(rc == 0, "%s: render exited %d", name, rc);
+                char *process[] = { bin, "process", cap, "--out", copy, "--quiet", btf ? NULL : "--no-btf", NULL };
+                rc = run(process, "/dev/null", err_path);
+                CHECK_MSG(rc == 0 || rc == EXIT_UNUSABLE || rc == EXIT_INVALID, "%s: process exited %d", name, rc);
+                if (must_refuse)
+                        CHECK_MSG(rc == EXIT_UNUSABLE, "%s: expected a refusal, process exited %d", name, rc);
+                if (rc == EXIT_UNUSABLE || rc == EXIT_INVALID) {
+                        check_unusable(name, copy);
+                        continue;
+                }
+                if (rc != 0)
+                        continue;
+                char *compare[] = { bin, "compare", copy, "--truth", truth, "--json", NULL };
+                rc = run(compare, cmp, err_path);
+                CHECK_MSG(rc == 0, "%s: compare exited %d", name, rc);
+                if (rc == 0)
+                        check_copy(name, cmp);
+        }
+        return TEST_DONE();
+}
