@@ -263,9 +263,9 @@ static int check_args(struct daemon *d, const struct routine *rt, const json_t *
                 const struct routine_arg *a = routine_arg_find(rt, key);
                 if (!a) {
                         char known[256] = "";
-                        for (const struct routine_arg *a = rt->args; a->key; a++)
+                        for (const struct routine_arg *k = rt->args; k->key; k++)
                                 snprintf(known + strlen(known), sizeof known - strlen(known), "%s%s",
-                                         a == rt->args ? "" : ", ", a->key);
+                                         k == rt->args ? "" : ", ", k->key);
                         return imp_proto_error_set(perr, IMP_PROTO_E_BAD_ARGUMENT, EINVAL, field,
                                                    "unknown parameter of the %s routine (known: %s)", rt->name, known);
                 }

@@ -435,7 +435,7 @@ static int integrate(const struct imp_po_dome *in, const struct imp_po_options *
         imp_fuse_params_default(&fp);
         fp.max_iter = o->integrate_iterations;
         double t0 = now_s();
-        int r = imp_fuse_heights(in->width, in->height, in->pixel_mm, height, ng, NULL, mask, &fp, &fs);
+        int r = imp_fuse_heights(in->width, in->height, in->pixel_mm, height, ng, NULL, mask, &fp, NULL, &fs);
         if (r < 0)
                 return r;
         /* the integration fixes the heights up to one constant per region: mean 0 */

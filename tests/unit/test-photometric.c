@@ -11,7 +11,7 @@
 
 #define N_TEXELS 400
 
-static const double eye[3] = { 30, -20, 900 };
+static const double cam_eye[3] = { 30, -20, 900 };
 
 /* Samples of a texel at P with true normal nt, expressed in the local frame of the
  * geometric normal ng (what imp_btf_samples_extract gives when the heightfield has ng). */
@@ -21,9 +21,9 @@ static int make_samples(const double P[3], const double nt[3], const double ng[3
         int m = 0;
         for (int j = 0; j < n_lights; j++) {
                 double vg[3], lg[3], ecg, vt[3], lt[3], ect;
-                if (!synth_geometry(P, ng, eye, &L[j], vg, lg, &ecg) || lg[2] < 0.02)
+                if (!synth_geometry(P, ng, cam_eye, &L[j], vg, lg, &ecg) || lg[2] < 0.02)
                         continue;
-                synth_geometry(P, nt, eye, &L[j], vt, lt, &ect);
+                synth_geometry(P, nt, cam_eye, &L[j], vt, lt, &ect);
                 double E = imp_btf_light_irradiance(&L[j], P);
                 struct imp_btf_sample *s = &out[m++];
                 for (int c = 0; c < 3; c++) {
