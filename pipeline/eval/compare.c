@@ -252,7 +252,8 @@ static double frame_texels(const struct imp_image *cimg, int cm, const struct tr
 /* The honesty figures over the compared texels: d the height differences, sg per texel
  * (σ_h or −1 when flagged, σ_n or −1 when unknown, normal error in degrees). */
 #define CMP_NORMAL_BAD_DEG 10.0
-static void honesty(struct imp_compare_result *res, const double *d, const float *sg, size_t n, double med) {
+static void honesty(struct imp_compare_result *res, const double *d, const float *sg, size_t n, double med,
+                    bool has_sigma_n) {
         size_t nu = 0, bh = 0, bn = 0, over = 0, sn_known = 0;
         double mx = 0;
         for (size_t k = 0; k < n; k++) {
@@ -271,7 +272,7 @@ static void honesty(struct imp_compare_result *res, const double *d, const float
         res->n_unflagged = nu;
         res->flagged_fraction = n ? (double) (n - nu) / n : 0;
         res->beyond_3sigma_height = nu ? (double) bh / nu : 0;
-        res->beyond_3sigma_normal = sn_known ? (double) bn / sn_known : -1;
+        res->beyond_3sigma_normal = sn_known ? (double) bn / sn_known : has_sigma_n ? 0 : -1;
         res->unflagged_normal_err_deg_max = mx;
         res->unflagged_normal_over_10deg = over;
 }
@@ -447,7 +448,7 @@ int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_com
                                      "heights and normals not compared", copy_dir, truth_dir);
         }
         height_figures(&res, diff, filled, n, n_tex, sum_ang, sum_ang_f, sum_ang_bl);
-        honesty(&res, diff + n_tex, tex_sig, n, res.height_offset_mm);
+        honesty(&res, diff + n_tex, tex_sig, n, res.height_offset_mm, csn >= 0);
         *ret = res;
         return 0;
 }

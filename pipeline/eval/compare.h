@@ -52,8 +52,9 @@ struct imp_compare_result {
          * the truth grid. Over the compared texels whose heightfield.exr flags are 0 (all
          * of them when the copy has no flags channel): the fraction whose height error
          * (after the median offset) exceeds 3 σ, whose normal error exceeds 3 σ_n
-         * (sigma_n_deg; −1 without that channel), the largest normal error and the count
-         * above 10°; flagged_fraction over the compared texels. */
+         * (sigma_n_deg; −1 without that channel, 0 when no texel is unflagged), the
+         * largest normal error and the count above 10°; flagged_fraction over the compared
+         * texels. */
         double placement_deg;
         double frame_texel_fraction;
         size_t n_unflagged;
