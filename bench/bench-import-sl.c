@@ -13,6 +13,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "captureset.h"
+#include "numerics.h"
 #include "cv-calib.h"
 #include "cv-triangulate.h"
 #include "heightfield.h"
@@ -47,7 +48,7 @@ static double plane_rms(const double *xyz, const uint8_t *keep, size_t n, double
                         for (int j = 0; j < 3; j++)
                                 for (int k = 0; k < 3; k++)
                                         A[3 * j + k] += (xyz[3 * i + j] - c[j]) * (xyz[3 * i + k] - c[k]);
-        imp_heightfield_eigen3(A, lam, vec);   /* ascending: vec[0..2] the smallest */
+        imp_eigen_sym3(A, lam, vec);   /* ascending: vec[0..2] the smallest */
         for (int k = 0; k < 3; k++)
                 ret_normal[k] = vec[k];
         double ss = 0;

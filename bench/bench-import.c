@@ -18,6 +18,7 @@
 #include <time.h>
 #include <unistd.h>
 #include "bench-import-sim.h"
+#include "numerics.h"
 #include "compare-normals.h"
 #include "import-photometric.h"
 #include "heightfield.h"
@@ -126,7 +127,7 @@ static int height_error(const char *copy, const char *truth, double *ret_rms_mea
         if (n < 3)
                 return imp_error_set(err, -ENODATA, "%s: no height to compare", copy);
         double lam[3], vec[9], c[3] = {};
-        imp_heightfield_eigen3(M, lam, vec);
+        imp_eigen_sym3(M, lam, vec);
         for (int e = 0; e < 3; e++) {
                 double p = (vec[3 * e] * v[0] + vec[3 * e + 1] * v[1] + vec[3 * e + 2] * v[2]) / lam[e];
                 for (int k = 0; k < 3; k++)

@@ -4,6 +4,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "heightfield.h"
+#include "numerics.h"
 #include "photometric.h"
 #include "macro.h"
 #include "quality.h"
@@ -126,7 +127,7 @@ static uint16_t solve_pass(struct pn_rows *R, const struct imp_photometric_param
         if (S->used < p->min_samples)
                 return IMP_PN_FEW_SAMPLES;
         double lam[3], vec[9];
-        imp_heightfield_eigen3(A, lam, vec);
+        imp_eigen_sym3(A, lam, vec);
         S->cond = lam[0] > 0 ? lam[2] / lam[0] : 1e12;
         if (!(S->cond <= p->max_cond))
                 return IMP_PN_ILL_COND;

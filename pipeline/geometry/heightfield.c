@@ -5,6 +5,7 @@
 #include <string.h>
 #include <sys/stat.h>
 #include "heightfield.h"
+#include "numerics.h"
 #include "image.h"
 #include "json-util.h"
 #include "quality.h"
@@ -59,66 +60,6 @@ void imp_heightfield_done(struct imp_heightfield *hf) {
         *hf = (struct imp_heightfield) {};
 }
 
-static double dot3(const double a[3], const double b[3]) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
-static void cross3(const double a[3], const double b[3], double o[3]) {
-        o[0] = a[1] * b[2] - a[2] * b[1];
-        o[1] = a[2] * b[0] - a[0] * b[2];
-        o[2] = a[0] * b[1] - a[1] * b[0];
-}
-static bool normalize3(double v[3]) {
-        double l = sqrt(dot3(v, v));
-        if (!(l > 0) || !isfinite(l))
-                return false;
-        v[0] /= l, v[1] /= l, v[2] /= l;
-        return true;
-}
-
-void imp_heightfield_eigen3(const double A[9], double ret_val[3], double ret_vec[9]) {
-        double a[3][3], v[3][3] = { { 1, 0, 0 }, { 0, 1, 0 }, { 0, 0, 1 } };
-        for (int i = 0; i < 9; i++)
-                a[i / 3][i % 3] = A[i];
-        for (int sweep = 0; sweep < 50; sweep++) {
-                double off = fabs(a[0][1]) + fabs(a[0][2]) + fabs(a[1][2]);
-                double scale = fabs(a[0][0]) + fabs(a[1][1]) + fabs(a[2][2]);
-                if (off <= 1e-300 || off <= 1e-17 * scale)
-                        break;
-                for (int p = 0; p < 2; p++)
-                        for (int q = p + 1; q < 3; q++) {
-                                if (a[p][q] == 0)
-                                        continue;
-                                double theta = (a[q][q] - a[p][p]) / (2 * a[p][q]);
-                                double t = (theta >= 0 ? 1 : -1) / (fabs(theta) + sqrt(theta * theta + 1));
-                                double c = 1 / sqrt(t * t + 1), s = t * c;
-                                for (int k = 0; k < 3; k++) {     /* A ← A·J */
-                                        double akp = a[k][p], akq = a[k][q];
-                                        a[k][p] = c * akp - s * akq;
-                                        a[k][q] = s * akp + c * akq;
-                                }
-                                for (int k = 0; k < 3; k++) {     /* A ← Jᵀ·A */
-                                        double apk = a[p][k], aqk = a[q][k];
-                                        a[p][k] = c * apk - s * aqk;
-                                        a[q][k] = s * apk + c * aqk;
-                                }
-                                for (int k = 0; k < 3; k++) {     /* V ← V·J */
-                                        double vkp = v[k][p], vkq = v[k][q];
-                                        v[k][p] = c * vkp - s * vkq;
-                                        v[k][q] = s * vkp + c * vkq;
-                                }
-                        }
-        }
-        int idx[3] = { 0, 1, 2 };
-        for (int i = 0; i < 3; i++)
-                for (int j = i + 1; j < 3; j++)
-                        if (a[idx[j]][idx[j]] < a[idx[i]][idx[i]]) {
-                                int t = idx[i]; idx[i] = idx[j]; idx[j] = t;
-                        }
-        for (int i = 0; i < 3; i++) {
-                ret_val[i] = a[idx[i]][idx[i]];
-                for (int k = 0; k < 3; k++)
-                        ret_vec[3 * i + k] = v[k][idx[i]];
-        }
-}
-
 /* PCA of the points selected by sel (or all valid): centroid and normal (smallest axis,
  * turned towards the camera). Returns the point count. */
 static size_t pca_plane(const struct imp_range_image *r, const uint8_t *sel, double ret_m[3],
@@ -145,44 +86,17 @@ static size_t pca_plane(const struct imp_range_image *r, const uint8_t *sel, dou
                 }
         A[3] = A[1], A[6] = A[2], A[7] = A[5];
         double val[3], vec[9];
-        imp_heightfield_eigen3(A, val, vec);
+        imp_eigen_sym3(A, val, vec);
         double n[3] = { vec[0], vec[1], vec[2] };
         double toc[3] = { r->camera_centre_mm[0] - m[0], r->camera_centre_mm[1] - m[1], r->camera_centre_mm[2] - m[2] };
-        if (dot3(n, toc) < 0)
+        if (imp_dot3(n, toc) < 0)
                 n[0] = -n[0], n[1] = -n[1], n[2] = -n[2];
-        if (!normalize3(n))
+        if (!imp_normalize3(n))
                 n[0] = 0, n[1] = 0, n[2] = 1;
         memcpy(ret_m, m, sizeof m);
         memcpy(ret_n, n, sizeof n);
         *ret_weak = val[0] >= HF_PLANE_WEAK_RATIO * val[1];
         return cnt;
-}
-
-/* k-th smallest of v[0..n) (quickselect; reorders v). */
-static float select_kth(float *v, size_t n, size_t k) {
-        size_t lo = 0, hi = n - 1;
-        while (lo < hi) {
-                float pivot = v[lo + (hi - lo) / 2];
-                size_t i = lo, j = hi;
-                while (i <= j) {
-                        while (v[i] < pivot) i++;
-                        while (v[j] > pivot) j--;
-                        if (i <= j) {
-                                float t = v[i]; v[i] = v[j]; v[j] = t;
-                                i++;
-                                if (j == 0)
-                                        break;
-                                j--;
-                        }
-                }
-                if (k <= j)
-                        hi = j;
-                else if (k >= i)
-                        lo = i;
-                else
-                        return v[k];
-        }
-        return v[k];
 }
 
 /* Percentile p (0..100) of n values (copied). */
@@ -194,7 +108,7 @@ static int percentile(const float *v, size_t n, double p, float *ret) {
                 return -ENOMEM;
         memcpy(tmp, v, n * sizeof(float));
         size_t k = (size_t) llround(p / 100.0 * (double) (n - 1));
-        *ret = select_kth(tmp, n, k);
+        *ret = imp_select_kth_float(tmp, n, k);
         return 0;
 }
 
@@ -422,7 +336,7 @@ static float vertex_sigma_deg(const struct hf_ctx *c, int x, int y, double sig_h
         }
         double ss = 0;
         for (int k = 0; k < n_tri; k++)
-                ss += pow(acos(IMP_CLAMP(dot3(tri[k], mean), -1.0, 1.0)), 2);
+                ss += pow(acos(IMP_CLAMP(imp_dot3(tri[k], mean), -1.0, 1.0)), 2);
         double spread2 = n_tri ? ss / ((double) n_tri * n_tri) : 0;   /* of their mean */
         return (float) (sqrt(noise * noise + spread2) * 180 / M_PI);
 }
@@ -450,16 +364,16 @@ static void vertex_normals(struct hf_ctx *c) {
                                         e1[q] = c->uvh[3 * a + q] - c->uvh[3 * i + q];
                                         e2[q] = c->uvh[3 * b + q] - c->uvh[3 * i + q];
                                 }
-                                cross3(e1, e2, n);
+                                imp_cross3(e1, e2, n);
                                 if (n[2] < 0)   /* orient by the (u, v) winding: towards +h */
                                         n[0] = -n[0], n[1] = -n[1], n[2] = -n[2];
-                                if (!normalize3(n))
+                                if (!imp_normalize3(n))
                                         continue;
                                 for (int q = 0; q < 3; q++)
                                         sum[q] += tri[n_tri][q] = n[q];
                                 n_tri++;
                         }
-                        if (!normalize3(sum))
+                        if (!imp_normalize3(sum))
                                 sum[0] = 0, sum[1] = 0, sum[2] = 1;
                         for (int q = 0; q < 3; q++)
                                 c->nrm[3 * i + q] = (float) sum[q];
@@ -540,7 +454,7 @@ static void raster_tri(const struct hf_ctx *c, size_t a, size_t b, size_t d, str
                                 for (int q = 0; q < 3; q++)
                                         n[q] += L[k] * c->nrm[3 * id[k] + q];
                         }
-                        if (!normalize3(n))
+                        if (!imp_normalize3(n))
                                 n[0] = 0, n[1] = 0, n[2] = 1;
                         size_t t = (size_t) j * hf->nx + i;
                         hf->height_mm[t] = (float) hh;
@@ -600,7 +514,7 @@ static int plane_normals(struct imp_heightfield *hf, int rad) {
                                 continue;
                         double b = (cvv * cuh - cuv * cvh) / det / p, c = (cuu * cvh - cuv * cuh) / det / p;
                         double n[3] = { -b, -c, 1 };
-                        if (!normalize3(n))
+                        if (!imp_normalize3(n))
                                 continue;
                         onx[t] = (float) n[0];
                         ony[t] = (float) n[1];
@@ -630,10 +544,10 @@ static void frame_texels(const struct imp_heightfield *hf, const struct imp_rang
                         continue;
                 const float *X = range->xyz + 3 * i;
                 double d[3] = { X[0] - f->m[0], X[1] - f->m[1], X[2] - f->m[2] };
-                if (!(dot3(d, f->ez) > f->h_frame))
+                if (!(imp_dot3(d, f->ez) > f->h_frame))
                         continue;
-                long ti = lround((dot3(d, f->ex) - f->umin) / hf->pitch_mm);
-                long tj = lround((dot3(d, f->ey) - f->vmin) / hf->pitch_mm);
+                long ti = lround((imp_dot3(d, f->ex) - f->umin) / hf->pitch_mm);
+                long tj = lround((imp_dot3(d, f->ey) - f->vmin) / hf->pitch_mm);
                 if (ti >= 0 && tj >= 0 && ti < nx && tj < ny)
                         splat[(size_t) tj * nx + ti] = 1;
         }
@@ -835,7 +749,7 @@ void imp_heightfield_drop_filled(struct imp_heightfield *hf, const uint8_t *drop
 #define HF_RANSAC_REFINE     3        /* PCA passes on the inliers */
 
 static double angle_deg(const double a[3], const double b[3]) {
-        return acos(IMP_CLAMP(dot3(a, b), -1.0, 1.0)) * 180 / M_PI;
+        return acos(IMP_CLAMP(imp_dot3(a, b), -1.0, 1.0)) * 180 / M_PI;
 }
 
 /* Plane through points a, b, c, turned towards the camera; false when degenerate. */
@@ -846,12 +760,12 @@ static bool plane3(const float *a, const float *b, const float *c, const double 
                 e2[q] = (double) c[q] - a[q];
                 toc[q] = C[q] - a[q];
         }
-        cross3(e1, e2, ret_n);
-        double l = sqrt(dot3(ret_n, ret_n));
-        if (!(l > 1e-3 * dot3(e1, e1) && l > 1e-3 * dot3(e2, e2)))   /* sin(angle) > 1e-3 */
+        imp_cross3(e1, e2, ret_n);
+        double l = sqrt(imp_dot3(ret_n, ret_n));
+        if (!(l > 1e-3 * imp_dot3(e1, e1) && l > 1e-3 * imp_dot3(e2, e2)))   /* sin(angle) > 1e-3 */
                 return false;
-        normalize3(ret_n);
-        if (dot3(ret_n, toc) < 0)
+        imp_normalize3(ret_n);
+        if (imp_dot3(ret_n, toc) < 0)
                 ret_n[0] = -ret_n[0], ret_n[1] = -ret_n[1], ret_n[2] = -ret_n[2];
         return true;
 }
@@ -860,7 +774,7 @@ static bool plane3(const float *a, const float *b, const float *c, const double 
 static double plane_dist(const struct imp_range_image *r, size_t i, const double p[3], const double n[3]) {
         const float *X = r->xyz + 3 * i;
         double d[3] = { X[0] - p[0], X[1] - p[1], X[2] - p[2] };
-        return dot3(d, n);
+        return imp_dot3(d, n);
 }
 
 /* Points RANSAC may use: valid and, with a previous plane (behind_n not NULL), more than
@@ -1009,7 +923,7 @@ static int canvas_mask(const struct imp_range_image *range, const struct imp_hei
                         continue;
                 }
                 double d[3] = { range->xyz[3 * i] - m1[0], range->xyz[3 * i + 1] - m1[1], range->xyz[3 * i + 2] - m1[2] };
-                h1[i] = hv[k++] = (float) dot3(d, n1);
+                h1[i] = hv[k++] = (float) imp_dot3(d, n1);
         }
         float p1, p99;
         if ((r = percentile(hv, k, 1, &p1)) < 0 || (r = percentile(hv, k, 99, &p99)) < 0)
@@ -1073,7 +987,7 @@ static int canvas_frame(const struct imp_range_image *range, const struct imp_he
                 hf->flags |= IMP_HF_PLANE_WEAK;
         double toc[3] = { range->camera_centre_mm[0] - m[0], range->camera_centre_mm[1] - m[1],
                           range->camera_centre_mm[2] - m[2] };
-        normalize3(toc);
+        imp_normalize3(toc);
         hf->plane_tilt_deg = angle_deg(ez, opt->expected_normal);
         hf->plane_view_deg = angle_deg(ez, toc);
         if (!opt->skip_extraction) {
@@ -1094,11 +1008,11 @@ static int canvas_frame(const struct imp_range_image *range, const struct imp_he
         ex[0] = 1, ex[1] = 0, ex[2] = 0;
         if (fabs(ez[0]) > 0.9)
                 ex[0] = 0, ex[1] = 1;
-        double pr = dot3(ex, ez);
+        double pr = imp_dot3(ex, ez);
         for (int q = 0; q < 3; q++)
                 ex[q] -= pr * ez[q];
-        normalize3(ex);
-        cross3(ez, ex, ey);
+        imp_normalize3(ex);
+        imp_cross3(ez, ex, ey);
         return 0;
 }
 
@@ -1123,12 +1037,12 @@ static int project_canvas(const struct imp_range_image *range, const struct imp_
                         continue;
                 const float *X = range->xyz + 3 * i;
                 double d[3] = { X[0] - f->m[0], X[1] - f->m[1], X[2] - f->m[2] };
-                double u = dot3(d, f->ex), v = dot3(d, f->ey), hh = dot3(d, f->ez);
+                double u = imp_dot3(d, f->ex), v = imp_dot3(d, f->ey), hh = imp_dot3(d, f->ez);
                 uvh[3 * i] = (float) u, uvh[3 * i + 1] = (float) v, uvh[3 * i + 2] = (float) hh;
                 hv[k++] = (float) hh;
                 double ray[3] = { X[0] - range->camera_centre_mm[0], X[1] - range->camera_centre_mm[1],
                                   X[2] - range->camera_centre_mm[2] };
-                double cosr = normalize3(ray) ? fabs(dot3(ray, f->ez)) : 1.0;
+                double cosr = imp_normalize3(ray) ? fabs(imp_dot3(ray, f->ez)) : 1.0;
                 sig[i] = range->sigma_mm ? (float) (range->sigma_mm[i] * cosr) : 0.0f;
                 f->umin = fmin(f->umin, u), f->umax = fmax(f->umax, u);
                 f->vmin = fmin(f->vmin, v), f->vmax = fmax(f->vmax, v);
@@ -1234,7 +1148,7 @@ static bool options_ok(const struct imp_heightfield_options *opt) {
                opt->shadow_fill_px >= 0 && opt->shadow_fill_px <= UINT16_MAX - 1 && opt->max_tilt_deg > 0 &&
                opt->max_tilt_deg <= 90 && opt->max_view_deg > 0 && opt->max_view_deg <= 90 && opt->plane_tol_mm > 0 &&
                opt->relief_max_mm > 0 && opt->min_canvas_frac >= 0 && opt->min_canvas_frac < 1 &&
-               fabs(sqrt(dot3(opt->expected_normal, opt->expected_normal)) - 1) < 1e-6;
+               fabs(sqrt(imp_dot3(opt->expected_normal, opt->expected_normal)) - 1) < 1e-6;
 }
 
 /* The canvas plane to extract against: robust (RANSAC) or, when no plane fits the rig's

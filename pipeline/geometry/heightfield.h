@@ -175,6 +175,3 @@ int imp_heightfield_write_exr(const struct imp_heightfield *hf, const char *copy
 int imp_heightfield_flag_edges(struct imp_heightfield *hf, int px);
 #define IMP_HF_FRAME_ADJACENT_PX 3    /* texels from the mask's outer edge flagged */
 
-/* Symmetric 3×3 eigen-decomposition (Jacobi): eigenvalues ascending in ret_val, unit
- * eigenvectors as rows of ret_vec. Shared with compare.c and tests. */
-void imp_heightfield_eigen3(const double A[9], double ret_val[3], double ret_vec[9]);

@@ -4,6 +4,7 @@
  * projector's distortion. */
 #include <math.h>
 #include <string.h>
+#include "numerics.h"
 #include "triangulate.h"
 
 #define TRI_DEFAULT_SIGMA_PX      0.1
@@ -102,7 +103,6 @@ static void mat_t_vec(const double R[9], const double v[3], double o[3]) {
         for (int i = 0; i < 3; i++)
                 o[i] = R[i] * v[0] + R[3 + i] * v[1] + R[6 + i] * v[2];
 }
-static double dot3(const double a[3], const double b[3]) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 
 bool imp_triangulate_project(const struct imp_pinhole *m, const double X[3], double ret_px[2],
                              double ret_J[6]) {
@@ -138,7 +138,7 @@ void imp_triangulate_ray(const struct imp_pinhole *m, const double px[2], double
         undistort(m, (px[0] - m->cx) / m->fx, (px[1] - m->cy) / m->fy, n);
         double dc[3] = { n[0], n[1], 1.0 }, d[3];
         mat_t_vec(m->R, dc, d);
-        double l = sqrt(dot3(d, d));
+        double l = sqrt(imp_dot3(d, d));
         for (int i = 0; i < 3; i++)
                 ret_d[i] = d[i] / l;
         mat_t_vec(m->R, m->t, ret_C);
@@ -155,7 +155,7 @@ static bool initial_lambda(const struct imp_pinhole *proj, const double C[3], co
         imp_triangulate_ray(proj, q, Cp, dp);
         double w0[3] = { C[0] - Cp[0], C[1] - Cp[1], C[2] - Cp[2] };
         if (axis < 0) {
-                double b = dot3(d, dp), dd = dot3(d, w0), e = dot3(dp, w0), den = 1 - b * b;
+                double b = imp_dot3(d, dp), dd = imp_dot3(d, w0), e = imp_dot3(dp, w0), den = 1 - b * b;
                 if (den < 1e-12)
                         return false;
                 *ret_lambda = (b * e - dd) / den;
@@ -168,10 +168,10 @@ static bool initial_lambda(const struct imp_pinhole *proj, const double C[3], co
         n_dev[2] = -xn[axis];
         double nw[3];
         mat_t_vec(proj->R, n_dev, nw);
-        double den = dot3(nw, d);
+        double den = imp_dot3(nw, d);
         if (fabs(den) < 1e-12)
                 return false;
-        *ret_lambda = -dot3(nw, w0) / den;
+        *ret_lambda = -imp_dot3(nw, w0) / den;
         return true;
 }
 
@@ -184,7 +184,7 @@ static bool refine_lambda(const struct imp_pinhole *proj, const double C[3], con
                 double X[3] = { C[0] + lam * d[0], C[1] + lam * d[1], C[2] + lam * d[2] }, u[2], J[6];
                 if (!(lam > 0) || !imp_triangulate_project(proj, X, u, J))
                         return false;
-                double jl[2] = { dot3(J, d), dot3(J + 3, d) }, num = 0;
+                double jl[2] = { imp_dot3(J, d), imp_dot3(J + 3, d) }, num = 0;
                 jj = 0;
                 for (int k = 0; k < 2; k++) {
                         if (axis >= 0 && k != axis)
@@ -266,8 +266,8 @@ int imp_triangulate(const struct imp_pinhole *cam, const struct imp_pinhole *pro
                                 continue;
                         double X[3] = { C[0] + lam * d[0], C[1] + lam * d[1], C[2] + lam * d[2] };
                         double v[3] = { X[0] - Cp[0], X[1] - Cp[1], X[2] - Cp[2] };
-                        double lv = sqrt(dot3(v, v));
-                        if (!(lv > 0) || fabs(dot3(v, d)) / lv > cos_min)
+                        double lv = sqrt(imp_dot3(v, v));
+                        if (!(lv > 0) || fabs(imp_dot3(v, d)) / lv > cos_min)
                                 continue;
                         double sp = opt->sigma_proj_px / fmin(conf, 1.0);
                         if (pc->sigma_px && pc->sigma_px[i] > sp)

@@ -8,6 +8,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "json-util.h"
+#include "numerics.h"
 #include "rig.h"
 
 #define RIG_FORMAT "impasto-rig"
@@ -120,18 +121,9 @@ void imp_pinhole_ray_world(const struct imp_pinhole *m, const double px[2], doub
                 ret_dir[i] = R[i] * d[0] + R[3 + i] * d[1] + R[6 + i] * d[2];
 }
 
-static double dot3(const double a[3], const double b[3]) {
-        return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-}
-
-static void cross3(const double a[3], const double b[3], double r[3]) {
-        r[0] = a[1] * b[2] - a[2] * b[1];
-        r[1] = a[2] * b[0] - a[0] * b[2];
-        r[2] = a[0] * b[1] - a[1] * b[0];
-}
-
+/* Unlike imp_normalize3, refuses near-zero vectors (a look-at with the eye on the target). */
 static bool normalize3(double v[3]) {
-        double n = sqrt(dot3(v, v));
+        double n = sqrt(imp_dot3(v, v));
         if (!(n > 1e-12))
                 return false;
         for (int i = 0; i < 3; i++)
@@ -147,13 +139,13 @@ void imp_pinhole_look_at(struct imp_pinhole *m, const double eye[3], const doubl
         }
         /* x: `right` with its component along the view removed; if `right` is parallel to
          * the view, any perpendicular axis will do. */
-        double x[3], d = dot3(right, z);
+        double x[3], d = imp_dot3(right, z);
         for (int i = 0; i < 3; i++)
                 x[i] = right[i] - d * z[i];
         if (!normalize3(x)) {
                 static const double axes[3][3] = { { 1, 0, 0 }, { 0, 1, 0 }, { 0, 0, 1 } };
                 for (int a = 0; a < 3; a++) {
-                        double e = dot3(axes[a], z);
+                        double e = imp_dot3(axes[a], z);
                         for (int i = 0; i < 3; i++)
                                 x[i] = axes[a][i] - e * z[i];
                         if (normalize3(x))
@@ -161,14 +153,14 @@ void imp_pinhole_look_at(struct imp_pinhole *m, const double eye[3], const doubl
                 }
         }
         double y[3];
-        cross3(z, x, y);   /* right-handed: x × y = z, so y points down in the image */
+        imp_cross3(z, x, y);   /* right-handed: x × y = z, so y points down in the image */
         for (int i = 0; i < 3; i++) {
                 m->R[i] = x[i];
                 m->R[3 + i] = y[i];
                 m->R[6 + i] = z[i];
         }
         for (int i = 0; i < 3; i++)
-                m->t[i] = -dot3(&m->R[3 * i], eye);
+                m->t[i] = -imp_dot3(&m->R[3 * i], eye);
 }
 
 /* ---- rig.json ---- */
@@ -313,7 +305,7 @@ static int pinhole_from(struct rd *d, const json_t *o, struct imp_pinhole *m) {
         /* A hand-edited or corrupted pose must not pass silently: R Rᵀ = I. */
         for (int i = 0; i < 3; i++)
                 for (int j = 0; j < 3; j++) {
-                        double s = dot3(&m->R[3 * i], &m->R[3 * j]);
+                        double s = imp_dot3(&m->R[3 * i], &m->R[3 * j]);
                         if (!(fabs(s - (i == j)) < ROTATION_TOL))
                                 return imp_error_set(d->err, -EINVAL,
                                                      "%sR: expected a rotation matrix (orthonormal rows)",

@@ -7,6 +7,7 @@
 #include <math.h>
 #include <string.h>
 #include "compare.h"
+#include "numerics.h"
 #include "heightfield.h"
 #include "quality.h"
 #include "image.h"
@@ -276,7 +277,7 @@ static void test_given_pitch_and_errors(void) {
 
 static void test_eigen(void) {
         double A[9] = { 4, 1, 0.5, 1, 3, 0.2, 0.5, 0.2, 1 }, val[3], vec[9];
-        imp_heightfield_eigen3(A, val, vec);
+        imp_eigen_sym3(A, val, vec);
         CHECK_LE(val[0], val[1]);
         CHECK_LE(val[1], val[2]);
         for (int k = 0; k < 3; k++) {
