@@ -712,6 +712,69 @@ static void compute_normals(struct imp_scene *s) {
         s->hmax = hmax;
 }
 
+/* The varnish group over every paint region: the coat takes ρs from the light before it
+ * reaches the paint; the texel keeps one lobe (truth must be one Lafortune lobe): the
+ * glossier of coat and paint. */
+static int parse_varnish(const struct imp_conf *c, config_setting_t *g, struct imp_scene *s, int nreg,
+                         struct imp_error *err) {
+        config_setting_t *vg = NULL;
+        TRY(imp_conf_get_group(c, g, "varnish", false, &vg, err));
+        if (vg) {
+                static const char *const vknown[] = { "rho_s", "lobe", "k", NULL };
+                double vs = 0.05, lobe[3] = { -1, -1, 1 }, k = 80;
+                TRY(imp_conf_check_known(c, vg, vknown, err));
+                TRY(imp_conf_get_double(c, vg, "rho_s", false, 0, 1, &vs, err));
+                TRY(get_vec3(c, vg, "lobe", false, lobe, err));
+                TRY(imp_conf_get_double(c, vg, "k", false, 0, 10000, &k, err));
+                for (int i = 0; i < nreg; i++) {
+                        struct imp_lafortune *b = &s->regions[i].brdf;
+                        double smax = IMP_MAX(b->rho_s[0], IMP_MAX(b->rho_s[1], b->rho_s[2]));
+                        if (smax < vs) {
+                                b->cx = (float) lobe[0];
+                                b->cy = (float) lobe[1];
+                                b->cz = (float) lobe[2];
+                                b->k = (float) k;
+                        }
+                        for (int ch = 0; ch < 3; ch++) {
+                                b->rho_d[ch] *= (float) (1 - vs);
+                                b->rho_s[ch] += (float) vs;
+                        }
+                }
+        }
+        return 0;
+}
+
+/* Each surface sample's region (the frame, else the last region whose shape holds it) and
+ * its tint (value-noise variation, checkerboard squares). */
+static void assign_regions(struct imp_scene *s, const struct imp_shape *shapes, int nreg) {
+        const struct imp_sim_surface *sf = &s->surf;
+        for (int j = 0; j < sf->ny; j++)
+                for (int i = 0; i < sf->nx; i++) {
+                        size_t k = (size_t) j * sf->nx + i;
+                        double x = sf->origin_mm[0] + i * sf->pitch_mm, y = sf->origin_mm[1] + j * sf->pitch_mm;
+                        int reg = 0;
+                        if (s->is_frame[k]) {
+                                reg = nreg;
+                        } else {
+                                for (int q = nreg - 1; q >= 0; q--)
+                                        if (imp_shape_contains(&shapes[q], x, y)) {
+                                                reg = q;
+                                                break;
+                                        }
+                        }
+                        s->region[k] = (uint8_t) reg;
+                        double tv = s->regions[reg].tint_variation;
+                        double t = tv > 0 ? 1 + tv * imp_value_noise(s->seed + 31 * (uint64_t) reg, x, y, 2.0) : 1;
+                        if (reg < nreg && shapes[reg].kind == IMP_SHAPE_CHECKER) {
+                                const struct imp_checker *ck = &shapes[reg].checker;
+                                double uv[2];
+                                imp_checker_board_uv(ck, x, y, uv);
+                                t *= 1 - (1 - ck->black) * imp_checker_black_fraction(ck, uv[0], uv[1], ck->filter_mm);
+                        }
+                        s->tint[k] = (float) IMP_MAX(t, 0.0);
+                }
+}
+
 static int parse_painting(struct imp_scene *s, const struct imp_conf *c, struct imp_error *err) {
         static const char *const known[] = { "width_mm", "height_mm", "pitch_mm", "frame", "layers",
                                              "regions", "varnish", NULL };
@@ -798,61 +861,11 @@ static int parse_painting(struct imp_scene *s, const struct imp_conf *c, struct 
                         ck->filter_mm = IMP_MAX(ck->filter_mm, pitch);
                 }
         }
-        config_setting_t *vg = NULL;
-        TRY(imp_conf_get_group(c, g, "varnish", false, &vg, err));
-        if (vg) {
-                /* The coat takes ρs from the light before it reaches the paint; the texel keeps
-                 * one lobe (truth must be one Lafortune lobe): the glossier of coat and paint. */
-                static const char *const vknown[] = { "rho_s", "lobe", "k", NULL };
-                double vs = 0.05, lobe[3] = { -1, -1, 1 }, k = 80;
-                TRY(imp_conf_check_known(c, vg, vknown, err));
-                TRY(imp_conf_get_double(c, vg, "rho_s", false, 0, 1, &vs, err));
-                TRY(get_vec3(c, vg, "lobe", false, lobe, err));
-                TRY(imp_conf_get_double(c, vg, "k", false, 0, 10000, &k, err));
-                for (int i = 0; i < nreg; i++) {
-                        struct imp_lafortune *b = &s->regions[i].brdf;
-                        double smax = IMP_MAX(b->rho_s[0], IMP_MAX(b->rho_s[1], b->rho_s[2]));
-                        if (smax < vs) {
-                                b->cx = (float) lobe[0];
-                                b->cy = (float) lobe[1];
-                                b->cz = (float) lobe[2];
-                                b->k = (float) k;
-                        }
-                        for (int ch = 0; ch < 3; ch++) {
-                                b->rho_d[ch] *= (float) (1 - vs);
-                                b->rho_s[ch] += (float) vs;
-                        }
-                }
-        }
+        TRY(parse_varnish(c, g, s, nreg, err));
         s->regions[nreg] = (struct imp_scene_region) { .name = "frame", .brdf = frame_brdf };
         s->n_regions = nreg + 1;
 
-        const struct imp_sim_surface *sf = &s->surf;
-        for (int j = 0; j < sf->ny; j++)
-                for (int i = 0; i < sf->nx; i++) {
-                        size_t k = (size_t) j * sf->nx + i;
-                        double x = sf->origin_mm[0] + i * sf->pitch_mm, y = sf->origin_mm[1] + j * sf->pitch_mm;
-                        int reg = 0;
-                        if (s->is_frame[k]) {
-                                reg = nreg;
-                        } else {
-                                for (int q = nreg - 1; q >= 0; q--)
-                                        if (imp_shape_contains(&shapes[q], x, y)) {
-                                                reg = q;
-                                                break;
-                                        }
-                        }
-                        s->region[k] = (uint8_t) reg;
-                        double tv = s->regions[reg].tint_variation;
-                        double t = tv > 0 ? 1 + tv * imp_value_noise(s->seed + 31 * (uint64_t) reg, x, y, 2.0) : 1;
-                        if (reg < nreg && shapes[reg].kind == IMP_SHAPE_CHECKER) {
-                                const struct imp_checker *ck = &shapes[reg].checker;
-                                double uv[2];
-                                imp_checker_board_uv(ck, x, y, uv);
-                                t *= 1 - (1 - ck->black) * imp_checker_black_fraction(ck, uv[0], uv[1], ck->filter_mm);
-                        }
-                        s->tint[k] = (float) IMP_MAX(t, 0.0);
-                }
+        assign_regions(s, shapes, nreg);
         compute_normals(s);
         return 0;
 }

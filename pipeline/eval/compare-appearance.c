@@ -92,6 +92,60 @@ static bool truth_coords(const struct truth_grid *g, double x, double y, double 
 
 static const char *const RGB[] = { "R", "G", "B" }, *const LOBE[] = { "cx", "cy", "cz", "k" };
 
+/* The held-out re-rendering figures of copy.json stages.btf.validation, when present. */
+static void read_validation(json_t *cj, const char *path, struct imp_compare_appearance *res,
+                            struct imp_error *err) {
+        json_t *val = json_object_get(json_object_get(json_object_get(cj, "stages"), "btf"), "validation");
+        if (!json_is_object(val))
+                return;
+        double v;
+        long long n;
+        if (imp_json_get_double(val, "rmse", false, &v, path, err) == 0 && isfinite(v))
+                res->rerender_rmse = v;
+        if (imp_json_get_int(val, "lights", false, &n, path, err) == 0 && n > 0)
+                res->rerender_lights = (size_t) n;
+        if (imp_json_get_int(val, "texels", false, &n, path, err) == 0 && n > 0)
+                res->rerender_texels = (size_t) n;
+}
+
+/* True when the copy's ρd is grey everywhere (a mono camera: R = G = B). */
+static bool is_mono(const struct map *cd) {
+        for (int j = 0; j < cd->img->height; j++)
+                for (int i = 0; i < cd->img->width; i++) {
+                        double r0 = at(cd, i, j, 0);
+                        if (isfinite(r0) && (at(cd, i, j, 1) != r0 || at(cd, i, j, 2) != r0))
+                                return false;
+                }
+        return true;
+}
+
+/* The copy's maps (heightfield, ρd, ρs, lobe, fit flags) and the truth's (mask, ρd, ρs,
+ * lobe) into all[0..9), each checked against the size its JSON states. */
+static int load_maps(const char *copy_dir, const char *truth_dir, struct map *const all[9], long long cnx,
+                     long long cny, const struct truth_grid *g, struct imp_error *err) {
+        static const char *const HF[] = { "height", "mask" }, *const TM[] = { "mask" }, *const FL[] = { "flags" };
+        int r;
+        if ((r = map_load(copy_dir, "heightfield.exr", HF, 2, false, all[0], err)) < 0 ||
+            (r = map_load(copy_dir, "rho_d.exr", RGB, 3, false, all[1], err)) < 0 ||
+            (r = map_load(copy_dir, "rho_s.exr", RGB, 3, false, all[2], err)) < 0 ||
+            (r = map_load(copy_dir, "lobe.exr", LOBE, 4, false, all[3], err)) < 0 ||
+            (r = map_load(copy_dir, "fit-flags.exr", FL, 1, true, all[4], err)) < 0 ||
+            (r = map_load(truth_dir, "heightfield.exr", TM, 1, false, all[5], err)) < 0 ||
+            (r = map_load(truth_dir, "rho_d.exr", RGB, 3, false, all[6], err)) < 0 ||
+            (r = map_load(truth_dir, "rho_s.exr", RGB, 3, false, all[7], err)) < 0 ||
+            (r = map_load(truth_dir, "lobe.exr", LOBE, 4, false, all[8], err)) < 0)
+                return r;
+        for (size_t k = 0; k < 5; k++)
+                if (all[k]->img && (all[k]->img->width != cnx || all[k]->img->height != cny))
+                        return imp_error_set(err, -EBADMSG, "%s: copy maps are not %lldx%lld as copy.json says",
+                                             copy_dir, cnx, cny);
+        for (size_t k = 5; k < 9; k++)
+                if (all[k]->img->width != g->nx || all[k]->img->height != g->ny)
+                        return imp_error_set(err, -EBADMSG, "%s: truth maps are not %dx%d as truth.json says",
+                                             truth_dir, g->nx, g->ny);
+        return 0;
+}
+
 int imp_compare_appearance(const char *copy_dir, const char *truth_dir,
                            struct imp_compare_appearance *ret, struct imp_error *err) {
         if (!copy_dir || !truth_dir || !ret)
@@ -111,47 +165,16 @@ int imp_compare_appearance(const char *copy_dir, const char *truth_dir,
         const long long cnx = grids.copy_nx, cny = grids.copy_ny;
         snprintf(path, sizeof path, "%s/copy.json", copy_dir);
         struct imp_compare_appearance res = { .rerender_rmse = -1 };
-        json_t *val = json_object_get(json_object_get(json_object_get(cj, "stages"), "btf"), "validation");
-        if (json_is_object(val)) {
-                double v;
-                long long n;
-                if (imp_json_get_double(val, "rmse", false, &v, path, err) == 0 && isfinite(v))
-                        res.rerender_rmse = v;
-                if (imp_json_get_int(val, "lights", false, &n, path, err) == 0 && n > 0)
-                        res.rerender_lights = (size_t) n;
-                if (imp_json_get_int(val, "texels", false, &n, path, err) == 0 && n > 0)
-                        res.rerender_texels = (size_t) n;
-        }
+        read_validation(cj, path, &res, err);
 
         struct truth_grid g = { .pitch = grids.truth_pitch, .origin = { grids.truth_origin[0], grids.truth_origin[1] },
                                 .nx = (int) grids.truth_nx, .ny = (int) grids.truth_ny };
 
-        static const char *const HF[] = { "height", "mask" }, *const TM[] = { "mask" }, *const FL[] = { "flags" };
         struct map ch = {}, cd = {}, cs = {}, cl = {}, cf = {}, tm = {}, td = {}, ts = {}, tl = {};
         struct map *all[] = { &ch, &cd, &cs, &cl, &cf, &tm, &td, &ts, &tl };
         _cleanup_free_ double *ed = NULL, *ek = NULL, *es = NULL;
-        if ((r = map_load(copy_dir, "heightfield.exr", HF, 2, false, &ch, err)) < 0 ||
-            (r = map_load(copy_dir, "rho_d.exr", RGB, 3, false, &cd, err)) < 0 ||
-            (r = map_load(copy_dir, "rho_s.exr", RGB, 3, false, &cs, err)) < 0 ||
-            (r = map_load(copy_dir, "lobe.exr", LOBE, 4, false, &cl, err)) < 0 ||
-            (r = map_load(copy_dir, "fit-flags.exr", FL, 1, true, &cf, err)) < 0 ||
-            (r = map_load(truth_dir, "heightfield.exr", TM, 1, false, &tm, err)) < 0 ||
-            (r = map_load(truth_dir, "rho_d.exr", RGB, 3, false, &td, err)) < 0 ||
-            (r = map_load(truth_dir, "rho_s.exr", RGB, 3, false, &ts, err)) < 0 ||
-            (r = map_load(truth_dir, "lobe.exr", LOBE, 4, false, &tl, err)) < 0)
+        if ((r = load_maps(copy_dir, truth_dir, all, cnx, cny, &g, err)) < 0)
                 goto out;
-        for (size_t k = 0; k < 5; k++)
-                if (all[k]->img && (all[k]->img->width != cnx || all[k]->img->height != cny)) {
-                        r = imp_error_set(err, -EBADMSG, "%s: copy maps are not %lldx%lld as copy.json says",
-                                          copy_dir, cnx, cny);
-                        goto out;
-                }
-        for (size_t k = 5; k < 9; k++)
-                if (all[k]->img->width != g.nx || all[k]->img->height != g.ny) {
-                        r = imp_error_set(err, -EBADMSG, "%s: truth maps are not %dx%d as truth.json says",
-                                          truth_dir, g.nx, g.ny);
-                        goto out;
-                }
         res.nan_count = count_nonfinite(cd.img) + count_nonfinite(cs.img) + count_nonfinite(cl.img);
 
         size_t nt = (size_t) cnx * cny;
@@ -165,15 +188,7 @@ int imp_compare_appearance(const char *copy_dir, const char *truth_dir,
         /* A mono camera records the Rec. 709 luminance of the radiance (sim/render.h) and the
          * copy then holds grey ρd (R = G = B everywhere): compare it with the luminance of
          * the true ρd, not with each colour channel. */
-        bool mono = true;
-        for (int j = 0; j < cny && mono; j++)
-                for (int i = 0; i < cnx; i++) {
-                        double r0 = at(&cd, i, j, 0);
-                        if (isfinite(r0) && (at(&cd, i, j, 1) != r0 || at(&cd, i, j, 2) != r0)) {
-                                mono = false;
-                                break;
-                        }
-                }
+        bool mono = is_mono(&cd);
         res.mono = mono;
         static const double LUMA[3] = { 0.2126, 0.7152, 0.0722 };
         size_t nd = 0, nk = 0;
