@@ -297,6 +297,11 @@ static void photometric_params(enum imp_po_method method, struct imp_photometric
                 p->spec_cone_deg = 0;    /* cos 0 = 1: no sample is in the cone */
                 p->min_cos = -2;         /* no attached-shadow test */
                 p->max_cond = 1e12;
+                /* the plain baseline: none of the model checks that back a texel off */
+                p->max_ambient_rel = INFINITY;
+                p->max_rms_ratio = INFINITY;
+                p->max_rel_rms = INFINITY;
+                p->max_sigma_deg = INFINITY;
         } else {
                 p->passes = PO_PASSES;
                 p->spec_cone_deg = PO_SPEC_CONE_DEG;

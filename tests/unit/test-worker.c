@@ -100,7 +100,7 @@ int main(void) {
         j = read_job(jobs, "20250301-101500-s2");
         CHECK_STR_EQ(str(j, "state"), "done");
         CHECK_NEAR(json_number_value(json_object_get(j, "progress")), 1.0, 1e-9);
-        CHECK_STR_EQ(str(j, "stage"), "validation");            /* the last stage it reported */
+        CHECK_STR_EQ(str(j, "stage"), "boxes");                 /* the last stage it reported */
         CHECK(str(j, "started") && str(j, "ended"));
         CHECK_STR_EQ(str(j, "queued"), "2025-03-01T10:15:00Z");
         json_decref(j);
