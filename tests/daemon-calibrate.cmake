@@ -11,7 +11,7 @@ if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WI
   add_test(NAME test-daemon-calibrate
     COMMAND bash ${CMAKE_CURRENT_SOURCE_DIR}/integration/daemon-calibrate.sh ${PROJECT_BINARY_DIR}
             ${PROJECT_SOURCE_DIR} 15895)
-  set_tests_properties(test-daemon-calibrate PROPERTIES LABELS integration SKIP_RETURN_CODE 77 TIMEOUT 180
+  set_tests_properties(test-daemon-calibrate PROPERTIES LABELS integration SKIP_RETURN_CODE 77 TIMEOUT 400
     RESOURCE_LOCK gvcp)
 endif()
 if(TARGET impastod)

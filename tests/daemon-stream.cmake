@@ -7,7 +7,7 @@ if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WI
   set_tests_properties(test-daemon-stream PROPERTIES RESOURCE_LOCK gvcp)
   add_test(NAME test-daemon-kill-repeat COMMAND test-daemon-kill repeat)   # target from daemon.cmake
   set_tests_properties(test-daemon-kill-repeat PROPERTIES LABELS "integration;fault;slow" SKIP_RETURN_CODE 77
-    TIMEOUT 120 RESOURCE_LOCK gvcp)
+    TIMEOUT 300 RESOURCE_LOCK gvcp)
 endif()
 # - test-daemon-replug: the camera unplugged mid-capture (streamed run, then triggered
 #   sweep), the session pauses with a fault, the camera comes back, resume completes the set

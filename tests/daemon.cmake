@@ -8,7 +8,7 @@ if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WI
     else()
       set(labels integration fault)
     endif()
-    impasto_test(test-daemon-${t} LABELS ${labels} LIBS impasto_proto impasto_pipeline impasto_emu TIMEOUT 120)
+    impasto_test(test-daemon-${t} LABELS ${labels} LIBS impasto_proto impasto_pipeline impasto_emu TIMEOUT 300)
     add_dependencies(test-daemon-${t} impastod)
     set_tests_properties(test-daemon-${t} PROPERTIES RESOURCE_LOCK gvcp)
   endforeach()
