@@ -88,9 +88,7 @@ static void on_calibration(struct follow *f, const json_t *e) {
 
 static void on_event(void *userdata, const struct imp_proto_message *m) {
         struct follow *f = userdata;
-        if (f->last_seq && m->seq > f->last_seq + 1)
-                f->dropped += m->seq - f->last_seq - 1;
-        f->last_seq = m->seq;
+        imp_client_count_gap(&f->last_seq, &f->dropped, m->seq);
         const json_t *e = m->root;
         const char *session = json_string_value(m->session);
         bool ours = !strcmp(m->event, "calibration") ? !*f->calibration ||

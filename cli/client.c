@@ -399,3 +399,9 @@ void imp_client_print_table(const json_t *rows, const struct imp_client_column *
                                k + 1 < n_cols ? " " : "\n");
                 }
 }
+
+void imp_client_count_gap(unsigned long long *last_seq, unsigned long long *dropped, unsigned long long seq) {
+        if (*last_seq && seq > *last_seq + 1)
+                *dropped += seq - *last_seq - 1;
+        *last_seq = seq;
+}

@@ -101,3 +101,7 @@ struct imp_client_column {
 };
 void imp_client_print_table(const json_t *rows, const struct imp_client_column *cols, size_t n_cols,
                             const char *empty);
+
+/* Following events: counts in *dropped the events lost between *last_seq and seq (the
+ * daemon drops events for a subscriber that reads too slowly), then remembers seq. */
+void imp_client_count_gap(unsigned long long *last_seq, unsigned long long *dropped, unsigned long long seq);

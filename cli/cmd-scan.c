@@ -83,9 +83,7 @@ static void clear_bar(struct follow *f) {
 
 static void on_event(void *userdata, const struct imp_proto_message *m) {
         struct follow *f = userdata;
-        if (f->last_seq && m->seq > f->last_seq + 1)
-                f->dropped += m->seq - f->last_seq - 1;
-        f->last_seq = m->seq;
+        imp_client_count_gap(&f->last_seq, &f->dropped, m->seq);
         const char *session = json_string_value(m->session);
         /* Only one session holds the rig; before the start reply names it, take the first. */
         if (session && f->session[0] && strcmp(session, f->session))

@@ -189,19 +189,6 @@ bool imp_proto_event_type_valid(const char *type) {
 
 /* ---- Request parsing ---- */
 
-static const char *json_type_name(const json_t *v) {
-        switch (json_typeof(v)) {
-        case JSON_OBJECT: return "an object";
-        case JSON_ARRAY: return "an array";
-        case JSON_STRING: return "a string";
-        case JSON_INTEGER: return "an integer";
-        case JSON_REAL: return "a number";
-        case JSON_TRUE:
-        case JSON_FALSE: return "a boolean";
-        default: return "null";
-        }
-}
-
 /* "one of a, b, c" */
 static void format_choices(char *buf, size_t size, const char *const *choices) {
         size_t n = (size_t) snprintf(buf, size, "one of");
@@ -244,8 +231,8 @@ static int check_string(const struct imp_proto_field *f, const json_t *v, const 
         if (!json_is_string(v)) {
                 if (f->choices)
                         return bad_arg(e, path, "expected a string, %s (%s), got %s", choices, f->what,
-                                       json_type_name(v));
-                return bad_arg(e, path, "expected a string (%s), got %s", f->what, json_type_name(v));
+                                       imp_json_type_name(v));
+                return bad_arg(e, path, "expected a string (%s), got %s", f->what, imp_json_type_name(v));
         }
         const char *s = json_string_value(v);
         size_t n = json_string_length(v);
@@ -274,24 +261,24 @@ static int check_value(const struct imp_proto_field *f, const json_t *v, const c
                 if (!json_is_integer(v) || json_integer_value(v) < f->min || json_integer_value(v) > f->max)
                         return bad_arg(e, path, "expected an integer from %lld to %lld (%s)%s%s",
                                        f->min, f->max, f->what, json_is_integer(v) ? "" : ", got ",
-                                       json_is_integer(v) ? "" : json_type_name(v));
+                                       json_is_integer(v) ? "" : imp_json_type_name(v));
                 return 0;
         case IMP_PROTO_T_BOOLEAN:
                 if (!json_is_boolean(v))
                         return bad_arg(e, path, "expected true or false (%s), got %s", f->what,
-                                       json_type_name(v));
+                                       imp_json_type_name(v));
                 return 0;
         case IMP_PROTO_T_OBJECT:
                 if (!json_is_object(v))
                         return bad_arg(e, path, "expected an object (%s), got %s", f->what,
-                                       json_type_name(v));
+                                       imp_json_type_name(v));
                 return 0;
         case IMP_PROTO_T_STRING_ARRAY: {
                 size_t n = json_array_size(v);
                 if (!json_is_array(v) || (long long) n < f->min || (long long) n > f->max)
                         return bad_arg(e, path, "expected an array of %lld to %lld strings (%s)%s%s",
                                        f->min, f->max, f->what, json_is_array(v) ? "" : ", got ",
-                                       json_is_array(v) ? "" : json_type_name(v));
+                                       json_is_array(v) ? "" : imp_json_type_name(v));
                 struct imp_proto_field elem = *f;
                 elem.type = IMP_PROTO_T_STRING;
                 elem.min = 1;
@@ -407,7 +394,7 @@ static int load_line(const char *line, size_t len, size_t max, json_t **ret, str
         }
         if (!json_is_object(j)) {
                 r = imp_proto_error_set(e, IMP_PROTO_E_BAD_REQUEST, EINVAL, NULL,
-                                        "expected a JSON object, got %s", json_type_name(j));
+                                        "expected a JSON object, got %s", imp_json_type_name(j));
                 json_decref(j);
                 return r;
         }
@@ -423,7 +410,7 @@ static int check_id(const json_t *id, struct imp_proto_error *e) {
                 return 0;
         if (!json_is_string(id))
                 return imp_proto_error_set(e, IMP_PROTO_E_BAD_REQUEST, EINVAL, "id",
-                                           "expected an integer or a string, got %s", json_type_name(id));
+                                           "expected an integer or a string, got %s", imp_json_type_name(id));
         size_t n = json_string_length(id);
         if (n < 1 || n > IMP_PROTO_ID_MAX || strlen(json_string_value(id)) != n)
                 return imp_proto_error_set(e, IMP_PROTO_E_BAD_REQUEST, EINVAL, "id",
@@ -439,12 +426,12 @@ static int check_request(json_t *root, enum imp_proto_role role, const struct im
                 return imp_proto_error_set(e, IMP_PROTO_E_BAD_REQUEST, EINVAL, "cmd", "missing; expected a command name");
         if (!json_is_string(cmd))
                 return imp_proto_error_set(e, IMP_PROTO_E_BAD_REQUEST, EINVAL, "cmd",
-                                           "expected a string (a command name), got %s", json_type_name(cmd));
+                                           "expected a string (a command name), got %s", imp_json_type_name(cmd));
 
         json_t *args = json_object_get(root, "args");
         if (args && !json_is_null(args) && !json_is_object(args))
                 return imp_proto_error_set(e, IMP_PROTO_E_BAD_REQUEST, EINVAL, "args",
-                                           "expected an object, got %s", json_type_name(args));
+                                           "expected an object, got %s", imp_json_type_name(args));
         const char *key;
         json_t *v;
         json_object_foreach(root, key, v)
