@@ -1,4 +1,4 @@
-/* `impasto bench accuracy [--quick] [--out DIR] [--repo DIR] [--keep-sets]` (issue #9):
+/* `impasto bench accuracy [--quick] [--out DIR] [--repo DIR] [--keep-sets]`:
  * what accuracy costs in time. Each study scene is rendered once with the richest plan;
  * every configuration's capture set is then derived by taking the frames its plan names
  * (2×2 binned for the binning knob), processed by its own `impasto process` process (fork

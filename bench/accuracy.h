@@ -1,4 +1,4 @@
-/* `impasto bench accuracy` (issue #9): the sweep's configurations and measured results,
+/* `impasto bench accuracy`: the sweep's configurations and measured results,
  * shared by the sweep (bench/accuracy.c) and its outputs — tables, Pareto fronts, SVG
  * plots, presets and the generated report (bench/accuracy-report.c). */
 #pragma once

@@ -1,4 +1,4 @@
-/* Capture-frame encoding benchmark (issue #7): impasto's frame writer imp_tiff_write_fast
+/* Capture-frame encoding benchmark: impasto's frame writer imp_tiff_write_fast
  * (horizontal predictor and Zstandard level 1 done in one pass per strip, strips written
  * raw) against libtiff's own encoder producing the same format (TIFFWriteEncodedStrip with
  * COMPRESSION_ZSTD, ZSTD_LEVEL 1, PREDICTOR_HORIZONTAL, the same 64 KiB strips: what

@@ -1,4 +1,4 @@
-# Fit throughput (texels/s) and peak RSS of the per-texel Lafortune fit (issue #5).
+# Fit throughput (texels/s) and peak RSS of the per-texel Lafortune fit.
 add_executable(bench-fit ${PROJECT_SOURCE_DIR}/bench/bench-fit.c)
 target_include_directories(bench-fit PRIVATE ${PROJECT_SOURCE_DIR}/tests)
 target_link_libraries(bench-fit PRIVATE impasto_pipeline)

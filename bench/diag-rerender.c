@@ -1,4 +1,4 @@
-/* Diagnosis of the held-out re-render error (issue #5): the held-out dome lights of a
+/* Diagnosis of the held-out re-render error: the held-out dome lights of a
  * simulated capture re-rendered through the same sample extraction and shading as
  * `impasto process --holdout N` (pipeline/process.c validate_holdout), with geometry and
  * BRDF taken from either the copy (fitted) or the simulator's truth:

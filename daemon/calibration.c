@@ -1,4 +1,4 @@
-/* Calibrations run by the daemon (issue #8): `calibrate` captures the frames a routine needs
+/* Calibrations run by the daemon: `calibrate` captures the frames a routine needs
  * as an ordinary session of the routine's plan, then runs the offline routine
  * (`impasto calibrate ROUTINE --set SET --json --out …`, the same code as from image folders)
  * on the completed set as a durable job of the daemon's own, and stores the result as a new

@@ -21,7 +21,7 @@
 #define GRAB_MARGIN_MS 2000U            /* beyond the exposure, before a grab times out */
 #define AXIS_MOVE_TIMEOUT_MS 60000U
 /* Accuracy of the step timer. 0 would mean sd-event's default of 250 ms, within which it
- * coalesces wake-ups: the settle time of every frame became ~180 ms (issue #7). */
+ * coalesces wake-ups: the settle time of every frame became ~180 ms. */
 #define STEP_ACCURACY_US 1ULL
 /* Streamed runs: the shortest run worth switching the camera for, the wait for a free-running
  * frame beyond the exposure (the camera's frame period is its own), incomplete frames in a

@@ -1,5 +1,5 @@
 # Camera-only calibration, `impasto calibrate camera` (cli/calibrate-camera.c,
-# pipeline/calib/calib-camera.c, pipeline/calib/cv/cv-calib-camera.cpp; issue #8). OpenCV inside, so
+# pipeline/calib/calib-camera.c, pipeline/calib/cv/cv-calib-camera.cpp). OpenCV inside, so
 # labelled integration, not run under ASan (see calib.cmake) — except the C half:
 # image normalisation, a capture set's calibration frame, JSON and rig.json output.
 impasto_test(test-calib-camera-io LIBS impasto_pipeline)

@@ -1,4 +1,4 @@
-# The projector's gamma (issue #8): `impasto calibrate radiometric --projector-set` on a
+# The projector's gamma: `impasto calibrate radiometric --projector-set` on a
 # flat white board under phase-shift frames, written into a copy of a base rig
 # (tests/integration/calibrate-projector-gamma.sh; five 200 × 150 renders, ~10 s; 30-45 s on
 # 2 shared cores at load 15, hence the generous timeout).

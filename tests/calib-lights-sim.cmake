@@ -1,4 +1,4 @@
-# Dome light and radiometric calibration of the simulated rig, end to end (issue #8):
+# Dome light and radiometric calibration of the simulated rig, end to end:
 # renders config/scenes/lights-target{,-mid,-raised}.cfg (the mirror target at 0, 20 and
 # 40 mm) and a noisy flat-white, runs `impasto calibrate lights|radiometric` (sphere
 # detection, per-light triangulation and the joint refinement, free and dome-constrained,

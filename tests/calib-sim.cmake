@@ -1,4 +1,4 @@
-# Calibration of the simulated demo rig from simulated chessboard targets (issue #8):
+# Calibration of the simulated demo rig from simulated chessboard targets:
 # renders config/scenes/target-*.cfg with `impasto sim render`, calibrates with
 # `impasto calibrate procam --sets` (with --opencv-only, with --no-joint: each device refined
 # alone and stereoCalibrate's pose, then the default joint refinement), compares with the

@@ -1,4 +1,4 @@
-# Projector–camera calibration (pipeline/calib/calib.c, pipeline/calib/cv/cv-calib.cpp, issue #8).
+# Projector–camera calibration (pipeline/calib/calib.c, pipeline/calib/cv/cv-calib.cpp).
 # All three run OpenCV's calibration code, which trips LeakSanitizer in OpenCV's own
 # thread-local caches, so they are labelled integration (not run under ASan in CI).
 if(TARGET impasto_cv)

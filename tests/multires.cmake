@@ -1,2 +1,2 @@
-# Multi-resolution view-dependent texture (pipeline/appearance/multires.c, seed 003, issue #5 stage 5).
+# Multi-resolution view-dependent texture (pipeline/appearance/multires.c, seed 003).
 impasto_test(test-multires LIBS impasto_pipeline)

@@ -1,4 +1,4 @@
-# Photometric normal refinement from the dome sweep (pipeline/appearance/photometric.c, issue #4).
+# Photometric normal refinement from the dome sweep (pipeline/appearance/photometric.c).
 impasto_test(test-photometric LIBS impasto_pipeline)
 # Photometric normals outside their model: dark paint, inter-reflection, few lights.
 impasto_test(test-photometric-stability LABELS stability LIBS impasto_pipeline)

@@ -1,4 +1,4 @@
-/* Bidirectional texture recovery (seed 000 §4.4, issue #5 stages 1–2): radiance samples
+/* Bidirectional texture recovery (seed 000 §4.4): radiance samples
  * per texel of a heightfield (local view/light directions, irradiance, measured value,
  * self-shadowed and hidden samples rejected by ray casting on the heightfield, §5.2's
  * linear-then-binary search), and a per-texel one-lobe Lafortune fit (lafortune.h).

@@ -1,4 +1,4 @@
-/* Photometric normal refinement from the dome sweep (issue #4): per texel, Lambertian
+/* Photometric normal refinement from the dome sweep: per texel, Lambertian
  * photometric stereo on the near-field samples of imp_btf_samples_extract(),
  *
  *     V / E = g · l,   g = ρd · n   (3 unknowns, linear least squares),

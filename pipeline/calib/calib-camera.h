@@ -1,4 +1,4 @@
-/* Camera-only calibration (`impasto calibrate camera`, issue #8): intrinsics and
+/* Camera-only calibration (`impasto calibrate camera`): intrinsics and
  * distortion of one camera from chessboard views, with per-view residuals, views rejected
  * as outliers and the warnings. The fit itself is the OpenCV/Ceres code of the procam
  * calibration (pipeline/calib/cv/cv-calib-camera.h); this half is pure C: input images to 8-bit

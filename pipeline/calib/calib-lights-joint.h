@@ -1,4 +1,4 @@
-/* Joint refinement of dome light positions and mirror centres (issue #8): one least-squares
+/* Joint refinement of dome light positions and mirror centres: one least-squares
  * problem over every light and every mirror of every capture, from the highlights they share,
  * with each centre held to its silhouette fit by a prior. Method, figures:
  * docs/calibration-lights.md, "Joint refinement". Library code: no logging. */

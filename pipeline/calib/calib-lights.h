@@ -1,4 +1,4 @@
-/* Dome light calibration (issue #8): light positions from highlights on glossy spheres,
+/* Dome light calibration: light positions from highlights on glossy spheres,
  * per-light intensity and colour from a white Lambertian target, and RTI .lp files.
  * Geometry in mm in the world (canvas) frame, pixels in the camera's full-frame coordinates.
  * Method and conventions: docs/calibration-lights.md. Library code: no logging. */

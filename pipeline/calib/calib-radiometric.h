@@ -1,4 +1,4 @@
-/* Radiometric calibration (issue #8): the camera's photon transfer (black level, linearity,
+/* Radiometric calibration: the camera's photon transfer (black level, linearity,
  * gain, read noise, saturation, full well) from flat-field and dark frames, and the
  * projector's gamma from phase-shift frames. Method: docs/calibration-lights.md.
  * Library code: no logging. */

@@ -194,7 +194,7 @@ static int tiff_set_layout(TIFF *tif, const struct imp_image *img, const char *d
         if (img->channels == 2 || img->channels == 4)
                 ok = ok && TIFFSetField(tif, TIFFTAG_EXTRASAMPLES, (uint16_t) 1, alpha);
         /* fast (frames as they are captured): Zstandard level 1, about 3x less CPU than
-         * deflate level 1 for files within ~1 % of its size (issue #7, docs/bench-capture.md),
+         * deflate level 1 for files within ~1 % of its size (docs/bench-capture.md),
          * when this libtiff has it. */
         bool zstd = fast && TIFFIsCODECConfigured(COMPRESSION_ZSTD);
         ok = ok && TIFFSetField(tif, TIFFTAG_COMPRESSION, zstd ? COMPRESSION_ZSTD : COMPRESSION_ADOBE_DEFLATE);
@@ -247,7 +247,7 @@ static void predict_rows(const struct imp_image *img, int y, int n, uint8_t *out
  * each per strip, and the strip written raw. The file is the same as libtiff's own
  * encoder would write (Compression ZSTD, Predictor 2, one Zstandard frame per strip) but
  * without its copy of each strip and its streaming encoder: about half the CPU
- * (bench/bench-tiff.c, issue #7). */
+ * (bench/bench-tiff.c). */
 static pthread_key_t cctx_key;
 
 static void cctx_free(void *p) {

@@ -54,7 +54,7 @@ struct imp_heightfield_options {
                                          averages height noise at the cost of detail finer
                                          than the window. Default 0: on the demo scene every
                                          r > 0 measured worse (docs/geometry.md) */
-        /* Projector-shadow fill (issue #4, docs/geometry.md "Shadow fill"). > 0: texels the
+        /* Projector-shadow fill (docs/geometry.md "Shadow fill"). > 0: texels the
          * range mesh does not cover that lie between the measured canvas and the frame are
          * added to the mask with value IMP_HF_MASK_FILLED: the grid is padded by this many
          * texels, the frame is every non-canvas point higher than the canvas's 99th height

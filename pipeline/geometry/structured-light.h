@@ -1,4 +1,4 @@
-/* Structured-light decoding (issue #4 stage 2): Gray-code frames (with inverses) and
+/* Structured-light decoding: Gray-code frames (with inverses) and
  * optional N-step phase-shift frames, described by struct imp_pattern, become a
  * camera→projector correspondence map. Conventions, decision rules and measured figures:
  * docs/structured-light.md.

@@ -1,5 +1,5 @@
 #!/bin/bash
-# `impasto calibrate radiometric --projector-set` (issue #8): the projector's gamma from a
+# `impasto calibrate radiometric --projector-set`: the projector's gamma from a
 # flat white board under white, black and 8 phase-shift frames (config/scenes/
 # projector-gamma-demo.cfg through a 200 × 150 window of its camera, same 50 µm pixels;
 # config/plans/projector-gamma.cfg, 11 frames, ~1 s each render). Two projectors, gamma 2.2

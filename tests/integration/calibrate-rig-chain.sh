@@ -1,5 +1,5 @@
 #!/bin/bash
-# `impasto calibrate radiometric --rig BASE.json --out RIG.json` (issue #8, the demo's
+# `impasto calibrate radiometric --rig BASE.json --out RIG.json` (the demo's
 # calibration chain, docs/calibration.md): the sensor estimated from a photon-transfer set goes
 # into a copy of BASE.json — not of the set's own rig — into BASE's camera of the same name;
 # everything else of BASE is kept. A noisy flat-white set (config/plans/photon-transfer.cfg,

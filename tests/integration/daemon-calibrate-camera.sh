@@ -1,5 +1,5 @@
 #!/bin/bash
-# impastod calibrates camera and projector from board poses (issue #8): the emulated rig
+# impastod calibrates camera and projector from board poses: the emulated rig
 # shows one chessboard pose per `impasto sim serve` (config/scenes/target-K.cfg), so the
 # board is "moved" by serving the next scene, as an operator would move it between captures.
 # Poses 3, 8 and 10 are captured as ordinary sessions of config/plans/target.cfg; then

@@ -1,5 +1,5 @@
 #!/bin/bash
-# impastod calibrates the dome lights of the emulated rig (issue #8) the way an operator
+# impastod calibrates the dome lights of the emulated rig the way an operator
 # would with one mirror target and two spacer blocks: the board raised 40 mm
 # (config/scenes/lights-target-raised.cfg) and 20 mm (lights-target-mid.cfg) is each captured
 # as an ordinary session of config/plans/lights.cfg (one frame per light, darks); then, with

@@ -1,5 +1,5 @@
 #!/bin/bash
-# impastod under socket activation (issue #7), started the way systemd starts it from
+# impastod under socket activation, started the way systemd starts it from
 # impastod.socket: `systemd-socket-activate` binds and listens on the socket, and on the first
 # connection execs impastod with LISTEN_FDS=1, LISTEN_PID and the listening socket as fd 3.
 # Checks: the daemon answers `status` on the inherited socket (several connections, so the

@@ -1,4 +1,4 @@
-/* A real full disk under a running capture (issue #7): the test enters a private mount
+/* A real full disk under a running capture: the test enters a private mount
  * namespace (unshare, root only: skipped when not permitted), mounts a small tmpfs as
  * impastod's state directory, starts a long dome sweep on the emulated rig, and fills the
  * tmpfs to the last byte while frames are being written. The session must pause with an

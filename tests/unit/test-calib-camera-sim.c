@@ -1,4 +1,4 @@
-/* Camera calibration of the simulated wide-field camera (issue #8): renders the target set
+/* Camera calibration of the simulated wide-field camera: renders the target set
  * config/scenes/calib-wide-{0..19}.cfg with config/plans/camera-target.cfg, runs
  * `impasto calibrate camera --sets …`, and compares with the simulator's truth (truth/rig.json
  * of each set). The noise floor is measured here: the RMS distance between the corners the

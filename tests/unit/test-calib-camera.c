@@ -1,4 +1,4 @@
-/* Camera-only calibration (issue #8), fast: (1) chessboard corners projected through the
+/* Camera-only calibration, fast: (1) chessboard corners projected through the
  * wide-field target camera (config/scenes/calib-wide-*.cfg) plus Gaussian noise go through
  * imp_cv_calib_camera — the path `impasto calibrate camera` takes after detection — and
  * the intrinsics come back within issue #8's limits and within 3σ; (2) a mislabelled view

@@ -1,4 +1,4 @@
-/* Ceres bundle refinement of a calibration (pipeline/calib/cv/ceres-calib.cpp, issue #8) on
+/* Ceres bundle refinement of a calibration (pipeline/calib/cv/ceres-calib.cpp) on
  * synthetic corners: known camera, 12 tilted board poses, Gaussian corner noise. Checks
  * that on clean data it agrees with OpenCV's calibrateCamera (the start) within a fraction
  * of σ, with a similar σ; that with a few corners moved 20 px the robust loss plus outlier

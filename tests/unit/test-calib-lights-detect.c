@@ -1,4 +1,4 @@
-/* Mirror-sphere detection and cut-sphere fits (pipeline/calib/calib-lights.c, issue #8) on
+/* Mirror-sphere detection and cut-sphere fits (pipeline/calib/calib-lights.c) on
  * analytic renders of the demo camera (1400×1000, f 6000 px, 300 mm above the canvas, with
  * lens distortion): the per-pixel maximum image of a light calibration — a bright board, dark
  * sphere bodies with highlights inside — ray-cast with 3×3 supersampling and noise.

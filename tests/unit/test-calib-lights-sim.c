@@ -1,4 +1,4 @@
-/* Dome light and radiometric calibration of the simulated rig, end to end (issue #8):
+/* Dome light and radiometric calibration of the simulated rig, end to end:
  * renders the light calibration target config/scenes/lights-target.cfg and the same board
  * raised 20 and 40 mm (lights-target-mid.cfg, lights-target-raised.cfg) with
  * config/plans/lights.cfg (noise on), runs `impasto calibrate lights` with sphere

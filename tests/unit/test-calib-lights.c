@@ -2,7 +2,7 @@
  * canvas seen by a 6000×4000 camera 450 mm above, 48 lights on a 500 mm hemisphere (rings
  * at 15°, 35°, 60°). Silhouettes are ray-cast (3×3 supersampling, 4 % reflectance body,
  * noise σ 2 on a background of 1000); each highlight is a Gaussian spot (σ 1.3 px) at the
- * projection of the exact specular point. Tolerances (issue #8): light position 1 mm,
+ * projection of the exact specular point. Tolerances: light position 1 mm,
  * intensity 2 %; sphere centre 0.05 mm; .lp round trip 1e-6. */
 #include <math.h>
 #include <stdint.h>

@@ -1,7 +1,7 @@
 /* Photon transfer and projector gamma on frames made here with exactly the simulator's
  * sensor model (sim/render.c): e = V·quantum_scale·t·(1 + PRNU) + dark, Poisson shot noise
  * (Gaussian above 50 e here), clip at full well, + read noise, DN = round(e/g + black), clip
- * to 2^bits − 1. Tolerances (issue #8): gain 3 %, read noise 10 %, black 0.5 DN,
+ * to 2^bits − 1. Tolerances: gain 3 %, read noise 10 %, black 0.5 DN,
  * saturation detected; gamma 0.1–1 % by noise (test_gamma). */
 #include <math.h>
 #include <stdint.h>

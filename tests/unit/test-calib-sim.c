@@ -1,4 +1,4 @@
-/* Calibration of the simulated demo rig from simulated targets (issue #8): renders the
+/* Calibration of the simulated demo rig from simulated targets: renders the
  * chessboard scenes config/scenes/target-{0..13}.cfg with config/plans/target.cfg, runs
  * `impasto calibrate procam --sets … --reference target-0 --out rig.json`, and compares
  * the result with the simulator's truth (truth/rig.json of a set). Tolerances are stated
@@ -95,7 +95,7 @@ static void relative(const struct imp_pinhole *c, const struct imp_pinhole *p, d
                 t[i] = p->t[i] - (R[3 * i] * c->t[0] + R[3 * i + 1] * c->t[1] + R[3 * i + 2] * c->t[2]);
 }
 
-/* Corner bias (issue #8): chessboard corners found on set `dir`'s white frame against the
+/* Corner bias: chessboard corners found on set `dir`'s white frame against the
  * true corners — the board of `cfg` (its plane, origin, turn; sim/painting.c's
  * checker frame) projected through the set's truth/rig.json. Each found corner is matched
  * to the nearest true one. Prints mean and RMS of found − true; returns the RMS (px), or

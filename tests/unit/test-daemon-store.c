@@ -1,5 +1,5 @@
 /* The capture store under a full disk and a failing file system, with the store writer
- * thread holding frames (issue #7): the state directory is a small tmpfs of the test's own
+ * thread holding frames: the state directory is a small tmpfs of the test's own
  * (private mount namespace; skipped when the test may not create one).
  *  1. A filler file takes the free space after a few frames: the session pauses with the
  *     disk-space fault (the per-frame check) or the writer's ENOSPC, the manifest lists only

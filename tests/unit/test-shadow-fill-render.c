@@ -1,4 +1,4 @@
-/* Shadow fill end to end (issue #4, docs/geometry.md "Shadow fill"): the small appearance
+/* Shadow fill end to end (docs/geometry.md "Shadow fill"): the small appearance
  * scene (12 × 8 mm canvas in a 1 mm raised frame, projector off axis, dome) rendered by
  * `impasto sim render`, processed by imp_process_capture() with the fill off and on, and
  * compared with the truth. Asserts that the fill adds canvas (mask IoU up by ≥ 0.01,

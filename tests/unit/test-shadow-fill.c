@@ -1,4 +1,4 @@
-/* Projector-shadow fill (heightfield.h shadow_fill_px, fuse.h mask value 2, issue #4): a
+/* Projector-shadow fill (heightfield.h shadow_fill_px, fuse.h mask value 2): a
  * synthetic range image of a painted canvas inside a raised frame, with the canvas strip
  * along the right frame wall undecoded (projector shadow). Checks that the fill covers the
  * strip and nothing of the frame, that it fills nothing when the frame has a gap or there

@@ -1,5 +1,5 @@
 /* Bundle refinement of one device's intrinsics, distortion and per-view board poses with
- * Ceres (issue #8): robust loss, outlier rejection, covariance by ceres::Covariance and an
+ * Ceres: robust loss, outlier rejection, covariance by ceres::Covariance and an
  * mrcal-style projection uncertainty. Starts from OpenCV's estimate (cv-calib.h); the model
  * is OpenCV's (fx fy cx cy k1 k2 p1 p2 k3, poses as Rodrigues vector + translation), so the
  * results drop into struct imp_calib_intrinsics unchanged. Library code: no logging.

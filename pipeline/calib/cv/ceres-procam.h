@@ -1,4 +1,4 @@
-/* Joint refinement of a projector–camera pair with Ceres (issue #8): one problem over the
+/* Joint refinement of a projector–camera pair with Ceres: one problem over the
  * camera's intrinsics and distortion, the projector's, one board pose per view (camera
  * frame) and the camera → projector pose, on the corners both devices observe. Moreno &
  * Taubin (2012) calibrate the pair in steps: each device alone (§3.3 camera, §3.4 projector
