@@ -10,6 +10,7 @@
 #include "commands.h"
 #include "json-util.h"
 #include "log.h"
+#include "numparse.h"
 #include "process.h"
 #include "process-photometric.h"
 #include "process-range.h"
@@ -108,17 +109,24 @@ static int run(int argc, char **argv) {
         while ((c = getopt_long(argc, argv, "o:h", longopts, NULL)) >= 0)
                 switch (c) {
                 case 'o': out = optarg; break;
-                case 'p': o.heightfield.pitch_mm = atof(optarg); break;   /* <= 0: the footprint */
+                case 'p':   /* 0: the camera footprint */
+                        if (imp_parse_double("--pitch", optarg, 0, 1000, &o.heightfield.pitch_mm) < 0)
+                                return IMP_EXIT_PROCESS_USAGE;
+                        break;
                 case 'n':
                         if (int_arg("cell", optarg, 0, &n) < 0)
                                 return IMP_EXIT_PROCESS_USAGE;
                         if (n > 0)   /* 0: the default */
                                 o.boxes.cell_px = n;
                         break;
-                case 'd':
-                        if (atof(optarg) > 0)   /* <= 0: the default */
-                                o.boxes.delta_frac = atof(optarg);
+                case 'd': {
+                        double v;
+                        if (imp_parse_double("--delta", optarg, 0, 1, &v) < 0)
+                                return IMP_EXIT_PROCESS_USAGE;
+                        if (v > 0)   /* 0: the default */
+                                o.boxes.delta_frac = v;
                         break;
+                }
                 case 'B': o.btf = false; break;
                 case 'P': o.photometric_normals = false; break;
                 case 'H':

@@ -66,6 +66,10 @@ run limit "$imp" jobs list --limit abc --socket "$sock"
 check "impasto jobs --limit abc: refused naming the option, exit 2" \
   sh -c '[ "$(cat "$0")" = 2 ] && grep -q -- "--limit: expected an integer from 1 to 1000, got '"'abc'"'" "$1"' \
   "$tmp/limit.rc" "$tmp/limit.err"
+run pitch "$imp" process "$tmp" --out "$tmp/copy" --pitch abc
+check "impasto process --pitch abc: refused naming the option, exit 2, nothing written" \
+  sh -c '[ "$(cat "$0")" = 2 ] && grep -q -- "--pitch: expected a number from 0 to 1000, got '"'abc'"'" "$1" && [ ! -e "$2" ]' \
+  "$tmp/pitch.rc" "$tmp/pitch.err" "$tmp/copy"
 
 [ $failures -eq 0 ] || { echo "$failures failed"; exit 1; }
 echo "conventions verified"
