@@ -38,19 +38,6 @@ static void become_nobody(void) {
                 _exit(90);
 }
 
-static uint64_t rss_kib(pid_t pid) {
-        char p[64], line[256];
-        snprintf(p, sizeof p, "/proc/%d/status", (int) pid);
-        FILE *f = fopen(p, "re");
-        uint64_t v = 0;
-        while (f && fgets(line, sizeof line, f))
-                if (!strncmp(line, "VmRSS:", 6))
-                        v = strtoull(line + 6, NULL, 10);
-        if (f)
-                fclose(f);
-        return v;
-}
-
 static pid_t actor(void (*fn)(const struct harness *h, const char *arg), const struct harness *h, const char *arg) {
         pid_t pid = fork();
         if (pid == 0) {

@@ -510,3 +510,17 @@ _unused_ static size_t h_verify_set(const char *dir, const char *plan_path, bool
         imp_captureset_close(cs);
         return n;
 }
+
+/* The resident set of a process in KiB (VmRSS of /proc/PID/status); 0 when unreadable. */
+static inline uint64_t rss_kib(pid_t pid) {
+        char p[64], line[256];
+        snprintf(p, sizeof p, "/proc/%d/status", (int) pid);
+        FILE *f = fopen(p, "re");
+        uint64_t v = 0;
+        while (f && fgets(line, sizeof line, f))
+                if (!strncmp(line, "VmRSS:", 6))
+                        v = strtoull(line + 6, NULL, 10);
+        if (f)
+                fclose(f);
+        return v;
+}

@@ -129,19 +129,6 @@ static int role_as(const struct harness *h, uid_t uid, const gid_t *groups, size
         return st == 0 || st == 1 ? st : -1;
 }
 
-static uint64_t rss_kib(pid_t pid) {
-        char p[64], line[256];
-        snprintf(p, sizeof p, "/proc/%d/status", (int) pid);
-        FILE *f = fopen(p, "re");
-        uint64_t v = 0;
-        while (f && fgets(line, sizeof line, f))
-                if (!strncmp(line, "VmRSS:", 6))
-                        v = strtoull(line + 6, NULL, 10);
-        if (f)
-                fclose(f);
-        return v;
-}
-
 /* ms for a status call on c */
 static uint64_t status_ms(struct tclient *c) {
         uint64_t t0 = h_now_ms();
