@@ -419,8 +419,9 @@ static int sl_range(const struct process_opts *o, const struct imp_rig *rig, str
 
 /* Canvas extraction and the heightfield (seed §4.2); a refusal marks g->refused. */
 static int heightfield_stage(const struct process_opts *o, const struct imp_range_image *range,
-                             struct geometry_out *g, struct imp_error *err) {
+                             const struct imp_sl_result *sl, struct geometry_out *g, struct imp_error *err) {
         struct imp_heightfield_options ho = o->opt->heightfield;
+        ho.albedo = sl->direct;   /* a flush frame's albedo step */
         if (!(o->opt->btf && o->opt->photometric_normals && o->opt->fuse_heights))
                 ho.shadow_fill_px = 0;   /* the fill needs normals to shape it */
         int r = imp_heightfield_extract(range, &ho, &g->hf, err);
@@ -453,7 +454,7 @@ static int run_geometry(const struct process_opts *o, const struct imp_capturese
                 t_tri = now_s();
         }
         if (r >= 0)
-                r = heightfield_stage(o, &range, g, err);
+                r = heightfield_stage(o, &range, sl, g, err);
         if (r >= 0) {
                 double t_hf = now_s();
                 g->stages = json_pack("{s:{s:i,s:I,s:I,s:f,s:f}, s:{s:I,s:I,s:I,s:I,s:I,s:f}, s:{s:I,s:f}, s:o}",

@@ -5,6 +5,7 @@
 #include <string.h>
 #include <sys/stat.h>
 #include "heightfield.h"
+#include "frame-edge.h"
 #include "numerics.h"
 #include "image.h"
 #include "json-util.h"
@@ -878,32 +879,76 @@ static bool ransac_plane(const struct imp_range_image *r, const struct imp_heigh
         return true;
 }
 
-/* Median 3D distance between horizontally adjacent canvas points (vertically when no
- * row holds two): the camera footprint. 0 when no pair exists. */
-static int footprint_mm(const struct imp_range_image *range, const uint8_t *canvas, double *ret) {
+/* Median distance between horizontally adjacent canvas points (vertically when no row
+ * holds two): *ret_3d between the 3-D points (what the mesh's edges are measured against:
+ * it grows with range noise), *ret_plane between the points where their viewing rays meet
+ * the canvas plane (m, n): the camera footprint on the canvas, which range noise along the
+ * ray does not change (the ray's direction is (X − C)/|X − C| whatever the noise). 0 when
+ * no pair exists. */
+static bool ray_on_plane(const struct imp_range_image *r, size_t i, const double m[3], const double n[3],
+                         double ret[3]) {
+        const double *C = r->camera_centre_mm;
+        double d[3], mc[3];
+        for (int q = 0; q < 3; q++)
+                d[q] = r->xyz[3 * i + q] - C[q], mc[q] = m[q] - C[q];
+        double dn = imp_dot3(d, n);
+        if (!(fabs(dn) > 1e-9 * sqrt(imp_dot3(d, d))))
+                return false;
+        double s = imp_dot3(mc, n) / dn;
+        for (int q = 0; q < 3; q++)
+                ret[q] = C[q] + s * d[q];
+        return true;
+}
+
+static int footprint_mm(const struct imp_range_image *range, const uint8_t *canvas, const double m[3],
+                        const double n[3], double *ret_3d, double *ret_plane) {
         int w = range->width, h = range->height;
         size_t N = (size_t) w * h;
-        _cleanup_free_ float *dist = malloc(N * sizeof(float));
-        if (!dist)
+        _cleanup_free_ float *dist = malloc(N * sizeof(float)), *dp = malloc(N * sizeof(float));
+        if (!dist || !dp)
                 return -ENOMEM;
-        size_t nd = 0;
+        size_t nd = 0, np = 0;
         for (int dir = 0; dir < 2 && nd == 0; dir++)
                 for (int y = 0; y + dir < h; y++)
                         for (int x = 0; x + 1 - dir < w; x++) {
                                 size_t i = (size_t) y * w + x, j = dir ? i + w : i + 1;
                                 if (!canvas[i] || !canvas[j])
                                         continue;
-                                double s2 = 0;
+                                double s2 = 0, pi[3], pj[3];
                                 for (int q = 0; q < 3; q++) {
                                         double dd = range->xyz[3 * i + q] - range->xyz[3 * j + q];
                                         s2 += dd * dd;
                                 }
                                 dist[nd++] = (float) sqrt(s2);
+                                if (ray_on_plane(range, i, m, n, pi) && ray_on_plane(range, j, m, n, pj))
+                                        dp[np++] = (float) sqrt(pow(pi[0] - pj[0], 2) + pow(pi[1] - pj[1], 2) +
+                                                                pow(pi[2] - pj[2], 2));
                         }
-        float med = 0;
+        float med = 0, medp = 0;
         int r = nd ? percentile(dist, nd, 50, &med) : 0;
-        *ret = med;
+        if (r >= 0 && np)
+                r = percentile(dp, np, 50, &medp);
+        *ret_3d = med;
+        *ret_plane = np ? medp : med;
         return r;
+}
+
+/* A flush frame cut off the seed fill by its albedo step (frame-edge.h); bins of two
+ * camera footprints on the robust plane. */
+static int trim_flush_frame(const struct imp_range_image *range, const struct imp_heightfield_options *opt,
+                            const double m1[3], const double n1[3], struct imp_heightfield *hf, uint8_t *canvas) {
+        double d3, dp;
+        int r = footprint_mm(range, canvas, m1, n1, &d3, &dp);
+        if (r < 0 || !(dp > 0))
+                return r;
+        struct imp_frame_edge fe;
+        if ((r = imp_frame_edge_trim(range, opt->albedo, m1, n1, 2 * dp, canvas, &fe)) < 0)
+                return r;
+        hf->n_frame_trimmed = fe.n_trimmed;
+        memcpy(hf->frame_trim_mm, fe.trim_mm, sizeof fe.trim_mm);
+        if (fe.sides_trimmed)
+                hf->flags |= IMP_HF_FRAME_TRIMMED;
+        return 0;
 }
 
 /* The canvas on the range grid (seed §4.2 with a robust plane): heights h1 over the robust
@@ -959,6 +1004,8 @@ static int canvas_mask(const struct imp_range_image *range, const struct imp_hei
                         return r;
         }
         hf->step_min_used_mm = b.slope_max > 0 ? b.step_min : INFINITY;
+        if (opt->albedo && (r = trim_flush_frame(range, opt, m1, n1, hf, canvas)) < 0)
+                return r;
         if (opt->keep_holes)
                 return erode(canvas, w, h, opt->erode_px);
         /* Erode the hole-filled mask, then keep only filled pixels: holes do not grow, the
@@ -973,6 +1020,38 @@ static int canvas_mask(const struct imp_range_image *range, const struct imp_hei
         return 0;
 }
 
+/* The canvas's base plane: the PCA plane of the canvas points at or below the median
+ * height over the current plane, HF_BASE_PASSES times. Relief (a ridge, strokes) stands
+ * on the base; in a least-squares plane through every point it tilts the plane towards
+ * where it lies, the more so the less canvas is seen. The normal ez is replaced; the
+ * origin m stays the centroid of every canvas point. */
+#define HF_BASE_PASSES 2
+static int base_plane(const struct imp_range_image *range, const uint8_t *canvas, const double m[3], double ez[3]) {
+        size_t N = (size_t) range->width * range->height, k = 0;
+        _cleanup_free_ float *hv = malloc((N ? N : 1) * sizeof(float));
+        _cleanup_free_ uint8_t *low = malloc(N ? N : 1);
+        if (!hv || !low)
+                return -ENOMEM;
+        for (int pass = 0; pass < HF_BASE_PASSES; pass++) {
+                k = 0;
+                for (size_t i = 0; i < N; i++)
+                        if (canvas[i])
+                                hv[k++] = (float) plane_dist(range, i, m, ez);
+                float med;
+                int r = percentile(hv, k, 50, &med);
+                if (r < 0)
+                        return r;
+                for (size_t i = 0; i < N; i++)
+                        low[i] = canvas[i] && plane_dist(range, i, m, ez) <= med;
+                double mm[3], n[3];
+                bool weak;
+                if (pca_plane(range, low, mm, n, &weak) < 3 || weak)
+                        return 0;
+                memcpy(ez, n, sizeof n);
+        }
+        return 0;
+}
+
 /* The canvas frame from the canvas points (second PCA, seed §4.2) and the placement checks
  * against the rig: tilt from the expected normal, viewing angle, amount of canvas. */
 static int canvas_frame(const struct imp_range_image *range, const struct imp_heightfield_options *opt,
@@ -983,6 +1062,11 @@ static int canvas_frame(const struct imp_range_image *range, const struct imp_he
         if (hf->n_canvas_points < 3)
                 return imp_error_set(err, -ENODATA, "no canvas: %zu of %zu valid range points left after the "
                                      "seed fill", hf->n_canvas_points, hf->n_range_points);
+        if (!opt->skip_extraction) {
+                int r = base_plane(range, canvas, m, ez);
+                if (r < 0)
+                        return r;
+        }
         if (weak)
                 hf->flags |= IMP_HF_PLANE_WEAK;
         double toc[3] = { range->camera_centre_mm[0] - m[0], range->camera_centre_mm[1] - m[1],
@@ -1005,14 +1089,7 @@ static int canvas_frame(const struct imp_range_image *range, const struct imp_he
                                              "(at least %zu needed)", hf->n_canvas_points,
                                              hf->n_range_points, min_pts);
         }
-        ex[0] = 1, ex[1] = 0, ex[2] = 0;
-        if (fabs(ez[0]) > 0.9)
-                ex[0] = 0, ex[1] = 1;
-        double pr = imp_dot3(ex, ez);
-        for (int q = 0; q < 3; q++)
-                ex[q] -= pr * ez[q];
-        imp_normalize3(ex);
-        imp_cross3(ez, ex, ey);
+        imp_canvas_axes(ez, ex, ey);
         return 0;
 }
 
@@ -1201,14 +1278,15 @@ int imp_heightfield_extract(const struct imp_range_image *range, const struct im
                 return -ENOMEM;
         if ((r = project_canvas(range, opt, canvas, &f, uvh, sig, &hf)) < 0)
                 return r;
-        if ((r = footprint_mm(range, canvas, &hf.footprint_mm)) < 0)
+        if ((r = footprint_mm(range, canvas, f.m, f.ez, &hf.neighbour_mm, &hf.footprint_mm)) < 0)
                 return r;
-        if (!(hf.footprint_mm > 0))
+        if (!(hf.footprint_mm > 0 && hf.neighbour_mm > 0))
                 return imp_error_set(err, -ENODATA, "no canvas: no two neighbouring canvas points");
         hf.pitch_mm = opt->pitch_mm > 0 ? opt->pitch_mm : hf.footprint_mm;
-        double max_edge = opt->max_edge_factor * fmax(hf.footprint_mm, hf.pitch_mm);
+        /* Mesh edges are 3-D distances: measured against the 3-D neighbour distance. */
+        double max_edge = opt->max_edge_factor * fmax(hf.neighbour_mm, hf.pitch_mm);
         struct hf_ctx c = { .r = range, .canvas = canvas, .uvh = uvh, .nrm = nrm, .sig = sig, .sig_n_deg = sig_n,
-                            .footprint = hf.footprint_mm, .max_edge2 = max_edge * max_edge };
+                            .footprint = hf.neighbour_mm, .max_edge2 = max_edge * max_edge };
         if ((r = rasterise(range, opt, canvas, &f, &c, &hf)) < 0)
                 return r;
         if ((r = imp_heightfield_flag_edges(&hf, IMP_HF_FRAME_ADJACENT_PX)) < 0)
@@ -1237,7 +1315,7 @@ int imp_heightfield_from_range(const struct imp_range_image *range,
 }
 
 json_t *imp_heightfield_stage_json(const struct imp_heightfield *hf) {
-        return json_pack("{s:I,s:I,s:I,s:I,s:f,s:f,s:f,s:f,s:f,s:b,s:b,s:b,s:f,s:f,s:f,s:f,s:I,s:b}",
+        return json_pack("{s:I,s:I,s:I,s:I,s:f,s:f,s:f,s:f,s:f,s:f,s:b,s:b,s:b,s:f,s:f,s:f,s:f,s:I,s:b,s:I,s:b}",
                          "range_points", (json_int_t) hf->n_range_points,
                          "canvas_points", (json_int_t) hf->n_canvas_points,
                          "mask_texels", (json_int_t) hf->n_mask_texels,
@@ -1245,7 +1323,7 @@ json_t *imp_heightfield_stage_json(const struct imp_heightfield *hf) {
                          "frame_height_mm", hf->frame_height_mm,
                          "plane_rms_mm", hf->plane_rms_mm,
                          "gradient_threshold_mm", hf->gradient_threshold_mm,
-                         "footprint_mm", hf->footprint_mm,
+                         "footprint_mm", hf->footprint_mm, "neighbour_mm", hf->neighbour_mm,
                          "pitch_mm", hf->pitch_mm,
                          "seed_moved", (hf->flags & IMP_HF_SEED_MOVED) != 0,
                          "plane_weak", (hf->flags & IMP_HF_PLANE_WEAK) != 0,
@@ -1255,7 +1333,9 @@ json_t *imp_heightfield_stage_json(const struct imp_heightfield *hf) {
                          "plane_tilt_deg", hf->plane_tilt_deg, "plane_view_deg", hf->plane_view_deg,
                          "ransac_inlier_frac", hf->ransac_inlier_frac,
                          "excluded_points", (json_int_t) hf->n_excluded_points,
-                         "plane_no_consensus", (hf->flags & IMP_HF_PLANE_NO_CONSENSUS) != 0);
+                         "plane_no_consensus", (hf->flags & IMP_HF_PLANE_NO_CONSENSUS) != 0,
+                         "frame_trimmed_points", (json_int_t) hf->n_frame_trimmed,
+                         "frame_trimmed", (hf->flags & IMP_HF_FRAME_TRIMMED) != 0);
 }
 
 int imp_heightfield_write_exr(const struct imp_heightfield *hf, const char *copy_dir, struct imp_error *err) {

@@ -6,10 +6,12 @@
  * the range-image mesh (no invented surface across holes) → normals averaged over the
  * 8-neighbourhood triangles. Library code: no logging.
  *
- * Canvas frame: z = the canvas-PCA normal turned towards the camera (height grows towards
+ * Canvas frame: z = the normal of the canvas's base plane (the PCA plane of the canvas
+ * points at or below their median height, twice: relief standing on the canvas does not
+ * tilt it) turned towards the camera (height grows towards
  * the viewer), x = world x projected on the plane (world y when the plane is nearly
  * perpendicular to world x), y = z × x; origin = the canvas points' minimum corner in
- * (x, y), at height 0 = the PCA plane through the canvas points' centroid. Texel (i, j)
+ * (x, y), at height 0 = that plane through the canvas points' centroid. Texel (i, j)
  * sits at canvas (i·pitch, j·pitch); canvas_to_world maps (i·pitch, j·pitch, h, 1). */
 #pragma once
 #include <stdbool.h>
@@ -29,8 +31,8 @@ struct imp_heightfield_options {
         double gradient_floor_mm;     /* threshold never below this (noise-free flat data);
                                          default 1e-3 mm per pixel */
         int erode_px;                 /* erosion of the filled mask (8-neighbour steps); default 1 */
-        double pitch_mm;              /* grid pitch; <= 0: median distance between horizontally
-                                         neighbouring canvas points (camera footprint) */
+        double pitch_mm;              /* grid pitch; <= 0: the camera footprint on the canvas
+                                         plane (footprint_mm below) */
         double max_edge_factor;       /* mesh triangles with an edge longer than this × the
                                          footprint are not rasterised (holes stay holes);
                                          default 4 */
@@ -84,6 +86,12 @@ struct imp_heightfield_options {
         double min_canvas_frac;       /* refuse when the canvas holds fewer than this
                                          fraction of the valid range points; default 0.02 */
         size_t min_canvas_points;     /* ... or fewer than this many; default 200 */
+        /* Per range pixel (w·h) an albedo-like image of the scene (the structured-light
+         * decoder's direct component) or NULL: with it, a frame flush with the canvas (or a
+         * fraction of a millimetre off it), which the height cannot separate, is cut off
+         * the seed fill at the straight albedo step along the canvas's sides
+         * (frame-edge.h). Not owned; default NULL. */
+        const float *albedo;
 };
 void imp_heightfield_options_default(struct imp_heightfield_options *opt);
 
@@ -99,6 +107,7 @@ enum {
                                          Gray-only staircase), or the slope barrier dropped */
         IMP_HF_PLANE_NO_CONSENSUS = 1 << 3, /* every RANSAC hypothesis was degenerate (points
                                          on a line): the first PCA plane was used */
+        IMP_HF_FRAME_TRIMMED = 1 << 4, /* a flush frame band was cut off by its albedo step */
 };
 
 /* Mask values. */
@@ -127,11 +136,17 @@ struct imp_heightfield {
         double step_min_used_mm;      /* the slope barrier's step_min in the end (+inf: off) */
         double plane_rms_mm;          /* rms height about the canvas plane */
         double gradient_threshold_mm; /* the Sobel threshold that was used */
-        double footprint_mm;          /* median neighbour distance */
+        double footprint_mm;          /* camera footprint on the canvas plane: median distance
+                                         between neighbouring canvas pixels' viewing rays where
+                                         they meet the plane (range noise does not grow it) */
+        double neighbour_mm;          /* median 3-D distance between neighbouring canvas points
+                                         (grows with range noise; the mesh's edge tests use it) */
         double plane_tilt_deg;        /* canvas normal to the rig's expected normal */
         double plane_view_deg;        /* canvas normal to the ray to the camera */
         double ransac_inlier_frac;    /* valid points within plane_tol_mm of the robust plane */
         size_t n_excluded_points;     /* valid points beyond relief_max_mm (frame, walls) */
+        size_t n_frame_trimmed;       /* fill points cut off as a flush frame (albedo step) */
+        double frame_trim_mm[4];      /* per side (−u, +u, −v, +v) the band cut off, mm */
         unsigned flags;               /* IMP_HF_* */
 };
 
