@@ -224,7 +224,7 @@ int imp_frame_edge_trim(const struct imp_range_image *r, const float *albedo, co
                 if (rr < 0)
                         return rr;
                 if (kb >= 0) {
-                        ret->trim_mm[k] = (kb + 1) * bin_mm;
+                        ret->trim_mm[k] = (kb + 0.5) * bin_mm;
                         ret->sides_trimmed |= 1u << k;
                         cut[k] = ret->trim_mm[k];
                 }

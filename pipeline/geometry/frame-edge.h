@@ -14,7 +14,9 @@
  * slow drift of shading towards a deep frame's wall is no frame). A side
  * is trimmed when at least three of its four segments find a boundary and those agree
  * within HF_EDGE_AGREE_BINS (a frame's edge is straight; a paint region's is not): every
- * pixel nearer the edge than the farthest boundary plus one bin leaves the canvas. A frame
+ * pixel nearer the edge than the middle of the farthest boundary bin leaves the canvas
+ * (that bin's median is the paint's, so less than half of it is frame, and the frame
+ * lies on its outer side). A frame
  * of the canvas's own albedo is not found. Library code: no logging. */
 #pragma once
 #include <stdbool.h>
