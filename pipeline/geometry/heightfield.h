@@ -1,8 +1,9 @@
 /* Canvas extraction and heightfield (seed §4.2, §5): range image → robust canvas plane
  * (RANSAC, then PCA on its inliers, checked against the rig's canvas pose; the seed's first PCA
  * over every point is pulled off the canvas by deep frames, oblique walls and outliers)
- * → points far off that plane excluded (frame tops, walls) → Sobel of the height → seed fill from the image centre stopped at high gradient → erosion → PCA on
- * the canvas points → resampling onto a regular grid in the canvas frame by rasterising
+ * → points far off that plane excluded (frame tops, walls) → Sobel of the height → seed fill
+ * from the image centre stopped at high gradient → a flush frame cut off at its albedo step
+ * (frame-edge.h, options.albedo) → erosion → the canvas points' base plane → resampling onto a regular grid in the canvas frame by rasterising
  * the range-image mesh (no invented surface across holes) → normals averaged over the
  * 8-neighbourhood triangles. Library code: no logging.
  *
