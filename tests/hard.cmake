@@ -16,4 +16,4 @@ if(TARGET impasto)
   add_dependencies(test-hard-suite impasto)
 endif()
 # Placement under a deep box frame on a synthetic range image (no rendering).
-impasto_test(test-hard-placement LABELS stability unit LIBS impasto_geometry)
+impasto_test(test-hard-placement LABELS stability unit LIBS impasto_pipeline)

@@ -47,7 +47,7 @@ struct imp_compare_result {
         double height_rmse_um_filled, normal_err_deg_mean_filled;
         double height_rmse_um_measured, normal_err_deg_mean_measured;
         /* Honesty figures (docs/hard-cases.md). Placement: angle between the copy's canvas
-         * normal and the truth canvas's mean normal. Frame texels: copy mask texels whose
+         * normal and the truth canvas's base plane (the median slope over its samples). Frame texels: copy mask texels whose
          * world point lies on the truth frame, as a fraction of the copy mask texels over
          * the truth grid. Over the compared texels whose heightfield.exr flags are 0 (all
          * of them when the copy has no flags channel): the fraction whose height error

@@ -11,7 +11,12 @@
  * pitch. */
 #include <math.h>
 #include <string.h>
+#include "compare.h"
+#include "frame-edge.h"
 #include "heightfield.h"
+#include "image.h"
+#include "json-util.h"
+#include "numerics.h"
 #include "macro.h"
 #include "unit/test.h"
 
@@ -247,7 +252,70 @@ static void check_base_and_pitch(void) {
         imp_range_image_done(&r);
 }
 
+/* compare's placement_deg on a truth canvas tilted 10° in x (slope 0.176) with the
+ * cliff-sided ridge and a border column whose normals were taken across a frame step
+ * (n_z 0.05): a copy on the true plane measures within 0.1° (the mean unit normal said
+ * 1.4° for the ridge alone; the mean slope is thrown by the border column). */
+#define TP 0.05
+#define TN 200
+static void check_compare_truth_plane(void) {
+        char truth[512], copy[512], path[1024];
+        snprintf(truth, sizeof truth, "%s/truth", test_tmpdir());
+        snprintf(copy, sizeof copy, "%s/copy", test_tmpdir());
+        CHECK_OK(imp_mkdir_p(truth, 0755));
+        _cleanup_image_ struct imp_image *img = NULL;
+        CHECK_OK(imp_image_new(TN, TN, 5, IMP_PIX_F32, &img));
+        const double slope = 0.176;
+        for (int j = 0; j < TN; j++)
+                for (int i = 0; i < TN; i++) {
+                        double x = i * TP, y = j * TP, e = 1e-4;
+                        double hx = slope + (ridge(x + e, y) - ridge(x - e, y)) / (2 * e);
+                        double hy = (ridge(x, y + e) - ridge(x, y - e)) / (2 * e);
+                        double n[3] = { -hx, -hy, 1 };
+                        if (i == TN - 1)   /* across the frame step */
+                                n[0] = -20, n[1] = 0, n[2] = 1;
+                        imp_normalize3(n);
+                        float *p = imp_image_f32(img, i, j);
+                        p[0] = (float) (slope * x + ridge(x, y)), p[1] = (float) n[0], p[2] = (float) n[1];
+                        p[3] = (float) n[2], p[4] = 1;
+                }
+        static const char *const names[] = { "height", "nx", "ny", "nz", "mask" };
+        snprintf(path, sizeof path, "%s/heightfield.exr", truth);
+        CHECK_OK(imp_exr_write(path, img, names, false, NULL));
+        _cleanup_json_ json_t *tj = json_pack("{s:f,s:[f,f],s:i,s:i}", "pitch_mm", TP, "origin_mm", 0.0, 0.0, "nx", TN,
+                                              "ny", TN);
+        snprintf(path, sizeof path, "%s/truth.json", truth);
+        CHECK_OK(imp_json_save_atomic(path, tj, NULL));
+        /* The copy: 8 × 8 texels of 1 mm on the plane z = slope·x, from (1, 1). */
+        struct imp_heightfield hf = { .nx = 8, .ny = 8, .pitch_mm = 1 };
+        size_t n = 64;
+        hf.height_mm = calloc(n, sizeof(float)), hf.nx_ = calloc(n, sizeof(float)), hf.ny_ = calloc(n, sizeof(float));
+        hf.sigma_mm = calloc(n, sizeof(float)), hf.sigma_n_deg = calloc(n, sizeof(float));
+        hf.texel_flags = calloc(n, sizeof(uint16_t)), hf.mask = malloc(n);
+        CHECK(hf.height_mm && hf.nx_ && hf.ny_ && hf.sigma_mm && hf.sigma_n_deg && hf.texel_flags && hf.mask);
+        memset(hf.mask, 1, n);
+        double ez[3] = { -slope, 0, 1 }, ex[3], ey[3];
+        imp_normalize3(ez);
+        imp_canvas_axes(ez, ex, ey);
+        double o[3] = { 1, 1, slope };
+        for (int q = 0; q < 3; q++) {
+                hf.canvas_to_world[4 * q] = ex[q], hf.canvas_to_world[4 * q + 1] = ey[q];
+                hf.canvas_to_world[4 * q + 2] = ez[q], hf.canvas_to_world[4 * q + 3] = o[q];
+        }
+        hf.canvas_to_world[15] = 1;
+        struct imp_error err = {};
+        CHECK_MSG(imp_heightfield_save(&hf, copy, &err) >= 0, "save: %s", err.msg);
+        imp_heightfield_done(&hf);
+        struct imp_compare_result cr = {};
+        int k = imp_compare_dirs(copy, truth, &cr, &err);
+        CHECK_MSG(k == 0, "compare: %s", err.msg);
+        fprintf(stderr, "compare: copy on the true plane measured %.3f° off\n", cr.placement_deg);
+        CHECK(cr.placement_deg >= 0);
+        CHECK_LE(cr.placement_deg, 0.1);
+}
+
 int main(void) {
+        check_compare_truth_plane();
         check_placed(0);
         check_placed(25);
         check_flush(0.3);
