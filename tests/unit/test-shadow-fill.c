@@ -120,7 +120,7 @@ static void test_framed(void) {
         CHECK_INT_EQ(b.measured, a.measured);          /* the fill only adds */
         CHECK_INT_EQ(on.n_filled_texels, b.filled);
         CHECK_INT_EQ(on.n_mask_texels, b.filled + b.measured);
-        CHECK_INT_GE(b.strip_texels, 14 * 200);
+        CHECK_INT_GE(b.strip_texels, 14 * 195);   /* ~14.5 columns × ~200 rows, by the grid phase */
         CHECK_GE((double) b.strip_filled, 0.97 * b.strip_texels);   /* the strip is covered... */
         CHECK_INT_EQ(b.off_canvas, 0);                              /* ...and nothing of the frame */
         CHECK_INT_EQ(b.hole, 0);                                    /* inner holes stay holes */
