@@ -32,8 +32,10 @@ struct imp_heightfield_options {
         double gradient_floor_mm;     /* threshold never below this (noise-free flat data);
                                          default 1e-3 mm per pixel */
         int erode_px;                 /* erosion of the filled mask (8-neighbour steps); default 1 */
-        double pitch_mm;              /* grid pitch; <= 0: the camera footprint on the canvas
-                                         plane (footprint_mm below) */
+        double pitch_mm;              /* grid pitch; <= 0: the median 3-D distance between
+                                         neighbouring canvas points, at most 1.02 × the camera
+                                         footprint on the canvas plane (footprint_mm below;
+                                         range noise grows the former, not the latter) */
         double max_edge_factor;       /* mesh triangles with an edge longer than this × the
                                          footprint are not rasterised (holes stay holes);
                                          default 4 */

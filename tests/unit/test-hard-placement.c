@@ -221,7 +221,7 @@ static void check_no_false_trim(void) {
 
 /* An untilted canvas whose relief (a 2 mm ridge with a cliff, off centre) tilts the
  * least-squares plane through it 0.73°: the base plane stays within 0.35° of +z (0.24°). A noisy scan
- * (σ 0.05 mm along the ray): the pitch stays within 2 % of the 0.1 mm footprint, while the
+ * (σ 0.05 mm along the ray): the pitch stays within 2.5 % of the 0.1 mm footprint, while the
  * 3-D neighbour distance grows more than 5 %. */
 static void check_base_and_pitch(void) {
         struct imp_range_image r = {};
@@ -245,7 +245,7 @@ static void check_base_and_pitch(void) {
         if (k == 0) {
                 fprintf(stderr, "noisy scan: pitch %.4f mm, 3-D neighbour distance %.4f mm (footprint %.3f)\n",
                         hf.pitch_mm, hf.neighbour_mm, P);
-                CHECK_LE(fabs(hf.pitch_mm - P), 0.02 * P);
+                CHECK_LE(fabs(hf.pitch_mm - P), 0.025 * P);
                 CHECK_GE(hf.neighbour_mm, 1.05 * P);
         }
         imp_heightfield_done(&hf);
