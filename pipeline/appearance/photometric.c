@@ -706,15 +706,17 @@ long imp_photometric_agreement(int nx, int ny, const uint8_t *mask, const uint16
                         double neff = fmax(1.0, cnt / (p->agree_corr_texels * p->agree_corr_texels));
                         double mm = (m[0] * m[0] + m[1] * m[1] + m[2] * m[2]) / ((double) cnt * cnt);
                         /* a bias the same over the window (the mean difference), or one that
-                         * follows the relief (the mean squared difference beyond the noise) */
-                        double bias2 = fmax(0.0, fmax(mm - v / cnt / neff, (a2 - v) / cnt));
+                         * follows the relief (the mean squared difference beyond the noise, by
+                         * more than twice that excess's own scatter, v/cnt·√(2/neff)) */
+                        double vm = v / cnt, bias2 = fmax(0.0, fmax(mm - 2 * vm / neff,
+                                                                    a2 / cnt - vm * (1 + 2 * sqrt(2 / neff))));
                         double sp = sigma_deg[t], s = sqrt(sp * sp + bias2);
                         const double *q = &d[4 * t];
                         double ang = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]);
                         if (ang > p->agree_k * sqrt(q[3] + bias2))
                                 s = fmax(s, ang);
                         s = fmin(180.0, s);
-                        grown += s > sp * 1.0001;
+                        grown += s > sp * 1.1;
                         out[t] = (float) s;
                 }
         memcpy(sigma_deg, out, n * sizeof *out);

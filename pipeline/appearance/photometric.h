@@ -139,7 +139,8 @@ int imp_photometric_texel(const struct imp_btf_sample *samples, int n, const str
  * inter-reflection or shadowed samples bias a whole region the same way). A texel whose two
  * normals differ by more than agree_k × their combined σ gets that angle as its σ: one of
  * the two is that far off, and which cannot be told. geo_sigma_deg NULL: 1° everywhere.
- * sigma_deg is updated in place. Returns the number of texels whose σ grew, -EINVAL, -ENOMEM. */
+ * sigma_deg is updated in place. Returns the number of texels whose σ grew by more than
+ * 10 %, -EINVAL, -ENOMEM. */
 long imp_photometric_agreement(int nx, int ny, const uint8_t *mask, const uint16_t *pn_flags, const float *normal,
                                const float *geo_normal, const float *geo_sigma_deg,
                                const struct imp_photometric_params *p, float *sigma_deg);
