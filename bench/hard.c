@@ -175,7 +175,8 @@ static int write_report(const char *repo, const struct hard_row *rows, size_t n,
                    "*>3σ h* and *>3σ n* = fraction of the unflagged texels whose height error exceeds 3σ\n"
                    "(after the median offset) and whose normal error exceeds 3σ_n; *max n* = largest normal\n"
                    "error of an unflagged texel and *>10°* how many exceed 10°; *flagged* = fraction of\n"
-                   "the compared texels with a flag; *rc* = exit code of `impasto process` (6: unusable).\n\n",
+                   "the compared texels with a flag; *rc* = exit code of `impasto process` (6: unusable);\n"
+                   "– where there is nothing to measure (no unflagged texel, or no copy).\n\n",
                 HARD_PLACEMENT_MAX_DEG);
         fprintf(f, "| scene | rc | verdict | placement | frame | >3σ h | >3σ n | max n | >10° | flagged | s | note |\n"
                    "|---|---|---|---|---|---|---|---|---|---|---|---|\n");
