@@ -246,7 +246,11 @@ static void finish_texel(const struct pn_rows *R, const struct imp_photometric_p
         /* The residual scale is the larger of the robust σ and the weighted RMS: a misfit
          * that is systematic rather than noisy shows in the second. */
         double s = fmax(S->sigma, S->rms);
-        double sig_noise = s * sqrt(var_t) / gl / DEG;
+        /* A residual scale from few samples is itself uncertain: the normal's error then
+         * follows Student's t with used − 3 degrees of freedom, whose σ is √(ν/(ν−2)) ×
+         * the Gaussian one (1.7 at 6 samples, 1.03 at 40). */
+        double nu = S->used - 3;
+        double sig_noise = s * sqrt(var_t) / gl / DEG * (nu > 2 ? sqrt(nu / (nu - 2)) : 1e3);
         double c = 0, sc = 0, shift = 0;
         uint16_t why = 0;
         if (ambient_check(R, p, S, s, false, &c, &sc, &shift)) {

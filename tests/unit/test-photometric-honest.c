@@ -12,6 +12,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "btf-synth.h"
+#include "macro.h"
 #include "pn-synth.h"
 #include "photometric.h"
 #include "test.h"
@@ -144,7 +145,39 @@ static void test_agreement(void) {
         CHECK_ERR(imp_photometric_agreement(1, 1, NULL, &f, n, n, NULL, &p, &s), -EINVAL);
 }
 
+/* Six lights, 2 % noise: the residual scale comes from 3 degrees of freedom, and σ must
+ * still cover the error (at most 0.5 % of the texels beyond 3σ; 1.0 % without the
+ * small-sample factor). */
+static void test_few_samples_sigma(void) {
+        struct imp_rig_light L[8];
+        static const double elev[2] = { 35, 55 }, centre[3] = { 0, 0, 0 }, eye[3] = { 0, 0, 400 };
+        int nl = synth_dome(L, elev, 2, 4, 500.0, centre, 1.0, 0.0);
+        struct imp_photometric_params p;
+        imp_photometric_params_default(&p);
+        p.spec_cone_deg = 1;   /* every light takes part: the sample count is what is tested */
+        p.max_sigma_deg = 1e3, p.max_rms_ratio = 1e3, p.max_rel_rms = 1e3;
+        struct imp_lafortune matte = { { 0.5f, 0.5f, 0.5f }, { 0, 0, 0 }, -1, -1, 1, 5 };
+        uint64_t rng = 0x5eedULL;
+        static struct imp_btf_sample s[IMP_BTF_MAX_SAMPLES];
+        int n = 0, beyond = 0;
+        for (int i = 0; i < 2000; i++) {
+                double P[3] = { 0, 0, 0 }, z[3] = { 0, 0, 1 }, nt[3];
+                tilt(z, 15.0 * synth_uniform(&rng), 2 * M_PI * synth_uniform(&rng), nt);
+                int m = synth_samples(P, nt, eye, L, nl, &matte, 0.02, &rng, s);
+                struct imp_pn_texel r;
+                CHECK_OK(imp_photometric_texel(s, IMP_MIN(m, 6), &p, &r));
+                if (r.flags & IMP_PN_KEPT)
+                        continue;
+                n++;
+                beyond += err_deg(&r, nt, nt) > 3 * r.sigma_deg;
+        }
+        printf("six samples: %d of %d refined texels beyond 3σ\n", beyond, n);
+        CHECK_GE(n, 1000);
+        CHECK_LE(beyond, 0.005 * n);
+}
+
 int main(void) {
+        test_few_samples_sigma();
         test_ambient_one_elevation();
         test_agreement();
         return TEST_DONE();
