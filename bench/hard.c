@@ -148,6 +148,15 @@ static double num(const json_t *j, const char *key) {
         return json_number_value(json_object_get(j, key));
 }
 
+/* A compare figure as text, "–" when compare could not measure it (null or absent). */
+static const char *fig(const json_t *j, const char *key, int prec, const char *unit, char *buf, size_t size) {
+        const json_t *v = json_object_get(j, key);
+        if (!json_is_number(v))
+                return "–";
+        snprintf(buf, size, "%.*f%s", prec, json_number_value(v), unit);
+        return buf;
+}
+
 #define HARD_PLACEMENT_MAX_DEG 2.0    /* "placement right": copy normal within this of truth */
 
 static int write_report(const char *repo, const struct hard_row *rows, size_t n, double total_s) {
@@ -166,7 +175,8 @@ static int write_report(const char *repo, const struct hard_row *rows, size_t n,
                    "*>3σ h* and *>3σ n* = fraction of the unflagged texels whose height error exceeds 3σ\n"
                    "(after the median offset) and whose normal error exceeds 3σ_n; *max n* = largest normal\n"
                    "error of an unflagged texel and *>10°* how many exceed 10°; *flagged* = fraction of\n"
-                   "the compared texels with a flag; *rc* = exit code of `impasto process` (6: unusable).\n\n",
+                   "the compared texels with a flag; *rc* = exit code of `impasto process` (6: unusable);\n"
+                   "– where there is nothing to measure (no unflagged texel, or no copy).\n\n",
                 HARD_PLACEMENT_MAX_DEG);
         fprintf(f, "| scene | rc | verdict | placement | frame | >3σ h | >3σ n | max n | >10° | flagged | s | note |\n"
                    "|---|---|---|---|---|---|---|---|---|---|---|---|\n");
@@ -175,11 +185,15 @@ static int write_report(const char *repo, const struct hard_row *rows, size_t n,
                 fprintf(f, "| %s | %d | %s |", r->name + 5, r->render_rc ? r->render_rc : r->process_rc, r->verdict);
                 if (r->cmp) {
                         double pl = num(r->cmp, "placement_deg");
-                        fprintf(f, " %.2f° (%s) | %.4f | %.4f | %.4f | %.1f° | %lld | %.3f |", pl,
+                        bool none = json_integer_value(json_object_get(r->cmp, "n_unflagged")) == 0;
+                        char b[4][32];
+                        /* with every texel flagged there is no unflagged figure to give */
+                        fprintf(f, " %.2f° (%s) | %.4f | %s | %s | %s | %s | %.3f |", pl,
                                 pl <= HARD_PLACEMENT_MAX_DEG ? "right" : "WRONG", num(r->cmp, "frame_texel_fraction"),
-                                num(r->cmp, "beyond_3sigma_height"), num(r->cmp, "beyond_3sigma_normal"),
-                                num(r->cmp, "unflagged_normal_err_deg_max"),
-                                (long long) json_integer_value(json_object_get(r->cmp, "unflagged_normal_over_10deg")),
+                                none ? "–" : fig(r->cmp, "beyond_3sigma_height", 4, "", b[0], sizeof b[0]),
+                                none ? "–" : fig(r->cmp, "beyond_3sigma_normal", 4, "", b[1], sizeof b[1]),
+                                none ? "–" : fig(r->cmp, "unflagged_normal_err_deg_max", 1, "°", b[2], sizeof b[2]),
+                                none ? "–" : fig(r->cmp, "unflagged_normal_over_10deg", 0, "", b[3], sizeof b[3]),
                                 num(r->cmp, "flagged_fraction"));
                 } else
                         fprintf(f, " – | – | – | – | – | – | – |");

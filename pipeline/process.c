@@ -644,6 +644,12 @@ static int photometric_stage(const struct process_opts *o, struct geometry_out *
         int r = imp_photometric_normals(bh, cap, &o->opt->btf_samples, pp, &pout, &ps);
         if (r < 0)
                 return imp_error_set(err, r, "%s: photometric normals failed: %s", o->capture, strerror(-r));
+        /* normal holds the geometric normals until the bilinear reading replaces them */
+        long disagree = imp_photometric_agreement(hf->nx, hf->ny, hf->mask, pn_flags, pn_normal, normal,
+                                                  hf->sigma_n_deg, pp, pn_sigma);
+        if (disagree < 0)
+                return imp_error_set(err, (int) disagree, "%s: photometric agreement: %s", o->capture,
+                                     strerror((int) -disagree));
         memcpy(normal, pn_normal + nt * 3, nt * 3 * sizeof *normal);
         for (size_t i = 0; i < nt; i++)
                 if (!hf->mask || hf->mask[i]) {
@@ -674,13 +680,13 @@ static int photometric_stage(const struct process_opts *o, struct geometry_out *
         if (o->opt->fuse_heights && (r = fuse_heights(o, g, pn_normal, hf->sigma_n_deg, err)) < 0)
                 return r;
         json_object_set_new(g->stages, "photometric", json_pack(
-                "{s:i,s:I,s:I,s:I,s:I,s:I,s:I,s:I,s:I,s:I,s:i,s:f,s:f,s:f,s:f,s:f,s:f}",
+                "{s:i,s:I,s:I,s:I,s:I,s:I,s:I,s:I,s:I,s:I,s:I,s:i,s:f,s:f,s:f,s:f,s:f,s:f}",
                 "lights", cap->n_lights, "refined", (json_int_t) ps.n_refined,
                 "resampled_samples", (json_int_t) ps.n_resampled, "lanczos", pp->lanczos,
                 "kept_few_samples", (json_int_t) ps.n_few, "kept_ill_conditioned", (json_int_t) ps.n_ill,
                 "kept_dark", (json_int_t) ps.n_dark, "kept_disagree", (json_int_t) ps.n_disagree,
                 "kept_ambient", (json_int_t) ps.n_ambient, "kept_residual", (json_int_t) ps.n_residual,
-                "kept_saturated", (json_int_t) ps.n_saturated,
+                "kept_saturated", (json_int_t) ps.n_saturated, "sigma_grown_disagree", (json_int_t) disagree,
                 "max_dev_deg", pp->max_dev_deg,
                 "dev_deg_mean", ps.dev_deg_mean, "dev_deg_median", ps.dev_deg_median,
                 "sigma_deg_median", ps.sigma_deg_median, "rms_median", ps.rms_median,

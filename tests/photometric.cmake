@@ -2,3 +2,6 @@
 impasto_test(test-photometric LIBS impasto_pipeline)
 # Photometric normals outside their model: dark paint, inter-reflection, few lights.
 impasto_test(test-photometric-stability LABELS stability LIBS impasto_pipeline)
+# What the fit's residuals cannot show: an ambient term under one usable elevation, and
+# refined normals biased against the geometric ones.
+impasto_test(test-photometric-honest LABELS unit stability LIBS impasto_pipeline)

@@ -23,6 +23,7 @@ void imp_photometric_params_default(struct imp_photometric_params *ret) {
                 .max_ambient_rel = 0.05, .ambient_sigma = 4, .max_rms_ratio = 3, .max_rel_rms = 0.06,
                 .max_sigma_deg = 3.3,
                 .interp_sigma_deg = 0.55, .interp_sigma_per_deg = 0.1, .geo_min_sigma_deg = 1,
+                .agree_radius = 3, .agree_corr_texels = 3, .agree_k = 3,
         };
 }
 
@@ -179,11 +180,12 @@ static void residuals(struct pn_rows *R, const struct imp_photometric_params *p,
  * Returns c, its σ (residual scale s) and the angle between the two fits' normals. False
  * when the 4×4 system is singular (then nothing is said). */
 static bool ambient_check(const struct pn_rows *R, const struct imp_photometric_params *p,
-                          const struct pn_state *S, double s, double *ret_c, double *ret_sc,
+                          const struct pn_state *S, double s, bool all_lit, double *ret_c, double *ret_sc,
                           double *ret_shift_deg) {
         double M[4][5] = {};
         for (int i = 0; i < R->m; i++) {
-                if (!takes_part(R, i, S->nc, S->cone, p->min_cos) || !(R->w[i] > 0))
+                /* all_lit: the samples near the mirror direction too (no cone) */
+                if (!takes_part(R, i, S->nc, all_lit ? 2.0 : S->cone, p->min_cos) || !(R->w[i] > 0))
                         continue;
                 double r[4] = { R->a[i][0], R->a[i][1], R->a[i][2], 1 };
                 for (int j = 0; j < 4; j++) {
@@ -244,12 +246,26 @@ static void finish_texel(const struct pn_rows *R, const struct imp_photometric_p
         /* The residual scale is the larger of the robust σ and the weighted RMS: a misfit
          * that is systematic rather than noisy shows in the second. */
         double s = fmax(S->sigma, S->rms);
-        double sig_noise = s * sqrt(var_t) / gl / DEG;
+        /* A residual scale from few samples is itself uncertain: the normal's error then
+         * follows Student's t with used − 3 degrees of freedom, whose σ is √(ν/(ν−2)) ×
+         * the Gaussian one (1.7 at 6 samples, 1.03 at 40). */
+        double nu = S->used - 3;
+        double sig_noise = s * sqrt(var_t) / gl / DEG * (nu > 2 ? sqrt(nu / (nu - 2)) : 1e3);
         double c = 0, sc = 0, shift = 0;
         uint16_t why = 0;
-        if (ambient_check(R, p, S, s, &c, &sc, &shift) && fabs(c) > p->ambient_sigma * sc &&
-            fabs(c) > p->max_ambient_rel * gl)
-                why |= IMP_PN_AMBIENT;
+        if (ambient_check(R, p, S, s, false, &c, &sc, &shift)) {
+                if (fabs(c) > p->ambient_sigma * sc && fabs(c) > p->max_ambient_rel * gl)
+                        why |= IMP_PN_AMBIENT;
+        } else if (ambient_check(R, p, S, s, true, &c, &sc, &shift)) {
+                /* The samples taking part cannot tell an ambient term from the normal's z (all
+                 * lights at one elevation: it would tilt every normal towards the view unseen).
+                 * The lit samples near the mirror direction can; a specular lobe there gives
+                 * a negative term, so only added light counts. The shift is not the normal's. */
+                shift = 0;
+                if (c > p->ambient_sigma * sc && c > p->max_ambient_rel * gl)
+                        why |= IMP_PN_AMBIENT;
+        } else
+                c = sc = shift = 0;
         double ysum = 0, wsum = 0;
         for (int i = 0; i < R->m; i++)
                 if (R->w[i] > 0 && takes_part(R, i, S->nc, S->cone, p->min_cos)) {
@@ -636,4 +652,77 @@ int imp_photometric_normals(const struct imp_btf_heightfield *hf, const struct i
         if (ret_stats)
                 *ret_stats = st;
         return 0;
+}
+
+/* The difference of refined normal a from geometric normal g as a tangent vector of g whose
+ * length is the angle between them (degrees). */
+static double diff_vec(const float *a, const float *g, double d[3]) {
+        double c = a[0] * g[0] + a[1] * g[1] + a[2] * g[2], len = 0;
+        for (int k = 0; k < 3; k++) {
+                d[k] = a[k] - c * g[k];
+                len += d[k] * d[k];
+        }
+        len = sqrt(len);
+        double ang = atan2(len, c) / DEG;
+        for (int k = 0; k < 3; k++)
+                d[k] = len > 0 ? d[k] / len * ang : 0;
+        return ang;
+}
+
+long imp_photometric_agreement(int nx, int ny, const uint8_t *mask, const uint16_t *pn_flags, const float *normal,
+                               const float *geo_normal, const float *geo_sigma_deg,
+                               const struct imp_photometric_params *p, float *sigma_deg) {
+        if (nx <= 0 || ny <= 0 || !pn_flags || !normal || !geo_normal || !p || !sigma_deg || p->agree_radius < 0 ||
+            !(p->agree_corr_texels >= 1) || !(p->agree_k > 0))
+                return -EINVAL;
+        size_t n = (size_t) nx * ny;
+        _cleanup_free_ double *d = malloc(n * 4 * sizeof *d);   /* difference vector, σg² + σp² */
+        _cleanup_free_ float *out = malloc(n * sizeof *out);
+        if (!d || !out)
+                return -ENOMEM;
+        for (size_t t = 0; t < n; t++) {
+                bool ref = !(pn_flags[t] & IMP_PN_KEPT) && (!mask || mask[t]);
+                double sg = geo_sigma_deg && isfinite(geo_sigma_deg[t]) ? geo_sigma_deg[t] : 1.0;
+                d[4 * t + 3] = ref ? sg * sg + (double) sigma_deg[t] * sigma_deg[t] : NAN;
+                if (ref)
+                        diff_vec(&normal[3 * t], &geo_normal[3 * t], &d[4 * t]);
+                out[t] = sigma_deg[t];
+        }
+        int R = p->agree_radius;
+        long grown = 0;
+#pragma omp parallel for schedule(dynamic, 8) reduction(+ : grown)
+        for (int j = 0; j < ny; j++)
+                for (int i = 0; i < nx; i++) {
+                        size_t t = (size_t) j * nx + i;
+                        if (!isfinite(d[4 * t + 3]))
+                                continue;
+                        double m[3] = { 0, 0, 0 }, v = 0, a2 = 0;
+                        int cnt = 0;
+                        for (int y = IMP_MAX(0, j - R); y <= IMP_MIN(ny - 1, j + R); y++)
+                                for (int x = IMP_MAX(0, i - R); x <= IMP_MIN(nx - 1, i + R); x++) {
+                                        const double *q = &d[4 * ((size_t) y * nx + x)];
+                                        if (!isfinite(q[3]))
+                                                continue;
+                                        m[0] += q[0], m[1] += q[1], m[2] += q[2], v += q[3];
+                                        a2 += q[0] * q[0] + q[1] * q[1] + q[2] * q[2];
+                                        cnt++;
+                                }
+                        double neff = fmax(1.0, cnt / (p->agree_corr_texels * p->agree_corr_texels));
+                        double mm = (m[0] * m[0] + m[1] * m[1] + m[2] * m[2]) / ((double) cnt * cnt);
+                        /* a bias the same over the window (the mean difference), or one that
+                         * follows the relief (the mean squared difference beyond the noise, by
+                         * more than twice that excess's own scatter, v/cnt·√(2/neff)) */
+                        double vm = v / cnt, bias2 = fmax(0.0, fmax(mm - 2 * vm / neff,
+                                                                    a2 / cnt - vm * (1 + 2 * sqrt(2 / neff))));
+                        double sp = sigma_deg[t], s = sqrt(sp * sp + bias2);
+                        const double *q = &d[4 * t];
+                        double ang = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]);
+                        if (ang > p->agree_k * sqrt(q[3] + bias2))
+                                s = fmax(s, ang);
+                        s = fmin(180.0, s);
+                        grown += s > sp * 1.1;
+                        out[t] = (float) s;
+                }
+        memcpy(sigma_deg, out, n * sizeof *out);
+        return grown;
 }

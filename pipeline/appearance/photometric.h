@@ -98,6 +98,12 @@ struct imp_photometric_params {
          * (0.55, 0.1). */
         double interp_sigma_deg, interp_sigma_per_deg;
         double geo_min_sigma_deg;     /* floor of the σ given to a kept geometric normal (1) */
+        /* Agreement with the geometric normals (imp_photometric_agreement): the window
+         * radius (texels) over which their difference is pooled into a bias (3), the
+         * geometric normals' correlation length in texels (their 3×3 plane fits: 3) and
+         * the multiple of the combined σ beyond which one texel's two normals disagree (3). */
+        int agree_radius;
+        double agree_corr_texels, agree_k;
 };
 void imp_photometric_params_default(struct imp_photometric_params *ret);
 
@@ -123,6 +129,21 @@ struct imp_pn_texel {
  * values. -E2BIG when n is too large, -EINVAL on bad params. */
 int imp_photometric_texel(const struct imp_btf_sample *samples, int n, const struct imp_photometric_params *p,
                           struct imp_pn_texel *ret);
+
+/* Whether the refined normals agree with the geometric ones they refine, two independent
+ * measurements of the same normal (nx·ny texels, canvas frame). A refined texel (pn_flags
+ * without IMP_PN_KEPT, mask ≠ 0) gets the bias its neighbourhood shows: the mean of the
+ * difference vectors (photometric − geometric) over the (2·agree_radius+1)² window, less
+ * what the two normals' noise explains (their σ² over the effective number of independent
+ * geometric normals in the window), is added to its σ in quadrature (an ambient term,
+ * inter-reflection or shadowed samples bias a whole region the same way). A texel whose two
+ * normals differ by more than agree_k × their combined σ gets that angle as its σ: one of
+ * the two is that far off, and which cannot be told. geo_sigma_deg NULL: 1° everywhere.
+ * sigma_deg is updated in place. Returns the number of texels whose σ grew by more than
+ * 10 %, -EINVAL, -ENOMEM. */
+long imp_photometric_agreement(int nx, int ny, const uint8_t *mask, const uint16_t *pn_flags, const float *normal,
+                               const float *geo_normal, const float *geo_sigma_deg,
+                               const struct imp_photometric_params *p, float *sigma_deg);
 
 struct imp_photometric_stats {
         long n_texels, n_refined, n_few, n_ill, n_dark, n_disagree, n_masked;

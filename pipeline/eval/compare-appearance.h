@@ -43,7 +43,8 @@ struct imp_compare_appearance {
  * rho_s.exr, lobe.exr}. Returns 0; -ENOENT (err names the file) when the copy has no
  * rho_d.exr; file errors as imp_json_load / imp_exr_read; -EBADMSG for a missing field or
  * channel or a size mismatch; -ENODATA when no texel could be compared for ρd. Figures
- * with nothing to compare (no glossy texel) are -1. *ret is untouched on failure. */
+ * with nothing to compare (no glossy texel) are -1 (null in the JSON). *ret is untouched on
+ * failure. */
 int imp_compare_appearance(const char *copy_dir, const char *truth_dir,
                            struct imp_compare_appearance *ret, struct imp_error *err);
 

@@ -466,7 +466,7 @@ int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_com
 }
 
 json_t *imp_compare_result_to_json(const struct imp_compare_result *r) {
-        return json_pack("{s:f,s:f,s:f,s:f,s:f,s:f,s:f,s:I,s:I,s:I,s:f,s:f,s:f,s:f,s:f,s:f,s:I,s:f,s:f,s:f,s:I,s:f}",
+        json_t *j = json_pack("{s:f,s:f,s:f,s:f,s:f,s:f,s:f,s:I,s:I,s:I,s:f,s:f,s:f,s:f,s:f,s:f,s:I,s:f,s:f,s:f,s:I,s:f}",
                          "height_rmse_um", r->height_rmse_um,
                          "height_offset_mm", r->height_offset_mm,
                          "height_max_abs_um", r->height_max_abs_um,
@@ -488,4 +488,10 @@ json_t *imp_compare_result_to_json(const struct imp_compare_result *r) {
                          "unflagged_normal_err_deg_max", r->unflagged_normal_err_deg_max,
                          "unflagged_normal_over_10deg", (json_int_t) r->unflagged_normal_over_10deg,
                          "flagged_fraction", r->flagged_fraction);
+        /* a figure that could not be measured (-1 in the result) is null, not a number */
+        if (j && r->beyond_3sigma_normal < 0)
+                json_object_set_new(j, "beyond_3sigma_normal", json_null());
+        if (j && r->mask_iou_observable < 0)
+                json_object_set_new(j, "mask_iou_observable", json_null());
+        return j;
 }

@@ -434,6 +434,9 @@ static void raster_tri(const struct hf_ctx *c, size_t a, size_t b, size_t d, str
                 e2max = fmax(e2max, e2);
         }
         uint16_t tri_flags = sqrt(e2max) > HF_FEW_SAMPLES_EDGE * c->footprint ? IMP_TEXEL_FEW_SAMPLES : 0;
+        /* the decoder's doubts about a vertex (clipped frames, phase rejected) are the texel's */
+        for (int k = 0; k < 3 && c->r->flags; k++)
+                tri_flags |= c->r->flags[id[k]] & (IMP_TEXEL_SATURATED | IMP_TEXEL_PHASE_REJECTED);
         double area = (X[1] - X[0]) * (Y[2] - Y[0]) - (X[2] - X[0]) * (Y[1] - Y[0]);
         if (fabs(area) < 1e-12)
                 return;
