@@ -62,7 +62,7 @@ struct work {
         float wl[IMP_BTF_MAX_SAMPLES], om[IMP_BTF_MAX_SAMPLES], W[IMP_BTF_MAX_SAMPLES];
         float y[3][IMP_BTF_MAX_SAMPLES], Wy[3][IMP_BTF_MAX_SAMPLES];
         float d[IMP_BTF_MAX_SAMPLES], g[IMP_BTF_MAX_SAMPLES], ld[IMP_BTF_MAX_SAMPLES];
-        float tmp[IMP_BTF_MAX_SAMPLES], res[IMP_BTF_MAX_SAMPLES];
+        float res[IMP_BTF_MAX_SAMPLES];
         double sw, sy[3], syy[3];
 };
 
@@ -537,19 +537,48 @@ static void robust_sums(struct work *w, const double rd[3], const double rs[3], 
         *so = b;
 }
 
+/* The k-th smallest of v[0..n) (0-based; v unchanged): the element whose rank — the
+ * count of smaller elements, ties broken by position — is k. Branch-free counting
+ * (n² compares in vector lanes) beats a quickselect's mispredicted branches at the
+ * sample counts of a texel. */
+CLONES static float kth_by_rank(const float *restrict v, int n, int k) {
+        for (int i = 0; i < n; i++) {
+                const float x = v[i];
+                int rank = 0;
+#pragma omp simd reduction(+ : rank)
+                for (int j = 0; j < i; j++)
+                        rank += v[j] <= x;
+#pragma omp simd reduction(+ : rank)
+                for (int j = i + 1; j < n; j++)
+                        rank += v[j] < x;
+                if (rank == k)
+                        return x;
+        }
+        return v[0];            /* not reached: the ranks are a permutation of 0..n−1 */
+}
+
+/* ω = min(1, thr/|r|) from the squared residuals, W = l_z² ω (both computed in every
+ * lane, the select after: a conditional division would keep the loop scalar). */
+CLONES static void huber_weights(struct work *w, float thr, float thr2) {
+        const float *restrict R = w->res, *restrict WL = w->wl;
+        float *restrict OM = w->om, *restrict WW = w->W;
+#pragma omp simd
+        for (int i = 0; i < w->n; i++) {
+                float r2 = R[i], q = thr / sqrtf(r2 > FLT_MIN ? r2 : FLT_MIN);
+                float om = r2 > thr2 ? q : 1.0f;
+                OM[i] = om;
+                WW[i] = WL[i] * om;
+        }
+}
+
 /* Huber weights with σ = 1.4826 · MAD (floored): W = l_z² · min(1, δσ/|r|). Works on
  * squared residuals (the median commutes with the square root). */
 static void huber_reweight(struct work *w, const double rd[3], const double rs[3],
                            const struct imp_btf_fit_params *p) {
         residuals2(w, rd, rs);
-        memcpy(w->tmp, w->res, w->n * sizeof *w->tmp);
-        double med = sqrt(imp_select_kth_float(w->tmp, (size_t) w->n, (size_t) w->n / 2));
+        double med = sqrt(kth_by_rank(w->res, w->n, w->n / 2));
         double sigma = fmax(1.4826 * med, p->sigma_floor), thr = p->huber_delta * sigma, thr2 = thr * thr;
-        for (int i = 0; i < w->n; i++) {
-                double r2 = w->res[i];
-                w->om[i] = r2 > thr2 ? (float) (thr / sqrt(r2)) : 1.0f;
-                w->W[i] = w->wl[i] * w->om[i];
-        }
+        huber_weights(w, (float) thr, (float) thr2);
         set_weights(w);
 }
 
