@@ -5,7 +5,11 @@
  * a loaded machine slows both alike; prints medians and ranges of wall time, the thread
  * CPU time of the single-threaded runs (both decoders then run on the calling thread; CPU
  * time excludes the time other processes take), per-repetition speed ratios and peak RSS.
- * Usage: bench-decode [repeats] [data dir] [--impasto-only] */
+ * Each repetition also times the bandwidth limit on the same thread (every frame read once,
+ * a result-sized block written once, allocated as the decoder allocates it) and prints the
+ * decode's share of it.
+ * Usage: bench-decode [repeats] [data dir] [--impasto-only]; without a data dir the captures
+ * are looked for under $IMPASTO_SHARED_DIR (else the build's shared directory). */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
