@@ -5,10 +5,15 @@
  * a loaded machine slows both alike; prints medians and ranges of wall time, the thread
  * CPU time of the single-threaded runs (both decoders then run on the calling thread; CPU
  * time excludes the time other processes take), per-repetition speed ratios and peak RSS.
- * Usage: bench-decode [repeats] [data dir] [--impasto-only] */
+ * Each repetition also times the bandwidth limit on the same thread (every frame read once,
+ * a result-sized block written once, allocated as the decoder allocates it) and prints the
+ * decode's share of it.
+ * Usage: bench-decode [repeats] [data dir] [--impasto-only]; without a data dir the captures
+ * are looked for under $IMPASTO_SHARED_DIR (else the build's shared directory). */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 #include <sys/resource.h>
 #include <time.h>
 #ifdef _OPENMP
@@ -67,6 +72,47 @@ static double run_impasto(const struct imp_sl_params *p, size_t *ret_valid, doub
         return clock_s(CLOCK_MONOTONIC) - t0;
 }
 
+/* The memory-bandwidth limit of a decode: one read pass over every frame of each capture
+ * (the bytes the decoder must read) and one write pass over a fresh result-sized block
+ * (7 float maps + 1 u16 map, as imp_sl_decode allocates and fills), same thread. */
+static double run_bandwidth(double *ret_cpu, size_t *ret_bytes) {
+        double t0 = clock_s(CLOCK_MONOTONIC), c0 = clock_s(CLOCK_THREAD_CPUTIME_ID);
+        size_t bytes = 0;
+        uint64_t acc = 0;
+        for (int c = 0; c < NCAP; c++) {
+                for (int i = 0; i < NFRAMES; i++) {
+                        const struct imp_image *im = img[c][i];
+                        for (int y = 0; y < im->height; y++) {
+                                const uint8_t *row = imp_image_row(im, y);
+                                uint64_t s = 0, v;
+                                int x = 0;
+                                for (; x + 8 <= im->width; x += 8) {
+                                        memcpy(&v, row + x, 8);
+                                        s ^= v;
+                                }
+                                for (; x < im->width; x++)
+                                        s ^= row[x];
+                                acc += s;
+                        }
+                        bytes += (size_t) im->width * im->height;
+                }
+                size_t out = (size_t) img[c][0]->width * img[c][0]->height * (7 * sizeof(float) + 2);
+                /* allocated as imp_sl_decode allocates its result: 2 MiB aligned, THP hint */
+                size_t round = (out + (2u << 20) - 1) & ~(size_t) ((2u << 20) - 1);
+                char *blk = aligned_alloc(2u << 20, round);
+                if (blk) {
+                        (void) madvise(blk, round, MADV_HUGEPAGE);
+                        memset(blk, (int) (acc & 1), out);
+                        acc += (uint8_t) blk[out / 2];
+                }
+                free(blk);
+                bytes += out;
+        }
+        *ret_cpu = clock_s(CLOCK_THREAD_CPUTIME_ID) - c0;
+        *ret_bytes = bytes + (acc == 42);     /* keeps acc alive */
+        return clock_s(CLOCK_MONOTONIC) - t0;
+}
+
 static double run_opencv(int32_t *cx, int32_t *cy, uint8_t *cv, size_t *ret_valid, double *ret_cpu) {
         double t0 = clock_s(CLOCK_MONOTONIC), c0 = clock_s(CLOCK_THREAD_CPUTIME_ID);
         size_t valid = 0;
@@ -90,11 +136,16 @@ int main(int argc, char **argv) {
         if (only_imp)
                 argc--;
         int repeats = argc > 1 ? atoi(argv[1]) : 5;
-        const char *dir = argc > 2 ? argv[2] : IMPASTO_SHARED_DIR "/data/procam-graycode/sample_data";
+        const char *dir = argc > 2 ? argv[2] : getenv("IMPASTO_SHARED_DIR") ? getenv("IMPASTO_SHARED_DIR") : IMPASTO_SHARED_DIR;
+        char dbuf[512];
+        if (argc <= 2) {
+                snprintf(dbuf, sizeof dbuf, "%s/data/procam-graycode/sample_data", dir);
+                dir = dbuf;
+        }
         repeats = repeats < 1 ? 1 : repeats > MAX_REPS ? MAX_REPS : repeats;
         for (int c = 0; c < NCAP; c++)
                 for (int i = 0; i < NFRAMES; i++) {
-                        char path[512];
+                        char path[1024];
                         struct imp_error err = { 0 };
                         snprintf(path, sizeof path, "%s/capture_%d/graycode_%02d.png", dir, c, i);
                         if (imp_png_read(path, &img[c][i], &err) < 0) {
@@ -128,7 +179,8 @@ int main(int argc, char **argv) {
         if (!cx || !cy || !cv)
                 return 1;
         double t1[MAX_REPS], tn[MAX_REPS], tc[MAX_REPS], u1[MAX_REPS], uc[MAX_REPS], un;
-        double r1[MAX_REPS], rn[MAX_REPS], ru[MAX_REPS];
+        double r1[MAX_REPS], rn[MAX_REPS], ru[MAX_REPS], ub[MAX_REPS], fb[MAX_REPS];
+        size_t bw_bytes = 0;
         double rss_imp = 0;
         for (int rep = 0; rep < repeats; rep++) {
                 for (int step = 0; step < 3; step++) {
@@ -147,6 +199,8 @@ int main(int argc, char **argv) {
                         if (which < 2)
                                 rss_imp = peak_rss_mib();
                 }
+                (void) run_bandwidth(&ub[rep], &bw_bytes);
+                fb[rep] = ub[rep] / u1[rep];
                 r1[rep] = tc[rep] / t1[rep];
                 rn[rep] = tc[rep] / tn[rep];
                 ru[rep] = uc[rep] / u1[rep];
@@ -178,6 +232,13 @@ int main(int argc, char **argv) {
                 stats(rn, repeats, &m, &lo, &hi);
                 printf("; %d threads wall %.1fx [%.1f – %.1f]\n", max_threads, m, lo, hi);
         }
+        stats(ub, repeats, &m, &lo, &hi);
+        printf("  bandwidth limit (read every frame once, write the result maps once, 1 thread): "
+               "CPU %.3f s [%.3f – %.3f], %.1f GB/s, %.1f Mpix/s\n", m, lo, hi, bw_bytes / m / 1e9,
+               mpix / m);
+        stats(fb, repeats, &m, &lo, &hi);
+        printf("  impasto 1 thread at %.0f %% [%.0f – %.0f] of that limit (CPU time ratio per repetition)\n",
+               100 * m, 100 * lo, 100 * hi);
         printf("  peak RSS: %.1f MiB after impasto, %.1f MiB at the end (frames: %.1f MiB)\n",
                rss_imp, peak_rss_mib(), (double) n * NFRAMES * NCAP / (1 << 20));
         free(cx);

@@ -24,6 +24,15 @@
 
 static const double k_grid[] = { 2, 5, 12, 30, 80, 200, 500 };
 
+/* The per-sample loops below are built twice, for AVX2 (8 float lanes) and the x86-64
+ * baseline (SSE2, 4), and the CPU picks at load time (ifunc). Not FMA: contraction would
+ * make the result depend on the machine. */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define CLONES
+#endif
+
 void imp_btf_fit_params_default(struct imp_btf_fit_params *ret) {
         *ret = (struct imp_btf_fit_params) {
                 .min_samples = 6,
@@ -53,7 +62,7 @@ struct work {
         float wl[IMP_BTF_MAX_SAMPLES], om[IMP_BTF_MAX_SAMPLES], W[IMP_BTF_MAX_SAMPLES];
         float y[3][IMP_BTF_MAX_SAMPLES], Wy[3][IMP_BTF_MAX_SAMPLES];
         float d[IMP_BTF_MAX_SAMPLES], g[IMP_BTF_MAX_SAMPLES], ld[IMP_BTF_MAX_SAMPLES];
-        float tmp[IMP_BTF_MAX_SAMPLES], res[IMP_BTF_MAX_SAMPLES];
+        float res[IMP_BTF_MAX_SAMPLES];
         double sw, sy[3], syy[3];
 };
 
@@ -158,23 +167,31 @@ static double nnls2(double sw, double sg, double sgg, double sy, double sgy, dou
 }
 
 /* After a change of W: Wy and the weight-only sums. */
-static void set_weights(struct work *w) {
-        double sw = 0.0, sy[3] = { 0 }, syy[3] = { 0 };
+CLONES static void set_weights(struct work *w) {
+        double sw = 0.0, sy0 = 0, sy1 = 0, sy2 = 0, syy0 = 0, syy1 = 0, syy2 = 0;
+        const float *restrict WW = w->W, *restrict Y0 = w->y[0], *restrict Y1 = w->y[1], *restrict Y2 = w->y[2];
+        float *restrict Wy0 = w->Wy[0], *restrict Wy1 = w->Wy[1], *restrict Wy2 = w->Wy[2];
+#pragma omp simd reduction(+ : sw, sy0, sy1, sy2, syy0, syy1, syy2)
         for (int i = 0; i < w->n; i++) {
-                double W = w->W[i];
+                double W = WW[i], a = W * Y0[i], b = W * Y1[i], c = W * Y2[i];
+                Wy0[i] = (float) a;
+                Wy1[i] = (float) b;
+                Wy2[i] = (float) c;
                 sw += W;
-                for (int c = 0; c < 3; c++) {
-                        double y = w->y[c][i];
-                        w->Wy[c][i] = (float) (W * y);
-                        sy[c] += W * y;
-                        syy[c] += W * y * y;
-                }
+                sy0 += a;
+                sy1 += b;
+                sy2 += c;
+                syy0 += a * Y0[i];
+                syy1 += b * Y1[i];
+                syy2 += c * Y2[i];
         }
         w->sw = sw;
-        for (int c = 0; c < 3; c++) {
-                w->sy[c] = sy[c];
-                w->syy[c] = syy[c];
-        }
+        w->sy[0] = sy0;
+        w->sy[1] = sy1;
+        w->sy[2] = sy2;
+        w->syy[0] = syy0;
+        w->syy[1] = syy1;
+        w->syy[2] = syy2;
 }
 
 /* Fills w->d (floored at FLT_MIN) and w->ld (its log; LD_NONE where d ≤ 0) for the
@@ -182,7 +199,7 @@ static void set_weights(struct work *w) {
  * finite, so that samples outside the lobe (g = 0) contribute exact zeros to the
  * vectorised sums of normal_matrix() instead of 0·∞. */
 #define LD_NONE (-1e30f)
-static double lobe_logs(struct work *w, double cx, double cy) {
+CLONES static double lobe_logs(struct work *w, double cx, double cy) {
         int n = w->n;
         float fx = (float) cx, fy = (float) cy, ldmax = LD_NONE;
         float *restrict d = w->d, *restrict ld = w->ld;
@@ -205,7 +222,7 @@ static double lobe_logs(struct work *w, double cx, double cy) {
 
 /* Fills w->g for exponent k (the logs of lobe_logs() with their maximum ldmax) and
  * solves the linear part. */
-static void lobe_solve(struct work *w, double k, double ldmax, struct eval *e) {
+CLONES static void lobe_solve(struct work *w, double k, double ldmax, struct eval *e) {
         int n = w->n;
         double sg = 0, sgg = 0, sgy0 = 0, sgy1 = 0, sgy2 = 0;
         float kf = (float) k, lm = (float) ldmax;
@@ -256,7 +273,7 @@ static void evaluate(struct work *w, double cx, double cy, double k, struct eval
  * of the normalisation) are dropped: they lie in the span of g and are projected out
  * with the linear parameters. Under CX_EQ_CY the parameter Cxy moves both: its column is
  * the sum of the first two. Samples with g = 0 add exact zeros (lobe_logs()). */
-static int normal_matrix(const struct work *w, const struct eval *e, bool cxy, double H[MAXP][MAXP],
+CLONES static int normal_matrix(const struct work *w, const struct eval *e, bool cxy, double H[MAXP][MAXP],
                          double b[MAXP]) {
         const double k = e->k, lm = e->ldmax;
         double c0 = 0.0, css = 0.0;
@@ -492,18 +509,8 @@ static void lm(struct work *w, bool cxy, const struct bounds *bd, double tol, in
 /* ---- robust weights -------------------------------------------------------------- */
 
 
-/* Residual of sample i in white units (V/E), channels pooled. */
-static double sample_residual(const struct work *w, const double rd[3], const double rs[3], int i) {
-        double s = 0.0;
-        for (int c = 0; c < 3; c++) {
-                double r = w->y[c][i] - rd[c] - rs[c] * w->g[i];
-                s += r * r;
-        }
-        return sqrt(w->wl[i] * s / 3.0);
-}
-
-/* Squared residuals of all samples into w->res (vectorised; see sample_residual()). */
-static void residuals2(struct work *w, const double rd[3], const double rs[3]) {
+/* Squared residuals of all samples in white units (V/E), channels pooled, into w->res. */
+CLONES static void residuals2(struct work *w, const double rd[3], const double rs[3]) {
         const float a0 = (float) rd[0], a1 = (float) rd[1], a2 = (float) rd[2];
         const float b0 = (float) rs[0], b1 = (float) rs[1], b2 = (float) rs[2];
         const float *restrict G = w->g, *restrict WL = w->wl;
@@ -516,19 +523,62 @@ static void residuals2(struct work *w, const double rd[3], const double rs[3]) {
         }
 }
 
+/* Σ ω r² and Σ ω over the samples (ω the robust weights), from w->res. */
+static void robust_sums(struct work *w, const double rd[3], const double rs[3], double *ss, double *so) {
+        residuals2(w, rd, rs);
+        double a = 0.0, b = 0.0;
+        const float *restrict OM = w->om, *restrict R = w->res;
+#pragma omp simd reduction(+ : a, b)
+        for (int i = 0; i < w->n; i++) {
+                a += (double) OM[i] * R[i];
+                b += OM[i];
+        }
+        *ss = a;
+        *so = b;
+}
+
+/* The k-th smallest of v[0..n) (0-based; v unchanged): the element whose rank — the
+ * count of smaller elements, ties broken by position — is k. Branch-free counting
+ * (n² compares in vector lanes) beats a quickselect's mispredicted branches at the
+ * sample counts of a texel. */
+CLONES static float kth_by_rank(const float *restrict v, int n, int k) {
+        for (int i = 0; i < n; i++) {
+                const float x = v[i];
+                int rank = 0;
+#pragma omp simd reduction(+ : rank)
+                for (int j = 0; j < i; j++)
+                        rank += v[j] <= x;
+#pragma omp simd reduction(+ : rank)
+                for (int j = i + 1; j < n; j++)
+                        rank += v[j] < x;
+                if (rank == k)
+                        return x;
+        }
+        return v[0];            /* not reached: the ranks are a permutation of 0..n−1 */
+}
+
+/* ω = min(1, thr/|r|) from the squared residuals, W = l_z² ω (both computed in every
+ * lane, the select after: a conditional division would keep the loop scalar). */
+CLONES static void huber_weights(struct work *w, float thr, float thr2) {
+        const float *restrict R = w->res, *restrict WL = w->wl;
+        float *restrict OM = w->om, *restrict WW = w->W;
+#pragma omp simd
+        for (int i = 0; i < w->n; i++) {
+                float r2 = R[i], q = thr / sqrtf(r2 > FLT_MIN ? r2 : FLT_MIN);
+                float om = r2 > thr2 ? q : 1.0f;
+                OM[i] = om;
+                WW[i] = WL[i] * om;
+        }
+}
+
 /* Huber weights with σ = 1.4826 · MAD (floored): W = l_z² · min(1, δσ/|r|). Works on
  * squared residuals (the median commutes with the square root). */
 static void huber_reweight(struct work *w, const double rd[3], const double rs[3],
                            const struct imp_btf_fit_params *p) {
         residuals2(w, rd, rs);
-        memcpy(w->tmp, w->res, w->n * sizeof *w->tmp);
-        double med = sqrt(imp_select_kth_float(w->tmp, (size_t) w->n, (size_t) w->n / 2));
+        double med = sqrt(kth_by_rank(w->res, w->n, w->n / 2));
         double sigma = fmax(1.4826 * med, p->sigma_floor), thr = p->huber_delta * sigma, thr2 = thr * thr;
-        for (int i = 0; i < w->n; i++) {
-                double r2 = w->res[i];
-                w->om[i] = r2 > thr2 ? (float) (thr / sqrt(r2)) : 1.0f;
-                w->W[i] = w->wl[i] * w->om[i];
-        }
+        huber_weights(w, (float) thr, (float) thr2);
         set_weights(w);
 }
 
@@ -579,12 +629,8 @@ static void fit_matte(struct work *w, const struct imp_btf_fit_params *p, struct
                 for (int c = 0; c < 3; c++)
                         rd[c] = w->sw > 0.0 ? fmax(w->sy[c] / w->sw, 0.0) : 0.0;
         }
-        double ss = 0.0, so = 0.0;
-        for (int i = 0; i < w->n; i++) {
-                double r = sample_residual(w, rd, rs, i);
-                ss += w->om[i] * r * r;
-                so += w->om[i];
-        }
+        double ss, so;
+        robust_sums(w, rd, rs, &ss, &so);
         for (int c = 0; c < 3; c++)
                 t->rho_d[c] = (float) rd[c];
         set_default_lobe(p, t);
@@ -694,12 +740,8 @@ static int fit_texel(const struct imp_btf_sample *samples, int n, const struct i
         int np = normal_matrix(&w, &e, cxy, H, b);
         for (int j = 0; j < np - 1; j++)
                 H[j][j] += cxy ? 2.0 * bd.mu : bd.mu;
-        double so = 0.0, ss = 0.0;
-        for (int i = 0; i < w.n; i++) {
-                double r = sample_residual(&w, e.rd, e.rs, i);
-                ss += w.om[i] * r * r;
-                so += w.om[i];
-        }
+        double so, ss;
+        robust_sums(&w, e.rd, e.rs, &ss, &so);
         double dof = fmax(3.0 * so - np - 6.0, 1.0);
         double sigma2 = fmax(e.cost / dof, p->sigma_floor * p->sigma_floor);
         double var_lk = HUGE_VAL;

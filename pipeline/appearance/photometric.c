@@ -375,28 +375,55 @@ static double lanczos(double x, int a) {
         return a * sin(M_PI * x) * sin(M_PI * x / a) / (M_PI * M_PI * x * x);
 }
 
-/* Lanczos value of frame f at px into ret[3]; false when the window leaves the frame or
- * holds a non-finite, saturated or invalid pixel (the caller keeps the bilinear value). */
-static bool lanczos_sample(const struct resample *rs, int light, const double px[2], const double *wx,
+/* Lanczos value of frame f with the window's corner at (x0, y0) into ret[3]; false when
+ * the window leaves the frame or holds a non-finite, saturated or invalid pixel (the
+ * caller keeps the bilinear value). Separable: each window row is summed with wx, the row
+ * sums with wy; the checks of a row are folded into one test after it. */
+static bool lanczos_sample(const struct resample *rs, int light, int x0, int y0, const double *wx,
                            const double *wy, float ret[3]) {
         const struct imp_image *f = rs->cap->frames[light];
         const struct imp_image *val = rs->cap->valid ? rs->cap->valid[light] : NULL;
-        int a = rs->a, x0 = (int) floor(px[0]) - a + 1, y0 = (int) floor(px[1]) - a + 1;
-        if (x0 < 0 || y0 < 0 || x0 + 2 * a > f->width || y0 + 2 * a > f->height)
+        const int n = 2 * rs->a;
+        if (x0 < 0 || y0 < 0 || x0 + n > f->width || y0 + n > f->height)
                 return false;
+        /* v < sat and v > −∞ hold for every finite, unsaturated sample and fail on NaN */
+        const float sat = rs->sat > 0 ? (float) rs->sat : INFINITY;
         double acc[3] = { 0, 0, 0 };
-        for (int dy = 0; dy < 2 * a; dy++)
-                for (int dx = 0; dx < 2 * a; dx++) {
-                        const float *q = imp_image_f32(f, x0 + dx, y0 + dy);
-                        if (val && *imp_image_u8(val, x0 + dx, y0 + dy))
+        for (int dy = 0; dy < n; dy++) {
+                if (val) {
+                        const uint8_t *vr = imp_image_u8(val, x0, y0 + dy);
+                        unsigned bad = 0;
+                        for (int dx = 0; dx < n; dx++)
+                                bad |= vr[dx];
+                        if (bad)
                                 return false;
-                        for (int c = 0; c < 3; c++) {
-                                double v = q[f->channels == 3 ? c : 0];
-                                if (!isfinite(v) || (rs->sat > 0 && v >= rs->sat))
-                                        return false;
-                                acc[c] += wx[dx] * wy[dy] * v;
-                        }
                 }
+                const float *q = imp_image_f32(f, x0, y0 + dy);
+                bool ok = true;
+                if (f->channels == 3) {
+                        double row[3] = { 0, 0, 0 };
+                        for (int dx = 0; dx < n; dx++)
+                                for (int c = 0; c < 3; c++) {
+                                        float v = q[3 * dx + c];
+                                        ok &= v < sat && v > -INFINITY;
+                                        row[c] += wx[dx] * v;
+                                }
+                        for (int c = 0; c < 3; c++)
+                                acc[c] += wy[dy] * row[c];
+                } else {
+                        double row = 0;
+                        for (int dx = 0; dx < n; dx++) {
+                                float v = q[(size_t) dx * f->channels];
+                                ok &= v < sat && v > -INFINITY;
+                                row += wx[dx] * v;
+                        }
+                        acc[0] += wy[dy] * row;
+                }
+                if (!ok)
+                        return false;
+        }
+        if (f->channels != 3)
+                acc[1] = acc[2] = acc[0];
         for (int c = 0; c < 3; c++)
                 ret[c] = (float) acc[c];
         return true;
@@ -445,7 +472,7 @@ static int resample_texel(const struct resample *rs, int u, int v, struct imp_bt
                 if (j == rs->cap->n_lights)
                         break;
                 float val[3];
-                if (lanczos_sample(rs, j, px, wx, wy, val)) {
+                if (lanczos_sample(rs, j, x0, y0, wx, wy, val)) {
                         const double *col = rs->cap->lights[j].colour;
                         bool white = col[0] == 0 && col[1] == 0 && col[2] == 0;
                         for (int c = 0; c < 3; c++)

@@ -7,7 +7,9 @@
 #include <errno.h>
 #include <math.h>
 #include <stdint.h>
+#include <stdio.h>
 #include <stdlib.h>
+#include <string.h>
 #include "structured-light.h"
 #include "test.h"
 
@@ -429,6 +431,80 @@ static void test_errors(struct set *s) {
         CHECK(r == sentinel);
 }
 
+/* The integer paths (u8 frames: byte lanes with inverses, 16-bit lanes without) against
+ * the float path on the same integer samples: every map byte for byte. Frames scaled so
+ * that the brightest pixels clip at 255 (saturation and hi rules), with and without
+ * inverses, robust and sign-only, and thresholds that are not integers. */
+static void test_u8_equals_float(const struct set *g) {
+        int n = g->n;
+        struct imp_image **u8 = calloc(n, sizeof *u8), **f32 = calloc(n, sizeof *f32);
+        for (int i = 0; i < n; i++) {
+                CHECK_OK(imp_image_new(CW, CH, 1, IMP_PIX_U8, &u8[i]));
+                CHECK_OK(imp_image_new(CW, CH, 1, IMP_PIX_F32, &f32[i]));
+                for (int y = 0; y < CH; y++)
+                        for (int x = 0; x < CW; x++) {
+                                double v = rint(300.0 * *imp_image_f32(g->img[i], x, y));
+                                v = v < 0 ? 0 : v > 255 ? 255 : v;
+                                *imp_image_u8(u8[i], x, y) = (uint8_t) v;
+                                *imp_image_f32(f32[i], x, y) = (float) v;
+                        }
+        }
+        struct imp_pattern pat[64];
+        const struct imp_image *iu[64], *iff[64];
+        for (int inv = 1; inv >= 0; inv--) {
+                int m = 0;
+                for (int i = 0; i < n; i++)
+                        if (inv || !(g->pat[i].kind == IMP_PAT_GRAY && g->pat[i].inverse)) {
+                                pat[m] = g->pat[i];
+                                iu[m] = u8[i];
+                                iff[m++] = f32[i];
+                        }
+                for (int robust = 0; robust < 2; robust++) {
+                        struct imp_sl_params p;
+                        imp_sl_params_default(&p, IMP_PIX_U8);
+                        p.proj_width = PW;
+                        p.proj_height = PH;
+                        p.black_level = BLACK;
+                        p.min_bit_contrast = 4.5;
+                        p.saturation = 255;      /* the float path has no level of its own */
+                        p.robust = robust;
+                        struct imp_sl_frames fu = { pat, iu, m }, ff = { pat, iff, m };
+                        struct imp_sl_result *ru = NULL, *rf = NULL;
+                        struct imp_error err = {};
+                        CHECK_OK(imp_sl_decode(&fu, &p, &ru, &err));
+                        CHECK_OK(imp_sl_decode(&ff, &p, &rf, &err));
+                        if (!ru || !rf)
+                                continue;
+                        size_t np = (size_t) CW * CH;
+                        bool same = !memcmp(ru->proj_x, rf->proj_x, np * sizeof(float)) &&
+                                    !memcmp(ru->proj_y, rf->proj_y, np * sizeof(float)) &&
+                                    !memcmp(ru->confidence, rf->confidence, np * sizeof(float)) &&
+                                    !memcmp(ru->direct, rf->direct, np * sizeof(float)) &&
+                                    !memcmp(ru->global, rf->global, np * sizeof(float)) &&
+                                    !memcmp(ru->sigma_px, rf->sigma_px, np * sizeof(float)) &&
+                                    !memcmp(ru->flags, rf->flags, np * sizeof(uint16_t)) &&
+                                    ru->n_valid_xy == rf->n_valid_xy && ru->n_weak == rf->n_weak &&
+                                    ru->n_saturated == rf->n_saturated;
+                        size_t nsat = 0, nweak = 0;
+                        for (size_t i = 0; i < np; i++) {
+                                nsat += !!(ru->flags[i] & IMP_SL_SATURATED);
+                                nweak += !!(ru->flags[i] & IMP_SL_WEAK_BIT);
+                        }
+                        CHECK_MSG(same, "u8 path = float path (inverses %d, robust %d): valid %zu vs %zu",
+                                  inv, robust, ru->n_valid_xy, rf->n_valid_xy);
+                        CHECK(nsat > 0 && nweak > 0);    /* the clipped and weak rules ran */
+                        imp_sl_result_free(ru);
+                        imp_sl_result_free(rf);
+                }
+        }
+        for (int i = 0; i < n; i++) {
+                imp_image_free(u8[i]);
+                imp_image_free(f32[i]);
+        }
+        free(u8);
+        free(f32);
+}
+
 int main(void) {
         test_helpers();
 
@@ -457,6 +533,7 @@ int main(void) {
                 imp_sl_result_free(r);
         }
         p.robust = true;
+        test_u8_equals_float(&gray);
 
         /* Without inverses: p̄ = white + black − p. */
         struct imp_pattern pat_ni[64];
