@@ -71,5 +71,30 @@ check "impasto process --pitch abc: refused naming the option, exit 2, nothing w
   sh -c '[ "$(cat "$0")" = 2 ] && grep -q -- "--pitch: expected a number from 0 to 1000, got '"'abc'"'" "$1" && [ ! -e "$2" ]' \
   "$tmp/pitch.rc" "$tmp/pitch.err" "$tmp/copy"
 
+# the same cause, the same exit code (core/exit-codes.h): a missing input is bad input, 3
+run procnx "$imp" process "$tmp/nonexist" --out "$tmp/copy-nx"
+run compnx "$imp" compare "$tmp/nonexist" --truth "$tmp/nonexist"
+check "process and compare of a missing directory both exit 3 (bad input)" \
+  sh -c '[ "$(cat "$0")" = 3 ] && [ "$(cat "$1")" = 3 ]' "$tmp/procnx.rc" "$tmp/compnx.rc"
+check "process of a missing directory names it" grep -q "$tmp/nonexist: No such file or directory" "$tmp/procnx.err"
+
+# process never writes into the capture set, nor over an existing copy without --force
+mkdir -p "$tmp/cap/frames" "$tmp/old"
+echo '{"format":"impasto-digital-copy"}' >"$tmp/old/copy.json"
+run outin "$imp" process "$tmp/cap" --out "$tmp/cap/copy"
+check "process CAP --out CAP/copy: refused, exit 2, nothing written" \
+  sh -c '[ "$(cat "$0")" = 2 ] && grep -q "lies inside the capture set" "$1" && [ ! -e "$2" ]' \
+  "$tmp/outin.rc" "$tmp/outin.err" "$tmp/cap/copy"
+run outsame "$imp" process "$tmp/cap" --out "$tmp/cap/frames/../"
+check "process CAP --out CAP (another spelling): refused, exit 2" \
+  sh -c '[ "$(cat "$0")" = 2 ] && grep -q "lies inside the capture set" "$1"' "$tmp/outsame.rc" "$tmp/outsame.err"
+run over "$imp" process "$tmp/cap" --out "$tmp/old"
+check "process over an existing copy: refused naming --force, exit 2, copy untouched" \
+  sh -c '[ "$(cat "$0")" = 2 ] && grep -q "holds a digital copy already; not overwritten (--force replaces it)" "$1" &&
+         grep -q impasto-digital-copy "$2"' "$tmp/over.rc" "$tmp/over.err" "$tmp/old/copy.json"
+run force "$imp" process "$tmp/cap" --out "$tmp/old" --force
+check "with --force the copy's place is accepted (the empty set is then refused as bad input, 3)" \
+  sh -c '[ "$(cat "$0")" = 3 ] && ! grep -q "not overwritten" "$1"' "$tmp/force.rc" "$tmp/force.err"
+
 [ $failures -eq 0 ] || { echo "$failures failed"; exit 1; }
 echo "conventions verified"
