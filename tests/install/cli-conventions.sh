@@ -96,5 +96,14 @@ run force "$imp" process "$tmp/cap" --out "$tmp/old" --force
 check "with --force the copy's place is accepted (the empty set is then refused as bad input, 3)" \
   sh -c '[ "$(cat "$0")" = 3 ] && ! grep -q "not overwritten" "$1"' "$tmp/force.rc" "$tmp/force.err"
 
+# sim render: its counters are diagnostics on stderr, stdout holds the one result line
+scene=$(dirname "$0")/../data/geometry-small.cfg plan=$(dirname "$0")/../data/geometry-small-plan.cfg
+if [ -f "$scene" ] && [ -f "$plan" ]; then
+  run simr "$imp" sim render --scene "$scene" --plan "$plan" --out "$tmp/simset" --threads 1
+  check "sim render: exit 0, one line on stdout, the counters on stderr" \
+    sh -c '[ "$(cat "$0")" = 0 ] && [ "$(wc -l <"$1")" = 1 ] && ! grep -q counters: "$1" && grep -q "^counters: " "$2"' \
+    "$tmp/simr.rc" "$tmp/simr.out" "$tmp/simr.err"
+fi
+
 [ $failures -eq 0 ] || { echo "$failures failed"; exit 1; }
 echo "conventions verified"
