@@ -96,6 +96,15 @@ run force "$imp" process "$tmp/cap" --out "$tmp/old" --force
 check "with --force the copy's place is accepted (the empty set is then refused as bad input, 3)" \
   sh -c '[ "$(cat "$0")" = 3 ] && ! grep -q "not overwritten" "$1"' "$tmp/force.rc" "$tmp/force.err"
 
+# plan estimate: the text says the processing time; --rig names what it wants
+src=$(dirname "$0")/../..
+run est "$imp" plan estimate "$src/config/plans/standard.cfg" --scene "$src/config/scenes/demo.cfg"
+check "plan estimate: exit 0 and a processing line" sh -c '[ "$(cat "$0")" = 0 ] && grep -q "^processing " "$1"' \
+  "$tmp/est.rc" "$tmp/est.out"
+run estrig "$imp" plan estimate "$src/config/plans/standard.cfg" --rig "$src/config/rigs/sim.cfg"
+check "plan estimate --rig RIG.cfg: exit 3, says it wants rig.json" \
+  sh -c '[ "$(cat "$0")" = 3 ] && grep -q "rig wants the rig.s model, rig.json" "$1"' "$tmp/estrig.rc" "$tmp/estrig.err"
+
 # sim render: its counters are diagnostics on stderr, stdout holds the one result line
 scene=$(dirname "$0")/../data/geometry-small.cfg plan=$(dirname "$0")/../data/geometry-small-plan.cfg
 if [ -f "$scene" ] && [ -f "$plan" ]; then
