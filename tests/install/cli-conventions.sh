@@ -101,6 +101,10 @@ src=$(dirname "$0")/../..
 run est "$imp" plan estimate "$src/config/plans/standard.cfg" --scene "$src/config/scenes/demo.cfg"
 check "plan estimate: exit 0 and a processing line" sh -c '[ "$(cat "$0")" = 0 ] && grep -q "^processing " "$1"' \
   "$tmp/est.rc" "$tmp/est.out"
+for preset in draft standard archival; do   # presets select lights by spread, not by the 48-light dome's ids
+  run est-$preset "$imp" plan estimate "$src/config/plans/$preset.cfg" --scene "$src/config/scenes/small.cfg"
+  check "plan estimate $preset.cfg on the 12-light small rig: exit 0" [ "$(rc est-$preset)" = 0 ]
+done
 run estrig "$imp" plan estimate "$src/config/plans/standard.cfg" --rig "$src/config/rigs/sim.cfg"
 check "plan estimate --rig RIG.cfg: exit 3, says it wants rig.json" \
   sh -c '[ "$(cat "$0")" = 3 ] && grep -q "rig wants the rig.s model, rig.json" "$1"' "$tmp/estrig.rc" "$tmp/estrig.err"
