@@ -2,7 +2,8 @@
 # cli-conventions.sh BUILD: the conventions an operator expects of `impasto` and `impastod`
 # (those of systemctl, git): --version; `impasto help [CMD]` prints what `impasto CMD --help`
 # prints; a mistyped command gets "did you mean" and the usage exit code 2; wrong arguments
-# say what was wrong; numbers are parsed strictly with the option named. No daemon needed.
+# say what was wrong; numbers are parsed strictly with the option named; one exit code per cause;
+# process refuses unsafe places to write, shows progress lines when piped and writes previews. No daemon needed.
 set -u
 build=$1
 imp=$build/cli/impasto impastod=$build/daemon/impastod
@@ -116,6 +117,20 @@ if [ -f "$scene" ] && [ -f "$plan" ]; then
   check "sim render: exit 0, one line on stdout, the counters on stderr" \
     sh -c '[ "$(cat "$0")" = 0 ] && [ "$(wc -l <"$1")" = 1 ] && ! grep -q counters: "$1" && grep -q "^counters: " "$2"' \
     "$tmp/simr.rc" "$tmp/simr.out" "$tmp/simr.err"
+  # process, piped: one line per stage with the overall ETA, no carriage return; the previews
+  run proc "$imp" process "$tmp/simset" --out "$tmp/simcopy" --no-btf --threads 1
+  check "process piped: exit 0, a line per stage with elapsed time and what is left, no carriage return" \
+    sh -c '[ "$(cat "$0")" = 0 ] && grep -q "^process: hdr merge done in [0-9.]* s (25 % of the run, [0-9]* s elapsed" "$1" &&
+           grep -q "^process: heightfield done in .* left)" "$1" && ! grep -q "$(printf "\r")" "$1"' \
+    "$tmp/proc.rc" "$tmp/proc.err"
+  pv=$tmp/simcopy/previews
+  check "previews/index.html shows height, relief, sigma, flags, normals by relative links that exist" \
+    sh -c 'for f in height relief sigma flags normals; do grep -q "src=\"$f.png\"" "$0/index.html" && [ -s "$0/$f.png" ] || exit 1; done' "$pv"
+  check "height.png carries its colour bar: wider and taller than the copy's grid" python3 -c "
+import json, struct, sys
+w, h = struct.unpack('>II', open('$pv/height.png', 'rb').read()[16:24])
+c = json.load(open('$tmp/simcopy/copy.json'))
+sys.exit(not (w >= c['nx'] + 100 and h >= c['ny'] + 40))"
 fi
 
 [ $failures -eq 0 ] || { echo "$failures failed"; exit 1; }
