@@ -111,26 +111,31 @@ check "plan estimate --rig RIG.cfg: exit 3, says it wants rig.json" \
   sh -c '[ "$(cat "$0")" = 3 ] && grep -q "rig wants the rig.s model, rig.json" "$1"' "$tmp/estrig.rc" "$tmp/estrig.err"
 
 # sim render: its counters are diagnostics on stderr, stdout holds the one result line
-scene=$(dirname "$0")/../data/geometry-small.cfg plan=$(dirname "$0")/../data/geometry-small-plan.cfg
+scene=$(dirname "$0")/../../config/scenes/small.cfg plan=$(dirname "$0")/../../config/plans/small.cfg   # with a dome: a BTF
 if [ -f "$scene" ] && [ -f "$plan" ]; then
   run simr "$imp" sim render --scene "$scene" --plan "$plan" --out "$tmp/simset" --threads 1
   check "sim render: exit 0, one line on stdout, the counters on stderr" \
     sh -c '[ "$(cat "$0")" = 0 ] && [ "$(wc -l <"$1")" = 1 ] && ! grep -q counters: "$1" && grep -q "^counters: " "$2"' \
     "$tmp/simr.rc" "$tmp/simr.out" "$tmp/simr.err"
   # process, piped: one line per stage with the overall ETA, no carriage return; the previews
-  run proc "$imp" process "$tmp/simset" --out "$tmp/simcopy" --no-btf --threads 1
+  run proc "$imp" process "$tmp/simset" --out "$tmp/simcopy" --threads 1
   check "process piped: exit 0, a line per stage with elapsed time and what is left, no carriage return" \
     sh -c '[ "$(cat "$0")" = 0 ] && grep -q "^process: hdr merge done in [0-9.]* s (25 % of the run, [0-9]* s elapsed" "$1" &&
            grep -q "^process: heightfield done in .* left)" "$1" && ! grep -q "$(printf "\r")" "$1"' \
     "$tmp/proc.rc" "$tmp/proc.err"
   pv=$tmp/simcopy/previews
-  check "previews/index.html shows height, relief, sigma, flags, normals by relative links that exist" \
-    sh -c 'for f in height relief sigma flags normals; do grep -q "src=\"$f.png\"" "$0/index.html" && [ -s "$0/$f.png" ] || exit 1; done' "$pv"
+  check "previews/index.html shows height, relief, sigma, flags, normals, colour by relative links that exist" \
+    sh -c 'for f in height relief sigma flags normals albedo; do grep -q "src=\"$f.png\"" "$0/index.html" && [ -s "$0/$f.png" ] || exit 1; done' "$pv"
   check "height.png carries its colour bar: wider and taller than the copy's grid" python3 -c "
 import json, struct, sys
 w, h = struct.unpack('>II', open('$pv/height.png', 'rb').read()[16:24])
 c = json.load(open('$tmp/simcopy/copy.json'))
 sys.exit(not (w >= c['nx'] + 100 and h >= c['ny'] + 40))"
+  # render without --fov frames the canvas (it filled about 10 % of the frame with a fixed 40°)
+  run rend "$imp" render "$tmp/simcopy" --view 30,-25,70 --light -40,20,40 --size 400x300 --out "$tmp/relit.png"
+  check "render frames the copy: at least 20 % of the 400x300 pixels see it" \
+    sh -c '[ "$(cat "$0")" = 0 ] && [ "$(sed -n "s/.*: 400x300, \([0-9]*\) pixels see the copy.*/\1/p" "$1")" -ge 24000 ]' \
+    "$tmp/rend.rc" "$tmp/rend.out"
 fi
 
 [ $failures -eq 0 ] || { echo "$failures failed"; exit 1; }
