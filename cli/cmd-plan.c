@@ -26,7 +26,8 @@
 
 static void usage(FILE *f) {
         fprintf(f, "usage: impasto plan validate PLAN (--rig RIG.json | --scene SCENE.cfg | --daemon) [--json] [--socket PATH]\n"
-                   "       impasto plan estimate PLAN (--rig RIG.json | --scene SCENE.cfg | --daemon) [--json] [--socket PATH]\n");
+                   "       impasto plan estimate PLAN (--rig RIG.json | --scene SCENE.cfg | --daemon) [--json] [--socket PATH]\n"
+                   "  --rig RIG.json  the rig's model (rig.json of a capture set or of `impasto calibrate`)\n");
 }
 
 /* A step is one exposure of the rig: consecutive frames that differ only by camera. */
@@ -70,6 +71,12 @@ static void human_estimate(const json_t *r) {
                 printf(" (%s)", imp_client_fmt_duration(t, d, sizeof d));
         putchar('\n');
         const json_t *acc = json_object_get(r, "expected_accuracy");
+        json_t *cpu = json_object_get(acc, "processing_cpu_s");
+        if (json_is_number(cpu))
+                printf("processing    %.1f s CPU as measured on %s (impasto bench accuracy)\n",
+                       json_number_value(cpu), json_string_value(json_object_get(acc, "scene")) ?: "the study scene");
+        else
+                printf("processing    not measured for this plan (impasto bench accuracy measures the presets)\n");
         if (acc) {
                 json_t *k = json_object_get(acc, "lobe_k_rel_err_median");
                 printf("expected accuracy  height RMSE %.1f µm, normal error %.1f°, ρd median rel. error %.3f",
@@ -117,6 +124,9 @@ static int load_rig(const char *rig_path, const char *scene_path, struct imp_rig
         }
         if (r < 0) {
                 log_error("%s", err.msg[0] ? err.msg : strerror(-r));
+                if (rig_path && strstr(rig_path, ".cfg"))
+                        log_error("--rig wants the rig's model, rig.json (as in a capture set or written by "
+                                  "`impasto calibrate`), not the rig config %s; --scene takes a scene's rig", rig_path);
                 return IMP_EXIT_BAD_INPUT;
         }
         return 0;

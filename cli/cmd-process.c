@@ -1,25 +1,30 @@
 /* `impasto process CAPTURE_DIR --out COPY_DIR`: a capture set in, the digital copy out
- * (pipeline/process.c does the work), with a progress bar on a terminal. */
+ * (pipeline/process.c does the work), with a progress bar on a terminal and one line per
+ * stage otherwise, both with the overall ETA. */
+#include <dirent.h>
 #include <errno.h>
 #include <getopt.h>
+#include <limits.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
 #include <unistd.h>
 #include "commands.h"
+#include "exit-codes.h"
 #include "json-util.h"
 #include "log.h"
+#include "macro.h"
 #include "numparse.h"
 #include "process.h"
 #include "process-photometric.h"
 #include "process-range.h"
 
-/* Exit codes of `impasto process` (docs/copy-quality.md). */
-#define IMP_EXIT_PROCESS_FAILED   1   /* I/O, memory, a stage failed */
-#define IMP_EXIT_PROCESS_USAGE    2
-#define IMP_EXIT_PROCESS_INVALID  3   /* the capture set cannot be processed */
-#define IMP_EXIT_PROCESS_UNUSABLE 6   /* processed, but the copy's verdict is "unusable" */
+/* Exit codes of `impasto process` (docs/copy-quality.md), those of every command (exit-codes.h). */
+#define IMP_EXIT_PROCESS_FAILED   IMP_EXIT_FAILURE       /* I/O, memory, a stage failed */
+#define IMP_EXIT_PROCESS_USAGE    IMP_EXIT_USAGE
+#define IMP_EXIT_PROCESS_INVALID  IMP_EXIT_BAD_INPUT     /* the capture set cannot be processed */
+#define IMP_EXIT_PROCESS_UNUSABLE IMP_EXIT_UNDETERMINED  /* processed, but the copy's verdict is "unusable" */
 
 /* Prints copy.json's quality verdict and reasons; returns true when it is "unusable". */
 static bool print_quality(const char *out) {
@@ -41,13 +46,132 @@ static bool print_quality(const char *out) {
         return !strcmp(v, "unusable");
 }
 
+/* Progress of the whole run: the stage's place in it (imp_process_fraction) gives the ETA. */
+struct progress {
+        double t0, t_stage, fraction;
+        char stage[64];
+};
+
+static double mono_s(void) {
+        struct timespec ts;
+        clock_gettime(CLOCK_MONOTONIC, &ts);
+        return ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+/* "about 2 min 10 s left", or "" while too little is done to say. */
+static void eta(const struct progress *p, double now, char *buf, size_t size) {
+        double f = p->fraction, left = f > 0.02 && f < 1 ? (now - p->t0) * (1 - f) / f : -1;
+        if (left < 0)
+                snprintf(buf, size, "%s", f >= 1 ? "done" : "");
+        else if (left >= 60)
+                snprintf(buf, size, "about %d min %02d s left", (int) (left / 60), (int) left % 60);
+        else
+                snprintf(buf, size, "about %.0f s left", left);
+}
+
+/* A terminal: one bar redrawn in place, with the overall ETA. */
 static void progress_bar(void *userdata, const char *stage, size_t done, size_t total) {
+        struct progress *p = userdata;
+        double now = mono_s();
+        p->fraction = imp_process_fraction(p->fraction, stage, done, total);
+        char left[64];
+        eta(p, now, left, sizeof left);
         int width = 30, fill = total ? (int) (width * done / total) : width;
-        fprintf(stderr, "\r%-18s [%.*s%*s] %zu/%zu", stage, fill,
-                "##############################", width - fill, "", done, total);
+        fprintf(stderr, "\r%-18s [%.*s%*s] %zu/%zu  %-24s", stage, fill,
+                "##############################", width - fill, "", done, total, left);
         if (done == total)
                 fputc('\n', stderr);
         fflush(stderr);
+}
+
+/* A pipe or a file (a log, a job runner): one line per stage as it ends, with the time it
+ * took, the run's elapsed time and the overall ETA; no carriage returns. */
+static void progress_lines(void *userdata, const char *stage, size_t done, size_t total) {
+        struct progress *p = userdata;
+        double now = mono_s();
+        if (strcmp(p->stage, stage)) {
+                snprintf(p->stage, sizeof p->stage, "%s", stage);
+                p->t_stage = now;
+        }
+        p->fraction = imp_process_fraction(p->fraction, stage, done, total);
+        if (done != total)
+                return;
+        char left[64];
+        eta(p, now, left, sizeof left);
+        fprintf(stderr, "process: %s done in %.1f s (%.0f %% of the run, %.0f s elapsed%s%s)\n", stage,
+                now - p->t_stage, 100 * p->fraction, now - p->t0, left[0] ? ", " : "", left);
+        fflush(stderr);
+        p->stage[0] = 0;
+}
+
+/* The absolute form of path, which need not exist yet: its deepest existing ancestor
+ * resolved (symbolic links, ..), the rest appended. */
+static int resolve_future(const char *path, char ret[PATH_MAX]) {
+        char head[PATH_MAX], tail[PATH_MAX] = "";
+        if (snprintf(head, sizeof head, "%s", path) >= (int) sizeof head)
+                return -ENAMETOOLONG;
+        for (;;) {
+                if (realpath(head[0] ? head : ".", ret)) {
+                        size_t n = strlen(ret);
+                        return snprintf(ret + n, PATH_MAX - n, "%s", tail) >= (int) (PATH_MAX - n) ? -ENAMETOOLONG : 0;
+                }
+                if (errno != ENOENT)
+                        return -errno;
+                char *slash = strrchr(head, '/');
+                char part[2 * PATH_MAX + 2];
+                snprintf(part, sizeof part, "/%s%s", slash ? slash + 1 : head, tail);
+                if (strlen(part) >= sizeof tail)
+                        return -ENAMETOOLONG;
+                memcpy(tail, part, sizeof tail);
+                if (!slash)
+                        head[0] = 0;
+                else if (slash == head)
+                        head[1] = 0;
+                else
+                        *slash = 0;
+        }
+}
+
+DEFINE_TRIVIAL_CLEANUP_FUNC(DIR *, closedir)
+
+/* true when dir exists and holds anything. */
+static bool nonempty_dir(const char *dir) {
+        _cleanup_(closedirp) DIR *d = opendir(dir);
+        if (!d)
+                return false;
+        for (struct dirent *e; (e = readdir(d));)
+                if (strcmp(e->d_name, ".") && strcmp(e->d_name, ".."))
+                        return true;
+        return false;
+}
+
+/* The places a copy may not go: into the raw capture set (a reader never modifies what it
+ * reads), over an existing copy or other files without --force. Returns an exit code, 0 = go. */
+static int check_places(const char *cap, const char *out, bool force) {
+        char rcap[PATH_MAX], rout[PATH_MAX];
+        if (!realpath(cap, rcap)) {
+                log_error("%s: %m (expected a capture set directory)", cap);
+                return IMP_EXIT_BAD_INPUT;
+        }
+        int r = resolve_future(out, rout);
+        if (r < 0) {
+                log_error("--out %s: %s", out, strerror(-r));
+                return IMP_EXIT_USAGE;
+        }
+        size_t n = strlen(rcap);
+        if (!strncmp(rout, rcap, n) && (rout[n] == 0 || rout[n] == '/')) {
+                log_error("--out %s: lies inside the capture set %s, which is never written to; "
+                          "choose a folder outside it", out, cap);
+                return IMP_EXIT_USAGE;
+        }
+        if (!force && nonempty_dir(out)) {
+                char path[PATH_MAX + 16];
+                snprintf(path, sizeof path, "%s/copy.json", out);
+                log_error("--out %s: %s; not overwritten (--force replaces it)", out,
+                          access(path, F_OK) == 0 ? "holds a digital copy already" : "is not empty");
+                return IMP_EXIT_USAGE;
+        }
+        return 0;
 }
 
 static void usage(FILE *f) {
@@ -55,7 +179,9 @@ static void usage(FILE *f) {
                    "                       [--delta FRACTION] [--no-btf] [--holdout N] [--quiet]\n"
                    "                       [--no-photometric-normals] [--threads N] [--gray-only]\n"
                    "                       [--btf-iterations N] [--btf-robust-passes N] [--no-shadow-test]\n"
-                   "                       [--photometric-only | --range-only]\n"
+                   "                       [--photometric-only | --range-only] [--allow-incomplete] [--force]\n"
+                   "  COPY_DIR must lie outside CAPTURE_DIR and be new or empty; --force writes over\n"
+                   "                an existing copy\n"
                    "  --photometric-only  dome frames alone (e.g. `impasto import photometric`): normals, albedo,\n"
                    "                BTF and integrated heights on the pixel grid (docs/import.md)\n"
                    "  --range-only  structured light alone (e.g. `impasto import sl`): range.exr on the\n"
@@ -88,8 +214,9 @@ static int run(int argc, char **argv) {
         struct imp_process_options o;
         imp_process_options_default(&o);
         const char *out = NULL;
-        if (isatty(STDERR_FILENO))
-                o.progress = progress_bar;
+        struct progress prog = { .t0 = mono_s() };
+        o.progress = isatty(STDERR_FILENO) ? progress_bar : progress_lines;
+        o.userdata = &prog;
         static const struct option longopts[] = {
                 { "out", required_argument, NULL, 'o' }, { "pitch", required_argument, NULL, 'p' },
                 { "cell", required_argument, NULL, 'n' }, { "delta", required_argument, NULL, 'd' },
@@ -101,10 +228,10 @@ static int run(int argc, char **argv) {
                 { "btf-robust-passes", required_argument, NULL, 'R' },
                 { "no-shadow-test", no_argument, NULL, 'S' },
                 { "photometric-only", no_argument, NULL, 'O' }, { "range-only", no_argument, NULL, 'Z' },
-                { "allow-incomplete", no_argument, NULL, 'A' },
+                { "allow-incomplete", no_argument, NULL, 'A' }, { "force", no_argument, NULL, 'F' },
                 { "help", no_argument, NULL, 'h' }, {}
         };
-        bool photometric_only = false, range_only = false;
+        bool photometric_only = false, range_only = false, force = false;
         int c, n;
         while ((c = getopt_long(argc, argv, "o:h", longopts, NULL)) >= 0)
                 switch (c) {
@@ -152,6 +279,7 @@ static int run(int argc, char **argv) {
                 case 'G': o.sl_gray_only = true; break;
                 case 'S': o.btf_samples.march_step_texels = 0; break;   /* no ray: nothing blocked */
                 case 'A': o.allow_incomplete = true; break;
+                case 'F': force = true; break;
                 case 'q': o.progress = NULL; break;
                 case 'O': photometric_only = true; break;
                 case 'Z': range_only = true; break;
@@ -162,6 +290,9 @@ static int run(int argc, char **argv) {
                 usage(stderr);
                 return IMP_EXIT_PROCESS_USAGE;
         }
+        int e = check_places(argv[optind], out, force);
+        if (e)
+                return e;
         struct timespec t0, t1;
         clock_gettime(CLOCK_MONOTONIC, &t0);
         struct imp_error err = {};
@@ -180,6 +311,8 @@ static int run(int argc, char **argv) {
                         print_quality(out);
                         return IMP_EXIT_PROCESS_INVALID;
                 }
+                if (r == -ENOENT || r == -ENOTDIR || r == -EPROTONOSUPPORT)   /* no set, or not one we read */
+                        return IMP_EXIT_PROCESS_INVALID;
                 return IMP_EXIT_PROCESS_FAILED;
         }
         clock_gettime(CLOCK_MONOTONIC, &t1);

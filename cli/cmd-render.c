@@ -5,7 +5,7 @@
  * Everything is in the copy's canvas frame (mm; texel (i, j) at (i·pitch, j·pitch), z out of
  * the paint): the copy is rendered with canvas_to_world = identity. The view is a pinhole at
  * X,Y,Z looking at TX,TY,TZ (default: the canvas centre on the bump plane), image x along
- * canvas x; --fov is the horizontal field of view. The light is an isotropic point light at
+ * canvas x; --fov is the horizontal field of view (default: the canvas fills the frame). The light is an isotropic point light at
  * X,Y,Z whose intensity gives irradiance 1 at the canvas centre, so a white Lambertian facing
  * it renders as 1. PNG: V clamped to [0, 1], sRGB-encoded, 8 bit; EXR: linear float R, G, B. */
 #include <errno.h>
@@ -24,13 +24,14 @@
 
 #define RENDER_DEFAULT_W    800
 #define RENDER_DEFAULT_H    600
-#define RENDER_DEFAULT_FOV  40.0   /* degrees, horizontal */
+#define RENDER_FRAME_FILL   0.95   /* without --fov: the canvas spans this share of the shorter side */
 #define RENDER_MAX_SIDE     16384
 
 static void usage(FILE *f) {
         fprintf(f, "usage: impasto render COPY_DIR --view X,Y,Z[,TX,TY,TZ] --light X,Y,Z --out FILE.png|.exr\n"
                    "                      [--mode bump|relief|adaptive] [--size WxH] [--fov DEG] [--shadows]\n"
-                   "  coordinates in mm in the copy's canvas frame; the target defaults to the canvas centre\n");
+                   "  coordinates in mm in the copy's canvas frame; the target defaults to the canvas centre\n"
+                   "  --fov DEG     horizontal field of view (default: the canvas fills the frame)\n");
 }
 
 /* Parses n or m comma-separated finite numbers; returns how many, or -1. */
@@ -75,7 +76,7 @@ struct render_args {
 
 /* Parses argv into *a: 0, an exit code, or -1 after --help. */
 static int parse_args(int argc, char **argv, struct render_args *a) {
-        *a = (struct render_args) { .W = RENDER_DEFAULT_W, .H = RENDER_DEFAULT_H, .fov = RENDER_DEFAULT_FOV,
+        *a = (struct render_args) { .W = RENDER_DEFAULT_W, .H = RENDER_DEFAULT_H, .fov = 0,
                                     .mode = IMP_RELIEF_ADAPTIVE };
         static const struct option longopts[] = {
                 { "view", required_argument, NULL, 'v' }, { "light", required_argument, NULL, 'l' },
@@ -150,6 +151,12 @@ static int view_and_light(const struct render_args *a, const struct imp_relief_c
         if (!(dv > 0))
                 return log_error("--view: the eye and the target coincide"), IMP_EXIT_USAGE;
         double fx = 0.5 * a->W / tan(0.5 * a->fov * M_PI / 180);
+        if (a->fov == 0) {   /* frame the canvas: its bounding sphere fills the shorter side */
+                double R = 0.5 * hypot(copy->nx * copy->pitch_mm, copy->ny * copy->pitch_mm) +
+                           hypot(hypot(target[0] - centre[0], target[1] - centre[1]), target[2] - centre[2]);
+                double half = asin(fmin(R / dv, 0.99));
+                fx = RENDER_FRAME_FILL * 0.5 * fmin(a->W, a->H) / tan(half);
+        }
         struct imp_pinhole cam = { .width = a->W, .height = a->H, .fx = fx, .fy = fx, .cx = (a->W - 1) / 2.0,
                                    .cy = (a->H - 1) / 2.0 };
         double right[3] = { 1, 0, 0 };

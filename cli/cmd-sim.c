@@ -256,7 +256,8 @@ static int cmd_render(const struct sim_args *a) {
         }
         printf("sim: wrote %zu frames (%zu dropped) and truth/ to %s in %.1f s\n", written, dropped, a->out,
                now_s() - t0);
-        print_counters(stdout, imp_render_counters(rd));
+        if (!a->quiet)   /* diagnostics, not the result: stdout is the one summary line */
+                print_counters(stderr, imp_render_counters(rd));
         return 0;
 }
 

@@ -32,6 +32,8 @@ install(DIRECTORY config/plans/ DESTINATION ${CMAKE_INSTALL_SYSCONFDIR}/impasto/
 install(DIRECTORY config/ DESTINATION ${CMAKE_INSTALL_SYSCONFDIR}/impasto/examples)
 # What Documentation= in the units names.
 install(FILES docs/install.md README.md DESTINATION ${CMAKE_INSTALL_DOCDIR})
+# impasto(1), impastod(8), impastod.conf(5), the two formats' pages and the bash completion.
+include(${CMAKE_CURRENT_LIST_DIR}/man.cmake)
 
 # The daemon's defaults follow the same prefix (daemon/main.c falls back to /usr/... without).
 if(TARGET impastod)

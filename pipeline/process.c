@@ -533,10 +533,10 @@ static int validate_holdout(const struct imp_btf_heightfield *bh, const struct i
                         }
                 ss_all += ss;
                 n_all += cnt;
-                json_array_append_new(per, json_real(cnt ? sqrt(ss / cnt) : -1.0));
+                json_array_append_new(per, cnt ? json_real(sqrt(ss / cnt)) : json_null());   /* null: no texel */
         }
-        *ret = json_pack("{s:i,s:I,s:f,s:o}", "lights", n, "texels", (json_int_t) (n_all / 3),
-                         "rmse", n_all ? sqrt(ss_all / n_all) : -1.0, "rmse_per_light", per);
+        *ret = json_pack("{s:i,s:I,s:o,s:o}", "lights", n, "texels", (json_int_t) (n_all / 3),
+                         "rmse", n_all ? json_real(sqrt(ss_all / n_all)) : json_null(), "rmse_per_light", per);
         return *ret ? 0 : -ENOMEM;
 fail:
         json_decref(per);
@@ -718,6 +718,11 @@ static int brdf_maps(const struct imp_heightfield *hf, const struct imp_btf_texe
         return 0;
 }
 
+/* The fit's texels done, as the stage's progress. */
+static void btf_progress(void *data, long done, long total) {
+        progress(data, "btf fit", (size_t) done, (size_t) total);
+}
+
 /* The shadow-aware Lafortune fit (seed 000 §4.4), the held-out validation, the maps. */
 static int btf_stage(const struct process_opts *o, struct geometry_out *g, const struct imp_btf_heightfield *bh,
                      const struct imp_btf_capture *cap, const struct dome *d, struct imp_error *err) {
@@ -727,11 +732,13 @@ static int btf_stage(const struct process_opts *o, struct geometry_out *g, const
                 return imp_error_set(err, -ENOMEM, "out of memory");
         double t0 = now_s();
         struct imp_btf_stats st = {};
+        struct imp_btf_fit_params fp = o->opt->btf_fit;
+        fp.progress = btf_progress;
+        fp.progress_data = (void *) o;
         progress(o, "btf fit", 0, 1);
-        int r = imp_btf_fit_grid(bh, cap, &o->opt->btf_samples, &o->opt->btf_fit, 64, tex, &st);
+        int r = imp_btf_fit_grid(bh, cap, &o->opt->btf_samples, &fp, 64, tex, &st);
         if (r < 0)
                 return imp_error_set(err, r, "%s: BTF fit failed: %s", o->capture, strerror(-r));
-        progress(o, "btf fit", 1, 1);
         for (size_t i = 0; i < nt; i++)   /* a non-physical fit is the copy's fit_failed */
                 if (g->hf.mask[i])
                         g->hf.texel_flags[i] |= imp_btf_texel_flags(tex[i].flags) & IMP_TEXEL_FIT_FAILED;
@@ -919,7 +926,7 @@ static int write_outputs(const struct process_opts *o, const struct geometry_out
                 if ((r = imp_exr_write(path, g->maps[m], m == 2 ? lobe : m == 3 ? flags : rgb, true, err)) < 0)
                         return r;
         }
-        return imp_copy_previews(o->out, &g->hf, err);
+        return imp_copy_previews(o->out, &g->hf, g->maps[0], err);
 }
 
 void imp_process_options_default(struct imp_process_options *o) {

@@ -53,6 +53,10 @@ struct imp_process_options {
 };
 
 void imp_process_options_default(struct imp_process_options *o);
+/* The fraction of a whole imp_process_capture() run done once STAGE reports done of total
+ * (each stage's span is its rough share of the time on the demo scenes), never below
+ * previous; a stage it does not know keeps previous. For an overall ETA. */
+double imp_process_fraction(double previous, const char *stage, size_t done, size_t total);
 /* Writes COPY_DIR/{heightfield.exr, boxes.json, rho_d.exr, rho_s.exr, lobe.exr,
  * fit-flags.exr (channel "flags": enum imp_btf_flag per texel), copy.json, previews/}.
  * With photometric_normals (and >= 8 dome lights in the fit), heightfield.exr's nx, ny are

@@ -188,24 +188,6 @@ struct progress_state {
         double fraction;              /* of the whole job, never decreasing */
 };
 
-/* Where each stage of imp_process_capture() lies in the whole job, roughly by its share
- * of the time on the demo scenes; a stage not listed keeps the fraction where it is. */
-static const struct { const char *stage; double from, to; } stage_spans[] = {
-        { "hdr merge", 0.00, 0.25 },      { "decode", 0.25, 0.35 },      { "triangulate", 0.35, 0.40 },
-        { "heightfield", 0.40, 0.45 },    { "boxes", 0.45, 0.50 },       { "dome hdr merge", 0.50, 0.70 },
-        { "btf fit", 0.70, 0.95 },        { "validation", 0.95, 1.00 },
-};
-
-static double job_fraction(double previous, const char *stage, size_t done, size_t total) {
-        for (size_t i = 0; i < sizeof stage_spans / sizeof stage_spans[0]; i++)
-                if (!strcmp(stage, stage_spans[i].stage)) {
-                        double f = stage_spans[i].from + (stage_spans[i].to - stage_spans[i].from) *
-                                   (total ? (double) done / (double) total : 1.0);
-                        return f > previous ? f : previous;
-                }
-        return previous;
-}
-
 static double now_s(void) {
         struct timespec ts;
         clock_gettime(CLOCK_MONOTONIC, &ts);
@@ -220,7 +202,7 @@ static void on_progress(void *userdata, const char *stage, size_t done, size_t t
                 return;
         snprintf(p->stage, sizeof p->stage, "%s", stage);
         p->last = t;
-        p->fraction = job_fraction(p->fraction, stage, done, total);
+        p->fraction = imp_process_fraction(p->fraction, stage, done, total);
         printf("job %s: %s %zu/%zu\n", p->job->f.id, stage, done, total);
         fflush(stdout);
         /* Progress is advice: a failed write does not stop the job. */

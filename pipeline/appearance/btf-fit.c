@@ -12,6 +12,12 @@
 #include "btf.h"
 #include "numerics.h"
 #include "quality.h"
+#ifdef _OPENMP
+#include <omp.h>
+#define IMP_BTF_THREAD_NUM() omp_get_thread_num()
+#else
+#define IMP_BTF_THREAD_NUM() 0
+#endif
 
 #define MAXP 3                        /* lobe parameters: (cx, cy, log k) or (cxy, log k) */
 #define COND_MAX 1e12                 /* reported condition numbers are capped here */
@@ -917,13 +923,20 @@ int imp_btf_fit_grid(const struct imp_btf_heightfield *hf, const struct imp_btf_
          * consecutive texels keep the frame taps and the heightfield in cache). */
         const int W = hf->width;
         const long nt = (long) W * hf->height, chunk = tile_texels > 0 ? tile_texels : 64;
-        long n_samples = 0, n_shadowed = 0;
+        long n_samples = 0, n_shadowed = 0, n_done = 0, next_report = nt / 50;
 #pragma omp parallel reduction(+ : n_samples, n_shadowed)
         {
                 struct imp_btf_sample smp[IMP_BTF_MAX_SAMPLES];
 #pragma omp for schedule(dynamic, chunk)
                 for (long i = 0; i < nt; i++) {
                         struct imp_btf_texel *t = &ret_texels[i];
+                        if (fp->progress) {   /* reported by the calling thread alone */
+                                long d = __atomic_add_fetch(&n_done, 1, __ATOMIC_RELAXED);
+                                if (IMP_BTF_THREAD_NUM() == 0 && d >= next_report && d < nt) {
+                                        next_report = d + nt / 50;
+                                        fp->progress(fp->progress_data, d, nt);
+                                }
+                        }
                         uint16_t sf, nsh;
                         int n = imp_btf_extract_texel(x, (int) (i % W), (int) (i / W), smp, &sf, &nsh);
                         n_samples += n;
@@ -940,6 +953,8 @@ int imp_btf_fit_grid(const struct imp_btf_heightfield *hf, const struct imp_btf_
         }
         st.n_samples = n_samples;
         st.n_shadowed = n_shadowed;
+        if (fp->progress)
+                fp->progress(fp->progress_data, nt, nt);
 
         r = imp_btf_fill(ret_texels, hf->width, hf->height);
         if (r < 0)

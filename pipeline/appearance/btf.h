@@ -190,6 +190,10 @@ struct imp_btf_fit_params {
         double peak_seen_min;         /* k is lowered until the brightest seen lobe value is at
                                          least this fraction of the lobe's peak (0.15, the
                                          LOBE_UNCERTAIN level: no peak far above the data) */
+        /* imp_btf_fit_grid's progress (NULL: none): texels done of total, some 50 times in a
+         * fit, always from the calling thread; the last call has done == total. */
+        void (*progress)(void *data, long done, long total);
+        void *progress_data;
 };
 void imp_btf_fit_params_default(struct imp_btf_fit_params *ret);
 

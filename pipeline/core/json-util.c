@@ -3,6 +3,7 @@
  * capture sets and every result file. Library code: no logging. */
 #define _GNU_SOURCE
 #include <errno.h>
+#include <math.h>
 #include <fcntl.h>
 #include <libgen.h>
 #include <stdio.h>
@@ -232,4 +233,8 @@ int imp_mkdir_p(const char *path, int mode) {
                         break;
         }
         return 0;
+}
+
+json_t *imp_json_figure(double v) {
+        return v >= 0 && isfinite(v) ? json_real(v) : json_null();
 }

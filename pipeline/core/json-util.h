@@ -26,6 +26,9 @@ int imp_json_get_doubles(const json_t *obj, const char *key, bool required, int 
                          const char *what, struct imp_error *err);
 /* "an object", "an array", "a string", …: v's type for messages ("expected …, got %s"). */
 const char *imp_json_type_name(const json_t *v);
+/* A figure that is never negative, as JSON: null when it is not available (a negative
+ * sentinel such as -1, or not finite), the number otherwise. A new reference. */
+json_t *imp_json_figure(double v);
 /* Load a whole file; parse errors name file:line:column. */
 int imp_json_load(const char *path, json_t **ret, struct imp_error *err);
 /* Crash-safe: writes PATH.tmp, fsyncs it, renames over PATH, fsyncs the directory. */

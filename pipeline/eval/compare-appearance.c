@@ -258,22 +258,18 @@ out:
         return r;
 }
 
-/* A figure, or null when it could not be measured (negative: "not available"). */
-static json_t *figure(double v) {
-        return v >= 0 ? json_real(v) : json_null();
-}
-
+/* A figure with nothing to measure (-1) is null. */
 void imp_compare_appearance_to_json(const struct imp_compare_appearance *r, json_t *obj) {
-        json_object_set_new(obj, "rho_d_rel_err_median", figure(r->rho_d_rel_err_median));
+        json_object_set_new(obj, "rho_d_rel_err_median", imp_json_figure(r->rho_d_rel_err_median));
         json_object_set_new(obj, "rho_d_mono", json_boolean(r->mono));
-        json_object_set_new(obj, "rho_d_rel_err_p90", figure(r->rho_d_rel_err_p90));
+        json_object_set_new(obj, "rho_d_rel_err_p90", imp_json_figure(r->rho_d_rel_err_p90));
         json_object_set_new(obj, "rho_d_samples", json_integer((json_int_t) r->rho_d_samples));
-        json_object_set_new(obj, "lobe_k_rel_err_median", figure(r->lobe_k_rel_err_median));
-        json_object_set_new(obj, "lobe_k_rel_err_p90", figure(r->lobe_k_rel_err_p90));
-        json_object_set_new(obj, "rho_s_rel_err_median", figure(r->rho_s_rel_err_median));
+        json_object_set_new(obj, "lobe_k_rel_err_median", imp_json_figure(r->lobe_k_rel_err_median));
+        json_object_set_new(obj, "lobe_k_rel_err_p90", imp_json_figure(r->lobe_k_rel_err_p90));
+        json_object_set_new(obj, "rho_s_rel_err_median", imp_json_figure(r->rho_s_rel_err_median));
         json_object_set_new(obj, "lobe_texels", json_integer((json_int_t) r->lobe_texels));
         json_object_set_new(obj, "lobe_flagged", json_integer((json_int_t) r->lobe_flagged));
-        json_object_set_new(obj, "rerender_rmse", figure(r->rerender_rmse));
+        json_object_set_new(obj, "rerender_rmse", imp_json_figure(r->rerender_rmse));
         json_object_set_new(obj, "rerender_lights", json_integer((json_int_t) r->rerender_lights));
         json_object_set_new(obj, "rerender_texels", json_integer((json_int_t) r->rerender_texels));
         json_object_set_new(obj, "appearance_nan_count", json_integer((json_int_t) r->nan_count));

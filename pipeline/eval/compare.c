@@ -466,14 +466,15 @@ int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_com
 }
 
 json_t *imp_compare_result_to_json(const struct imp_compare_result *r) {
-        json_t *j = json_pack("{s:f,s:f,s:f,s:f,s:f,s:f,s:f,s:I,s:I,s:I,s:f,s:f,s:f,s:f,s:f,s:f,s:I,s:f,s:f,s:f,s:I,s:f}",
+        /* mask_iou_observable and beyond_3sigma_normal are -1 when not measurable: null */
+        return json_pack("{s:f,s:f,s:f,s:f,s:f,s:f,s:o,s:I,s:I,s:I,s:f,s:f,s:f,s:f,s:f,s:f,s:I,s:f,s:o,s:f,s:I,s:f}",
                          "height_rmse_um", r->height_rmse_um,
                          "height_offset_mm", r->height_offset_mm,
                          "height_max_abs_um", r->height_max_abs_um,
                          "normal_err_deg_mean", r->normal_err_deg_mean,
                          "normal_err_deg_mean_bandlimited", r->normal_err_deg_mean_bandlimited,
                          "mask_iou", r->mask_iou,
-                         "mask_iou_observable", r->mask_iou_observable,
+                         "mask_iou_observable", imp_json_figure(r->mask_iou_observable),
                          "nan_count", (json_int_t) r->nan_count,
                          "n_compared", (json_int_t) r->n_compared,
                          "n_filled", (json_int_t) r->n_filled,
@@ -484,14 +485,8 @@ json_t *imp_compare_result_to_json(const struct imp_compare_result *r) {
                          "placement_deg", r->placement_deg, "frame_texel_fraction", r->frame_texel_fraction,
                          "n_unflagged", (json_int_t) r->n_unflagged,
                          "beyond_3sigma_height", r->beyond_3sigma_height,
-                         "beyond_3sigma_normal", r->beyond_3sigma_normal,
+                         "beyond_3sigma_normal", imp_json_figure(r->beyond_3sigma_normal),
                          "unflagged_normal_err_deg_max", r->unflagged_normal_err_deg_max,
                          "unflagged_normal_over_10deg", (json_int_t) r->unflagged_normal_over_10deg,
                          "flagged_fraction", r->flagged_fraction);
-        /* a figure that could not be measured (-1 in the result) is null, not a number */
-        if (j && r->beyond_3sigma_normal < 0)
-                json_object_set_new(j, "beyond_3sigma_normal", json_null());
-        if (j && r->mask_iou_observable < 0)
-                json_object_set_new(j, "mask_iou_observable", json_null());
-        return j;
 }

@@ -204,15 +204,18 @@ static int parse_dome(const struct imp_conf *c, const struct imp_rig *rig, struc
         config_setting_t *l = config_setting_lookup(g, "lights");
         const char *s = l ? config_setting_get_string(l) : "all";
         if (s) {
-                if (strcmp(s, "all"))
-                        return imp_error_set(err, -EINVAL, "%s:%d: dome.lights: expected \"all\" or a list of light ids, got \"%s\"",
-                                             imp_conf_path(c), line_of(l), s);
-                ps->n_lights = rig->n_lights;
-                ps->lights = calloc(rig->n_lights > 0 ? rig->n_lights : 1, sizeof(int));
+                /* "spread N": N lights evenly spread over the rig's list (every light when it has
+                 * no more), so that a preset fits a dome of any size */
+                int spread = 0, end = 0;
+                if (strcmp(s, "all") && (sscanf(s, "spread %d%n", &spread, &end) != 1 || s[end] || spread < 1))
+                        return imp_error_set(err, -EINVAL, "%s:%d: dome.lights: expected \"all\", \"spread N\" "
+                                             "(N ≥ 1) or a list of light ids, got \"%s\"", imp_conf_path(c), line_of(l), s);
+                ps->n_lights = spread > 0 && spread < rig->n_lights ? spread : rig->n_lights;
+                ps->lights = calloc(ps->n_lights > 0 ? ps->n_lights : 1, sizeof(int));
                 if (!ps->lights)
                         return -ENOMEM;
-                for (int i = 0; i < rig->n_lights; i++)
-                        ps->lights[i] = rig->lights[i].id;
+                for (int i = 0; i < ps->n_lights; i++)
+                        ps->lights[i] = rig->lights[(long) i * rig->n_lights / ps->n_lights].id;
         } else {
                 if (!config_setting_is_aggregate(l))
                         return imp_error_set(err, -EINVAL, "%s:%d: dome.lights: expected \"all\" or a list of light ids",

@@ -2,7 +2,8 @@
 # cli-conventions.sh BUILD: the conventions an operator expects of `impasto` and `impastod`
 # (those of systemctl, git): --version; `impasto help [CMD]` prints what `impasto CMD --help`
 # prints; a mistyped command gets "did you mean" and the usage exit code 2; wrong arguments
-# say what was wrong; numbers are parsed strictly with the option named. No daemon needed.
+# say what was wrong; numbers are parsed strictly with the option named; one exit code per cause;
+# process refuses unsafe places to write, shows progress lines when piped and writes previews. No daemon needed.
 set -u
 build=$1
 imp=$build/cli/impasto impastod=$build/daemon/impastod
@@ -70,6 +71,72 @@ run pitch "$imp" process "$tmp" --out "$tmp/copy" --pitch abc
 check "impasto process --pitch abc: refused naming the option, exit 2, nothing written" \
   sh -c '[ "$(cat "$0")" = 2 ] && grep -q -- "--pitch: expected a number from 0 to 1000, got '"'abc'"'" "$1" && [ ! -e "$2" ]' \
   "$tmp/pitch.rc" "$tmp/pitch.err" "$tmp/copy"
+
+# the same cause, the same exit code (core/exit-codes.h): a missing input is bad input, 3
+run procnx "$imp" process "$tmp/nonexist" --out "$tmp/copy-nx"
+run compnx "$imp" compare "$tmp/nonexist" --truth "$tmp/nonexist"
+check "process and compare of a missing directory both exit 3 (bad input)" \
+  sh -c '[ "$(cat "$0")" = 3 ] && [ "$(cat "$1")" = 3 ]' "$tmp/procnx.rc" "$tmp/compnx.rc"
+check "process of a missing directory names it" grep -q "$tmp/nonexist: No such file or directory" "$tmp/procnx.err"
+
+# process never writes into the capture set, nor over an existing copy without --force
+mkdir -p "$tmp/cap/frames" "$tmp/old"
+echo '{"format":"impasto-digital-copy"}' >"$tmp/old/copy.json"
+run outin "$imp" process "$tmp/cap" --out "$tmp/cap/copy"
+check "process CAP --out CAP/copy: refused, exit 2, nothing written" \
+  sh -c '[ "$(cat "$0")" = 2 ] && grep -q "lies inside the capture set" "$1" && [ ! -e "$2" ]' \
+  "$tmp/outin.rc" "$tmp/outin.err" "$tmp/cap/copy"
+run outsame "$imp" process "$tmp/cap" --out "$tmp/cap/frames/../"
+check "process CAP --out CAP (another spelling): refused, exit 2" \
+  sh -c '[ "$(cat "$0")" = 2 ] && grep -q "lies inside the capture set" "$1"' "$tmp/outsame.rc" "$tmp/outsame.err"
+run over "$imp" process "$tmp/cap" --out "$tmp/old"
+check "process over an existing copy: refused naming --force, exit 2, copy untouched" \
+  sh -c '[ "$(cat "$0")" = 2 ] && grep -q "holds a digital copy already; not overwritten (--force replaces it)" "$1" &&
+         grep -q impasto-digital-copy "$2"' "$tmp/over.rc" "$tmp/over.err" "$tmp/old/copy.json"
+run force "$imp" process "$tmp/cap" --out "$tmp/old" --force
+check "with --force the copy's place is accepted (the empty set is then refused as bad input, 3)" \
+  sh -c '[ "$(cat "$0")" = 3 ] && ! grep -q "not overwritten" "$1"' "$tmp/force.rc" "$tmp/force.err"
+
+# plan estimate: the text says the processing time; --rig names what it wants
+src=$(dirname "$0")/../..
+run est "$imp" plan estimate "$src/config/plans/standard.cfg" --scene "$src/config/scenes/demo.cfg"
+check "plan estimate: exit 0 and a processing line" sh -c '[ "$(cat "$0")" = 0 ] && grep -q "^processing " "$1"' \
+  "$tmp/est.rc" "$tmp/est.out"
+for preset in draft standard archival; do   # presets select lights by spread, not by the 48-light dome's ids
+  run est-$preset "$imp" plan estimate "$src/config/plans/$preset.cfg" --scene "$src/config/scenes/small.cfg"
+  check "plan estimate $preset.cfg on the 12-light small rig: exit 0" [ "$(rc est-$preset)" = 0 ]
+done
+run estrig "$imp" plan estimate "$src/config/plans/standard.cfg" --rig "$src/config/rigs/sim.cfg"
+check "plan estimate --rig RIG.cfg: exit 3, says it wants rig.json" \
+  sh -c '[ "$(cat "$0")" = 3 ] && grep -q "rig wants the rig.s model, rig.json" "$1"' "$tmp/estrig.rc" "$tmp/estrig.err"
+
+# sim render: its counters are diagnostics on stderr, stdout holds the one result line
+scene=$(dirname "$0")/../../config/scenes/small.cfg plan=$(dirname "$0")/../../config/plans/small.cfg   # with a dome: a BTF
+if [ -f "$scene" ] && [ -f "$plan" ]; then
+  run simr "$imp" sim render --scene "$scene" --plan "$plan" --out "$tmp/simset" --threads 1
+  check "sim render: exit 0, one line on stdout, the counters on stderr" \
+    sh -c '[ "$(cat "$0")" = 0 ] && [ "$(wc -l <"$1")" = 1 ] && ! grep -q counters: "$1" && grep -q "^counters: " "$2"' \
+    "$tmp/simr.rc" "$tmp/simr.out" "$tmp/simr.err"
+  # process, piped: one line per stage with the overall ETA, no carriage return; the previews
+  run proc "$imp" process "$tmp/simset" --out "$tmp/simcopy" --threads 1
+  check "process piped: exit 0, a line per stage with elapsed time and what is left, no carriage return" \
+    sh -c '[ "$(cat "$0")" = 0 ] && grep -q "^process: hdr merge done in [0-9.]* s (25 % of the run, [0-9]* s elapsed" "$1" &&
+           grep -q "^process: heightfield done in .* left)" "$1" && ! grep -q "$(printf "\r")" "$1"' \
+    "$tmp/proc.rc" "$tmp/proc.err"
+  pv=$tmp/simcopy/previews
+  check "previews/index.html shows height, relief, sigma, flags, normals, colour by relative links that exist" \
+    sh -c 'for f in height relief sigma flags normals albedo; do grep -q "src=\"$f.png\"" "$0/index.html" && [ -s "$0/$f.png" ] || exit 1; done' "$pv"
+  check "height.png carries its colour bar: wider and taller than the copy's grid" python3 -c "
+import json, struct, sys
+w, h = struct.unpack('>II', open('$pv/height.png', 'rb').read()[16:24])
+c = json.load(open('$tmp/simcopy/copy.json'))
+sys.exit(not (w >= c['nx'] + 100 and h >= c['ny'] + 40))"
+  # render without --fov frames the canvas (it filled about 10 % of the frame with a fixed 40°)
+  run rend "$imp" render "$tmp/simcopy" --view 30,-25,70 --light -40,20,40 --size 400x300 --out "$tmp/relit.png"
+  check "render frames the copy: at least 20 % of the 400x300 pixels see it" \
+    sh -c '[ "$(cat "$0")" = 0 ] && [ "$(sed -n "s/.*: 400x300, \([0-9]*\) pixels see the copy.*/\1/p" "$1")" -ge 24000 ]' \
+    "$tmp/rend.rc" "$tmp/rend.out"
+fi
 
 [ $failures -eq 0 ] || { echo "$failures failed"; exit 1; }
 echo "conventions verified"
