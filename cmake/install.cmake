@@ -38,7 +38,8 @@ if(TARGET impastod)
   target_compile_definitions(impastod PRIVATE
     IMPASTO_DEFAULT_RIG="${IMPASTO_CONF_DIR}/rig.cfg"
     IMPASTO_DEFAULT_WORKER="${CMAKE_INSTALL_FULL_BINDIR}/impasto-worker"
-    IMPASTO_DEFAULT_CLI="${CMAKE_INSTALL_FULL_BINDIR}/impasto")
+    IMPASTO_DEFAULT_CLI="${CMAKE_INSTALL_FULL_BINDIR}/impasto"
+    IMPASTO_DEFAULT_CONF="${IMPASTO_CONF_DIR}/impastod.conf")
 endif()
 
 # The paths above are fixed when configuring: an install to another prefix gets units that
