@@ -10,7 +10,7 @@
 #include "log.h"
 #include "night.h"
 
-const char *night_conf_path(int argc, char **argv, const char *def, bool *required) {
+static const char *night_conf_path(int argc, char **argv, const char *def, bool *required) {
         *required = false;
         for (int i = 1; i < argc; i++) {
                 if (!strcmp(argv[i], "--"))
@@ -125,8 +125,14 @@ static int conf_apply(struct daemon *d, struct imp_conf *c, struct imp_error *er
         return 0;
 }
 
-int night_conf_load(struct daemon *d, const char *path, bool required) {
-        struct night *n = d->night;
+int night_conf_load(struct daemon *d, int argc, char **argv, const char *def) {
+        bool required;
+        const char *path = night_conf_path(argc, argv, def, &required);
+        struct night *n = d->night = calloc(1, sizeof *d->night);
+        if (!n)
+                return log_error_errno(-ENOMEM, "out of memory");
+        n->hook_timeout_s = NIGHT_HOOK_TIMEOUT_S;
+        n->disk_low_bytes = NIGHT_DISK_LOW_DEFAULT;
         if (!path)
                 return 0;
         if (!required && access(path, F_OK) < 0 && errno == ENOENT) {

@@ -406,13 +406,8 @@ int main(int argc, char **argv) {
                 .listen_fd = -1,
         };
         imp_log_set_ident("impastod");
-        bool conf_given;
-        const char *conf = night_conf_path(argc, argv, IMPASTO_DEFAULT_CONF, &conf_given);
-        if (!(d.night = calloc(1, sizeof *d.night)))
-                return 1;
-        d.night->hook_timeout_s = NIGHT_HOOK_TIMEOUT_S;
-        d.night->disk_low_bytes = NIGHT_DISK_LOW_DEFAULT;
-        if (night_conf_load(&d, conf, conf_given) < 0 || parse_args(argc, argv, &d) < 0 ||
+        /* impastod.conf first (conf.c), the command line overrides it */
+        if (night_conf_load(&d, argc, argv, IMPASTO_DEFAULT_CONF) < 0 || parse_args(argc, argv, &d) < 0 ||
             (d.worker_args && check_worker_args(d.worker_args) < 0))
                 return 2;
         if (d.spawn_workers && access(d.worker_cmd, X_OK) < 0)

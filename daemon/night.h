@@ -45,11 +45,10 @@ struct night {
         bool queue_broken;              /* queue.json unreadable: no change, no start */
 };
 
-/* conf.c: reads PATH (the default one may be absent: then nothing is set) into d before
- * the command line, whose options override it. Errors name FILE:LINE: FIELD. */
-int night_conf_load(struct daemon *d, const char *path, bool required);
-/* --config PATH or --config=PATH from argv, else the default; *required when given. */
-const char *night_conf_path(int argc, char **argv, const char *def, bool *required);
+/* conf.c: makes d->night and reads the config file (--config PATH or --config=PATH in
+ * argv, else def, which may be absent: then nothing is set) into d before the command line,
+ * whose options override it. Errors (logged) name FILE:LINE: FIELD. */
+int night_conf_load(struct daemon *d, int argc, char **argv, const char *def);
 void night_free(struct daemon *d);
 /* After sessions and jobs are loaded: interruptions recorded, the queue loaded and kicked. */
 void night_start(struct daemon *d);
