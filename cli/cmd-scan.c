@@ -118,6 +118,14 @@ static void on_event(void *userdata, const struct imp_proto_message *m) {
                         f->rate_frames = (double) f->frames;
                 }
                 draw(f, false);
+                /* paused by a fault: nothing more comes until someone resumes it */
+                if (!strcmp(f->state, "paused") && f->faults > 0) {
+                        f->done = true;
+                        snprintf(f->done_state, sizeof f->done_state, "paused");
+                        if (!f->json)
+                                printf("session %s paused after a fault; continue with: impasto scan resume %s "
+                                       "--follow\n", f->session, f->session);
+                }
         } else if (!strcmp(m->event, "fault")) {
                 f->faults++;
                 if (!f->json) {
