@@ -424,8 +424,8 @@ static json_t *cmd_queue_list(struct client *c, const struct imp_proto_request *
 }
 
 static json_t *cmd_queue_move(struct client *c, const struct imp_proto_request *req, struct imp_proto_error *e) {
-        return queue_move(c->d, arg_str(req->args, "id"),
-                          (int) json_integer_value(json_object_get(req->args, "position")), e);
+        json_t *pos = json_object_get(req->args, "position");
+        return queue_move(c->d, arg_str(req->args, "id"), json_is_integer(pos) ? (int) json_integer_value(pos) : 1, e);
 }
 
 static json_t *cmd_queue_cancel(struct client *c, const struct imp_proto_request *req, struct imp_proto_error *e) {

@@ -134,12 +134,12 @@ static const struct imp_proto_field calibration_args[] = {
 static const struct imp_proto_field queue_id_args[] = { QUEUE_ID, END };
 static const struct imp_proto_field queue_move_args[] = {
         QUEUE_ID,
-        { .name = "position", .type = IMP_PROTO_T_INTEGER, .flags = IMP_PROTO_F_REQUIRED, .min = 1, .max = 256,
-          .what = "new position in the queue, 1 first" },
+        { .name = "position", .type = IMP_PROTO_T_INTEGER, .min = 1, .max = 256,
+          .what = "new position in the queue, 1 first (default 1)" },
         END,
 };
 static const struct imp_proto_field report_args[] = {
-        STR("since", IMP_PROTO_F_REQUIRED, 20, 20, "UTC time as YYYY-MM-DDTHH:MM:SSZ"),
+        STR("since", IMP_PROTO_F_REQUIRED, 1, 32, "UTC time as YYYY-MM-DDTHH:MM:SSZ"),
         END,
 };
 static const struct imp_proto_field subscribe_args[] = {
