@@ -105,3 +105,7 @@ void imp_client_print_table(const json_t *rows, const struct imp_client_column *
 /* Following events: counts in *dropped the events lost between *last_seq and seq (the
  * daemon drops events for a subscriber that reads too slowly), then remembers seq. */
 void imp_client_count_gap(unsigned long long *last_seq, unsigned long long *dropped, unsigned long long seq);
+
+/* The `attention` object of status and report (cmd-status.c): each item that needs the
+ * operator with the command that acts on it, or "nothing needs attention". */
+void imp_client_print_attention(const json_t *att);

@@ -15,6 +15,17 @@ static void human(const json_t *r) {
         json_array_foreach(list, i, d)
                 printf("%-12s %-10s %-10s %-7s %s\n", imp_client_str(d, "name"), imp_client_str(d, "class"),
                        imp_client_str(d, "backend"), imp_client_str(d, "state"), imp_client_str(d, "detail"));
+        /* a probe opens and reads each device; otherwise the state is as impastod last saw it */
+        const json_t *age = json_object_get(r, "age_s");
+        char buf[32];
+        if (json_is_true(json_object_get(r, "probed")))
+                printf("(probed now: each device opened and read)\n");
+        else if (json_is_number(age))
+                printf("(as last known, probed %s ago; not probed now: a session holds the rig, an observer's\n"
+                       " request, or the last probe is under --device-probe-interval-s old)\n",
+                       imp_client_fmt_duration(json_number_value(age), buf, sizeof buf));
+        else if (json_object_get(r, "probed"))
+                printf("(as last known, never probed since impastod started: an operator's impasto devices probes)\n");
 }
 
 static int run(int argc, char **argv) {

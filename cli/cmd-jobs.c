@@ -1,9 +1,11 @@
 /* `impasto jobs [list] [--limit N]`, `impasto jobs show ID`, `impasto jobs retry ID`: the
  * processing queue (jobs.list, jobs.show, jobs.retry of proto/PROTOCOL.md). */
 #include <getopt.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 #include "client.h"
 #include "commands.h"
 #include "help.h"
@@ -12,7 +14,8 @@
 static void usage(FILE *f) {
         fprintf(f, "usage: impasto jobs [list] [--limit N] [--json] [--socket PATH]\n"
                    "       impasto jobs show ID [--json] [--socket PATH]\n"
-                   "       impasto jobs retry ID [--json] [--socket PATH]\n");
+                   "       impasto jobs retry ID [--json] [--socket PATH]\n"
+                   "       impasto jobs follow ID [--json] [--socket PATH]   one line per change until it ends\n");
 }
 
 static void human_list(const json_t *r) {
@@ -51,10 +54,79 @@ static void human_retry(const json_t *r) {
         printf("job %s: %s\n", imp_client_str(r, "job"), imp_client_str(r, "state"));
 }
 
+static char detach_msg[512];
+
+static void on_interrupt(int sig) {
+        (void) !write(STDERR_FILENO, detach_msg, strlen(detach_msg));
+        _exit(130);
+}
+
+/* One line per change of the job (state, stage, progress, attempts); --json: the events. */
+static void print_job_line(const json_t *e, bool json) {
+        if (json) {
+                _cleanup_free_ char *s = json_dumps(e, JSON_COMPACT | JSON_PRESERVE_ORDER);
+                if (s)
+                        puts(s);
+        } else {
+                double p = imp_client_num(e, "progress");
+                const json_t *err = json_object_get(e, "error");
+                printf("job %s: %s%s%s %.0f%% (attempt %lld of %lld)%s%s\n", imp_client_str(e, "job"),
+                       imp_client_str(e, "state"), *imp_client_str(e, "stage") ? ", " : "", imp_client_str(e, "stage"),
+                       p == p ? 100 * p : 0, imp_client_int(e, "attempts"), imp_client_int(e, "max_attempts"),
+                       json_is_object(err) ? ": " : "", json_is_object(err) ? imp_client_str(err, "message") : "");
+        }
+        fflush(stdout);
+}
+
+static bool job_final(const json_t *e) {
+        return !strcmp(imp_client_str(e, "state"), "done") || !strcmp(imp_client_str(e, "state"), "failed");
+}
+
+static int jobs_follow(const struct imp_client_opts *o, const char *id) {
+        _cleanup_client_ struct imp_client *c = NULL;
+        int rc = imp_client_connect_or_log(o, &c);
+        if (rc)
+                return rc;
+        struct imp_error err = {};
+        _cleanup_proto_message_ struct imp_proto_message sub = {}, show = {};
+        int r = imp_client_call(c, "subscribe", json_pack("{s:[s]}", "events", "job"), NULL, NULL, &sub, &err);
+        if (r >= 0 && sub.ok)
+                r = imp_client_call(c, "jobs.show", json_pack("{s:s}", "job", id), NULL, NULL, &show, &err);
+        if (r < 0) {
+                log_error("%s", err.msg);
+                return imp_client_exit_for_errno(r);
+        }
+        if (!sub.ok || !show.ok)
+                return imp_client_report_error(!sub.ok ? "subscribe" : "jobs.show", !sub.ok ? &sub : &show);
+        print_job_line(show.result, o->json);
+        bool failed = !strcmp(imp_client_str(show.result, "state"), "failed");
+        if (job_final(show.result))
+                return failed ? IMP_EXIT_FAILURE : IMP_EXIT_OK;
+        snprintf(detach_msg, sizeof detach_msg, "\nimpasto: detached from job %s; it goes on in impastod.\n"
+                 "Follow it again with: impasto jobs follow %s\n", id, id);
+        struct sigaction sa = { .sa_handler = on_interrupt };
+        sigemptyset(&sa.sa_mask);
+        (void) sigaction(SIGINT, &sa, NULL);
+        (void) sigaction(SIGTERM, &sa, NULL);
+        for (;;) {
+                _cleanup_proto_message_ struct imp_proto_message m = {};
+                r = imp_client_next_event(c, -1, &m, &err);
+                if (r < 0) {
+                        log_error("%s", err.msg);
+                        return imp_client_exit_for_errno(r);
+                }
+                if (r == 0 || strcmp(imp_client_str(m.root, "job"), id))
+                        continue;
+                print_job_line(m.root, o->json);
+                if (job_final(m.root))
+                        return !strcmp(imp_client_str(m.root, "state"), "done") ? IMP_EXIT_OK : IMP_EXIT_FAILURE;
+        }
+}
+
 /* Says what was wrong with the words after `impasto jobs`. */
 static int bad_args(const char *verb, int n, long limit) {
-        static const char *const verbs[] = { "list", "show", "retry" };
-        if (strcmp(verb, "list") && strcmp(verb, "show") && strcmp(verb, "retry"))
+        static const char *const verbs[] = { "list", "show", "retry", "follow" };
+        if (strcmp(verb, "list") && strcmp(verb, "show") && strcmp(verb, "retry") && strcmp(verb, "follow"))
                 return imp_cli_unknown_action("jobs", verb, verbs, ARRAY_SIZE(verbs));
         if (!strcmp(verb, "list"))
                 fprintf(stderr, "impasto jobs list: takes no arguments besides --limit N\n");
@@ -90,6 +162,8 @@ static int run(int argc, char **argv) {
                 json_t *args = limit ? json_pack("{s:I}", "limit", (json_int_t) limit) : NULL;
                 return imp_client_simple(&o, "jobs.list", args, human_list);
         }
+        if (!strcmp(verb, "follow") && n == 2 && !limit)
+                return jobs_follow(&o, argv[optind + 1]);
         if ((!strcmp(verb, "show") || !strcmp(verb, "retry")) && n == 2 && !limit) {
                 json_t *args = json_pack("{s:s}", "job", argv[optind + 1]);
                 if (!strcmp(verb, "show"))
@@ -101,6 +175,6 @@ static int run(int argc, char **argv) {
 
 const struct imp_command imp_cmd_jobs = {
         .name = "jobs",
-        .summary = "the processing queue: list, show and retry jobs",
+        .summary = "the processing queue: list, show, follow and retry jobs",
         .run = run,
 };

@@ -1,6 +1,7 @@
 /* `impasto scan`: capture sessions on the daemon (session.* of proto/PROTOCOL.md).
  *   scan start PLAN [--name N] [--follow | --wait]   start; --follow draws progress until done
- *   scan pause|resume|abort SESSION
+ *   scan pause|resume|abort SESSION   resume --follow: then follow it
+ *   scan follow SESSION               follow a running (or paused) session until it ends
  *   scan list [--limit N]
  *   scan show SESSION
  * --follow subscribes before starting, so no event of the new session is missed; on a
@@ -11,6 +12,7 @@
 #include <getopt.h>
 #include <limits.h>
 #include <math.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -26,6 +28,9 @@
 static void usage(FILE *f) {
         fprintf(f, "usage: impasto scan start PLAN [--name NAME] [--follow | --wait] [--json] [--socket PATH]\n"
                    "       impasto scan pause|resume|abort SESSION [--json] [--socket PATH]\n"
+                   "       impasto scan resume SESSION --follow [--json] [--socket PATH]\n"
+                   "       impasto scan follow SESSION [--json] [--socket PATH]\n"
+                   "Ctrl-C while following detaches: the scan goes on in impastod.\n"
                    "       impasto scan list [--limit N] [--json] [--socket PATH]\n"
                    "       impasto scan show SESSION [--json] [--socket PATH]\n");
 }
@@ -113,6 +118,14 @@ static void on_event(void *userdata, const struct imp_proto_message *m) {
                         f->rate_frames = (double) f->frames;
                 }
                 draw(f, false);
+                /* paused by a fault: nothing more comes until someone resumes it */
+                if (!strcmp(f->state, "paused") && f->faults > 0) {
+                        f->done = true;
+                        snprintf(f->done_state, sizeof f->done_state, "paused");
+                        if (!f->json)
+                                printf("session %s paused after a fault; continue with: impasto scan resume %s "
+                                       "--follow\n", f->session, f->session);
+                }
         } else if (!strcmp(m->event, "fault")) {
                 f->faults++;
                 if (!f->json) {
@@ -136,8 +149,28 @@ static void on_event(void *userdata, const struct imp_proto_message *m) {
         /* frame, device, job and unknown event types: nothing to draw */
 }
 
+/* Ctrl-C while following: the scan is impastod's and goes on; say so and how to come back
+ * (prepared before, written from the handler with write(2), which is async-signal-safe). */
+static char detach_msg[512];
+
+static void on_interrupt(int sig) {
+        (void) !write(STDERR_FILENO, detach_msg, strlen(detach_msg));
+        _exit(130);
+}
+
+static void detach_on_interrupt(const char *session) {
+        snprintf(detach_msg, sizeof detach_msg,
+                 "\nimpasto: detached from session %s; the scan goes on in impastod.\n"
+                 "Follow it again with: impasto scan follow %s (impasto status shows it too)\n", session, session);
+        struct sigaction sa = { .sa_handler = on_interrupt };
+        sigemptyset(&sa.sa_mask);
+        (void) sigaction(SIGINT, &sa, NULL);
+        (void) sigaction(SIGTERM, &sa, NULL);
+}
+
 static int follow_session(struct imp_client *c, struct follow *f) {
         struct imp_error err = {};
+        detach_on_interrupt(f->session);
         while (!f->done) {
                 _cleanup_proto_message_ struct imp_proto_message m = {};
                 int r = imp_client_next_event(c, -1, &m, &err);
@@ -198,6 +231,55 @@ static int scan_start(const struct imp_client_opts *o, const char *plan, const c
                 printf("session %s started, capturing into %s\n", f.session, imp_client_str(reply.result, "path"));
         if (!follow && !wait)
                 return IMP_EXIT_OK;
+        return follow_session(c, &f);
+}
+
+/* scan follow ID, scan resume ID --follow: subscribed before the state is read (or the
+ * resume sent), so no event in between is missed. */
+static int scan_follow(const struct imp_client_opts *o, const char *session, bool resume) {
+        _cleanup_client_ struct imp_client *c = NULL;
+        int rc = imp_client_connect_or_log(o, &c);
+        if (rc)
+                return rc;
+        struct follow f = { .json = o->json, .tty = isatty(STDERR_FILENO), .eta_s = NAN, .t0 = now_s() };
+        snprintf(f.session, sizeof f.session, "%s", session);
+        struct imp_error err = {};
+        _cleanup_proto_message_ struct imp_proto_message sub = {}, reply = {};
+        json_t *args = json_pack("{s:[s,s,s]}", "events", "progress", "fault", "done");
+        int r = imp_client_call(c, "subscribe", args, NULL, NULL, &sub, &err);
+        if (r < 0) {
+                log_error("%s", err.msg);
+                return imp_client_exit_for_errno(r);
+        }
+        if (!sub.ok)
+                return imp_client_report_error("subscribe", &sub);
+        f.last_seq = (unsigned long long) imp_client_int(sub.result, "seq");
+        const char *cmd = resume ? "session.resume" : "session.show";
+        r = imp_client_call(c, cmd, json_pack("{s:s}", "session", session), on_event, &f, &reply, &err);
+        if (r < 0) {
+                log_error("%s", err.msg);
+                return imp_client_exit_for_errno(r);
+        }
+        if (!reply.ok)
+                return imp_client_report_error(cmd, &reply);
+        const char *state = imp_client_str(reply.result, "state");
+        if (!f.frames)
+                f.frames = imp_client_int(reply.result, "frames");
+        if (!f.frames_total)
+                f.frames_total = imp_client_int(reply.result, "steps");
+        snprintf(f.state, sizeof f.state, "%s", state);
+        if (!f.done && (!strcmp(state, "completed") || !strcmp(state, "aborted") || !strcmp(state, "failed"))) {
+                if (!o->json)
+                        printf("session %s %s: %lld frames in %s\n", session, state, f.frames,
+                               imp_client_str(reply.result, "path"));
+                return !strcmp(state, "completed") ? IMP_EXIT_OK : IMP_EXIT_FAILURE;
+        }
+        if (!o->json && !f.done)
+                printf("session %s: %s%s, following (Ctrl-C detaches; the scan goes on)\n", session,
+                       resume ? "resumed, " : "", state);
+        if (!o->json && !strcmp(state, "paused") && !resume)
+                printf("session %s is paused: impasto scan resume %s --follow continues it\n", session, session);
+        fflush(stdout);
         return follow_session(c, &f);
 }
 
@@ -266,8 +348,12 @@ static int run(int argc, char **argv) {
         int n = argc - optind;
         const char *verb = n > 0 ? argv[optind] : "";
         bool start = !strcmp(verb, "start");
+        if (!strcmp(verb, "resume") && follow && !name && !wait && n == 2)
+                return scan_follow(&o, argv[optind + 1], true);
+        if (!strcmp(verb, "follow") && n == 2 && !name && !wait && !limit)
+                return scan_follow(&o, argv[optind + 1], false);
         if ((name || follow || wait) && !start) {
-                log_error("--name, --follow and --wait go with scan start");
+                log_error("--name and --wait go with scan start, --follow with scan start and scan resume");
                 return IMP_EXIT_USAGE;
         }
         if (limit && strcmp(verb, "list")) {
@@ -293,6 +379,6 @@ static int run(int argc, char **argv) {
 
 const struct imp_command imp_cmd_scan = {
         .name = "scan",
-        .summary = "capture sessions: start (and follow), pause, resume, abort, list, show",
+        .summary = "capture sessions: start, follow, pause, resume, abort, list, show",
         .run = run,
 };

@@ -19,12 +19,35 @@ static void human(const json_t *r) {
         else
                 printf("session  none\n");
         if (json_is_object(j))
-                printf("jobs     %lld queued, %lld running\n", imp_client_int(j, "queued"),
-                       imp_client_int(j, "running"));
+                printf("jobs     %lld queued, %lld running, %lld failed\n", imp_client_int(j, "queued"),
+                       imp_client_int(j, "running"), imp_client_int(j, "failed"));
+        const json_t *q = json_object_get(r, "queue");
+        if (imp_client_int(q, "entries") > 0)
+                printf("queue    %lld plans%s%s\n", imp_client_int(q, "entries"),
+                       *imp_client_str(q, "waiting_for") ? ", waiting: " : "", imp_client_str(q, "waiting_for"));
         /* the newest finished copy's quality verdict, when the copy has one */
         const json_t *last = json_object_get(j, "last_done");
         if (json_is_object(last) && *imp_client_str(last, "verdict"))
                 printf("copy     %s: verdict %s\n", imp_client_str(last, "job"), imp_client_str(last, "verdict"));
+        imp_client_print_attention(json_object_get(r, "attention"));
+}
+
+/* What needs the operator (status, report): each item and the command that acts on it. */
+void imp_client_print_attention(const json_t *att) {
+        const json_t *items = json_object_get(att, "items"), *it;
+        size_t i;
+        if (!json_array_size(items)) {
+                printf("state    ok: nothing needs attention\n");
+                return;
+        }
+        printf("state    DEGRADED: %zu item%s need%s attention\n", json_array_size(items) + (size_t) imp_client_int(att, "more"),
+               json_array_size(items) == 1 ? "" : "s", json_array_size(items) == 1 ? "s" : "");
+        json_array_foreach(items, i, it) {
+                printf("  ! %s\n", imp_client_str(it, "message"));
+                printf("    -> %s\n", imp_client_str(it, "action"));
+        }
+        if (imp_client_int(att, "more") > 0)
+                printf("  … and %lld more (impasto report --since 7d)\n", imp_client_int(att, "more"));
 }
 
 static int run(int argc, char **argv) {

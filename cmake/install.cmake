@@ -7,7 +7,7 @@ set(IMPASTO_CONF_DIR ${CMAKE_INSTALL_FULL_SYSCONFDIR}/impasto)
 set(IMPASTO_UNIT_DIR ${CMAKE_INSTALL_PREFIX}/lib/systemd/system)
 set(IMPASTO_UNITS_BUILD ${PROJECT_BINARY_DIR}/systemd)
 
-foreach(unit impastod.service impastod.socket impasto-worker@.service impasto.tmpfiles)
+foreach(unit impastod.service impastod.socket impasto-worker@.service impasto.tmpfiles impastod.conf)
   configure_file(${PROJECT_SOURCE_DIR}/systemd/${unit}.in ${IMPASTO_UNITS_BUILD}/${unit} @ONLY)
 endforeach()
 install(FILES ${IMPASTO_UNITS_BUILD}/impastod.service ${IMPASTO_UNITS_BUILD}/impastod.socket
@@ -28,6 +28,16 @@ install(CODE "
     file(INSTALL \"${PROJECT_SOURCE_DIR}/config/rigs/sim.cfg\" DESTINATION \"${IMPASTO_CONF_DIR}\"
          RENAME rig.cfg)
   endif()")
+# impastod.conf likewise: the operator's once edited (the example stays in
+# examples/impastod.conf).
+install(CODE "
+  set(conf \"\$ENV{DESTDIR}${IMPASTO_CONF_DIR}/impastod.conf\")
+  if(EXISTS \"\${conf}\")
+    message(STATUS \"Keeping: \${conf} (the example is examples/impastod.conf)\")
+  else()
+    file(INSTALL \"${IMPASTO_UNITS_BUILD}/impastod.conf\" DESTINATION \"${IMPASTO_CONF_DIR}\")
+  endif()")
+install(FILES ${IMPASTO_UNITS_BUILD}/impastod.conf DESTINATION ${CMAKE_INSTALL_SYSCONFDIR}/impasto/examples)
 install(DIRECTORY config/plans/ DESTINATION ${CMAKE_INSTALL_SYSCONFDIR}/impasto/plans)
 install(DIRECTORY config/ DESTINATION ${CMAKE_INSTALL_SYSCONFDIR}/impasto/examples)
 # What Documentation= in the units names.
@@ -40,7 +50,8 @@ if(TARGET impastod)
   target_compile_definitions(impastod PRIVATE
     IMPASTO_DEFAULT_RIG="${IMPASTO_CONF_DIR}/rig.cfg"
     IMPASTO_DEFAULT_WORKER="${CMAKE_INSTALL_FULL_BINDIR}/impasto-worker"
-    IMPASTO_DEFAULT_CLI="${CMAKE_INSTALL_FULL_BINDIR}/impasto")
+    IMPASTO_DEFAULT_CLI="${CMAKE_INSTALL_FULL_BINDIR}/impasto"
+    IMPASTO_DEFAULT_CONF="${IMPASTO_CONF_DIR}/impastod.conf")
 endif()
 
 # The paths above are fixed when configuring: an install to another prefix gets units that

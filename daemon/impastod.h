@@ -428,6 +428,7 @@ struct daemon {
         struct calibration *calibrations;       /* newest first */
         int calib_version;              /* the calibration in force; 0: the rig config's rig.json */
         sd_event_source *calib_timer;   /* the next calibration attempt */
+        struct night *night;            /* impastod.conf, scan queue, hook (night.h) */
         bool stopping;
 };
 

@@ -11,16 +11,20 @@
 #include <systemd/sd-daemon.h>
 #include "impastod.h"
 #include "log.h"
+#include "night.h"
 #include "version.h"
 
 #ifndef IMPASTO_DEFAULT_RIG     /* from the install prefix: cmake/install.cmake */
 #define IMPASTO_DEFAULT_RIG "/etc/impasto/rig.cfg"
 #define IMPASTO_DEFAULT_WORKER "/usr/bin/impasto-worker"
 #define IMPASTO_DEFAULT_CLI "/usr/bin/impasto"
+#define IMPASTO_DEFAULT_CONF "/etc/impasto/impastod.conf"
 #endif
 
 static void help(void) {
-        printf("usage: impastod [--rig CONFIG] [options]\n"
+        printf("usage: impastod [--config FILE] [--rig CONFIG] [options]\n"
+               "  --config FILE          impastod.conf, read first; options override it (default\n"
+               "                         " IMPASTO_DEFAULT_CONF ", used when present)\n"
                "  --rig PATH             rig config (devices and calibration; default " IMPASTO_DEFAULT_RIG ")\n"
                "  --socket PATH          control socket when not socket-activated (default /run/impasto/control.sock)\n"
                "  --state-dir DIR        sessions and jobs (default /var/lib/impasto)\n"
@@ -122,7 +126,7 @@ static int check_worker_args(const char *args) {
 
 enum { ARG_SOCKET = 256, ARG_STATE, ARG_WORKER, ARG_RESUME, ARG_OPS, ARG_MAXC, ARG_RETRIES, ARG_JOBS, ARG_MINFREE,
        ARG_RIG, ARG_DEVTIMEOUT, ARG_WORKER_ARGS, ARG_NO_SPAWN, ARG_PLAN_DIR, ARG_CALIB_CMD, ARG_PER_UID, ARG_RESERVED,
-       ARG_IDLE, ARG_REQ_TIMEOUT, ARG_QUEUE_MAX, ARG_PROBE };
+       ARG_IDLE, ARG_REQ_TIMEOUT, ARG_QUEUE_MAX, ARG_PROBE, ARG_CONFIG };
 
 /* The connection limits: integers 0 to 100000 (0: none, for the timeouts). */
 static int parse_limit(int opt, const char *arg, struct daemon *d) {
@@ -171,6 +175,7 @@ static int parse_args(int argc, char **argv, struct daemon *d) {
                 { "request-timeout-s", required_argument, NULL, ARG_REQ_TIMEOUT },
                 { "client-queue-max", required_argument, NULL, ARG_QUEUE_MAX },
                 { "device-probe-interval-s", required_argument, NULL, ARG_PROBE },
+                { "config", required_argument, NULL, ARG_CONFIG },      /* read before (conf.c) */
                 { "verbose", no_argument, NULL, 'v' },
                 { "help", no_argument, NULL, 'h' },
                 { "version", no_argument, NULL, 'V' },
@@ -241,6 +246,7 @@ static int parse_args(int argc, char **argv, struct daemon *d) {
                                 return -EINVAL;
                         }
                         break;
+                case ARG_CONFIG: break;
                 case 'v': imp_log_set_level(IMP_LOG_DEBUG); break;
                 case 'h': help(); exit(0);
                 case 'V': printf("impastod %s\n", imp_version()); exit(0);
@@ -361,6 +367,7 @@ static void daemon_shutdown(struct daemon *d, bool activated) {
                 close(d->listen_fd);
         jobs_free_all(d);
         calibrations_free_all(d);
+        night_free(d);
         while (d->sessions) {
                 struct session *s = d->sessions;
                 d->sessions = s->next;
@@ -399,7 +406,9 @@ int main(int argc, char **argv) {
                 .listen_fd = -1,
         };
         imp_log_set_ident("impastod");
-        if (parse_args(argc, argv, &d) < 0)
+        /* impastod.conf first (conf.c), the command line overrides it */
+        if (night_conf_load(&d, argc, argv, IMPASTO_DEFAULT_CONF) < 0 || parse_args(argc, argv, &d) < 0 ||
+            (d.worker_args && check_worker_args(d.worker_args) < 0))
                 return 2;
         if (d.spawn_workers && access(d.worker_cmd, X_OK) < 0)
                 log_warning("worker %s: %m: every processing job will fail; install it or pass --worker-cmd PATH "
@@ -469,6 +478,7 @@ int main(int argc, char **argv) {
                 log_warning_errno(r, "%s/calibrations: %m; calibrations cannot be stored, ignoring", d.state_dir);
         (void) jobs_load(&d);
         (void) jobs_watch(&d);
+        night_start(&d);        /* interruptions recorded, the scan queue loaded (queue.c) */
         if (d.spawn_workers)
                 log_info("jobs: %s JOBFILE, one at a time%s%s", d.worker_cmd, d.worker_args ? ", worker_args " : "",
                          d.worker_args ? d.worker_args : "");

@@ -310,8 +310,46 @@ struct device_probe {
         uint64_t t0_us;
 };
 
+/* A device open since earlier may be unplugged by now: one control read of each (as
+ * arv-tool does); one that does not answer is closed and opened again below, so that an
+ * unplugged rig never shows `ok` from the cache. */
+static void check_open_devices(struct rigcfg *rc) {
+        for (int i = 0; i < rc->n_cameras; i++) {
+                struct dev_camera *cam = &rc->cameras[i];
+                struct imp_camera_info info;
+                int r = cam->cam ? imp_camera_get_info(cam->cam, &info) : 0;
+                if (r >= 0)
+                        continue;
+                if (cam->started)
+                        (void) imp_camera_stop(cam->cam);
+                imp_camera_close(cam->cam);
+                cam->cam = NULL;
+                cam->started = false;
+                cam->applied_valid = false;
+                cam->state = DEV_ABSENT;
+                snprintf(cam->detail, sizeof cam->detail, "stopped answering (%s)", strerror(-r));
+        }
+        struct imp_dome_state ds;
+        int r = rc->dome.dome ? imp_dome_get_state(rc->dome.dome, &ds) : 0;
+        if (r < 0) {
+                imp_dome_close(rc->dome.dome);
+                rc->dome.dome = NULL;
+                rc->dome.state = DEV_ABSENT;
+                snprintf(rc->dome.detail, sizeof rc->dome.detail, "stopped answering (%s)", strerror(-r));
+        }
+        struct imp_projector_status ps;
+        r = rc->projector.proj ? imp_projector_get_status(rc->projector.proj, &ps) : 0;
+        if (r < 0 && r != -EOPNOTSUPP) {
+                imp_projector_close(rc->projector.proj);
+                rc->projector.proj = NULL;
+                rc->projector.state = DEV_ABSENT;
+                snprintf(rc->projector.detail, sizeof rc->projector.detail, "stopped answering (%s)", strerror(-r));
+        }
+}
+
 static void *probe_thread(void *userdata) {
         struct device_probe *pr = userdata;
+        check_open_devices(pr->d->rigcfg);
         (void) rigcfg_open_devices(pr->d->rigcfg, pr->have_rig ? &pr->rig : NULL, NULL);
         uint64_t one = 1;
         (void) !write(pr->efd, &one, sizeof one);

@@ -13,6 +13,7 @@
 #include "impastod.h"
 #include "json-util.h"
 #include "log.h"
+#include "night.h"
 #include "version.h"
 
 #define READ_CHUNK 16384
@@ -140,6 +141,7 @@ static void reply_error(struct client *c, const json_t *id, struct imp_proto_err
 }
 
 void server_broadcast(struct daemon *d, const char *type, json_t *fields) {
+        night_event(d, type, fields);   /* session.log and the hook (hooks.c) */
         int ti = -1;
         for (int i = 0; imp_proto_event_types[i]; i++)
                 if (!strcmp(imp_proto_event_types[i], type))
@@ -213,11 +215,17 @@ static json_t *cmd_status(struct client *c, const struct imp_proto_request *req,
                 sess = json_pack("{s:s, s:s, s:I, s:I}", "session", d->active->id, "state",
                                  session_state_name(d->active->state), "step", (json_int_t) d->active->n_frames,
                                  "steps", (json_int_t) d->active->frames_total);
-        return json_pack("{s:{s:s, s:f, s:i}, s:{s:s, s:b, s:i}, s:o, s:{s:i, s:i, s:o?}}", "daemon", "version",
-                         imp_version(), "uptime_s", (double) (now_us(d) - d->started_us) / 1e6, "pid", (int) getpid(),
-                         "rig", "name", d->rigcfg->name, "calibrated", d->have_rig, "calibration",
-                         d->calib_version, "session", sess, "jobs", "queued", queued, "running", running,
-                         "last_done", lastj);
+        unsigned failed = 0;
+        for (struct job *j = d->jobs; j; j = j->next)
+                failed += j->state == IMP_JOB_FAILED;
+        _cleanup_json_ json_t *queue = queue_list_json(d);
+        return json_pack("{s:{s:s, s:f, s:i}, s:{s:s, s:b, s:i}, s:o, s:{s:i, s:i, s:i, s:o?}, s:{s:I, s:O?}, s:o}",
+                         "daemon", "version", imp_version(), "uptime_s", (double) (now_us(d) - d->started_us) / 1e6,
+                         "pid", (int) getpid(), "rig", "name", d->rigcfg->name, "calibrated", d->have_rig,
+                         "calibration", d->calib_version, "session", sess, "jobs", "queued", queued, "running",
+                         running, "failed", failed, "last_done", lastj, "queue", "entries",
+                         (json_int_t) json_array_size(json_object_get(queue, "queue")), "waiting_for",
+                         json_object_get(queue, "waiting_for"), "attention", night_attention_json(d));
 }
 
 static json_t *cmd_rig(struct client *c, const struct imp_proto_request *req, struct imp_proto_error *e) {
@@ -241,7 +249,9 @@ static json_t *cmd_devices(struct client *c, const struct imp_proto_request *req
                         d->probe_last_us = now;
                 return DEFERRED;
         }
-        return json_pack("{s:o}", "devices", device_probe_snapshot(d));
+        /* as last known: how old that is (null: never probed since impastod started) */
+        json_t *age = d->probe_last_us ? json_real((double) (now - d->probe_last_us) / 1e6) : json_null();
+        return json_pack("{s:o, s:b, s:o}", "devices", device_probe_snapshot(d), "probed", 0, "age_s", age);
 }
 
 static json_t *cmd_plan_validate(struct client *c, const struct imp_proto_request *req, struct imp_proto_error *e) {
@@ -405,6 +415,27 @@ static json_t *cmd_calibration_show(struct client *c, const struct imp_proto_req
         return cal ? calibration_json(cal, true) : NULL;
 }
 
+static json_t *cmd_queue_add(struct client *c, const struct imp_proto_request *req, struct imp_proto_error *e) {
+        return queue_add(c->d, &c->peer, arg_str(req->args, "plan"), arg_str(req->args, "name"), e);
+}
+
+static json_t *cmd_queue_list(struct client *c, const struct imp_proto_request *req, struct imp_proto_error *e) {
+        return queue_list_json(c->d);
+}
+
+static json_t *cmd_queue_move(struct client *c, const struct imp_proto_request *req, struct imp_proto_error *e) {
+        json_t *pos = json_object_get(req->args, "position");
+        return queue_move(c->d, arg_str(req->args, "id"), json_is_integer(pos) ? (int) json_integer_value(pos) : 1, e);
+}
+
+static json_t *cmd_queue_cancel(struct client *c, const struct imp_proto_request *req, struct imp_proto_error *e) {
+        return queue_cancel(c->d, arg_str(req->args, "id"), e);
+}
+
+static json_t *cmd_report(struct client *c, const struct imp_proto_request *req, struct imp_proto_error *e) {
+        return night_report_json(c->d, arg_str(req->args, "since"), e);
+}
+
 /* Who may run what, and the handler, per command; indexed by the protocol's enum (like
  * proto/protocol.c's table, and Redis's command table). A row left out is zero: ACCESS_NONE
  * and no handler, which refuses the command for everyone. */
@@ -440,6 +471,11 @@ static const struct command_row command_table[] = {
         R(UNSUBSCRIBE,      OBSERVER, cmd_unsubscribe),
         R(CALIBRATION_LIST, OBSERVER, cmd_calibration_list),
         R(CALIBRATION_SHOW, OBSERVER, cmd_calibration_show),
+        R(QUEUE_ADD,        OPERATOR, cmd_queue_add),
+        R(QUEUE_LIST,       OBSERVER, cmd_queue_list),
+        R(QUEUE_MOVE,       OPERATOR, cmd_queue_move),
+        R(QUEUE_CANCEL,     OPERATOR, cmd_queue_cancel),
+        R(REPORT,           OBSERVER, cmd_report),
 #undef R
 };
 _Static_assert(ARRAY_SIZE(command_table) == _IMP_PROTO_CMD_MAX, "one row per protocol command");
@@ -603,7 +639,8 @@ static void devices_probed(struct daemon *d, json_t *devices) {
                         continue;
                 json_t *id = TAKE_PTR(c->wait_id);
                 c->waiting = false;
-                client_send(c, imp_proto_reply_ok(id, json_pack("{s:O}", "devices", devices)));
+                client_send(c, imp_proto_reply_ok(id, json_pack("{s:O, s:b, s:f}", "devices", devices, "probed", 1,
+                                                                 "age_s", 0.0)));
                 json_decref(id);
                 client_process(c);
         }

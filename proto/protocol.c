@@ -130,6 +130,18 @@ static const struct imp_proto_field calibration_args[] = {
         STR("calibration", IMP_PROTO_F_REQUIRED | IMP_PROTO_F_TOKEN, 1, 128, "calibration version"),
         END,
 };
+#define QUEUE_ID STR("id", IMP_PROTO_F_REQUIRED | IMP_PROTO_F_TOKEN, 1, 16, "queue entry id")
+static const struct imp_proto_field queue_id_args[] = { QUEUE_ID, END };
+static const struct imp_proto_field queue_move_args[] = {
+        QUEUE_ID,
+        { .name = "position", .type = IMP_PROTO_T_INTEGER, .min = 1, .max = 256,
+          .what = "new position in the queue, 1 first (default 1)" },
+        END,
+};
+static const struct imp_proto_field report_args[] = {
+        STR("since", IMP_PROTO_F_REQUIRED, 1, 32, "UTC time as YYYY-MM-DDTHH:MM:SSZ"),
+        END,
+};
 static const struct imp_proto_field subscribe_args[] = {
         { .name = "events", .type = IMP_PROTO_T_STRING_ARRAY, .min = 1, .max = 16,
           .choices = imp_proto_event_types, .what = "event types" },
@@ -157,6 +169,11 @@ static const struct imp_proto_command commands[] = {
         C("unsubscribe",    UNSUBSCRIBE,    false, no_args,        "stop streaming events"),
         C("calibration.list", CALIBRATION_LIST, false, list_args,  "stored calibrations, newest first"),
         C("calibration.show", CALIBRATION_SHOW, false, calibration_args, "one calibration with its figures"),
+        C("queue.add",      QUEUE_ADD,      true,  start_args,     "queue a plan: it starts as its own session when the rig is free"),
+        C("queue.list",     QUEUE_LIST,     false, no_args,        "the scan queue in order"),
+        C("queue.move",     QUEUE_MOVE,     true,  queue_move_args, "move a queue entry to another position"),
+        C("queue.cancel",   QUEUE_CANCEL,   true,  queue_id_args,  "remove an entry from the scan queue"),
+        C("report",         REPORT,         false, report_args,    "sessions, faults, jobs and copies since a time"),
 #undef C
 };
 _Static_assert(ARRAY_SIZE(commands) == _IMP_PROTO_CMD_MAX, "one row per command");

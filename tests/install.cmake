@@ -5,4 +5,10 @@ if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WI
   add_test(NAME test-install
     COMMAND sh ${PROJECT_SOURCE_DIR}/tests/install/install-test.sh ${PROJECT_SOURCE_DIR} ${PROJECT_BINARY_DIR})
   set_tests_properties(test-install PROPERTIES LABELS integration SKIP_RETURN_CODE 77 TIMEOUT 300)
+  # The same, then a queued two-painting night on the installed daemon and config: an injected
+  # camera fault, a SIGKILL, a failed job; status, report, session.log and the hook checked
+  # (tests/install/night.sh; ~16 s).
+  add_test(NAME test-install-night
+    COMMAND sh ${PROJECT_SOURCE_DIR}/tests/install/install-test.sh ${PROJECT_SOURCE_DIR} ${PROJECT_BINARY_DIR} night)
+  set_tests_properties(test-install-night PROPERTIES LABELS integration SKIP_RETURN_CODE 77 TIMEOUT 900)
 endif()

@@ -7,11 +7,12 @@
 # impastod exactly as impastod.service does (paths moved into the DESTDIR, state in a temp
 # dir) in front of the emulated rig served by the installed `impasto sim serve`, and checks
 # that the installed `impasto status` answers with the rig and its calibration loaded, and
-# that installing again keeps an edited rig config.
+# that installing again keeps an edited rig config. With a third argument `night`, then the
+# queued night of tests/install/night.sh.
 # Runs itself in a private network namespace (the emulator listens on fixed loopback
 # ports); exit 77 (skipped) when impastod is not built or no namespace can be made.
 set -u
-src=$1 build=$2
+src=$1 build=$2 mode=${3:-}
 prefix=/usr/local
 [ -x "$build/daemon/impastod" ] && [ -x "$build/cli/impasto" ] && [ -x "$build/cli/impasto-worker" ] ||
   { echo "SKIP: impastod, impasto or impasto-worker not built"; exit 77; }
@@ -43,19 +44,26 @@ for u in impastod.service impastod.socket impasto-worker@.service; do
 done
 [ -f "$svc" ] || exit 1
 
-# ExecStart= of impastod.service, word by word
+# ExecStart= of impastod.service, word by word: the binary and --config; the settings are
+# in the installed impastod.conf.
 exec_words=$(sed -n 's/^ExecStart=//p' "$svc")
 opt_value() {   # opt_value OPTION: the word after OPTION in ExecStart= (first one)
   printf '%s\n' $exec_words | awk -v o="$1" 'prev == o { print; exit } { prev = $0 }'
 }
 bin=$(printf '%s\n' $exec_words | head -n1)
-rig=$(opt_value --rig) worker=$(opt_value --worker-cmd) calib=$(opt_value --calibrate-cmd)
+conf=$(opt_value --config)
 check "ExecStart binary $bin is installed and executable" test -x "$root$bin"
-check "ExecStart passes --rig (impastod cannot start without a rig config)" test -n "$rig"
-check "the --rig config $rig is installed" test -f "$root$rig"
+check "ExecStart passes --config (the settings, the rig config among them)" test -n "$conf"
+check "the --config file $conf is installed" test -f "$root$conf"
+conf_value() {  # conf_value NAME: the string value of NAME = "…"; in impastod.conf
+  sed -n 's/^ *'"$1"' *= *"\([^"]*\)";.*/\1/p' "$root$conf" | head -n1
+}
+rig=$(conf_value rig) worker=$(conf_value worker) calib=$(conf_value calibrate_cmd)
+check "impastod.conf names a rig config (impastod cannot start without one)" test -n "$rig"
+check "the rig config $rig is installed" test -f "$root$rig"
 check "the worker $worker is installed and executable" test -n "$worker" -a -x "$root$worker" -a ! -d "$root$worker"
-check "the --calibrate-cmd $calib is installed and executable" test -n "$calib" -a -x "$root$calib" -a ! -d "$root$calib"
-for pd in $(printf '%s\n' $exec_words | awk 'prev == "--plan-dir" { print } { prev = $0 }'); do
+check "the calibrate_cmd $calib is installed and executable" test -n "$calib" -a -x "$root$calib" -a ! -d "$root$calib"
+for pd in $(sed -n 's/^ *plan_dirs *= *\[\(.*\)\];.*/\1/p' "$root$conf" | tr -d '",'); do
   case $pd in /var/lib/impasto/*) ;;   # made by tmpfiles/StateDirectory=
   *) check "plan dir $pd is installed (impastod refuses a missing one)" test -d "$root$pd" ;; esac
 done
@@ -108,15 +116,11 @@ for _ in $(seq 600); do [ -s "$tmp/ready" ] || ! kill -0 $serve_pid 2>/dev/null 
 proj=$(python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["projector"]["name"])' "$root$cfgdir/rig.json")
 sed -i "s|name = \"proj0\"|name = \"$proj\"|" "$root$rig"
 
-# impastod as the unit starts it: installed paths moved into the DESTDIR, state in $tmp.
-set --
-for w in $exec_words; do
-  case $w in
-  /var/lib/impasto*) w=$tmp/state${w#/var/lib/impasto}; mkdir -p "$w" ;;
-  /*) w=$root$w ;;
-  esac
-  set -- "$@" "$w"
-done
+# impastod as the unit starts it, with the installed config: its paths moved into the
+# DESTDIR, state in $tmp.
+mkdir -p "$tmp/state"
+sed -e 's|"'"$prefix"'/|"'"$root$prefix"'/|g' -e 's|"/var/lib/impasto|"'"$tmp/state"'|g' "$root$conf" >"$tmp/impastod.conf"
+set -- "$root$bin" --config "$tmp/impastod.conf"
 sock=$tmp/control.sock
 "$@" --socket "$sock" --operators-all >"$tmp/impastod.log" 2>&1 &
 daemon_pid=$!
@@ -143,6 +147,8 @@ check "a missing worker is reported at start" grep -q "no-such-worker: .*every p
 echo "# edited by the operator" >>"$root$rig"
 DESTDIR=$root cmake --install "$build" --prefix "$prefix" >"$tmp/install2.log" 2>&1
 check "a second install keeps an edited rig config" grep -q "^# edited by the operator" "$root$rig"
+
+[ "$mode" = night ] && . "$src/tests/install/night.sh"
 
 [ $failures -eq 0 ] || { echo "--- impastod.log"; cat "$tmp/impastod.log"; echo "$failures failed"; exit 1; }
 echo "install verified"

@@ -30,6 +30,11 @@ static const struct {
         { "unsubscribe",    "{\"id\":-17,\"cmd\":\"unsubscribe\"}" },
         { "calibration.list", "{\"id\":18,\"cmd\":\"calibration.list\",\"args\":{\"limit\":5}}" },
         { "calibration.show", "{\"id\":19,\"cmd\":\"calibration.show\",\"args\":{\"calibration\":\"3\"}}" },
+        { "queue.add",      "{\"id\":20,\"cmd\":\"queue.add\",\"args\":{\"plan\":\"p.cfg\",\"name\":\"nw\"}}" },
+        { "queue.list",     "{\"id\":21,\"cmd\":\"queue.list\"}" },
+        { "queue.move",     "{\"id\":22,\"cmd\":\"queue.move\",\"args\":{\"id\":\"q3\",\"position\":1}}" },
+        { "queue.cancel",   "{\"id\":23,\"cmd\":\"queue.cancel\",\"args\":{\"id\":\"q3\"}}" },
+        { "report",         "{\"id\":24,\"cmd\":\"report\",\"args\":{\"since\":\"2026-11-26T00:00:00Z\"}}" },
 };
 
 static void test_table(void) {
@@ -247,7 +252,7 @@ static void test_roles(void) {
                 } else
                         CHECK_OK(r);
         }
-        CHECK_INT_EQ(denied, 6);        /* session.start/pause/resume/abort, calibrate, jobs.retry */
+        CHECK_INT_EQ(denied, 9);        /* session.start/pause/resume/abort, calibrate, jobs.retry, queue.add/move/cancel */
 
         _cleanup_json_ json_t *b = imp_proto_banner(IMP_PROTO_ROLE_OBSERVER);
         _cleanup_free_ char *line = imp_proto_dump_line(b);
