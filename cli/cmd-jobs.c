@@ -5,6 +5,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "client.h"
+#include "cmd-jobs-slurm.h"
 #include "commands.h"
 #include "help.h"
 #include "log.h"
@@ -12,7 +13,9 @@
 static void usage(FILE *f) {
         fprintf(f, "usage: impasto jobs [list] [--limit N] [--json] [--socket PATH]\n"
                    "       impasto jobs show ID [--json] [--socket PATH]\n"
-                   "       impasto jobs retry ID [--json] [--socket PATH]\n");
+                   "       impasto jobs retry ID [--json] [--socket PATH]\n"
+                   "       impasto jobs submit --slurm [options] CAPTURE...   (docs/scale-out.md)\n"
+                   "       impasto jobs list|show|cancel|retry --slurm BATCH\n");
 }
 
 static void human_list(const json_t *r) {
@@ -53,7 +56,7 @@ static void human_retry(const json_t *r) {
 
 /* Says what was wrong with the words after `impasto jobs`. */
 static int bad_args(const char *verb, int n, long limit) {
-        static const char *const verbs[] = { "list", "show", "retry" };
+        static const char *const verbs[] = { "list", "show", "retry", "submit" };
         if (strcmp(verb, "list") && strcmp(verb, "show") && strcmp(verb, "retry"))
                 return imp_cli_unknown_action("jobs", verb, verbs, ARRAY_SIZE(verbs));
         if (!strcmp(verb, "list"))
@@ -67,6 +70,8 @@ static int bad_args(const char *verb, int n, long limit) {
 }
 
 static int run(int argc, char **argv) {
+        if (imp_jobs_slurm_wanted(argc, argv))
+                return imp_jobs_slurm_run(argc, argv);
         struct imp_client_opts o = {};
         long limit = 0;
         static const struct option opts[] = {

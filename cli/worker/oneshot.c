@@ -186,6 +186,11 @@ static int run_one(const char *name, const char *capture, const char *copy, cons
         char lock[PATH_MAX + 16], partial[PATH_MAX + 16];
         snprintf(lock, sizeof lock, "%s.lock", copy);
         snprintf(partial, sizeof partial, "%s.partial", copy);
+        char parent[PATH_MAX];
+        snprintf(parent, sizeof parent, "%s", copy);
+        char *slash = strrchr(parent, '/');
+        if (slash && slash != parent && (*slash = 0, (r = imp_mkdir_p(parent, 0755)) < 0))
+                return imp_error_set(err, r, "%s: cannot create: %s", parent, strerror(-r));
         int lock_fd = -1;
         if ((r = imp_job_lock(lock, &lock_fd)) < 0)
                 return imp_error_set(err, r, "%s: %s", lock, r == -EBUSY ? "another worker is building this copy"
@@ -244,9 +249,10 @@ static void task_state(const struct imp_batch *b, size_t i, const char *state, c
         json_decref(old);
         if (!strcmp(state, "running"))
                 attempts++;
-        _cleanup_json_ json_t *doc = json_pack("{s:I, s:s, s:I, s:s, s:s, s:s?, s:s?}", "task", (json_int_t) i,
+        _cleanup_json_ json_t *doc = json_pack("{s:I, s:s, s:I, s:s, s:i, s:s, s:s?, s:s?}", "task", (json_int_t) i,
                                                "state", state, "attempts", (json_int_t) attempts, "host", host,
-                                               "at", now, "error", error, "slurm_job", getenv("SLURM_JOB_ID"));
+                                               "pid", (int) getpid(), "at", now, "error", error, "slurm_job",
+                                               getenv("SLURM_JOB_ID"));
         if (!doc || imp_json_save_atomic(path, doc, &e) < 0)
                 log_warning("%s: %s, ignoring", path, e.msg[0] ? e.msg : "out of memory");
 }
