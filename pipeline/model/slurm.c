@@ -170,8 +170,11 @@ static int run_cmd(const char *const *argv, char *out, size_t out_size, struct i
 
 static int write_script(const struct imp_batch *b, const char *name, const char *worker, const char *mode,
                         struct imp_error *err) {
-        char path[PATH_MAX + 32], text[3 * PATH_MAX + 512];
+        char path[PATH_MAX + 32], text[3 * PATH_MAX + 512], abs[PATH_MAX];
         snprintf(path, sizeof path, "%s/%s", b->dir, name);
+        /* the script runs in the batch directory: a relative worker path is made absolute */
+        if (worker[0] != '/' && strchr(worker, '/') && realpath(worker, abs))
+                worker = abs;
         int n = snprintf(text, sizeof text,
                          "#!/bin/sh\n"
                          "# impasto batch %s (docs/scale-out.md), written by impasto; submitted with sbatch.\n"

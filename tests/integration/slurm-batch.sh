@@ -12,7 +12,7 @@
 # Exit 77 only when the Slurm or munge programs are not installed.
 # Usage: slurm-batch.sh BUILD_DIR SOURCE_DIR [N_SETS]
 set -u
-bin=$1 src=$2 n_sets=${3:-3}
+bin=$(cd "$1" && pwd) src=$(cd "$2" && pwd) n_sets=${3:-3}
 for p in munged mungekey slurmctld slurmd sbatch squeue scancel sinfo; do
   command -v "$p" >/dev/null || PATH=$PATH:/usr/sbin command -v "$p" >/dev/null ||
     { echo "skip: $p not installed (apt-get install slurm-wlm munge)"; exit 77; }
@@ -195,6 +195,44 @@ before=$(stat -c %Y.%i "$copies/tile-1/heightfield.exr")
 check "a rerun of a done task exits 0" [ $? -eq 0 ]
 check "a rerun of a done task says there is nothing to do" grep -q "nothing to do" "$tmp/rerun.out"
 check "a rerun of a done task leaves the copy untouched" [ "$(stat -c %Y.%i "$copies/tile-1/heightfield.exr")" = "$before" ]
+
+# ---- through impastod: scheduler = "slurm" ------------------------------------------------------
+# Two jobs dropped into the daemon's queue (as an operator's tool would) go to Slurm as one
+# array; task 1 is killed mid-run and the daemon resubmits it on its own (attempts left);
+# `impasto jobs` shows both done like local jobs, and their copies equal the local ones.
+if [ -x "$bin/daemon/impastod" ]; then
+  st_dir=$tmp/state
+  mkdir -p "$st_dir/jobs" "$st_dir/outputs"
+  sed -e "s|calibration = \"rig.json\"|calibration = \"$tmp/sets/tile-1/rig.json\"|" "$src/config/rigs/sim.cfg" >"$tmp/rig.cfg"
+  printf 'scheduler = "slurm";\nslurm = { shared_dir = "%s"; cpus_per_task = 1; mem = "256M"; max_running = 2; worker = "%s"; };\n' \
+    "$tmp/shared" "$worker" >"$tmp/scheduler.conf"
+  IMPASTO_WORKER_TEST_STAGE_DELAY_S=1.5 "$bin/daemon/impastod" --rig "$tmp/rig.cfg" --socket "$tmp/control.sock" \
+    --state-dir "$st_dir" --operators-all --worker-cmd "$worker" --min-free-bytes 0 \
+    --scheduler-config "$tmp/scheduler.conf" >"$tmp/impastod.log" 2>&1 &
+  pids+=($!)
+  for _ in $(seq 100); do "$imp" status --socket "$tmp/control.sock" >/dev/null 2>&1 && break; sleep 0.1; done
+  for i in 1 2; do
+    printf '{"id":"d%s","capture":"%s","copy":"%s","state":"queued","attempts":0,"max_attempts":3,"error":null}\n' \
+      "$i" "$tmp/sets/tile-$i" "$st_dir/outputs/tile-$i" >"$tmp/d$i.json"
+  done
+  mv "$tmp/d1.json" "$st_dir/jobs/d1.json"; mv "$tmp/d2.json" "$st_dir/jobs/d2.json"
+  dbatch() { python3 -c 'import json,sys; print(json.load(open(sys.argv[1])).get("slurm",{}).get("batch",""))' "$st_dir/jobs/d2.json" 2>/dev/null; }
+  d_mid_run() { local b n; b=$(dbatch); [ -n "$b" ] || return 1; n=$(grep -c '^task 1: ' "$b/logs/task-1.out" 2>/dev/null); [ "${n:-0}" -ge 3 ]; }
+  wait_for "the daemon's task 1 mid-run" 90 d_mid_run || { cat "$tmp/impastod.log"; squeue -t all; exit 1; }
+  b=$(dbatch)
+  kill -9 "$(python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["pid"])' "$b/tasks/1.json")"
+  both_done() { [ "$("$imp" jobs --socket "$tmp/control.sock" 2>/dev/null | grep -c ' done ')" -eq 2 ]; }
+  wait_for "both daemon jobs done" 150 both_done
+  "$imp" jobs --socket "$tmp/control.sock"
+  check "impasto jobs shows both Slurm jobs done" both_done
+  "$imp" jobs show d2 --json --socket "$tmp/control.sock" >"$tmp/d2.json"
+  check "the killed job took a second attempt" \
+    [ "$(python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["attempts"])' "$tmp/d2.json")" = 2 ]
+  check "the daemon resubmitted the killed task" grep -q "resubmitting, attempt 2" "$tmp/impastod.log"
+  for i in 1 2; do
+    check "daemon job d$i: its copy equals the local one" same_copy "$tmp/local/tile-$i" "$st_dir/outputs/tile-$i"
+  done
+fi
 
 stop_all
 finish
