@@ -8,3 +8,10 @@ if(TARGET impasto AND TARGET impasto-worker)
   set_tests_properties(test-slurm-batch PROPERTIES LABELS "integration;fault" SKIP_RETURN_CODE 77
     TIMEOUT 300 RUN_SERIAL TRUE)
 endif()
+# impasto-worker --capture alone (no Slurm needed): killed mid-run, rerun from scratch to the
+# reference copy, a finished job rerun as a no-op, a copy under construction locked.
+if(TARGET impasto AND TARGET impasto-worker)
+  add_test(NAME test-worker-oneshot
+    COMMAND bash ${PROJECT_SOURCE_DIR}/tests/integration/slurm-worker-oneshot.sh ${PROJECT_BINARY_DIR} ${PROJECT_SOURCE_DIR})
+  set_tests_properties(test-worker-oneshot PROPERTIES LABELS "integration;fault" SKIP_RETURN_CODE 77 TIMEOUT 120)
+endif()

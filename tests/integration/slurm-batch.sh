@@ -27,19 +27,9 @@ ip link set lo up && ip addr add 127.0.0.2/8 dev lo 2>/dev/null
 NAME=slurm
 . "$src/tests/integration/lib-check.sh"
 worker=$bin/cli/impasto-worker
+. "$src/tests/integration/lib-slurm.sh"
 scale=${IMPASTO_TIMEOUT_SCALE:-1}
 
-pids=()
-stop_all() {
-  scancel --full --quiet -u "$(id -un)" >/dev/null 2>&1
-  for p in "${pids[@]}"; do kill "$p" 2>/dev/null; done
-  for p in "${pids[@]}"; do
-    for _ in $(seq 50); do kill -0 "$p" 2>/dev/null || break; sleep 0.1; done
-    kill -9 "$p" 2>/dev/null
-    wait "$p" 2>/dev/null
-  done
-  pids=()
-}
 trap 'stop_all; rm -rf "$tmp"' EXIT
 
 # ---- the capture sets and their local copies ----------------------------------------------
@@ -52,55 +42,8 @@ for i in $(seq 1 "$n_sets"); do
     { cat "$tmp/local.log"; echo "FAIL local processing"; exit 1; }
 done
 
-# ---- a one-node Slurm (docs/scale-out.md, "A test cluster on one machine") ----------------
-d=$tmp/slurm
-mkdir -p "$d/munge" "$d/state" "$d/spool" && chmod 0700 "$d/munge"
-mungekey -c -k "$d/munge/munge.key" >/dev/null 2>&1 || { echo "FAIL mungekey"; exit 1; }
-munged -F --socket="$d/munge.socket" --key-file="$d/munge/munge.key" --pid-file="$d/munged.pid" \
-  --seed-file="$d/munge.seed" --log-file="$d/munged.log" --force >/dev/null 2>&1 &
-pids+=($!)
-host=$(hostname)
-node=$(slurmd -C | head -1)
-cat >"$d/slurm.conf" <<EOF
-ClusterName=impasto-test
-SlurmctldHost=$host
-SlurmUser=$(id -un)
-AuthType=auth/munge
-AuthInfo=socket=$d/munge.socket
-CredType=cred/munge
-StateSaveLocation=$d/state
-SlurmdSpoolDir=$d/spool
-SlurmctldPidFile=$d/slurmctld.pid
-SlurmdPidFile=$d/slurmd.pid
-SlurmctldLogFile=$d/slurmctld.log
-SlurmdLogFile=$d/slurmd.log
-ProctrackType=proctrack/linuxproc
-TaskPlugin=task/none
-SelectType=select/cons_tres
-SelectTypeParameters=CR_Core
-JobAcctGatherType=jobacct_gather/none
-AccountingStorageType=accounting_storage/none
-JobCompType=jobcomp/filetxt
-JobCompLoc=$d/jobcomp.txt
-MailProg=/bin/true
-MinJobAge=600
-KillWait=2
-SchedulerParameters=sched_interval=1
-$node State=UNKNOWN
-PartitionName=test Nodes=ALL Default=YES MaxTime=INFINITE State=UP
-EOF
-export SLURM_CONF=$d/slurm.conf
-for _ in $(seq 50); do [ -S "$d/munge.socket" ] && break; sleep 0.1; done
-slurmctld -D -f "$SLURM_CONF" >"$d/slurmctld.out" 2>&1 &
-pids+=($!)
-slurmd -D -f "$SLURM_CONF" >"$d/slurmd.out" 2>&1 &
-pids+=($!)
-up=0
-for _ in $(seq $((100 * scale))); do
-  [ "$(sinfo -h -N -o %t 2>/dev/null)" = idle ] && { up=1; break; }
-  sleep 0.2
-done
-[ $up -eq 1 ] || { tail -5 "$d/slurmctld.log" "$d/slurmd.log"; echo "FAIL the one-node Slurm did not come up"; exit 1; }
+# ---- a one-node Slurm ------------------------------------------------------------------------
+slurm_start "$tmp/slurm" || { echo "FAIL the one-node Slurm did not come up"; exit 1; }
 echo "ok   Slurm up: $(sinfo -h -N -o '%N %c CPUs %t')"
 
 # ---- submit, kill task 1 mid-run --------------------------------------------------------------
