@@ -1,10 +1,10 @@
 #!/bin/bash
 # Scale-out on one node (docs/scale-out.md, "Measured"): N tiles (config/scenes/small.cfg with
 # config/plans/small.cfg, seeds 1..N) through a one-node Slurm (tests/integration/lib-slurm.sh,
-# 2 CPUs), once as 1 task at a time with 2 CPUs (--cpus 2 --max-running 1: the worker's
-# OpenMP pool uses both) and once as 2 concurrent tasks of 1 CPU each (--cpus 1
-# --max-running 2). Prints the wall time of each batch from submission to its finish step,
-# their ratio, and the 1-minute load average before and after (the machine is shared).
+# 2 CPUs) three ways: 1 task of 1 CPU at a time, 1 task of 2 CPUs at a time (the worker's
+# OpenMP pool uses both), 2 concurrent tasks of 1 CPU each (--cpus N --max-running K).
+# Prints the wall time of each batch from submission to its finish step, the ratios, and
+# the 1-minute load average before and after each (the machine is shared).
 # Usage: bench/slurm-scaling.sh BUILD_DIR [N_TILES]   (root; runs itself in `unshare -n`)
 set -u
 bin=$(cd "$1" && pwd) n=${2:-6}
@@ -38,14 +38,20 @@ run() {   # run NAME CPUS MAX_RUNNING: prints seconds
   t1=$(date +%s.%N)
   echo "$t1 - $t0" | bc -l
 }
-# ORDER=two-first runs the 2-task batch first (to see whether the order matters).
-l0=$(load)
-if [ "${ORDER:-}" = two-first ]; then
-  b=$(run two 1 2); l1=$(load); a=$(run one 2 1); l2=$(load)
-  la="$l1 -> $l2" lb="$l0 -> $l1"
-else
-  a=$(run one 2 1); l1=$(load); b=$(run two 1 2); l2=$(load)
-  la="$l0 -> $l1" lb="$l1 -> $l2"
-fi
-printf '%d tiles of small.cfg: 1 task x 2 CPUs at a time %.1f s (load %s); 2 tasks x 1 CPU at a time %.1f s (load %s); ratio %.2f\n' \
-  "$n" "$a" "$la" "$b" "$lb" "$(echo "$a / $b" | bc -l)"
+# Three batches, back to back: 1 task of 1 CPU at a time (serial), 1 task of 2 CPUs at a
+# time, 2 tasks of 1 CPU at a time. ORDER=reverse runs them in the opposite order.
+confs=("serial 1 1" "one 2 1" "two 1 2")
+[ "${ORDER:-}" = reverse ] && confs=("two 1 2" "one 2 1" "serial 1 1")
+declare -A secs loads
+for c in "${confs[@]}"; do
+  set -- $c
+  l0=$(load)
+  secs[$1]=$(run "$1" "$2" "$3")
+  loads[$1]="$l0 -> $(load)"
+done
+printf '%d tiles of small.cfg:\n' "$n"
+printf '  1 task  x 1 CPU  at a time: %6.1f s (load %s)\n' "${secs[serial]}" "${loads[serial]}"
+printf '  1 task  x 2 CPUs at a time: %6.1f s (load %s)\n' "${secs[one]}" "${loads[one]}"
+printf '  2 tasks x 1 CPU  at a time: %6.1f s (load %s)\n' "${secs[two]}" "${loads[two]}"
+printf '  speed-up of 2 concurrent tasks over 1: %.2f (over 1 task of 2 CPUs: %.2f)\n' \
+  "$(echo "${secs[serial]} / ${secs[two]}" | bc -l)" "$(echo "${secs[one]} / ${secs[two]}" | bc -l)"

@@ -151,7 +151,7 @@ static int job_read(struct job *j, enum imp_job_file *ret_which, bool *ret_legac
          * was left by the old daemon (it ran the worker itself): queued again. */
         if (which == IMP_JOB_FILE_CLAIM)
                 j->state = IMP_JOB_RUNNING;
-        else if (j->state == IMP_JOB_RUNNING) {
+        else if (j->state == IMP_JOB_RUNNING && !j->slurm_batch[0]) {   /* (Slurm's are the daemon's) */
                 j->state = IMP_JOB_QUEUED;
                 legacy = true;
         }

@@ -175,6 +175,9 @@ static int write_script(const struct imp_batch *b, const char *name, const char 
         /* the script runs in the batch directory: a relative worker path is made absolute */
         if (worker[0] != '/' && strchr(worker, '/') && realpath(worker, abs))
                 worker = abs;
+        if (strpbrk(worker, "'\n") || strpbrk(b->dir, "'\n"))
+                return imp_error_set(err, -EINVAL, "%s: the worker path and the batch directory may not contain "
+                                     "quotes or newlines (they go into a shell script)", path);
         int n = snprintf(text, sizeof text,
                          "#!/bin/sh\n"
                          "# impasto batch %s (docs/scale-out.md), written by impasto; submitted with sbatch.\n"
