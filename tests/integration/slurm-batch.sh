@@ -147,9 +147,12 @@ if [ -x "$bin/daemon/impastod" ]; then
   st_dir=$tmp/state
   mkdir -p "$st_dir/jobs" "$st_dir/outputs"
   sed -e "s|calibration = \"rig.json\"|calibration = \"$tmp/sets/tile-1/rig.json\"|" "$src/config/rigs/sim.cfg" >"$tmp/rig.cfg"
+  # the worker held 1.5 s per stage through a wrapper (it execs: the pid stays the worker's)
+  printf '#!/bin/sh\nIMPASTO_WORKER_TEST_STAGE_DELAY_S=1.5 exec "%s" "$@"\n' "$worker" >"$tmp/slow-worker"
+  chmod +x "$tmp/slow-worker"
   printf 'scheduler = "slurm";\nslurm = { shared_dir = "%s"; cpus_per_task = 1; mem = "256M"; max_running = 2; worker = "%s"; };\n' \
-    "$tmp/shared" "$worker" >"$tmp/scheduler.conf"
-  IMPASTO_WORKER_TEST_STAGE_DELAY_S=1.5 "$bin/daemon/impastod" --rig "$tmp/rig.cfg" --socket "$tmp/control.sock" \
+    "$tmp/shared" "$tmp/slow-worker" >"$tmp/scheduler.conf"
+  "$bin/daemon/impastod" --rig "$tmp/rig.cfg" --socket "$tmp/control.sock" \
     --state-dir "$st_dir" --operators-all --worker-cmd "$worker" --min-free-bytes 0 \
     --scheduler-config "$tmp/scheduler.conf" >"$tmp/impastod.log" 2>&1 &
   pids+=($!)
@@ -159,11 +162,17 @@ if [ -x "$bin/daemon/impastod" ]; then
       "$i" "$tmp/sets/tile-$i" "$st_dir/outputs/tile-$i" >"$tmp/d$i.json"
   done
   mv "$tmp/d1.json" "$st_dir/jobs/d1.json"; mv "$tmp/d2.json" "$st_dir/jobs/d2.json"
-  dbatch() { python3 -c 'import json,sys; print(json.load(open(sys.argv[1])).get("slurm",{}).get("batch",""))' "$st_dir/jobs/d2.json" 2>/dev/null; }
-  d_mid_run() { local b n; b=$(dbatch); [ -n "$b" ] || return 1; n=$(grep -c '^task 1: ' "$b/logs/task-1.out" 2>/dev/null); [ "${n:-0}" -ge 3 ]; }
-  wait_for "the daemon's task 1 mid-run" 90 d_mid_run || { cat "$tmp/impastod.log"; squeue -t all; exit 1; }
-  b=$(dbatch)
-  kill -9 "$(python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["pid"])' "$b/tasks/1.json")"
+  dslurm() { python3 -c 'import json,sys; print(json.load(open(sys.argv[1])).get("slurm",{}).get(sys.argv[2],""))' "$st_dir/jobs/d2.json" "$1" 2>/dev/null; }
+  d_mid_run() {
+    local b t n
+    b=$(dslurm batch) t=$(dslurm task); [ -n "$b" ] && [ -n "$t" ] || return 1
+    n=$(grep -c "^task $t: " "$b/logs/task-$t.out" 2>/dev/null); [ "${n:-0}" -ge 3 ]
+  }
+  wait_for "the daemon's job d2 mid-run" 90 d_mid_run || { cat "$tmp/impastod.log"; squeue -t all; exit 1; }
+  b=$(dslurm batch) t=$(dslurm task)
+  echo "daemon job d2 is task $t of $b: $(cat "$b/tasks/$t.json" | tr -d '\n '); log: $(tr '\n' '|' <"$b/logs/task-$t.out")"
+  check "the daemon's job d2 is still running when killed" \
+    kill -9 "$(python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["pid"])' "$b/tasks/$t.json")"
   both_done() { [ "$("$imp" jobs --socket "$tmp/control.sock" 2>/dev/null | grep -c ' done ')" -eq 2 ]; }
   wait_for "both daemon jobs done" 150 both_done
   "$imp" jobs --socket "$tmp/control.sock"
@@ -171,7 +180,8 @@ if [ -x "$bin/daemon/impastod" ]; then
   "$imp" jobs show d2 --json --socket "$tmp/control.sock" >"$tmp/d2.json"
   check "the killed job took a second attempt" \
     [ "$(python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["attempts"])' "$tmp/d2.json")" = 2 ]
-  check "the daemon resubmitted the killed task" grep -q "resubmitting, attempt 2" "$tmp/impastod.log"
+  check "the daemon resubmitted the killed task" grep -q "resubmitting, attempt 2" "$tmp/impastod.log" ||
+    { cat "$tmp/impastod.log"; cat "$b"/logs/*.out; }
   for i in 1 2; do
     check "daemon job d$i: its copy equals the local one" same_copy "$tmp/local/tile-$i" "$st_dir/outputs/tile-$i"
   done
