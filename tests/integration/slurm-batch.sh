@@ -147,8 +147,8 @@ if [ -x "$bin/daemon/impastod" ]; then
   st_dir=$tmp/state
   mkdir -p "$st_dir/jobs" "$st_dir/outputs"
   sed -e "s|calibration = \"rig.json\"|calibration = \"$tmp/sets/tile-1/rig.json\"|" "$src/config/rigs/sim.cfg" >"$tmp/rig.cfg"
-  # the worker held 1.5 s per stage through a wrapper (it execs: the pid stays the worker's)
-  printf '#!/bin/sh\nIMPASTO_WORKER_TEST_STAGE_DELAY_S=1.5 exec "%s" "$@"\n' "$worker" >"$tmp/slow-worker"
+  # the worker held 3 s per stage through a wrapper (it execs: the pid stays the worker's)
+  printf '#!/bin/sh\nIMPASTO_WORKER_TEST_STAGE_DELAY_S=3 exec "%s" "$@"\n' "$worker" >"$tmp/slow-worker"
   chmod +x "$tmp/slow-worker"
   printf 'scheduler = "slurm";\nslurm = { shared_dir = "%s"; cpus_per_task = 1; mem = "256M"; max_running = 2; worker = "%s"; };\n' \
     "$tmp/shared" "$tmp/slow-worker" >"$tmp/scheduler.conf"
