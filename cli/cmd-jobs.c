@@ -7,6 +7,7 @@
 #include <string.h>
 #include <unistd.h>
 #include "client.h"
+#include "cmd-jobs-slurm.h"
 #include "commands.h"
 #include "help.h"
 #include "log.h"
@@ -15,7 +16,9 @@ static void usage(FILE *f) {
         fprintf(f, "usage: impasto jobs [list] [--limit N] [--json] [--socket PATH]\n"
                    "       impasto jobs show ID [--json] [--socket PATH]\n"
                    "       impasto jobs retry ID [--json] [--socket PATH]\n"
-                   "       impasto jobs follow ID [--json] [--socket PATH]   one line per change until it ends\n");
+                   "       impasto jobs follow ID [--json] [--socket PATH]   one line per change until it ends\n"
+                   "       impasto jobs submit --slurm [options] CAPTURE...   (docs/scale-out.md)\n"
+                   "       impasto jobs list|show|cancel|retry --slurm BATCH\n");
 }
 
 static void human_list(const json_t *r) {
@@ -125,7 +128,7 @@ static int jobs_follow(const struct imp_client_opts *o, const char *id) {
 
 /* Says what was wrong with the words after `impasto jobs`. */
 static int bad_args(const char *verb, int n, long limit) {
-        static const char *const verbs[] = { "list", "show", "retry", "follow" };
+        static const char *const verbs[] = { "list", "show", "retry", "follow", "submit" };
         if (strcmp(verb, "list") && strcmp(verb, "show") && strcmp(verb, "retry") && strcmp(verb, "follow"))
                 return imp_cli_unknown_action("jobs", verb, verbs, ARRAY_SIZE(verbs));
         if (!strcmp(verb, "list"))
@@ -139,6 +142,8 @@ static int bad_args(const char *verb, int n, long limit) {
 }
 
 static int run(int argc, char **argv) {
+        if (imp_jobs_slurm_wanted(argc, argv))
+                return imp_jobs_slurm_run(argc, argv);
         struct imp_client_opts o = {};
         long limit = 0;
         static const struct option opts[] = {

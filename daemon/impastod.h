@@ -13,6 +13,7 @@
 #include "dome.h"
 #include "error.h"
 #include "job.h"
+#include "slurm.h"
 #include "plan.h"
 #include "protocol.h"
 #include "rig.h"
@@ -265,6 +266,8 @@ struct job {
         double ev_progress;
         char ev_stage[64];
         bool ev_sent;
+        char slurm_batch[PATH_MAX];     /* scheduler slurm: its batch directory, "" before (sched-slurm.c) */
+        int slurm_task;
 };
 
 /* fork + execv(argv[0]) with the signal mask cleared, standard output and error on fd_out
@@ -281,6 +284,8 @@ void jobs_kick(struct daemon *d);
 /* Watch STATE/jobs (inotify, and a slow timer for claims whose worker died). */
 int jobs_watch(struct daemon *d);
 void jobs_free_all(struct daemon *d);
+/* Writes the job's file and sends the `job` event when something changed (sched-slurm.c). */
+void jobs_save_announce(struct daemon *d, struct job *j);
 
 /* ---- calibrations (calibration.c) ------------------------------------------------------ */
 
@@ -421,6 +426,8 @@ struct daemon {
         struct job *jobs;               /* newest first */
         sd_event_source *job_timer;     /* spawn mode: the next start or retry */
         sd_event_source *job_watch;     /* inotify on STATE/jobs */
+        struct imp_slurm_config *slurm; /* --scheduler-config; NULL or !enabled: local workers */
+        sd_event_source *slurm_poll;
         sd_event_source *job_poll;      /* periodic re-read of jobs claimed by other workers */
         const char *plan_dirs[DAEMON_MAX_PLAN_DIRS];    /* --plan-dir */
         unsigned n_plan_dirs;

@@ -17,6 +17,7 @@
 #include "impastod.h"
 #include "json-util.h"
 #include "log.h"
+#include "sched-slurm.h"
 
 #define JOB_RETRY_DELAY_US 500000ULL    /* before attempt n+1 after a failed one: n × this */
 #define JOB_POLL_US 2000000ULL          /* re-read of claims held by workers we did not start */
@@ -144,12 +145,13 @@ static int job_read(struct job *j, enum imp_job_file *ret_which, bool *ret_legac
         j->progress = f.progress;
         json_decref(j->worker_args);
         j->worker_args = json_incref(f.worker_args);
+        sched_slurm_read(j, f.doc);
         j->state = f.state;
         /* A claim is running whatever its file says yet; a running job under the queue name
          * was left by the old daemon (it ran the worker itself): queued again. */
         if (which == IMP_JOB_FILE_CLAIM)
                 j->state = IMP_JOB_RUNNING;
-        else if (j->state == IMP_JOB_RUNNING) {
+        else if (j->state == IMP_JOB_RUNNING && !j->slurm_batch[0]) {   /* (Slurm's are the daemon's) */
                 j->state = IMP_JOB_QUEUED;
                 legacy = true;
         }
@@ -253,6 +255,11 @@ static void job_announce(struct daemon *d, struct job *j) {
                                    : job_error_json(j), "verdict", j->verdict[0] ? j->verdict : NULL));
 }
 
+void jobs_save_announce(struct daemon *d, struct job *j) {
+        (void) job_write(j, IMP_JOB_FILE_QUEUE);
+        job_announce(d, j);
+}
+
 static int kick_timer(sd_event_source *src, uint64_t usec, void *userdata) {
         jobs_kick(userdata);
         return 0;
@@ -331,6 +338,8 @@ static int job_spawn(struct daemon *d, struct job *j) {
 void jobs_kick(struct daemon *d) {
         if (d->stopping || !d->spawn_workers)
                 return;
+        if (sched_slurm_active(d))
+                { sched_slurm_kick(d); return; }
         struct job *next = NULL;
         for (struct job *j = d->jobs; j; j = j->next) {
                 if (j->state == IMP_JOB_RUNNING || j->pid > 0)
@@ -444,6 +453,8 @@ int jobs_retry(struct daemon *d, struct job *j, struct imp_proto_error *perr) {
         if (j->state != IMP_JOB_FAILED)
                 return imp_proto_error_set(perr, IMP_PROTO_E_BAD_STATE, EINVAL, "args.job", "job %s is %s, not failed",
                                            j->id, imp_job_state_name(j->state));
+        if (sched_slurm_active(d))
+                return sched_slurm_retry(d, j, perr);
         /* No lock: workers claim only queued files, and the worker that failed this one may
          * still hold its lock for a moment after writing the outcome. */
         /* The error of the last attempt is kept until the job is done; the arguments are the
@@ -588,13 +599,15 @@ int jobs_watch(struct daemon *d) {
                 log_warning_errno(r, "watching %s: %m; job progress is read every %llu s, ignoring", dirp,
                                   JOB_POLL_US / 1000000ULL);
         int k = sd_event_add_time_relative(d->event, &d->job_poll, CLOCK_MONOTONIC, JOB_POLL_US, 0, on_poll, d);
-        return r < 0 ? r : k;
+        int s = sched_slurm_watch(d);
+        return r < 0 ? r : k < 0 ? k : s;
 }
 
 void jobs_free_all(struct daemon *d) {
         d->job_timer = sd_event_source_disable_unref(d->job_timer);
         d->job_watch = sd_event_source_disable_unref(d->job_watch);
         d->job_poll = sd_event_source_disable_unref(d->job_poll);
+        sched_slurm_free(d);
         while (d->jobs) {
                 struct job *j = d->jobs;
                 d->jobs = j->next;

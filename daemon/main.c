@@ -12,6 +12,7 @@
 #include "impastod.h"
 #include "log.h"
 #include "night.h"
+#include "sched-slurm.h"
 #include "version.h"
 
 #ifndef IMPASTO_DEFAULT_RIG     /* from the install prefix: cmake/install.cmake */
@@ -32,6 +33,8 @@ static void help(void) {
                "  --worker-args \"ARGS\"   processing options stored in each job for the worker:\n"
                "                         --holdout N, --pitch MM, --cell N, --delta FRACTION, --no-btf\n"
                "  --no-spawn-workers     leave the queue in STATE/jobs to impasto-worker@ services\n"
+               "  --scheduler-config FILE  scheduler = \"slurm\" and its slurm = { … } group: jobs go to\n"
+               "                         Slurm as job arrays (docs/scale-out.md); default: local workers\n"
                "  --resume               resume sessions interrupted by a stop or crash\n"
                "  --operators-all        every client is an operator (tests)\n"
                "  --max-clients N        connections at a time (default 32)\n"
@@ -126,7 +129,7 @@ static int check_worker_args(const char *args) {
 
 enum { ARG_SOCKET = 256, ARG_STATE, ARG_WORKER, ARG_RESUME, ARG_OPS, ARG_MAXC, ARG_RETRIES, ARG_JOBS, ARG_MINFREE,
        ARG_RIG, ARG_DEVTIMEOUT, ARG_WORKER_ARGS, ARG_NO_SPAWN, ARG_PLAN_DIR, ARG_CALIB_CMD, ARG_PER_UID, ARG_RESERVED,
-       ARG_IDLE, ARG_REQ_TIMEOUT, ARG_QUEUE_MAX, ARG_PROBE, ARG_CONFIG };
+       ARG_IDLE, ARG_REQ_TIMEOUT, ARG_QUEUE_MAX, ARG_PROBE, ARG_CONFIG, ARG_SCHED };
 
 /* The connection limits: integers 0 to 100000 (0: none, for the timeouts). */
 static int parse_limit(int opt, const char *arg, struct daemon *d) {
@@ -160,6 +163,7 @@ static int parse_args(int argc, char **argv, struct daemon *d) {
                 { "worker-cmd", required_argument, NULL, ARG_WORKER },
                 { "worker-args", required_argument, NULL, ARG_WORKER_ARGS },
                 { "no-spawn-workers", no_argument, NULL, ARG_NO_SPAWN },
+                { "scheduler-config", required_argument, NULL, ARG_SCHED },
                 { "resume", no_argument, NULL, ARG_RESUME },
                 { "operators-all", no_argument, NULL, ARG_OPS },
                 { "max-clients", required_argument, NULL, ARG_MAXC },
@@ -195,6 +199,10 @@ static int parse_args(int argc, char **argv, struct daemon *d) {
                         d->worker_args = optarg;
                         break;
                 case ARG_NO_SPAWN: d->spawn_workers = false; break;
+                case ARG_SCHED:
+                        if (sched_slurm_configure(d, optarg) < 0)
+                                return -EINVAL;
+                        break;
                 case ARG_RESUME: d->auto_resume = true; break;
                 case ARG_OPS: d->operators_all = true; break;
                 case ARG_MAXC:

@@ -13,6 +13,8 @@
  * It also records worker_build ("optimized", "AddressSanitizer", "unoptimized (-O0)"), and
  * warns when it is not an optimized build: such a build processes several times slower.
  *
+ * The one-job modes an engine such as Slurm schedules (--capture, --batch) are in oneshot.c.
+ *
  * Exit codes: 0 the job is done (or, with --once, nothing was queued; without --once, the
  * worker was stopped by SIGTERM/SIGINT), 1 the job failed or was put back for a retry,
  * 2 usage, 3 the job file is malformed, not queued, or claimed by another worker,
@@ -36,12 +38,13 @@
 #include "json-util.h"
 #include "log.h"
 #include "process.h"
+#include "worker.h"
 
-#define EXIT_DONE 0
-#define EXIT_JOB_FAILED 1
-#define EXIT_USAGE 2
-#define EXIT_BAD_JOB 3
-#define EXIT_QUEUE 4
+#define EXIT_DONE WORKER_EXIT_DONE
+#define EXIT_JOB_FAILED WORKER_EXIT_JOB_FAILED
+#define EXIT_USAGE WORKER_EXIT_USAGE
+#define EXIT_BAD_JOB WORKER_EXIT_BAD_JOB
+#define EXIT_QUEUE WORKER_EXIT_QUEUE
 
 #define POLL_INTERVAL_S 2.0
 #define PROGRESS_INTERVAL_S 1.0
@@ -216,7 +219,7 @@ static void on_progress(void *userdata, const char *stage, size_t done, size_t t
 
 /* worker_args (docs/jobs.md): whitespace-separated options of `impasto process`, --opt VALUE
  * or --opt=VALUE. */
-static int parse_worker_args(const char *args, struct imp_process_options *o, char *msg, size_t size) {
+int worker_parse_args(const char *args, struct imp_process_options *o, char *msg, size_t size) {
         char buf[1024];
         if (snprintf(buf, sizeof buf, "%s", args) >= (int) sizeof buf) {
                 snprintf(msg, size, "worker_args: longer than %zu bytes", sizeof buf - 1);
@@ -271,7 +274,7 @@ static int job_run(struct job *j) {
         o.userdata = &ps;
         struct imp_error err = {};
         const char *args = json_string_value(json_object_get(j->f.doc, "worker_args"));
-        int r = args ? parse_worker_args(args, &o, err.msg, sizeof err.msg) : 0;
+        int r = args ? worker_parse_args(args, &o, err.msg, sizeof err.msg) : 0;
         if (r == 0 && args && args[0])
                 printf("job %s: worker_args %s\n", j->f.id, args);
         /* The job file says which build processed it; a sanitizer or -O0 build is said aloud,
@@ -450,31 +453,78 @@ static int run_file(const char *path) {
 static void usage(FILE *f) {
         fprintf(f, "usage: impasto-worker JOB_FILE\n"
                    "       impasto-worker --queue DIR [--once]\n"
+                   "       impasto-worker --capture SET --copy DIR [--args \"WORKER_ARGS\"]\n"
+                   "       impasto-worker --batch DIR [--task N | --finish]\n"
                    "exit codes: 0 done (or nothing queued), 1 the job failed or awaits a retry, 2 usage,\n"
                    "            3 bad or unclaimable job file, 4 queue directory unreadable\n");
 }
 
-int main(int argc, char **argv) {
-        imp_log_set_ident("impasto-worker");
-        const char *queue = NULL;
-        bool once = false;
+/* The options of every mode; main() checks which combination was given. */
+struct worker_cmdline {
+        const char *queue, *capture, *copy, *args, *batch, *task;
+        bool once, finish;
+};
+
+static int parse_cmdline(int argc, char **argv, struct worker_cmdline *c) {
         static const struct option opts[] = {
                 { "queue", required_argument, NULL, 'q' }, { "once", no_argument, NULL, '1' },
+                { "capture", required_argument, NULL, 'c' }, { "copy", required_argument, NULL, 'o' },
+                { "args", required_argument, NULL, 'a' }, { "batch", required_argument, NULL, 'b' },
+                { "task", required_argument, NULL, 't' }, { "finish", no_argument, NULL, 'f' },
                 { "help", no_argument, NULL, 'h' }, {} };
-        int c;
-        while ((c = getopt_long(argc, argv, "h", opts, NULL)) >= 0)
-                switch (c) {
-                case 'q': queue = optarg; break;
-                case '1': once = true; break;
-                case 'h': usage(stdout); return 0;
-                default: usage(stderr); return EXIT_USAGE;
+        int k;
+        while ((k = getopt_long(argc, argv, "h", opts, NULL)) >= 0)
+                switch (k) {
+                case 'q': c->queue = optarg; break;
+                case '1': c->once = true; break;
+                case 'c': c->capture = optarg; break;
+                case 'o': c->copy = optarg; break;
+                case 'a': c->args = optarg; break;
+                case 'b': c->batch = optarg; break;
+                case 't': c->task = optarg; break;
+                case 'f': c->finish = true; break;
+                case 'h': usage(stdout); return 1;
+                default: usage(stderr); return -EINVAL;
                 }
-        if (queue ? optind != argc : (optind + 1 != argc || once)) {
+        int modes = !!c->queue + !!c->capture + !!c->batch;
+        bool ok = modes == 0 ? optind + 1 == argc && !c->once && !c->copy && !c->args && !c->task && !c->finish
+                : optind == argc && modes == 1 &&
+                  (c->queue ? !c->copy && !c->args && !c->task && !c->finish
+                   : c->capture ? c->copy && !c->once && !c->task && !c->finish
+                   : !c->once && !c->copy && !c->args && !(c->task && c->finish));
+        if (!ok) {
                 usage(stderr);
+                return -EINVAL;
+        }
+        return 0;
+}
+
+/* --task N, or the array index Slurm gives the task. */
+static int batch_task(const struct worker_cmdline *c) {
+        const char *t = c->task ?: getenv("SLURM_ARRAY_TASK_ID");
+        char *end = NULL;
+        long n = t ? strtol(t, &end, 10) : -1;
+        if (!t || end == t || *end || n < 0) {
+                log_error("--batch: expected --task N (an integer >= 0) or $SLURM_ARRAY_TASK_ID, got \"%s\"",
+                          t ? t : "");
                 return EXIT_USAGE;
         }
+        return worker_run_batch_task(c->batch, n);
+}
+
+int main(int argc, char **argv) {
+        imp_log_set_ident("impasto-worker");
+        struct worker_cmdline c = {};
+        int r = parse_cmdline(argc, argv, &c);
+        if (r != 0)
+                return r > 0 ? 0 : EXIT_USAGE;
+        /* One-job modes die on SIGTERM (scancel): their next attempt starts clean. */
+        if (c.capture)
+                return worker_run_capture(c.capture, c.copy, c.args);
+        if (c.batch)
+                return c.finish ? worker_run_batch_finish(c.batch) : batch_task(&c);
         struct sigaction sa = { .sa_handler = on_signal };
         sigaction(SIGTERM, &sa, NULL);
         sigaction(SIGINT, &sa, NULL);
-        return queue ? run_queue(queue, once) : run_file(argv[optind]);
+        return c.queue ? run_queue(c.queue, c.once) : run_file(argv[optind]);
 }
