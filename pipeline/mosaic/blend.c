@@ -34,7 +34,7 @@ int mosaic_out_alloc(struct mosaic_out *t, int nx, int ny) {
 
 /* Accumulator of one output texel. */
 struct acc {
-        double w, h, n[2], s2, rd[3], rs[3], lobe[3], logk, wmax;
+        double w, h, n[2], s2, rd[3], rs[3], lobe[4], wmax;
         uint32_t flags_best;
         uint8_t mask;
 };
@@ -71,8 +71,7 @@ static void contribute(const struct imp_mosaic_tile *t, const struct imp_copy *c
                 double wb = w * b[q];
                 for (int ch = 0; ch < 3; ch++)
                         a->rd[ch] += wb * L->rho_d[ch], a->rs[ch] += wb * L->rho_s[ch];
-                a->lobe[0] += wb * L->cx, a->lobe[1] += wb * L->cy, a->lobe[2] += wb * L->cz;
-                a->logk += wb * log(L->k + 1e-3);
+                a->lobe[0] += wb * L->cx, a->lobe[1] += wb * L->cy, a->lobe[2] += wb * L->cz, a->lobe[3] += wb * L->k;
         }
         if (w > a->wmax)
                 a->wmax = w, a->flags_best = c->flags[near];
@@ -92,7 +91,7 @@ static void finish(const struct acc *a, struct mosaic_out *o, size_t k) {
         for (int ch = 0; ch < 3; ch++)
                 L->rho_d[ch] = (float) (a->rd[ch] / a->w), L->rho_s[ch] = (float) (a->rs[ch] / a->w);
         L->cx = (float) (a->lobe[0] / a->w), L->cy = (float) (a->lobe[1] / a->w), L->cz = (float) (a->lobe[2] / a->w);
-        L->k = (float) fmax(exp(a->logk / a->w) - 1e-3, 0);
+        L->k = (float) (a->lobe[3] / a->w);
 }
 
 int mosaic_blend_tile(const struct imp_painting *p, const struct mosaic_cache *c, const unsigned *in, size_t n_in,

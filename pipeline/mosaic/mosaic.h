@@ -19,6 +19,7 @@
 #include <stddef.h>
 #include <stdint.h>
 #include "error.h"
+#include "image.h"
 
 struct imp_mosaic_tile {
         unsigned index, col, row;
@@ -158,3 +159,15 @@ struct imp_mosaic_synth {
 void imp_mosaic_synth_default(struct imp_mosaic_synth *s);
 double imp_mosaic_synth_height(const struct imp_mosaic_synth *s, double x_mm, double y_mm);
 int imp_mosaic_synth_write(const struct imp_mosaic_synth *s, const char *dir, struct imp_error *err);
+
+/* DIR/truth/height.exr (channel "height", mm, painting frame; texel (I, J) at
+ * (I·extent_x/W, J·extent_y/H)) as a truth for imp_mosaic_write: -ENOENT when absent.
+ * The sampler is bilinear; NAN outside. Free with imp_mosaic_truth_done(). */
+struct imp_mosaic_truth_exr {
+        struct imp_image *img;
+        int channel;
+        double pitch_mm[2];
+};
+int imp_mosaic_truth_load(const struct imp_painting *p, struct imp_mosaic_truth_exr *ret, struct imp_mosaic_truth *ret_truth,
+                          struct imp_error *err);
+void imp_mosaic_truth_done(struct imp_mosaic_truth_exr *t);

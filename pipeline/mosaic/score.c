@@ -1,7 +1,11 @@
 /* In-plane registration error against the truth poses (mosaic.h). */
 #include <errno.h>
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+#include "image.h"
 #include "mosaic.h"
 
 /* The 4 corners and the centre of tile t: estimated and true painting positions. */
@@ -56,4 +60,44 @@ int imp_mosaic_registration_error(const struct imp_painting *p, struct imp_mosai
                                                .mean_um = 1e3 * sum / n, .far_corner_um = 1e3 * far, .max_um = 1e3 * mx };
         free(e), free(X);
         return 0;
+}
+
+static double truth_exr_height(void *ctx, double x, double y) {
+        const struct imp_mosaic_truth_exr *t = ctx;
+        double fi = x / t->pitch_mm[0], fj = y / t->pitch_mm[1];
+        if (!(fi >= 0 && fj >= 0 && fi <= t->img->width - 1 && fj <= t->img->height - 1))
+                return NAN;
+        int i = (int) fi, j = (int) fj;
+        i = i > t->img->width - 2 ? t->img->width - 2 : i, j = j > t->img->height - 2 ? t->img->height - 2 : j;
+        double fx = fi - i, fy = fj - j;
+        double h00 = imp_image_f32(t->img, i, j)[t->channel], h10 = imp_image_f32(t->img, i + 1, j)[t->channel];
+        double h01 = imp_image_f32(t->img, i, j + 1)[t->channel], h11 = imp_image_f32(t->img, i + 1, j + 1)[t->channel];
+        return (1 - fy) * ((1 - fx) * h00 + fx * h10) + fy * ((1 - fx) * h01 + fx * h11);
+}
+
+int imp_mosaic_truth_load(const struct imp_painting *p, struct imp_mosaic_truth_exr *t, struct imp_mosaic_truth *ret,
+                          struct imp_error *err) {
+        char path[4300];
+        memset(t, 0, sizeof *t);
+        snprintf(path, sizeof path, "%s/truth/height.exr", p->dir);
+        if (access(path, F_OK) < 0)
+                return -ENOENT;
+        char **names = NULL;
+        int r = imp_exr_read(path, &t->img, &names, err);
+        if (r < 0)
+                return r;
+        t->channel = imp_image_channel_index(names, "height");
+        imp_strv_free(names);
+        if (t->channel < 0 || t->img->width < 2 || t->img->height < 2) {
+                imp_mosaic_truth_done(t);
+                return imp_error_set(err, -EBADMSG, "%s: expected a channel \"height\" over at least 2×2 texels", path);
+        }
+        t->pitch_mm[0] = p->extent_mm[0] / t->img->width, t->pitch_mm[1] = p->extent_mm[1] / t->img->height;
+        *ret = (struct imp_mosaic_truth) { truth_exr_height, t };
+        return 0;
+}
+
+void imp_mosaic_truth_done(struct imp_mosaic_truth_exr *t) {
+        imp_image_free(t->img);
+        t->img = NULL;
 }

@@ -78,24 +78,38 @@ static int write_tile(const struct imp_mosaic_synth *s, const double pose[4], co
         if (mosaic_out_alloc(&o, nx, ny) < 0)
                 return imp_error_set(err, -ENOMEM, "out of memory");
         o.origin_mm[0] = -0.5 * (nx - 1) * s->pitch_mm, o.origin_mm[1] = -0.5 * (ny - 1) * s->pitch_mm;
-        double c = cos(pose[2]), sn = sin(pose[2]), e = 0.5 * s->pitch_mm;
+        double c = cos(pose[2]), sn = sin(pose[2]);
+        int gx_n = nx + 2;
+        float *hg = malloc((size_t) (nx + 2) * (ny + 2) * sizeof *hg);   /* true heights with a 1-texel border */
+        if (!hg) {
+                mosaic_out_done(&o);
+                return imp_error_set(err, -ENOMEM, "out of memory");
+        }
+        for (int j = -1; j <= ny; j++)
+                for (int i = -1; i <= nx; i++) {
+                        double wx = o.origin_mm[0] + i * s->pitch_mm, wy = o.origin_mm[1] + j * s->pitch_mm;
+                        hg[(size_t) (j + 1) * gx_n + i + 1] = (float) imp_mosaic_synth_height(s, pose[0] + c * wx - sn * wy,
+                                                                                             pose[1] + sn * wx + c * wy);
+                }
         for (int j = 0; j < ny; j++)
                 for (int i = 0; i < nx; i++) {
-                        size_t k = (size_t) j * nx + i;
+                        size_t k = (size_t) j * nx + i, q = (size_t) (j + 1) * gx_n + i + 1;
                         double wx = o.origin_mm[0] + i * s->pitch_mm, wy = o.origin_mm[1] + j * s->pitch_mm;
                         double X = pose[0] + c * wx - sn * wy, Y = pose[1] + sn * wx + c * wy;
-                        o.height[k] = (float) (imp_mosaic_synth_height(s, X, Y) - pose[3] + 1e-3 * s->noise_um * gauss(rng));
-                        double gx = (imp_mosaic_synth_height(s, X + e, Y) - imp_mosaic_synth_height(s, X - e, Y)) / (2 * e);
-                        double gy = (imp_mosaic_synth_height(s, X, Y + e) - imp_mosaic_synth_height(s, X, Y - e)) / (2 * e);
+                        o.height[k] = (float) (hg[q] - pose[3] + 1e-3 * s->noise_um * gauss(rng));
+                        /* the gradient in the tile's own frame: the normal is stored in it */
+                        double gx = (hg[q + 1] - hg[q - 1]) / (2 * s->pitch_mm);
+                        double gy = (hg[q + gx_n] - hg[q - gx_n]) / (2 * s->pitch_mm);
                         double nrm = sqrt(1 + gx * gx + gy * gy);
-                        o.nx_[k] = (float) ((-c * gx - sn * gy) / nrm), o.ny_[k] = (float) ((sn * gx - c * gy) / nrm);
+                        o.nx_[k] = (float) (-gx / nrm), o.ny_[k] = (float) (-gy / nrm);
                         o.sigma[k] = (float) (1e-3 * fmax(s->noise_um, 0.1));
                         o.mask[k] = 1;
                         synth_albedo(s, X, Y, o.brdf[k].rho_d);
-                        for (int q = 0; q < 3; q++)
-                                o.brdf[k].rho_s[q] = 0.04f;
+                        for (int m = 0; m < 3; m++)
+                                o.brdf[k].rho_s[m] = 0.04f;
                         o.brdf[k].cx = o.brdf[k].cy = -1, o.brdf[k].cz = 1, o.brdf[k].k = 20;
                 }
+        free(hg);
         int r = mosaic_out_write(&o, &g, dir, err);
         mosaic_out_done(&o);
         if (r < 0)

@@ -144,5 +144,10 @@ int main(void) {
         CHECK_GE(reg.fig.texels_covered, 0.99 * reg.fig.out_nx * reg.fig.out_ny);
         check_coverage(out_reg);
         CHECK_GE(reg.fig.pyramid_levels, 1);
+        if (!test_failures_) {          /* kept for a look when a check failed */
+                char cmd[600];
+                snprintf(cmd, sizeof cmd, "rm -rf '%s'", tmp);
+                CHECK_INT_EQ(system(cmd), 0);
+        }
         return TEST_DONE();
 }
