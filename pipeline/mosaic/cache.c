@@ -13,7 +13,15 @@ int mosaic_cache_init(struct mosaic_cache *c, struct imp_painting *p, size_t bud
                       const unsigned *tiles, size_t n_steps) {
         *c = (struct mosaic_cache) { .p = p, .budget = budget, .off = off, .tiles = tiles, .n_steps = n_steps };
         c->copies = calloc(p->n_tiles, sizeof *c->copies);
-        return c->copies ? 0 : -ENOMEM;
+        c->last = malloc(p->n_tiles * sizeof *c->last);
+        if (!c->copies || !c->last)
+                return free(c->copies), free(c->last), -ENOMEM;
+        for (size_t k = 0; k < p->n_tiles; k++)
+                c->last[k] = SIZE_MAX;
+        for (size_t s = 0; s < n_steps; s++)
+                for (size_t i = off[s]; i < off[s + 1]; i++)
+                        c->last[tiles[i]] = s;
+        return 0;
 }
 
 void mosaic_cache_done(struct mosaic_cache *c) {
@@ -22,7 +30,8 @@ void mosaic_cache_done(struct mosaic_cache *c) {
         for (size_t k = 0; k < c->p->n_tiles; k++)
                 imp_copy_done(&c->copies[k]);
         free(c->copies);
-        c->copies = NULL;
+        free(c->last);
+        c->copies = NULL, c->last = NULL;
 }
 
 static bool needed_at(const struct mosaic_cache *c, size_t step, unsigned k) {
@@ -64,6 +73,9 @@ static void make_room(struct mosaic_cache *c, size_t step, size_t need) {
 }
 
 int mosaic_cache_step(struct mosaic_cache *c, size_t step, struct imp_error *err) {
+        for (unsigned k = 0; k < c->p->n_tiles; k++)
+                if (c->copies[k].nx > 0 && (c->last[k] == SIZE_MAX || c->last[k] < step))
+                        evict(c, k);
         for (size_t i = c->off[step]; i < c->off[step + 1]; i++) {
                 unsigned k = c->tiles[i];
                 if (c->copies[k].nx > 0)

@@ -9,10 +9,12 @@
 /* The input tiles each step of a pass needs (CSR: tiles of step s at tiles[off[s] .. off[s+1])).
  * The cache loads a step's tiles and, over budget, evicts the loaded tile whose next use is
  * farthest ahead (the order of the steps is known: Belady's rule), so a pass reads each tile
- * as few times as the budget allows and memory does not grow with the painting. */
+ * as few times as the budget allows; a tile is dropped after the last step that needs it, so
+ * memory follows the working set (a band of tiles), not the painting. */
 struct mosaic_cache {
         struct imp_painting *p;
         struct imp_copy *copies;      /* n_tiles; loaded ones have nx > 0 */
+        size_t *last;                 /* n_tiles: the last step needing the tile (SIZE_MAX: none) */
         size_t budget, bytes;
         size_t loads, resident, max_resident;
         const size_t *off;
