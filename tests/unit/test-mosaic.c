@@ -9,6 +9,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "copy-load.h"
+#include "image.h"
 #include "json-util.h"
 #include "mosaic.h"
 #include "test.h"
@@ -27,12 +28,14 @@ struct run {
         size_t pairs_ok, pairs;
 };
 
-static void run_mosaic(const char *dir, const char *out, bool prior_only, struct run *ret) {
+static void run_mosaic(const char *dir, const char *out, bool prior_only, double huber_k, struct run *ret) {
         struct imp_painting p;
         struct imp_error err = { 0 };
         struct imp_mosaic_options o;
         imp_mosaic_options_default(&o);
         o.out_tile_px = 256;
+        if (huber_k > 0)
+                o.huber_k = huber_k;
         o.prior_only = prior_only;
         memset(ret, 0, sizeof *ret);
         int r = imp_painting_load(dir, &p, &err);
@@ -113,6 +116,53 @@ static void check_coverage(const char *out) {
         json_decref(j);
 }
 
+/* A defect in one tile's overlap: 40 × 50 texels (35 % of its overlap with the next tile)
+ * replaced by the relief 0.3 mm away (a ghost: structured light decoded to the wrong
+ * stripe), which pulls a least-squares shift towards it. */
+static void corrupt_tile(const char *dir) {
+        char path[700];
+        snprintf(path, sizeof path, "%s/copies/0000/heightfield.exr", dir);
+        struct imp_image *img = NULL;
+        char **names = NULL;
+        struct imp_error err = { 0 };
+        int r = imp_exr_read(path, &img, &names, &err);
+        CHECK_MSG(r == 0, "%s", err.msg);
+        if (r < 0)
+                return;
+        int c = imp_image_channel_index(names, "height");     /* EXR keeps channels sorted by name */
+        CHECK_GE(c, 0);
+        for (int j = 40; j < 90 && c >= 0; j++)
+                for (int i = 190; i < 230; i++)
+                        imp_image_f32(img, i, j)[c] = imp_image_f32(img, i + 6, j)[c];
+        CHECK_OK(imp_exr_write(path, img, (const char *const *) names, false, &err));
+        imp_strv_free(names);
+        imp_image_free(img);
+}
+
+/* Bad input is refused with the file and the field. */
+static void check_bad_input(const char *tmp) {
+        char dir[600], path[700];
+        snprintf(dir, sizeof dir, "%s/bad", tmp);
+        CHECK_OK(imp_mkdir_p(dir, 0755));
+        snprintf(path, sizeof path, "%s/painting.json", dir);
+        struct { const char *json; int r; const char *msg; } cases[] = {
+                { "{\"format\": \"impasto-copy\"}", -EBADMSG, "format: expected \"impasto-painting\"" },
+                { "{\"format\": \"impasto-painting\", \"extent_mm\": [30, 20], \"fov_mm\": [12, 8], \"origin_mm\": [0, 0], "
+                  "\"tiles\": [{\"center_mm\": [6, 4], \"readback_mm\": [6, 4, 0]}]}", -ENODATA, "tiles[0].copy" },
+                { "{\"format\": \"impasto-painting\", \"extent_mm\": [30, 20], \"fov_mm\": [12, 8], \"origin_mm\": [0, 0], "
+                  "\"stage_sigma_mm\": 0, \"tiles\": []}", -EBADMSG, "stage_sigma_mm" },
+        };
+        for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+                struct imp_error err = { 0 };
+                CHECK_OK(imp_file_write_atomic(path, cases[i].json, strlen(cases[i].json), &err));
+                struct imp_painting p;
+                CHECK_ERR(imp_painting_load(dir, &p, &err), cases[i].r);
+                CHECK_STR_CONTAINS(err.msg, cases[i].msg);
+                CHECK_STR_CONTAINS(err.msg, "painting.json");
+                imp_painting_done(&p);
+        }
+}
+
 int main(void) {
         imp_mosaic_synth_default(&synth);
         synth.truth_exr = true;
@@ -126,8 +176,8 @@ int main(void) {
         CHECK_MSG(r == 0, "synth: %s", err.msg);
 
         struct run prior, reg;
-        run_mosaic(dir, out_prior, true, &prior);
-        run_mosaic(dir, out_reg, false, &reg);
+        run_mosaic(dir, out_prior, true, 0, &prior);
+        run_mosaic(dir, out_reg, false, 0, &reg);
 
         /* The bounds bite: the stage prior alone misses them. */
         CHECK_GE(prior.reg.rms_um, 20);
@@ -144,6 +194,16 @@ int main(void) {
         CHECK_GE(reg.fig.texels_covered, 0.99 * reg.fig.out_nx * reg.fig.out_ny);
         check_coverage(out_reg);
         CHECK_GE(reg.fig.pyramid_levels, 1);
+
+        /* Outliers in an overlap: the robust weights keep the registration within 20 % of the
+           clean one (0.59 → 0.65 µm); plain least squares (no outlier weights) loses more. */
+        corrupt_tile(dir);
+        struct run robust, plain;
+        run_mosaic(dir, out_reg, false, 0, &robust);
+        run_mosaic(dir, out_reg, false, 1e9, &plain);
+        CHECK_LE(robust.reg.rms_um, 1.2 * reg.reg.rms_um);
+        CHECK_GE(plain.reg.rms_um, 1.2 * reg.reg.rms_um);
+        check_bad_input(tmp);
         if (!test_failures_) {          /* kept for a look when a check failed */
                 char cmd[600];
                 snprintf(cmd, sizeof cmd, "rm -rf '%s'", tmp);
