@@ -1,4 +1,4 @@
-/* `impasto bench mosaic [--pitch MM] [--fov W,H]`: the mosaic of synthetic paintings of three
+/* `impasto bench mosaic [--pitch MM] [--cache-mib N] [--only K]`: the mosaic of synthetic paintings of three
  * sizes up to 600 × 400 mm (docs/mosaic.md): per size the tiles, the time of registration +
  * adjustment + blending and writing per tile (linear growth means a flat per-tile time) and
  * the peak RSS of the process that did it (each size runs in its own child, so its peak is
@@ -29,11 +29,14 @@ struct bench_result {
 };
 
 /* In the child: register, adjust, write; the figures go back through a pipe. */
+static size_t cache_bytes = (size_t) 1 << 30;
+
 static int mosaic_child(const char *dir, const char *out, int fd) {
         struct imp_painting p;
         struct imp_error err = { 0 };
         struct imp_mosaic_options o;
         imp_mosaic_options_default(&o);
+        o.cache_bytes = cache_bytes;
         struct bench_result b = { 0 };
         struct imp_mosaic_pair *pairs = NULL;
         struct imp_mosaic_adjust_stats st;
@@ -129,14 +132,29 @@ static int one_size(struct size_arg *x, const char *tmp, int k) {
 
 static int run(int argc, char **argv) {
         double pitch = 0.05;
+        int only = -1;
         for (int i = 1; i < argc; i++) {
+                char *end;
+                if (!strcmp(argv[i], "--cache-mib") && i + 1 < argc) {
+                        long v = strtol(argv[++i], &end, 10);
+                        if (*end || v < 16 || v > (1L << 20))
+                                return log_error("--cache-mib: expected 16..1048576, got '%s'", argv[i]), IMP_EXIT_USAGE;
+                        cache_bytes = (size_t) v << 20;
+                        continue;
+                }
+                if (!strcmp(argv[i], "--only") && i + 1 < argc) {
+                        long v = strtol(argv[++i], &end, 10);
+                        if (*end || v < 0 || v > 2)
+                                return log_error("--only: expected 0, 1 or 2 (the size), got '%s'", argv[i]), IMP_EXIT_USAGE;
+                        only = (int) v;
+                        continue;
+                }
                 if (!strcmp(argv[i], "--pitch") && i + 1 < argc) {
-                        char *end;
                         pitch = strtod(argv[++i], &end);
                         if (*end || !(pitch >= 0.01 && pitch <= 1))
                                 return log_error("--pitch: expected 0.01..1 mm, got '%s'", argv[i]), IMP_EXIT_USAGE;
                 } else {
-                        fprintf(stderr, "usage: impasto bench mosaic [--pitch MM]\n");
+                        fprintf(stderr, "usage: impasto bench mosaic [--pitch MM] [--cache-mib N] [--only 0|1|2]\n");
                         return !strcmp(argv[i], "--help") ? IMP_EXIT_OK : IMP_EXIT_USAGE;
                 }
         }
@@ -146,9 +164,12 @@ static int run(int argc, char **argv) {
         if (!mkdtemp(tmp))
                 return log_error("mkdtemp: %s", strerror(errno)), IMP_EXIT_FAILURE;
         static const double sizes[3][2] = { { 150, 100 }, { 300, 200 }, { 600, 400 } };
-        printf("mosaic bench: tiles of 60 × 40 mm at %.3f mm, 20%% overlap, stage σ 50 µm / 0.05°\n", pitch);
+        printf("mosaic bench: tiles of 60 × 40 mm at %.3f mm, 20%% overlap, stage σ 50 µm / 0.05°, cache %zu MiB\n", pitch,
+               cache_bytes >> 20);
         int r = 0;
         for (int k = 0; k < 3 && r == 0; k++) {
+                if (only >= 0 && k != only)
+                        continue;
                 struct size_arg x;
                 imp_mosaic_synth_default(&x.s);
                 x.s.extent_mm[0] = sizes[k][0], x.s.extent_mm[1] = sizes[k][1];
