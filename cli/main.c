@@ -11,7 +11,7 @@
  * not built in this configuration (say, without OpenCV); such a command is not offered. */
 #define IMP_COMMANDS(X) X(sim) X(process) X(compare) X(render) X(calibrate) X(plan) X(bench) \
         X(status) X(devices) X(scan) X(jobs) X(import) X(compare_normals) X(view) X(export) \
-        X(repair) X(queue) X(report)
+        X(repair) X(queue) X(report) X(mosaic)
 #define DECLARE(n) extern const struct imp_command imp_cmd_##n __attribute__((weak));
 IMP_COMMANDS(DECLARE)
 #define ENTRY(n) &imp_cmd_##n,

@@ -19,7 +19,7 @@ ALLOWED = {
     'appearance': ['core', 'model', 'geometry'], 'calib': ['core', 'model'],
     'cv': ['core', 'model', 'calib'], 'eval': ['core', 'model', 'geometry', 'appearance'],
     'export': ['core', 'model', 'geometry', 'appearance'],
-    'mosaic': ['core', 'model', 'geometry', 'appearance'],
+    'mosaic': ['core', 'model', 'geometry', 'appearance', 'export'],
     'pipeline': ['core', 'model', 'geometry', 'appearance', 'calib', 'cv', 'eval', 'export', 'mosaic'],
     'drivers': ['core', 'model'], 'proto': ['core', 'model'], 'emu': ['core', 'model'],
     'sim': ['core', 'model', 'emu'], 'daemon': ['core', 'model', 'drivers', 'proto'],

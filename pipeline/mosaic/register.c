@@ -1,0 +1,373 @@
+/* Pairwise registration of overlapping tiles (mosaic.h): a coarse search over whole-texel
+ * shifts, then robust Gauss-Newton on the height residual (Lucas-Kanade with Huber weights,
+ * sub-texel by bilinear interpolation) for the shift, rotation and height offset of the
+ * second tile relative to the first, with its information matrix. The weights are Huber's
+ * for the first iteration (convex), then Tukey's
+ * biweight with c = 3.1·k (4.65 robust σ at k = 1.5), which gives a ghost or a defect in
+ * the overlap no weight at all: Huber alone still lets 40 % of outliers pull the shift. */
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "macro.h"
+#include "mosaic-internal.h"
+#include "numerics.h"
+
+void imp_mosaic_options_default(struct imp_mosaic_options *o) {
+        *o = (struct imp_mosaic_options) {
+                .search_sigma = 4, .sample_step = 2, .huber_k = 1.5, .min_overlap_mm = 1, .out_tile_px = 512,
+                .cache_bytes = (size_t) 1 << 30, .box_cell_px = 20, .box_delta_frac = 0.3, .box_noise_k = 6,
+                .box_ref_percentile = 5,
+        };
+}
+
+bool mosaic_height(const struct imp_mosaic_tile *t, const struct imp_copy *c, double x, double y, double *ret_h,
+                   double ij[2]) {
+        if (!imp_mosaic_painting_to_tile(t, x, y, ij))
+                return false;
+        if (!(ij[0] >= 0 && ij[1] >= 0 && ij[0] <= t->nx - 1 && ij[1] <= t->ny - 1))
+                return false;
+        int i = IMP_MIN((int) ij[0], t->nx - 2), j = IMP_MIN((int) ij[1], t->ny - 2);
+        double fx = ij[0] - i, fy = ij[1] - j;
+        size_t k = (size_t) j * t->nx + i;
+        if (!c->mask[k] || !c->mask[k + 1] || !c->mask[k + t->nx] || !c->mask[k + t->nx + 1])
+                return false;
+        double h = (1 - fy) * ((1 - fx) * c->height[k] + fx * c->height[k + 1]) +
+                   fy * ((1 - fx) * c->height[k + t->nx] + fx * c->height[k + t->nx + 1]);
+        const double *M = t->c2w;
+        double u = ij[0] * t->pitch_mm, v = ij[1] * t->pitch_mm;
+        *ret_h = M[8] * u + M[9] * v + M[10] * h + M[11] + t->pose[3];
+        return true;
+}
+
+bool mosaic_height_box(const struct imp_mosaic_tile *t, const struct imp_copy *c, double x, double y, int r,
+                       double *ret_h) {
+        double s = 0, ij[2], h;
+        for (int dj = -r; dj <= r; dj++)
+                for (int di = -r; di <= r; di++) {
+                        if (!mosaic_height(t, c, x + di * t->pitch_mm, y + dj * t->pitch_mm, &h, ij))
+                                return false;
+                        s += h;
+                }
+        *ret_h = s / ((2 * r + 1) * (2 * r + 1));
+        return true;
+}
+
+bool mosaic_overlap(const struct imp_mosaic_tile *a, const struct imp_mosaic_tile *b, double m, double ret[4]) {
+        ret[0] = fmax(a->bbox[0], b->bbox[0]) + m, ret[1] = fmax(a->bbox[1], b->bbox[1]) + m;
+        ret[2] = fmin(a->bbox[2], b->bbox[2]) - m, ret[3] = fmin(a->bbox[3], b->bbox[3]) - m;
+        return ret[2] > ret[0] && ret[3] > ret[1];
+}
+
+int mosaic_pairs(const struct imp_painting *p, double min_mm, unsigned (**ret)[2], size_t *ret_n) {
+        size_t n = 0, cap = 16;
+        unsigned (*v)[2] = malloc(cap * sizeof *v);
+        if (!v)
+                return -ENOMEM;
+        for (unsigned a = 0; a < p->n_tiles; a++)
+                for (unsigned b = a + 1; b < p->n_tiles; b++) {
+                        double ov[4];
+                        if (!mosaic_overlap(&p->tiles[a], &p->tiles[b], 0, ov) || ov[2] - ov[0] < min_mm ||
+                            ov[3] - ov[1] < min_mm)
+                                continue;
+                        if (n == cap) {
+                                void *nv = realloc(v, (cap *= 2) * sizeof *v);
+                                if (!nv) {
+                                        free(v);
+                                        return -ENOMEM;
+                                }
+                                v = nv;
+                        }
+                        v[n][0] = a, v[n][1] = b, n++;
+                }
+        *ret = v, *ret_n = n;
+        return 0;
+}
+
+/* Samples of a pair: painting points in the overlap and tile a's height there. */
+struct samples {
+        size_t n;
+        double *x, *y, *ha, *r, *w;
+};
+
+static void samples_done(struct samples *s) {
+        free(s->x), free(s->y), free(s->ha), free(s->r), free(s->w);
+}
+
+static int collect(const struct imp_mosaic_tile *ta, const struct imp_copy *ca, const double ov[4], double step,
+                   struct samples *s) {
+        size_t nx = (size_t) ((ov[2] - ov[0]) / step) + 1, ny = (size_t) ((ov[3] - ov[1]) / step) + 1;
+        size_t cap = nx * ny;
+        s->x = malloc(cap * sizeof(double)), s->y = malloc(cap * sizeof(double));
+        s->ha = malloc(cap * sizeof(double)), s->r = malloc(cap * sizeof(double));
+        s->w = malloc(cap * sizeof(double));
+        if (!s->x || !s->y || !s->ha || !s->r || !s->w)
+                return -ENOMEM;
+        for (size_t j = 0; j < ny; j++)
+                for (size_t i = 0; i < nx; i++) {
+                        double x = ov[0] + i * step, y = ov[1] + j * step, h, ij[2];
+                        if (!mosaic_height(ta, ca, x, y, &h, ij))
+                                continue;
+                        s->x[s->n] = x, s->y[s->n] = y, s->ha[s->n] = h, s->n++;
+                }
+        return 0;
+}
+
+/* Robust σ of v[0..n): 1.4826 · median |v − median|, scratch in tmp. */
+static double robust_sigma(const double *v, size_t n, double *tmp, double *ret_median) {
+        memcpy(tmp, v, n * sizeof *tmp);
+        qsort(tmp, n, sizeof *tmp, imp_cmp_double);
+        double med = imp_median_sorted(tmp, n);
+        for (size_t i = 0; i < n; i++)
+                tmp[i] = fabs(v[i] - med);
+        qsort(tmp, n, sizeof *tmp, imp_cmp_double);
+        if (ret_median)
+                *ret_median = med;
+        return 1.4826 * imp_median_sorted(tmp, n);
+}
+
+/* The point of b's current placement that b's corrected placement puts at (x, y). */
+static void moved(const double q[4], const double c[2], double x, double y, double ret[2]) {
+        double ex = x - c[0], ey = y - c[1];
+        ret[0] = x - q[0] + q[2] * ey;
+        ret[1] = y - q[1] - q[2] * ex;
+}
+
+/* Coarse search: the whole-texel shift (every `stride`-th sample) with the least median
+ * absolute residual about the median (least median of squares: up to half the overlap may
+ * be a defect or a ghost without pulling it). */
+static void coarse(const struct imp_mosaic_tile *tb, const struct imp_copy *cb, const struct samples *s, double c[2],
+                   int R, double q[4]) {
+        double best = INFINITY;
+        size_t stride = IMP_MAX(s->n / 4000, (size_t) 1);
+        _cleanup_free_ double *r = malloc((s->n / stride + 1) * sizeof *r), *tmp = malloc((s->n / stride + 1) * sizeof *tmp);
+        if (!r || !tmp)
+                return;
+        for (int sy = -R; sy <= R; sy++)
+                for (int sx = -R; sx <= R; sx++) {
+                        double t[4] = { sx * tb->pitch_mm, sy * tb->pitch_mm, 0, 0 }, xy[2], h, ij[2];
+                        size_t n = 0, miss = 0;
+                        for (size_t i = 0; i < s->n; i += stride) {
+                                moved(t, c, s->x[i], s->y[i], xy);
+                                if (mosaic_height(tb, cb, xy[0], xy[1], &h, ij))
+                                        r[n++] = h - s->ha[i];
+                                else
+                                        miss++;
+                        }
+                        if (n < 20 || miss > n)
+                                continue;
+                        double med, cost = robust_sigma(r, n, tmp, &med);   /* least median: half may be outliers */
+                        if (cost < best)
+                                best = cost, t[3] = -med, memcpy(q, t, sizeof t);
+                }
+}
+
+/* Residuals at q (NAN where b has no height) and, with JtJ/Jtr non-NULL, the Huber-weighted
+ * normal equations. Returns the number of residuals. */
+static double weight(double a, double k, bool redescend) {
+        if (!redescend)
+                return a <= k ? 1 : k / a;
+        double c = 3.1 * k, u = a / c;
+        return u < 1 ? (1 - u * u) * (1 - u * u) : 0;
+}
+
+static size_t residuals(const struct imp_mosaic_tile *tb, const struct imp_copy *cb, struct samples *s, const double c[2],
+                        const double q[4], double scale, double k, bool redescend, double JtJ[16], double Jtr[4],
+                        double *ret_inl) {
+        size_t n = 0, inl = 0;
+        double e = 0.5 * tb->pitch_mm, ij[2];
+        if (JtJ)
+                memset(JtJ, 0, 16 * sizeof *JtJ), memset(Jtr, 0, 4 * sizeof *Jtr);
+        for (size_t i = 0; i < s->n; i++) {
+                double xy[2], h, hx0, hx1, hy0, hy1;
+                moved(q, c, s->x[i], s->y[i], xy);
+                s->r[i] = NAN;
+                if (!mosaic_height(tb, cb, xy[0], xy[1], &h, ij))
+                        continue;
+                s->r[i] = h + q[3] - s->ha[i];
+                n++;
+                if (!JtJ)
+                        continue;
+                if (!mosaic_height(tb, cb, xy[0] - e, xy[1], &hx0, ij) || !mosaic_height(tb, cb, xy[0] + e, xy[1], &hx1, ij) ||
+                    !mosaic_height(tb, cb, xy[0], xy[1] - e, &hy0, ij) || !mosaic_height(tb, cb, xy[0], xy[1] + e, &hy1, ij))
+                        continue;
+                double gx = (hx1 - hx0) / (2 * e), gy = (hy1 - hy0) / (2 * e);
+                double ex = s->x[i] - c[0], ey = s->y[i] - c[1];
+                double row[4] = { -gx, -gy, gx * ey - gy * ex, 1 };
+                double a = fabs(s->r[i]) / scale, w = weight(a, k, redescend);
+                inl += a <= k;
+                for (int p = 0; p < 4; p++) {
+                        Jtr[p] += w * row[p] * s->r[i];
+                        for (int q2 = 0; q2 < 4; q2++)
+                                JtJ[p * 4 + q2] += w * row[p] * row[q2];
+                }
+        }
+        if (ret_inl)
+                *ret_inl = n ? (double) inl / n : 0;
+        return n;
+}
+
+static double finite_sigma(struct samples *s, double *ret_rms) {
+        size_t n = 0;
+        double ss = 0;
+        for (size_t i = 0; i < s->n; i++)
+                if (isfinite(s->r[i]))
+                        s->w[n++] = s->r[i], ss += s->r[i] * s->r[i];
+        *ret_rms = n ? sqrt(ss / n) : NAN;
+        _cleanup_free_ double *tmp = malloc((n + 1) * sizeof *tmp);
+        return n > 8 && tmp ? robust_sigma(s->w, n, tmp, NULL) : NAN;
+}
+
+/* Gauss-Newton from q; fills the pair's measurement and information. */
+static int refine(const struct imp_mosaic_tile *tb, const struct imp_copy *cb, struct samples *s,
+                  const struct imp_mosaic_options *o, double q[4], struct imp_mosaic_pair *pr) {
+        double JtJ[16], Jtr[4], rms, scale = 0;
+        for (int it = 0; it < 30; it++) {
+                residuals(tb, cb, s, pr->c_mm, q, 1, 1e300, false, NULL, NULL, NULL);
+                scale = fmax(finite_sigma(s, &rms), 1e-7);
+                if (it == 0)
+                        pr->rms_before_um = 1e3 * rms;
+                size_t n = residuals(tb, cb, s, pr->c_mm, q, scale, o->huber_k, it >= 1, JtJ, Jtr, &pr->inlier_frac);
+                if (n < 50)
+                        return snprintf(pr->why, sizeof pr->why, "%zu samples left in the overlap", n), -ENODATA;
+                double L[16];
+                memcpy(L, JtJ, sizeof L);
+                for (int d = 0; d < 4; d++)
+                        L[d * 5] *= 1 + 1e-9;
+                if (!imp_cholesky_factor(4, L))
+                        return snprintf(pr->why, sizeof pr->why, "no texture to register on"), -ENODATA;
+                imp_cholesky_solve(4, L, Jtr);
+                for (int d = 0; d < 4; d++)
+                        q[d] -= Jtr[d];
+                if (it >= 6 && hypot(Jtr[0], Jtr[1]) < 1e-6 && fabs(Jtr[2]) < 1e-8)
+                        break;
+        }
+        size_t n = residuals(tb, cb, s, pr->c_mm, q, scale, o->huber_k, true, JtJ, Jtr, &pr->inlier_frac);
+        double s2 = 0, sw = 0;
+        for (size_t i = 0; i < s->n; i++)
+                if (isfinite(s->r[i])) {
+                        double a = fabs(s->r[i]) / scale, w = weight(a, o->huber_k, true);
+                        s2 += w * s->r[i] * s->r[i], sw += w;
+                }
+        s2 /= fmax(sw - 4, 1);
+        finite_sigma(s, &rms);
+        pr->rms_after_um = 1e3 * rms;
+        pr->n_samples = n;
+        memcpy(pr->meas, q, 4 * sizeof *q);
+        for (int i = 0; i < 16; i++)
+                pr->info[i] = JtJ[i] / s2;
+        double C[16];
+        memcpy(C, pr->info, sizeof C);
+        if (imp_cholesky_factor(4, C))
+                for (int d = 0; d < 2; d++) {
+                        double e[4] = { 0 };
+                        e[d] = 1;
+                        imp_cholesky_solve(4, C, e);
+                        pr->sd_um[d] = 1e3 * sqrt(fmax(e[d], 0));
+                }
+        pr->ok = true;
+        return 0;
+}
+
+/* Search range: the relative pose's σ (two stage errors, each a shift and a rotation about
+ * the tile's centre seen at the overlap) times search_sigma. */
+static int search_px(const struct imp_painting *p, const struct imp_mosaic_tile *t, const struct imp_mosaic_options *o) {
+        double arm = 0.5 * hypot(t->nx, t->ny) * t->pitch_mm, th = p->sigma_deg * M_PI / 180;
+        double sd = sqrt(2 * p->sigma_mm * p->sigma_mm + 2 * th * th * arm * arm);
+        return (int) ceil(o->search_sigma * sd / t->pitch_mm);
+}
+
+static int register_pair(struct imp_painting *p, const struct imp_mosaic_options *o, const struct imp_copy *ca,
+                         const struct imp_copy *cb, struct imp_mosaic_pair *pr) {
+        const struct imp_mosaic_tile *ta = &p->tiles[pr->a], *tb = &p->tiles[pr->b];
+        int R = search_px(p, tb, o);
+        double ov[4];
+        if (!mosaic_overlap(ta, tb, (R + 2) * tb->pitch_mm, ov))
+                return snprintf(pr->why, sizeof pr->why, "overlap narrower than the search range"), 0;
+        pr->c_mm[0] = 0.5 * (ov[0] + ov[2]), pr->c_mm[1] = 0.5 * (ov[1] + ov[3]);
+        struct samples s = { 0 };
+        int r = collect(ta, ca, ov, o->sample_step * ta->pitch_mm, &s);
+        if (r == 0 && s.n < 100)
+                snprintf(pr->why, sizeof pr->why, "%zu samples on both masks", s.n);
+        else if (r == 0) {
+                double q[4] = { 0 };
+                coarse(tb, cb, &s, pr->c_mm, R, q);
+                if (refine(tb, cb, &s, o, q, pr) < 0)
+                        pr->ok = false;
+        }
+        samples_done(&s);
+        return r;
+}
+
+/* The overlapping pairs under the current poses and a cache stepping through them in order. */
+static int pair_pass(struct imp_painting *p, const struct imp_mosaic_options *o, unsigned (**ret_pairs)[2], size_t *ret_n,
+                     size_t **ret_off, struct mosaic_cache *c, struct imp_error *err) {
+        imp_painting_update_bboxes(p);
+        if (mosaic_pairs(p, o->min_overlap_mm, ret_pairs, ret_n) < 0)
+                return imp_error_set(err, -ENOMEM, "out of memory");
+        size_t *off = malloc((*ret_n + 1) * sizeof *off);
+        if (!off)
+                return imp_error_set(err, -ENOMEM, "out of memory");
+        for (size_t i = 0; i <= *ret_n; i++)
+                off[i] = 2 * i;
+        *ret_off = off;
+        if (mosaic_cache_init(c, p, o->cache_bytes, off, &(*ret_pairs)[0][0], *ret_n) < 0)
+                return imp_error_set(err, -ENOMEM, "out of memory");
+        return 0;
+}
+
+int imp_mosaic_register(struct imp_painting *p, const struct imp_mosaic_options *o, struct imp_mosaic_pair **ret,
+                        size_t *ret_n, struct imp_error *err) {
+        _cleanup_free_ unsigned (*pairs)[2] = NULL;
+        _cleanup_free_ size_t *off = NULL;
+        size_t n = 0;
+        struct mosaic_cache c = { 0 };
+        int r = pair_pass(p, o, &pairs, &n, &off, &c, err);
+        _cleanup_free_ struct imp_mosaic_pair *pr = calloc(n ? n : 1, sizeof *pr);
+        if (r < 0 || !pr) {
+                mosaic_cache_done(&c);
+                return r < 0 ? r : imp_error_set(err, -ENOMEM, "out of memory");
+        }
+        for (size_t i = 0; i < n && r == 0; i++) {
+                pr[i].a = pairs[i][0], pr[i].b = pairs[i][1];
+                if ((r = mosaic_cache_step(&c, i, err)) == 0 &&
+                    (r = register_pair(p, o, &c.copies[pr[i].a], &c.copies[pr[i].b], &pr[i])) < 0)
+                        imp_error_set(err, r, "registering tiles %u and %u: %s", p->tiles[pr[i].a].index,
+                                      p->tiles[pr[i].b].index, strerror(-r));
+        }
+        mosaic_cache_done(&c);
+        if (r < 0)
+                return r;
+        *ret = TAKE_PTR(pr), *ret_n = n;
+        return 0;
+}
+
+int imp_mosaic_seam_step(struct imp_painting *p, const struct imp_mosaic_options *o, double *ret_rms_um,
+                         size_t *ret_n, struct imp_error *err) {
+        _cleanup_free_ unsigned (*pairs)[2] = NULL;
+        _cleanup_free_ size_t *off = NULL;
+        size_t n = 0, cnt = 0;
+        struct mosaic_cache c = { 0 };
+        int r = pair_pass(p, o, &pairs, &n, &off, &c, err);
+        double ss = 0;
+        for (size_t i = 0; i < n && r == 0; i++) {
+                if ((r = mosaic_cache_step(&c, i, err)) < 0)
+                        break;
+                const struct imp_mosaic_tile *ta = &p->tiles[pairs[i][0]], *tb = &p->tiles[pairs[i][1]];
+                double ov[4], step = 4 * ta->pitch_mm, ha, hb;
+                if (!mosaic_overlap(ta, tb, 3 * ta->pitch_mm, ov))
+                        continue;
+                for (double y = ov[1]; y <= ov[3]; y += step)
+                        for (double x = ov[0]; x <= ov[2]; x += step)
+                                if (mosaic_height_box(ta, &c.copies[pairs[i][0]], x, y, 2, &ha) &&
+                                    mosaic_height_box(tb, &c.copies[pairs[i][1]], x, y, 2, &hb))
+                                        ss += (hb - ha) * (hb - ha), cnt++;
+        }
+        mosaic_cache_done(&c);
+        if (r < 0)
+                return r;
+        *ret_rms_um = cnt ? 1e3 * sqrt(ss / cnt) : NAN;
+        *ret_n = cnt;
+        return 0;
+}

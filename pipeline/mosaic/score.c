@@ -1,0 +1,103 @@
+/* In-plane registration error against the truth poses (mosaic.h). */
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+#include "image.h"
+#include "mosaic.h"
+
+/* The 4 corners and the centre of tile t: estimated and true painting positions. */
+static void tile_points(const struct imp_mosaic_tile *t, double est[5][2], double tru[5][2]) {
+        const double *M = t->c2w;
+        for (int q = 0; q < 5; q++) {
+                double fi = q == 4 ? 0.5 * (t->nx - 1) : (q & 1) ? t->nx - 1 : 0;
+                double fj = q == 4 ? 0.5 * (t->ny - 1) : (q & 2) ? t->ny - 1 : 0;
+                imp_mosaic_tile_to_painting(t, fi, fj, est[q]);
+                double u = fi * t->pitch_mm, v = fj * t->pitch_mm;
+                double wx = M[0] * u + M[1] * v + M[3], wy = M[4] * u + M[5] * v + M[7];
+                double c = cos(t->truth[2]), s = sin(t->truth[2]);
+                tru[q][0] = t->truth[0] + c * wx - s * wy, tru[q][1] = t->truth[1] + s * wx + c * wy;
+        }
+}
+
+int imp_mosaic_registration_error(const struct imp_painting *p, struct imp_mosaic_reg_error *ret) {
+        if (!p->has_truth)
+                return -ENODATA;
+        size_t n = 5 * p->n_tiles;
+        double (*e)[2] = malloc(n * sizeof *e), (*X)[2] = malloc(n * sizeof *X);
+        if (!e || !X)
+                return free(e), free(X), -ENOMEM;
+        double m[2] = { 0 }, xm[2] = { 0 }, ss = 0;
+        for (size_t k = 0; k < p->n_tiles; k++) {
+                double est[5][2], tru[5][2];
+                tile_points(&p->tiles[k], est, tru);
+                for (int q = 0; q < 5; q++) {
+                        size_t i = 5 * k + q;
+                        e[i][0] = est[q][0] - tru[q][0], e[i][1] = est[q][1] - tru[q][1];
+                        X[i][0] = tru[q][0], X[i][1] = tru[q][1];
+                        m[0] += e[i][0] / n, m[1] += e[i][1] / n, xm[0] += X[i][0] / n, xm[1] += X[i][1] / n;
+                        ss += e[i][0] * e[i][0] + e[i][1] * e[i][1];
+                }
+        }
+        /* The common rigid motion: translation m and rotation φ about the centroid. */
+        double num = 0, den = 0;
+        for (size_t i = 0; i < n; i++) {
+                double jx = -(X[i][1] - xm[1]), jy = X[i][0] - xm[0];
+                num += jx * (e[i][0] - m[0]) + jy * (e[i][1] - m[1]), den += jx * jx + jy * jy;
+        }
+        double phi = den > 0 ? num / den : 0, rs = 0, sum = 0, far = -1, far_d = -1, mx = 0;
+        for (size_t i = 0; i < n; i++) {
+                double rx = e[i][0] - m[0] + phi * (X[i][1] - xm[1]), ry = e[i][1] - m[1] - phi * (X[i][0] - xm[0]);
+                double a = hypot(rx, ry);
+                rs += a * a, sum += a, mx = fmax(mx, a);
+                double d = hypot(X[i][0] - X[0][0], X[i][1] - X[0][1]);
+                if (d > far_d)
+                        far_d = d, far = a;
+        }
+        *ret = (struct imp_mosaic_reg_error) { .abs_rms_um = 1e3 * sqrt(ss / n), .rms_um = 1e3 * sqrt(rs / n),
+                                               .mean_um = 1e3 * sum / n, .far_corner_um = 1e3 * far, .max_um = 1e3 * mx };
+        free(e), free(X);
+        return 0;
+}
+
+static double truth_exr_height(void *ctx, double x, double y) {
+        const struct imp_mosaic_truth_exr *t = ctx;
+        double fi = x / t->pitch_mm[0], fj = y / t->pitch_mm[1];
+        if (!(fi >= 0 && fj >= 0 && fi <= t->img->width - 1 && fj <= t->img->height - 1))
+                return NAN;
+        int i = (int) fi, j = (int) fj;
+        i = i > t->img->width - 2 ? t->img->width - 2 : i, j = j > t->img->height - 2 ? t->img->height - 2 : j;
+        double fx = fi - i, fy = fj - j;
+        double h00 = imp_image_f32(t->img, i, j)[t->channel], h10 = imp_image_f32(t->img, i + 1, j)[t->channel];
+        double h01 = imp_image_f32(t->img, i, j + 1)[t->channel], h11 = imp_image_f32(t->img, i + 1, j + 1)[t->channel];
+        return (1 - fy) * ((1 - fx) * h00 + fx * h10) + fy * ((1 - fx) * h01 + fx * h11);
+}
+
+int imp_mosaic_truth_load(const struct imp_painting *p, struct imp_mosaic_truth_exr *t, struct imp_mosaic_truth *ret,
+                          struct imp_error *err) {
+        char path[4300];
+        memset(t, 0, sizeof *t);
+        snprintf(path, sizeof path, "%s/truth/height.exr", p->dir);
+        if (access(path, F_OK) < 0)
+                return -ENOENT;
+        char **names = NULL;
+        int r = imp_exr_read(path, &t->img, &names, err);
+        if (r < 0)
+                return r;
+        t->channel = imp_image_channel_index(names, "height");
+        imp_strv_free(names);
+        if (t->channel < 0 || t->img->width < 2 || t->img->height < 2) {
+                imp_mosaic_truth_done(t);
+                return imp_error_set(err, -EBADMSG, "%s: expected a channel \"height\" over at least 2×2 texels", path);
+        }
+        t->pitch_mm[0] = p->extent_mm[0] / t->img->width, t->pitch_mm[1] = p->extent_mm[1] / t->img->height;
+        *ret = (struct imp_mosaic_truth) { truth_exr_height, t };
+        return 0;
+}
+
+void imp_mosaic_truth_done(struct imp_mosaic_truth_exr *t) {
+        imp_image_free(t->img);
+        t->img = NULL;
+}

@@ -1,0 +1,5 @@
+# Registration and mosaic of a whole painting's tiles (pipeline/mosaic/, docs/mosaic.md).
+impasto_test(test-mosaic LIBS impasto_mosaic TIMEOUT 300)
+# The command as an operator runs it, with the stage-prior figures beside the registered ones.
+impasto_test(test-mosaic-cli LIBS impasto_mosaic TIMEOUT 300)
+add_dependencies(test-mosaic-cli impasto)
