@@ -26,9 +26,10 @@
 #include "scene.h"
 
 #define FRAME_BYTES_PER_PIXEL 2   /* frames are stored as 16-bit TIFF (docs/capture-set.md) */
-/* Processing one tile on one worker, per frame-megapixel captured: measured with
- * `impasto process` on config/scenes/painting-small.cfg tiles (docs/painting.md). */
-#define PROCESS_S_PER_FRAME_MPIX 0.25
+/* Processing one tile on one worker, per frame-megapixel captured: `impasto process` of one
+ * tile of config/scenes/painting-small.cfg (50 frames of 0.03 Mpix) took 3.9 s on a loaded
+ * 2-core machine (docs/painting.md); --process-s gives a measured figure instead. */
+#define PROCESS_S_PER_FRAME_MPIX 2.6
 #define DEFAULT_SPEED_MM_S 50.0  /* drivers/stage.h IMP_STAGE_DEFAULT_SPEED_MM_S: the feed the daemon moves at */
 #define DEFAULT_SETTLE_S 0.5      /* a gantry move's acceleration and settling, beyond speed */
 

@@ -1,3 +1,14 @@
 # Whole paintings: the plan's painting group, the simulated gantry (sim/gantry.c), stage
 # errors, tile windows, painting.json and the painting-frame truth.
 impasto_test(test-painting LABELS unit LIBS impasto_sim)
+# `plan estimate` of a painting plan: whole-painting figures, and a plan that cannot fit any
+# disk (141 TB) refused with exit 3 and a message naming the bytes and the directory.
+add_test(NAME test-painting-estimate COMMAND sh -c "\
+  out=$($<TARGET_FILE:impasto> plan estimate ${PROJECT_SOURCE_DIR}/config/plans/painting-small.cfg \
+        --scene ${PROJECT_SOURCE_DIR}/config/scenes/painting-small.cfg --json) && \
+  echo \"$out\" | grep -q '\"painting\":{\"tiles\":6,\"cols\":3,\"rows\":2' && \
+  printf 'dome = { lights = \"all\"; exposures_us = [10000.0]; repeat = 2000; };\\npainting = { extent_mm = [5000.0, 5000.0]; fov_mm = [20.0, 20.0]; };\\n' > huge-painting.cfg && \
+  ! $<TARGET_FILE:impasto> plan estimate huge-painting.cfg --scene ${PROJECT_SOURCE_DIR}/config/scenes/painting-small.cfg --target . 2> err.txt; \
+  rc=$?; grep -q 'on disk but . has' err.txt && test $rc -eq 0"
+  WORKING_DIRECTORY ${CMAKE_CURRENT_BINARY_DIR})
+set_tests_properties(test-painting-estimate PROPERTIES LABELS unit TIMEOUT 120)
