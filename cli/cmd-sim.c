@@ -165,6 +165,11 @@ static int cmd_info(const struct sim_args *a) {
                 }
                 printf("plan %s: %zu frames, estimated capture time %.1f s\n", a->plan, imp_plan_count(plan),
                        imp_plan_estimate_s(plan, imp_scene_rig(scene)));
+                if (imp_plan_tiles(plan) && imp_scene_is_gantry(scene)) {
+                        double move_s, clock_s = imp_sim_painting_clock_s(scene, plan, &move_s);
+                        printf("painting: %zu tiles, simulated clock %.1f s (gantry moves %.1f s)\n",
+                               imp_tile_plan_count(imp_plan_tiles(plan)), clock_s, move_s);
+                }
         }
         return 0;
 }

@@ -171,6 +171,29 @@ static int check_gantry(const struct imp_scene *scene, const struct imp_tile_pla
         return 0;
 }
 
+double imp_sim_painting_clock_s(const struct imp_scene *scene, const struct imp_plan *plan, double *ret_move_s) {
+        const struct imp_tile_plan *tp = imp_plan_tiles(plan);
+        const struct imp_scene_gantry *g = imp_scene_gantry(scene);
+        long long t_ns = 0;
+        double move_s = 0;
+        const struct imp_frame_record *prev = NULL;
+        for (size_t k = 0; tp && g && k < imp_tile_plan_count(tp); k++) {
+                if (k > 0) {
+                        double m = imp_sim_move_s(g, imp_tile_plan_tile(tp, k - 1)->stage_mm, imp_tile_plan_tile(tp, k)->stage_mm);
+                        move_s += m;
+                        t_ns += (long long) (m * 1e9);
+                }
+                for (size_t i = 0; i < imp_plan_count(plan); i++) {
+                        struct imp_frame_record rec = *imp_plan_frame(plan, i);
+                        imp_sim_stamp(&rec, prev, imp_scene_rig(scene), &t_ns);
+                        prev = imp_plan_frame(plan, i);
+                }
+        }
+        if (ret_move_s)
+                *ret_move_s = move_s;
+        return t_ns * 1e-9;
+}
+
 int imp_sim_render_painting(struct imp_scene *scene, const struct imp_plan *plan, const char *plan_path,
                             const char *out, imp_sim_progress_fn progress, void *userdata,
                             struct imp_sim_painting_result *ret, struct imp_error *err) {

@@ -36,6 +36,10 @@ double imp_sim_move_s(const struct imp_scene_gantry *g, const double from_mm[3],
 void imp_sim_stamp(struct imp_frame_record *rec, const struct imp_frame_record *prev, const struct imp_rig *rig,
                    long long *t_ns);
 
+/* The simulated clock of the whole painting's scan (what imp_sim_render_painting reports)
+ * without rendering a frame; 0 without a painting group or a gantry scene. */
+double imp_sim_painting_clock_s(const struct imp_scene *scene, const struct imp_plan *plan, double *ret_move_s);
+
 struct imp_sim_painting_result {
         size_t tiles, frames, dropped;
         double clock_s;                 /* the simulated clock: first frame to the last */

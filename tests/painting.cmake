@@ -12,3 +12,8 @@ add_test(NAME test-painting-estimate COMMAND sh -c "\
   rc=$?; grep -q 'on disk but . has' err.txt && test $rc -eq 0"
   WORKING_DIRECTORY ${CMAKE_CURRENT_BINARY_DIR})
 set_tests_properties(test-painting-estimate PROPERTIES LABELS unit TIMEOUT 120)
+# The painting demo end to end on the small painting (render, process and compare six tiles;
+# ~2 min on a loaded 2-core machine): slow.
+add_test(NAME test-painting-demo COMMAND ${PROJECT_SOURCE_DIR}/scripts/demo-painting --no-build
+  --build-dir ${PROJECT_BINARY_DIR} --out ${CMAKE_CURRENT_BINARY_DIR}/demo-painting)
+set_tests_properties(test-painting-demo PROPERTIES LABELS "slow" TIMEOUT 1200)

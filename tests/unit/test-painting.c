@@ -12,6 +12,7 @@
 #include "gantry.h"
 #include "json-util.h"
 #include "render.h"
+#include "serve.h"
 #include "unit/test.h"
 
 #define SCENE IMPASTO_SOURCE_DIR "/config/scenes/painting-small.cfg"
@@ -204,6 +205,9 @@ static void test_render(void) {
         if (r < 0)
                 return;
         CHECK_INT_EQ(res.tiles, 6);
+        double move_s;
+        CHECK_NEAR(imp_sim_painting_clock_s(s, p, &move_s), res.clock_s, 1e-9);
+        CHECK_NEAR(move_s, res.move_s, 1e-9);
         CHECK_INT_EQ(res.frames, 12);
         snprintf(path, sizeof path, "%s/painting.json", out);
         _cleanup_json_ json_t *pj = NULL;
@@ -262,6 +266,11 @@ static void test_refusals(void) {
         CHECK_STR_CONTAINS(err.msg, "no gantry group");
         struct imp_painting_place pl = { 0 };
         CHECK_ERR(imp_scene_place(fov, &pl, &err), -EINVAL);
+        struct imp_serve *sv = NULL;
+        CHECK_ERR(imp_serve_new(s, NULL, &sv, &err), -EOPNOTSUPP);
+        if (!strstr(err.msg, "built without"))       /* a build without the emulators refuses anyway */
+                CHECK_STR_CONTAINS(err.msg, "gantry");
+        imp_serve_free(sv);
 }
 
 int main(void) {
