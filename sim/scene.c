@@ -819,7 +819,7 @@ static int parse_painting(struct imp_scene *s, const struct imp_conf *c, struct 
         TRY(imp_conf_get_double(c, g, "width_mm", true, 0.1, 1e4, &W, err));
         TRY(imp_conf_get_double(c, g, "height_mm", true, 0.1, 1e4, &H, err));
         TRY(imp_conf_get_double(c, g, "pitch_mm", true, 1e-3, 100, &pitch, err));
-        if ((W / pitch + 1) * (H / pitch + 1) > 4e8)
+        if (!s->gantry && (W / pitch + 1) * (H / pitch + 1) > 4e8)     /* a gantry scene samples windows */
                 return imp_error_set(err, -EINVAL, "%s:%d: painting.pitch_mm: %g mm gives more than 4e8 samples",
                                      imp_conf_path(c), line_of(config_setting_lookup(g, "pitch_mm")), pitch);
         config_setting_t *fr = NULL;

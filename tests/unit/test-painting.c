@@ -273,11 +273,43 @@ static void test_refusals(void) {
         imp_serve_free(sv);
 }
 
+/* A 2 × 2 m painting at 0.1 mm (4e8 samples, refused for a one-field scene) loads as a
+ * gantry scene, and its window is exactly as large as the small painting's: the memory of a
+ * tile does not grow with the painting. */
+static void test_large_painting(void) {
+        FILE *f = fopen(SCENE, "r");
+        if (!f)
+                return;
+        static char text[16384];
+        size_t n = fread(text, 1, sizeof text - 1, f);
+        fclose(f);
+        text[n] = 0;
+        char *w = strstr(text, "width_mm = 100.0;"), *h = strstr(text, "height_mm = 54.0;");
+        CHECK(w && h);
+        if (!w || !h)
+                return;
+        memcpy(w, "width_mm = 2.0e3;", 17);
+        memcpy(h, "height_mm = 2e3 ;", 17);
+        struct imp_error err = {};
+        _cleanup_(imp_scene_freep) struct imp_scene *big = NULL;
+        _cleanup_(imp_scene_freep) struct imp_scene *small = load_scene(false);
+        int r = imp_scene_load_string(text, "big.cfg", &big, &err);
+        CHECK_MSG(r == 0, "%s", err.msg);
+        if (!big || !small)
+                return;
+        double canvas[2];
+        imp_scene_canvas_size(big, canvas);
+        CHECK_NEAR(canvas[0], 2000, 0);
+        CHECK_INT_EQ(imp_scene_surface(big)->nx, imp_scene_surface(small)->nx);
+        CHECK_INT_EQ(imp_scene_surface(big)->ny, imp_scene_surface(small)->ny);
+}
+
 int main(void) {
         test_plan_group();
         test_stage_error();
         test_window();
         test_render();
         test_refusals();
+        test_large_painting();
         return TEST_DONE();
 }
