@@ -17,3 +17,10 @@ set_tests_properties(test-painting-estimate PROPERTIES LABELS unit TIMEOUT 120)
 add_test(NAME test-painting-demo COMMAND ${PROJECT_SOURCE_DIR}/scripts/demo-painting --no-build
   --build-dir ${PROJECT_BINARY_DIR} --out ${CMAKE_CURRENT_BINARY_DIR}/demo-painting)
 set_tests_properties(test-painting-demo PROPERTIES LABELS "slow" TIMEOUT 1200)
+# Whole-painting sessions on the gantry (daemon/tile-session.c) against the GRBL emulator on a
+# pseudo-terminal (no network).
+if(TARGET impasto_emu)
+  impasto_test(test-painting-stage LABELS integration fault LIBS impasto_drivers impasto_emu TIMEOUT 120)
+  target_sources(test-painting-stage PRIVATE ${PROJECT_SOURCE_DIR}/daemon/tile-session.c)
+  target_include_directories(test-painting-stage PRIVATE ${PROJECT_SOURCE_DIR}/daemon ${PROJECT_SOURCE_DIR}/sim/emu)
+endif()
