@@ -24,3 +24,10 @@ if(TARGET impasto_emu)
   target_sources(test-painting-stage PRIVATE ${PROJECT_SOURCE_DIR}/daemon/tile-session.c)
   target_include_directories(test-painting-stage PRIVATE ${PROJECT_SOURCE_DIR}/daemon ${PROJECT_SOURCE_DIR}/sim/emu)
 endif()
+# impastod refuses to start a session of a painting plan until tile sessions are wired in.
+# Modbus port 15931; run in a private network namespace.
+if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WITH_MODBUS)
+  impasto_test(test-painting-daemon LABELS integration LIBS impasto_proto impasto_pipeline impasto_emu TIMEOUT 120)
+  add_dependencies(test-painting-daemon impastod)
+  set_tests_properties(test-painting-daemon PROPERTIES RESOURCE_LOCK gvcp)
+endif()
