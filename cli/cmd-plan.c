@@ -10,24 +10,44 @@
 #include <getopt.h>
 #include <libgen.h>
 #include <limits.h>
+#include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/statvfs.h>
 #include <unistd.h>
 #include "client.h"
 #include "commands.h"
 #include "json-util.h"
 #include "log.h"
+#include "numparse.h"
 #include "plan.h"
 #include "rig.h"
 #include "scene.h"
 
 #define FRAME_BYTES_PER_PIXEL 2   /* frames are stored as 16-bit TIFF (docs/capture-set.md) */
+/* Processing one tile on one worker, per frame-megapixel captured: `impasto process` of one
+ * tile of config/scenes/painting-small.cfg (50 frames of 0.03 Mpix) took 3.9 s on a loaded
+ * 2-core machine (docs/painting.md); --process-s gives a measured figure instead. */
+#define PROCESS_S_PER_FRAME_MPIX 2.6
+#define DEFAULT_SPEED_MM_S 50.0  /* drivers/stage.h IMP_STAGE_DEFAULT_SPEED_MM_S: the feed the daemon moves at */
+#define DEFAULT_SETTLE_S 0.5      /* a gantry move's acceleration and settling, beyond speed */
+
+/* How the whole-painting figures are played through (options of `plan estimate`). */
+struct painting_opts {
+        double speed_mm_s, settle_s, process_s;   /* process_s < 0: from the frames */
+        unsigned workers;
+        const char *target;                       /* directory whose free space must hold the plan */
+};
 
 static void usage(FILE *f) {
         fprintf(f, "usage: impasto plan validate PLAN (--rig RIG.json | --scene SCENE.cfg | --daemon) [--json] [--socket PATH]\n"
                    "       impasto plan estimate PLAN (--rig RIG.json | --scene SCENE.cfg | --daemon) [--json] [--socket PATH]\n"
-                   "  --rig RIG.json  the rig's model (rig.json of a capture set or of `impasto calibrate`)\n");
+                   "                     [--target DIR] [--workers N] [--stage-speed MM_S] [--settle S] [--process-s S]\n"
+                   "  --rig RIG.json  the rig's model (rig.json of a capture set or of `impasto calibrate`)\n"
+                   "         --target DIR: refuse a plan whose bytes exceed DIR's free space (default .)\n"
+                   "         a plan with a painting group: whole-painting figures; --workers tiles processed at once,\n"
+                   "         --stage-speed and --settle the gantry's moves, --process-s one tile's processing\n");
 }
 
 /* A step is one exposure of the rig: consecutive frames that differ only by camera. */
@@ -39,7 +59,38 @@ static bool same_step(const struct imp_frame_record *a, const struct imp_frame_r
                a->pattern.inverse == b->pattern.inverse && strcmp(a->camera, b->camera);
 }
 
-static json_t *offline_result(const struct imp_plan *plan, const struct imp_rig *rig, bool estimate) {
+/* Whole-painting figures of a plan with a painting group (tiles.h): tiles, frames, bytes,
+ * capture (moves included) and processing time, processing overlapping capture. */
+static json_t *painting_result(const struct imp_plan *plan, const struct imp_rig *rig, double tile_bytes,
+                               const struct painting_opts *po) {
+        const struct imp_tile_plan *tp = imp_plan_tiles(plan);
+        double mpix = 0;
+        for (size_t i = 0; i < imp_plan_count(plan); i++)
+                for (int c = 0; c < rig->n_cameras; c++)
+                        if (!strcmp(rig->cameras[c].name, imp_plan_frame(plan, i)->camera))
+                                mpix += rig->cameras[c].model.width * (double) rig->cameras[c].model.height * 1e-6;
+        struct imp_tile_cost cost = {
+                .frames = imp_plan_count(plan), .bytes = tile_bytes, .capture_s = imp_plan_estimate_s(plan, rig),
+                .process_s = po->process_s >= 0 ? po->process_s : mpix * PROCESS_S_PER_FRAME_MPIX,
+                .workers = po->workers, .speed_mm_s = po->speed_mm_s, .settle_s = po->settle_s,
+        };
+        struct imp_tile_estimate e;
+        if (imp_tile_plan_estimate(tp, &cost, &e) < 0)
+                return NULL;
+        unsigned cols, rows;
+        imp_tile_plan_grid(tp, &cols, &rows);
+        double step[2], overlap[2];
+        imp_tile_plan_spacing(tp, step, overlap);
+        return json_pack("{s:I,s:I,s:I,s:[f,f],s:I,s:f,s:f,s:f,s:f,s:f,s:f,s:I,s:f,s:f}", "tiles", (json_int_t) e.tiles,
+                         "cols", (json_int_t) cols, "rows", (json_int_t) rows, "overlap", overlap[0], overlap[1],
+                         "frames", (json_int_t) e.frames, "bytes", e.bytes, "move_s", e.move_s, "capture_s",
+                         e.capture_s, "process_s", e.process_s, "wall_s", e.wall_s, "tile_process_s", cost.process_s,
+                         "workers", (json_int_t) cost.workers, "stage_speed_mm_s", cost.speed_mm_s, "settle_s",
+                         cost.settle_s);
+}
+
+static json_t *offline_result(const struct imp_plan *plan, const struct imp_rig *rig, bool estimate,
+                              const struct painting_opts *po) {
         size_t n = imp_plan_count(plan), steps = 0;
         double bytes = 0;
         for (size_t i = 0; i < n; i++) {
@@ -53,8 +104,43 @@ static json_t *offline_result(const struct imp_plan *plan, const struct imp_rig 
         }
         if (!estimate)
                 return json_pack("{s:b,s:I,s:I}", "valid", 1, "steps", (json_int_t) steps, "frames", (json_int_t) n);
-        return json_pack("{s:I,s:I,s:I,s:f}", "steps", (json_int_t) steps, "frames", (json_int_t) n, "bytes",
-                         (json_int_t) bytes, "duration_s", imp_plan_estimate_s(plan, rig));
+        json_t *res = json_pack("{s:I,s:I,s:I,s:f}", "steps", (json_int_t) steps, "frames", (json_int_t) n, "bytes",
+                                (json_int_t) bytes, "duration_s", imp_plan_estimate_s(plan, rig));
+        if (res && imp_plan_tiles(plan))
+                json_object_set_new(res, "painting", painting_result(plan, rig, bytes, po));
+        return res;
+}
+
+static void human_painting(const json_t *p) {
+        char b[32], d[4][32];
+        printf("painting      %lld tiles (%lld × %lld, overlap %.0f %% × %.0f %%)\n"
+               "  frames      %lld\n  bytes       %s\n  capture     %s (moves %s)\n"
+               "  processing  %s on %lld worker(s), done %s after the first frame\n",
+               imp_client_int(p, "tiles"), imp_client_int(p, "cols"), imp_client_int(p, "rows"),
+               100 * json_number_value(json_array_get(json_object_get(p, "overlap"), 0)),
+               100 * json_number_value(json_array_get(json_object_get(p, "overlap"), 1)), imp_client_int(p, "frames"),
+               imp_client_fmt_bytes(imp_client_num(p, "bytes"), b, sizeof b),
+               imp_client_fmt_duration(imp_client_num(p, "capture_s"), d[0], sizeof d[0]),
+               imp_client_fmt_duration(imp_client_num(p, "move_s"), d[1], sizeof d[1]),
+               imp_client_fmt_duration(imp_client_num(p, "process_s"), d[2], sizeof d[2]),
+               imp_client_int(p, "workers"), imp_client_fmt_duration(imp_client_num(p, "wall_s"), d[3], sizeof d[3]));
+}
+
+/* Refuses a plan whose bytes (the whole painting's when it has one) exceed the free space of
+ * the directory it will be written to. */
+static int check_disk(const json_t *res, const char *dir) {
+        const json_t *p = json_object_get(res, "painting");
+        double need = p ? imp_client_num(p, "bytes") : (double) imp_client_int(res, "bytes");
+        struct statvfs st;
+        if (statvfs(dir, &st) < 0)
+                return log_error_errno(-errno, "plan estimate: --target %s: %m", dir), IMP_EXIT_BAD_INPUT;
+        double avail = (double) st.f_bavail * (double) st.f_frsize;
+        if (need <= avail)
+                return 0;
+        char a[32], b[32];
+        log_error("plan estimate: the plan needs %s on disk but %s has %s free; choose a smaller plan or another disk",
+                  imp_client_fmt_bytes(need, a, sizeof a), dir, imp_client_fmt_bytes(avail, b, sizeof b));
+        return IMP_EXIT_BAD_INPUT;
 }
 
 static void human_validate(const json_t *r) {
@@ -69,7 +155,9 @@ static void human_estimate(const json_t *r) {
                imp_client_fmt_bytes((double) imp_client_int(r, "bytes"), b, sizeof b), t);
         if (t >= 60)
                 printf(" (%s)", imp_client_fmt_duration(t, d, sizeof d));
-        putchar('\n');
+        printf("%s\n", json_object_get(r, "painting") ? " per tile" : "");
+        if (json_object_get(r, "painting"))
+                human_painting(json_object_get(r, "painting"));
         const json_t *acc = json_object_get(r, "expected_accuracy");
         json_t *cpu = json_object_get(acc, "processing_cpu_s");
         if (json_is_number(cpu))
@@ -132,7 +220,8 @@ static int load_rig(const char *rig_path, const char *scene_path, struct imp_rig
         return 0;
 }
 
-static int offline(const char *plan_path, const char *rig_path, const char *scene_path, bool estimate, bool json) {
+static int offline(const char *plan_path, const char *rig_path, const char *scene_path, bool estimate, bool json,
+                   const struct painting_opts *po) {
         struct imp_rig rig = {};
         int rc = load_rig(rig_path, scene_path, &rig);
         if (rc)
@@ -145,10 +234,12 @@ static int offline(const char *plan_path, const char *rig_path, const char *scen
                 log_error("%s", err.msg[0] ? err.msg : strerror(-r));
                 return r == -ENOMEM ? IMP_EXIT_FAILURE : IMP_EXIT_BAD_INPUT;
         }
-        _cleanup_json_ json_t *res = offline_result(plan, &rig, estimate);
+        _cleanup_json_ json_t *res = offline_result(plan, &rig, estimate, po);
         imp_rig_free(&rig);
         if (!res)
                 return log_error("out of memory"), IMP_EXIT_FAILURE;
+        if (estimate && (rc = check_disk(res, po->target ? po->target : ".")))
+                return rc;
         json_t *acc = estimate ? expected_accuracy(plan_path) : NULL;
         if (acc)
                 json_object_set_new(res, "expected_accuracy", acc);
@@ -162,6 +253,20 @@ static int offline(const char *plan_path, const char *rig_path, const char *scen
         return fflush(stdout) == 0 ? 0 : IMP_EXIT_FAILURE;
 }
 
+static int painting_option(int c, const char *arg, struct painting_opts *po) {
+        int workers = 1;
+        switch (c) {
+        case 'W':
+                if (imp_parse_int("--workers", arg, 1, 256, &workers) < 0)
+                        return -EINVAL;
+                po->workers = (unsigned) workers;
+                return 0;
+        case 'V': return imp_parse_double("--stage-speed", arg, 1e-3, 1e4, &po->speed_mm_s);
+        case 'T': return imp_parse_double("--settle", arg, 0, 3600, &po->settle_s);
+        default: return imp_parse_double("--process-s", arg, 0, 1e6, &po->process_s);
+        }
+}
+
 static int run(int argc, char **argv) {
         struct imp_client_opts o = {};
         const char *rig = NULL, *scene = NULL;
@@ -169,7 +274,12 @@ static int run(int argc, char **argv) {
         static const struct option opts[] = {
                 { "json", no_argument, NULL, 'j' },      { "socket", required_argument, NULL, 'S' },
                 { "rig", required_argument, NULL, 'r' }, { "scene", required_argument, NULL, 's' },
-                { "daemon", no_argument, NULL, 'd' },    { "help", no_argument, NULL, 'h' }, {} };
+                { "daemon", no_argument, NULL, 'd' },    { "help", no_argument, NULL, 'h' },
+                { "workers", required_argument, NULL, 'W' }, { "stage-speed", required_argument, NULL, 'V' },
+                { "settle", required_argument, NULL, 'T' }, { "process-s", required_argument, NULL, 'P' },
+                { "target", required_argument, NULL, 'D' }, {} };
+        struct painting_opts po = { .speed_mm_s = DEFAULT_SPEED_MM_S, .settle_s = DEFAULT_SETTLE_S,
+                                    .process_s = -1, .workers = 1 };
         int c;
         while ((c = getopt_long(argc, argv, "h", opts, NULL)) >= 0)
                 switch (c) {
@@ -178,6 +288,11 @@ static int run(int argc, char **argv) {
                 case 'r': rig = optarg; break;
                 case 's': scene = optarg; break;
                 case 'd': daemon = true; break;
+                case 'D': po.target = optarg; break;
+                case 'W': case 'V': case 'T': case 'P':
+                        if (painting_option(c, optarg, &po) < 0)
+                                return IMP_EXIT_USAGE;
+                        break;
                 case 'h': usage(stdout); return 0;
                 default: usage(stderr); return IMP_EXIT_USAGE;
                 }
@@ -194,7 +309,7 @@ static int run(int argc, char **argv) {
                 return IMP_EXIT_USAGE;
         }
         if (!daemon)
-                return offline(plan, rig, scene, estimate, o.json);
+                return offline(plan, rig, scene, estimate, o.json, &po);
         char abs[PATH_MAX];
         if (realpath(plan, abs))   /* the daemon opens the plan itself */
                 plan = abs;

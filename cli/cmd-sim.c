@@ -1,6 +1,9 @@
 /* `impasto sim`: the simulated rig from the command line.
- *   impasto sim render --scene FILE --plan FILE --out DIR [--seed N] [--threads N] [--quiet]
- *       renders every frame of the plan into a capture set at DIR, plus DIR/truth/
+ *   impasto sim render --scene FILE --plan FILE --out DIR [--seed N] [--threads N] [--quiet] [--painting]
+ *       renders every frame of the plan into a capture set at DIR, plus DIR/truth/; a plan
+ *       with a painting group on a gantry scene (--painting insists on one) renders every
+ *       tile: DIR/painting.json, DIR/tiles/NNNN, DIR/truth/ in the painting frame
+ *       (docs/painting.md)
  *   impasto sim info --scene FILE [--plan FILE]
  *       prints the scene summary (and the plan's frame count and capture-time estimate)
  *   impasto sim serve --scene FILE [--address A] [--modbus-port P] [--seed N] [--rig-out FILE]
@@ -25,6 +28,7 @@
 #include "exit-codes.h"
 #include "log.h"
 #include "plan.h"
+#include "gantry.h"
 #include "render.h"
 #include "scene.h"
 #include "serve.h"
@@ -38,12 +42,12 @@ struct sim_args {
         const char *faults[MAX_FAULTS];
         int n_faults;
         long long seed;
-        bool has_seed, quiet;
+        bool has_seed, quiet, painting;
         int threads;
 };
 
 static void usage(FILE *f) {
-        fprintf(f, "usage: impasto sim render --scene FILE --plan FILE --out DIR [--seed N] [--threads N] [--quiet]\n"
+        fprintf(f, "usage: impasto sim render --scene FILE --plan FILE --out DIR [--seed N] [--threads N] [--quiet] [--painting]\n"
                    "       impasto sim info --scene FILE [--plan FILE]\n"
                    "       impasto sim serve --scene FILE [--address 127.0.0.1] [--modbus-port 15020] [--seed N]\n"
                    "                         [--rig-out FILE] [--ready-file FILE] [--truth-out DIR] [--fault SPEC]...\n"
@@ -60,7 +64,7 @@ static int parse_args(int argc, char **argv, struct sim_args *a) {
                 { "address", required_argument, NULL, 'a' }, { "modbus-port", required_argument, NULL, 'm' },
                 { "rig-out", required_argument, NULL, 'r' }, { "ready-file", required_argument, NULL, 'R' },
                 { "fault", required_argument, NULL, 'f' },   { "truth-out", required_argument, NULL, 'T' },
-                { "help", no_argument, NULL, 'h' },         { 0 } };
+                { "painting", no_argument, NULL, 'P' },     { "help", no_argument, NULL, 'h' },         { 0 } };
         int c;
         optind = 1;
         while ((c = getopt_long(argc, argv, "s:p:o:S:t:qh", opts, NULL)) != -1) {
@@ -70,6 +74,7 @@ static int parse_args(int argc, char **argv, struct sim_args *a) {
                 case 'p': a->plan = optarg; break;
                 case 'o': a->out = optarg; break;
                 case 'q': a->quiet = true; break;
+                case 'P': a->painting = true; break;
                 case 'S':
                         a->seed = strtoll(optarg, &end, 0);
                         if (!*optarg || *end || a->seed < 0) {
@@ -160,27 +165,36 @@ static int cmd_info(const struct sim_args *a) {
                 }
                 printf("plan %s: %zu frames, estimated capture time %.1f s\n", a->plan, imp_plan_count(plan),
                        imp_plan_estimate_s(plan, imp_scene_rig(scene)));
+                if (imp_plan_tiles(plan) && imp_scene_is_gantry(scene)) {
+                        double move_s, clock_s = imp_sim_painting_clock_s(scene, plan, &move_s);
+                        printf("painting: %zu tiles, simulated clock %.1f s (gantry moves %.1f s)\n",
+                               imp_tile_plan_count(imp_plan_tiles(plan)), clock_s, move_s);
+                }
         }
         return 0;
 }
 
-/* The simulated timeline: a settle before each light or pattern change, then exposure and
- * readout back to back. */
-static void stamp(struct imp_frame_record *rec, const struct imp_frame_record *prev, const struct imp_rig *rig,
-                  long long *t_ns) {
-        double readout_us = 0;
-        for (int i = 0; i < rig->n_cameras; i++)
-                if (!strcmp(rig->cameras[i].name, rec->camera))
-                        readout_us = rig->cameras[i].sensor.readout_us;
-        if (!prev || prev->light != rec->light || prev->pattern.kind != rec->pattern.kind ||
-            prev->pattern.bit != rec->pattern.bit || prev->pattern.step != rec->pattern.step ||
-            prev->pattern.inverse != rec->pattern.inverse || prev->pattern.axis != rec->pattern.axis)
-                *t_ns += (long long) (rig->settle_us * 1e3);
-        rec->t_light_on_ns = *t_ns;
-        *t_ns += (long long) (rig->settle_us * 1e3);
-        rec->t_trigger_ns = *t_ns;
-        *t_ns += (long long) ((rec->exposure_us + readout_us) * 1e3);
-        rec->t_frame_ns = *t_ns;
+static void painting_progress(void *userdata, size_t tile, size_t n_tiles, size_t frames) {
+        const double *t0 = userdata;
+        fprintf(stderr, "sim: tile %zu/%zu, %zu frames, %.1f s\n", tile + 1, n_tiles, frames, now_s() - *t0);
+}
+
+/* A plan with a painting group on a gantry scene: every tile's capture set, painting.json and
+ * the painting-frame truth (sim/gantry.h). */
+static int cmd_render_painting(const struct sim_args *a, struct imp_scene *scene, const struct imp_plan *plan) {
+        struct imp_error err = { 0 };
+        struct imp_sim_painting_result res;
+        double t0 = now_s();
+        int r = imp_sim_render_painting(scene, plan, a->plan, a->out, a->quiet ? NULL : painting_progress, &t0, &res,
+                                        &err);
+        if (r < 0) {
+                log_error_errno(r, "%s", err.msg[0] ? err.msg : "sim: %m");
+                return r == -EINVAL ? IMP_EXIT_BAD_INPUT : 1;
+        }
+        printf("sim: wrote %zu tiles, %zu frames (%zu dropped), painting.json and truth/ to %s in %.1f s\n"
+               "sim: simulated clock %.1f s (gantry moves %.1f s)\n",
+               res.tiles, res.frames, res.dropped, a->out, now_s() - t0, res.clock_s, res.move_s);
+        return 0;
 }
 
 static int cmd_render(const struct sim_args *a) {
@@ -203,6 +217,8 @@ static int cmd_render(const struct sim_args *a) {
                 log_error("%s", err.msg[0] ? err.msg : strerror(-r));
                 return IMP_EXIT_BAD_INPUT;
         }
+        if (a->painting || imp_plan_tiles(plan))
+                return cmd_render_painting(a, scene, plan);
         double t0 = now_s();
         _cleanup_(imp_render_freep) struct imp_render *rd = NULL;
         if ((r = imp_render_new(scene, &rd, &err)) < 0) {
@@ -224,7 +240,7 @@ static int cmd_render(const struct sim_args *a) {
         const struct imp_frame_record *prev = NULL;
         for (size_t i = 0; i < n; i++) {
                 struct imp_frame_record rec = *imp_plan_frame(plan, i);
-                stamp(&rec, prev, rig, &t_ns);
+                imp_sim_stamp(&rec, prev, rig, &t_ns);
                 prev = imp_plan_frame(plan, i);
                 _cleanup_image_ struct imp_image *frame = NULL;
                 imp_error_clear(&err);

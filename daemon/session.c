@@ -754,6 +754,12 @@ int session_start(struct daemon *d, const char *plan_path, const char *name, str
         int r = plan_load_text(d, plan_path, &plan, &plan_text, perr);
         if (r < 0)
                 return r;
+        if (imp_plan_tiles(plan)) {     /* one tile's frames without the gantry would pass for the painting */
+                imp_plan_free(plan);
+                return imp_proto_error_set(perr, IMP_PROTO_E_INVALID_PLAN, EOPNOTSUPP, "args.plan",
+                                           "%s: a plan with a painting group is scanned tile by tile on a gantry, "
+                                           "which impastod does not run yet (docs/painting.md)", plan_path);
+        }
         struct session *s = calloc(1, sizeof *s);
         if (!s) {
                 imp_plan_free(plan);

@@ -117,6 +117,23 @@ double imp_checker_black_fraction(const struct imp_checker *ck, double u, double
         return IMP_CLAMP(ex * ey + ox * oy, 0.0, 1.0);   /* black where i + j is even */
 }
 
+/* Where the sampled surface lies on the painting: painting (x, y) = R(θ)·world (x, y) +
+ * offset, and the canvas in the painting frame. Identity for a scene that samples its whole
+ * canvas; a tile's window on a gantry otherwise (imp_painting_place). */
+struct grid {
+        const struct imp_sim_surface *s;
+        double c, sn, t[2];
+        double cmin[2], cmax[2];
+};
+
+static struct grid grid_of(const struct imp_sim_surface *s, const struct imp_painting_place *pl) {
+        if (!pl)
+                return (struct grid) { .s = s, .c = 1, .cmin = { s->canvas_min_mm[0], s->canvas_min_mm[1] },
+                                       .cmax = { s->canvas_max_mm[0], s->canvas_max_mm[1] } };
+        return (struct grid) { .s = s, .c = cos(pl->theta_rad), .sn = sin(pl->theta_rad),
+                               .t = { pl->offset_mm[0], pl->offset_mm[1] }, .cmax = { pl->canvas_mm[0], pl->canvas_mm[1] } };
+}
+
 /* Index bounds of the samples whose world x (or y) lies in [lo, hi], clamped. */
 static void sample_range(const struct imp_sim_surface *s, int axis, double lo, double hi, int *i0, int *i1) {
         int n = axis ? s->ny : s->nx;
@@ -125,33 +142,59 @@ static void sample_range(const struct imp_sim_surface *s, int axis, double lo, d
         *i1 = (int) IMP_CLAMP(ceil(b), 0, n - 1);
 }
 
-#define FOR_CANVAS(s, xlo, xhi, ylo, yhi, ...) do { \
-        int ix0_, ix1_, iy0_, iy1_; \
-        sample_range(s, 0, IMP_MAX(xlo, (s)->canvas_min_mm[0]), IMP_MIN(xhi, (s)->canvas_max_mm[0]), &ix0_, &ix1_); \
-        sample_range(s, 1, IMP_MAX(ylo, (s)->canvas_min_mm[1]), IMP_MIN(yhi, (s)->canvas_max_mm[1]), &iy0_, &iy1_); \
-        for (int j = iy0_; j <= iy1_; j++) for (int i = ix0_; i <= ix1_; i++) { \
-                size_t k = (size_t) j * (s)->nx + i; \
-                if ((s)->is_frame[k]) continue; \
-                double x = (s)->origin_mm[0] + i * (s)->pitch_mm, y = (s)->origin_mm[1] + j * (s)->pitch_mm; \
+/* Sample index bounds of the painting-frame box [xlo, xhi] × [ylo, yhi] ∩ canvas: the world
+ * box of its corners (exact for the identity). */
+static void grid_range(const struct grid *g, double xlo, double xhi, double ylo, double yhi, int ret[4]) {
+        double px[2] = { IMP_MAX(xlo, g->cmin[0]), IMP_MIN(xhi, g->cmax[0]) };
+        double py[2] = { IMP_MAX(ylo, g->cmin[1]), IMP_MIN(yhi, g->cmax[1]) };
+        double lo[2] = { INFINITY, INFINITY }, hi[2] = { -INFINITY, -INFINITY };
+        if (g->sn == 0 && g->c == 1 && g->t[0] == 0 && g->t[1] == 0) {
+                lo[0] = px[0], hi[0] = px[1], lo[1] = py[0], hi[1] = py[1];
+        } else {
+                for (int k = 0; k < 4; k++) {
+                        double dx = px[k & 1] - g->t[0], dy = py[k >> 1] - g->t[1];
+                        double w[2] = { g->c * dx + g->sn * dy, -g->sn * dx + g->c * dy };
+                        for (int a = 0; a < 2; a++) {
+                                lo[a] = IMP_MIN(lo[a], w[a]);
+                                hi[a] = IMP_MAX(hi[a], w[a]);
+                        }
+                }
+        }
+        sample_range(g->s, 0, lo[0], hi[0], &ret[0], &ret[1]);
+        sample_range(g->s, 1, lo[1], hi[1], &ret[2], &ret[3]);
+}
+
+/* Every canvas sample of the box, with k its index and (x, y) its painting-frame position.
+ * Under a placement, samples off the painting's canvas are skipped (they stay flat). */
+#define FOR_CANVAS(g, xlo, xhi, ylo, yhi, ...) do { \
+        int rg_[4]; \
+        grid_range(g, xlo, xhi, ylo, yhi, rg_); \
+        const struct imp_sim_surface *s_ = (g)->s; \
+        for (int j = rg_[2]; j <= rg_[3]; j++) for (int i = rg_[0]; i <= rg_[1]; i++) { \
+                size_t k = (size_t) j * s_->nx + i; \
+                if (s_->is_frame[k]) continue; \
+                double wx_ = s_->origin_mm[0] + i * s_->pitch_mm, wy_ = s_->origin_mm[1] + j * s_->pitch_mm; \
+                double x = (g)->c * wx_ - (g)->sn * wy_ + (g)->t[0], y = (g)->sn * wx_ + (g)->c * wy_ + (g)->t[1]; \
+                if (x < (g)->cmin[0] - 1e-9 || x > (g)->cmax[0] + 1e-9 || y < (g)->cmin[1] - 1e-9 || y > (g)->cmax[1] + 1e-9) continue; \
                 (void) x; (void) y; __VA_ARGS__; } } while (0)
 
-static void add_weave(const struct imp_sim_surface *s, float *h, const struct imp_layer *L) {
+static void add_weave(const struct grid *g, float *h, const struct imp_layer *L) {
         double w = 2 * M_PI / L->period_mm;
-        FOR_CANVAS(s, -INFINITY, INFINITY, -INFINITY, INFINITY,
+        FOR_CANVAS(g, -INFINITY, INFINITY, -INFINITY, INFINITY,
                    h[k] += (float) (L->amplitude_mm * 0.5 * (1 + sin(w * x) * sin(w * y))));
 }
 
 /* Brush strokes: slightly curved ribbons with a rounded cross-section, bristle grooves
  * along the stroke and tapered ends. */
-static void add_strokes(const struct imp_sim_surface *s, float *h, const struct imp_layer *L) {
-        double W = s->canvas_max_mm[0] - s->canvas_min_mm[0], H = s->canvas_max_mm[1] - s->canvas_min_mm[1];
+static void add_strokes(const struct grid *g, float *h, const struct imp_layer *L) {
+        double W = g->cmax[0] - g->cmin[0], H = g->cmax[1] - g->cmin[1];
         double main_angle = M_PI * imp_u01(imp_mix64(L->seed));
         for (int n = 0; n < L->count; n++) {
                 uint64_t sd = imp_mix64(L->seed ^ imp_mix64((uint64_t) n + 1));
                 double r[8];
                 for (int q = 0; q < 8; q++)
                         r[q] = imp_u01(imp_mix64(sd + (uint64_t) q));
-                double cx = s->canvas_min_mm[0] + W * r[0], cy = s->canvas_min_mm[1] + H * r[1];
+                double cx = g->cmin[0] + W * r[0], cy = g->cmin[1] + H * r[1];
                 double ang = main_angle + (r[2] - 0.5) * 1.2;
                 double len = L->length_mm * (0.3 + 0.7 * r[3]), wid = L->width_mm * (0.4 + 0.6 * r[4]);
                 double amp = L->amplitude_mm * (0.4 + 0.6 * r[5]);
@@ -159,7 +202,7 @@ static void add_strokes(const struct imp_sim_surface *s, float *h, const struct 
                 double groove_ph = 2 * M_PI * r[7];
                 double ux = cos(ang), uy = sin(ang), nx = -uy, ny = ux;
                 double ext = 0.5 * len + wid + fabs(curv) * len * len;
-                FOR_CANVAS(s, cx - ext, cx + ext, cy - ext, cy + ext, {
+                FOR_CANVAS(g, cx - ext, cx + ext, cy - ext, cy + ext, {
                         double px = x - cx, py = y - cy;
                         double sa = px * ux + py * uy;
                         if (fabs(sa) > 0.5 * len)
@@ -178,7 +221,7 @@ static void add_strokes(const struct imp_sim_surface *s, float *h, const struct 
 
 /* Palette-knife impasto ridge: a ramp of width `width_mm` rising to the crest, then a
  * cliff that drops within `cliff_mm` (steep when cliff_mm is about one sample). */
-static void add_ridge(const struct imp_sim_surface *s, float *h, const struct imp_layer *L) {
+static void add_ridge(const struct grid *g, float *h, const struct imp_layer *L) {
         double dx = L->end_mm[0] - L->start_mm[0], dy = L->end_mm[1] - L->start_mm[1];
         double len = hypot(dx, dy);
         if (len <= 0)
@@ -187,7 +230,7 @@ static void add_ridge(const struct imp_sim_surface *s, float *h, const struct im
         double ext = L->width_mm + L->cliff_mm;
         double xlo = IMP_MIN(L->start_mm[0], L->end_mm[0]) - ext, xhi = IMP_MAX(L->start_mm[0], L->end_mm[0]) + ext;
         double ylo = IMP_MIN(L->start_mm[1], L->end_mm[1]) - ext, yhi = IMP_MAX(L->start_mm[1], L->end_mm[1]) + ext;
-        FOR_CANVAS(s, xlo, xhi, ylo, yhi, {
+        FOR_CANVAS(g, xlo, xhi, ylo, yhi, {
                 double px = x - L->start_mm[0], py = y - L->start_mm[1];
                 double sa = px * ux + py * uy, d = px * nx + py * ny;
                 if (sa < 0 || sa > len || d < -L->width_mm || d > L->cliff_mm)
@@ -200,9 +243,9 @@ static void add_ridge(const struct imp_sim_surface *s, float *h, const struct im
 }
 
 /* Craquelure: narrow V grooves along the edges of a jittered-grid Voronoi diagram. */
-static void add_craquelure(const struct imp_sim_surface *s, float *h, const struct imp_layer *L) {
+static void add_craquelure(const struct grid *g, float *h, const struct imp_layer *L) {
         double P = L->period_mm;
-        FOR_CANVAS(s, -INFINITY, INFINITY, -INFINITY, INFINITY, {
+        FOR_CANVAS(g, -INFINITY, INFINITY, -INFINITY, INFINITY, {
                 int64_t cx = (int64_t) floor(x / P), cy = (int64_t) floor(y / P);
                 double f1 = INFINITY, f2 = INFINITY, p1[2] = { 0, 0 }, p2[2] = { 0, 0 };
                 for (int64_t b = cy - 1; b <= cy + 1; b++)
@@ -224,29 +267,28 @@ static void add_craquelure(const struct imp_sim_surface *s, float *h, const stru
         });
 }
 
-static void add_step(const struct imp_sim_surface *s, float *h, const struct imp_layer *L) {
-        FOR_CANVAS(s, -INFINITY, INFINITY, -INFINITY, INFINITY, {
+static void add_step(const struct grid *g, float *h, const struct imp_layer *L) {
+        FOR_CANVAS(g, -INFINITY, INFINITY, -INFINITY, INFINITY, {
                 double c = L->axis ? y : x;
                 if (c < L->at_mm)
                         h[k] += (float) L->amplitude_mm;
         });
 }
 
-static int add_file(const struct imp_sim_surface *s, float *h, const struct imp_layer *L,
-                    struct imp_error *err) {
+static int add_file(const struct grid *g, float *h, const struct imp_layer *L, struct imp_error *err) {
         _cleanup_image_ struct imp_image *img = NULL;
         int r = imp_image_read(L->path, &img, err);
         if (r < 0)
                 return r;
-        double W = s->canvas_max_mm[0] - s->canvas_min_mm[0], H = s->canvas_max_mm[1] - s->canvas_min_mm[1];
+        double W = g->cmax[0] - g->cmin[0], H = g->cmax[1] - g->cmin[1];
         double scale = L->amplitude_mm;
         if (img->type == IMP_PIX_U8)
                 scale /= 255.0;
         else if (img->type == IMP_PIX_U16)
                 scale /= 65535.0;
-        FOR_CANVAS(s, -INFINITY, INFINITY, -INFINITY, INFINITY, {
-                double fx = (x - s->canvas_min_mm[0]) / W * (img->width - 1);
-                double fy = (y - s->canvas_min_mm[1]) / H * (img->height - 1);
+        FOR_CANVAS(g, -INFINITY, INFINITY, -INFINITY, INFINITY, {
+                double fx = (x - g->cmin[0]) / W * (img->width - 1);
+                double fy = (y - g->cmin[1]) / H * (img->height - 1);
                 fx = IMP_CLAMP(fx, 0, img->width - 1);
                 fy = IMP_CLAMP(fy, 0, img->height - 1);
                 int x0 = (int) fx, y0 = (int) fy;
@@ -261,8 +303,8 @@ static int add_file(const struct imp_sim_surface *s, float *h, const struct imp_
         return 0;
 }
 
-static void add_plane(const struct imp_sim_surface *s, float *h, const struct imp_layer *L) {
-        FOR_CANVAS(s, -INFINITY, INFINITY, -INFINITY, INFINITY,
+static void add_plane(const struct grid *g, float *h, const struct imp_layer *L) {
+        FOR_CANVAS(g, -INFINITY, INFINITY, -INFINITY, INFINITY,
                    h[k] += (float) (L->slope[0] * x + L->slope[1] * y + L->offset_mm));
 }
 
@@ -270,27 +312,33 @@ static void add_plane(const struct imp_sim_surface *s, float *h, const struct im
  * centre lies offset_mm (≤ 0) above it: the upper hemisphere at 0, whose rim meets the
  * surface vertically (the sampled heightfield turns that into a ramp one sample wide), a
  * cap with a slanted rim below. */
-static void add_sphere(const struct imp_sim_surface *s, float *h, const struct imp_layer *L) {
+static void add_sphere(const struct grid *g, float *h, const struct imp_layer *L) {
         double r = L->radius_mm, cx = L->centre_mm[0], cy = L->centre_mm[1], z0 = L->offset_mm;
-        FOR_CANVAS(s, cx - r, cx + r, cy - r, cy + r, {
+        FOR_CANVAS(g, cx - r, cx + r, cy - r, cy + r, {
                 double d2 = (x - cx) * (x - cx) + (y - cy) * (y - cy);
                 if (d2 < r * r && sqrt(r * r - d2) + z0 > 0)
                         h[k] += (float) (sqrt(r * r - d2) + z0);
         });
 }
 
-int imp_painting_add_layer(const struct imp_sim_surface *surf, float *h, const struct imp_layer *L,
-                           struct imp_error *err) {
+int imp_painting_add_layer_placed(const struct imp_sim_surface *surf, const struct imp_painting_place *place, float *h,
+                                  const struct imp_layer *L, struct imp_error *err) {
+        struct grid gr = grid_of(surf, place), *g = &gr;
         switch (L->kind) {
-        case IMP_LAYER_WEAVE: add_weave(surf, h, L); return 0;
-        case IMP_LAYER_STROKES: add_strokes(surf, h, L); return 0;
-        case IMP_LAYER_RIDGE: add_ridge(surf, h, L); return 0;
-        case IMP_LAYER_CRAQUELURE: add_craquelure(surf, h, L); return 0;
-        case IMP_LAYER_STEP: add_step(surf, h, L); return 0;
-        case IMP_LAYER_FILE: return add_file(surf, h, L, err);
-        case IMP_LAYER_PLANE: add_plane(surf, h, L); return 0;
-        case IMP_LAYER_SPHERE: add_sphere(surf, h, L); return 0;
+        case IMP_LAYER_WEAVE: add_weave(g, h, L); return 0;
+        case IMP_LAYER_STROKES: add_strokes(g, h, L); return 0;
+        case IMP_LAYER_RIDGE: add_ridge(g, h, L); return 0;
+        case IMP_LAYER_CRAQUELURE: add_craquelure(g, h, L); return 0;
+        case IMP_LAYER_STEP: add_step(g, h, L); return 0;
+        case IMP_LAYER_FILE: return add_file(g, h, L, err);
+        case IMP_LAYER_PLANE: add_plane(g, h, L); return 0;
+        case IMP_LAYER_SPHERE: add_sphere(g, h, L); return 0;
         case IMP_LAYER_COUNT: break;
         }
         return -EINVAL;
+}
+
+int imp_painting_add_layer(const struct imp_sim_surface *surf, float *h, const struct imp_layer *L,
+                           struct imp_error *err) {
+        return imp_painting_add_layer_placed(surf, NULL, h, L, err);
 }

@@ -75,3 +75,6 @@ int imp_render_correspondence(struct imp_render *r, int cam, struct imp_image **
  * when the rig has a projector. */
 int imp_sim_write_truth(const struct imp_scene *scene, struct imp_render *r, const char *dir,
                         struct imp_error *err);
+/* The sampled surface's truth alone (truth.json and the four EXR files above) in DIR/truth/:
+ * for a gantry scene placed whole (imp_scene_place_whole), the painting-frame truth. */
+int imp_sim_write_painting_truth(const struct imp_scene *scene, const char *dir, struct imp_error *err);

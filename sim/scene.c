@@ -12,7 +12,7 @@ static const char *const effect_names[IMP_FX_COUNT + 1] = {
         [IMP_FX_INDIRECT] = "indirect", [IMP_FX_AMBIENT] = "ambient", [IMP_FX_NOISE] = "noise",
         [IMP_FX_BAYER] = "bayer", [IMP_FX_DISTORTION] = "distortion", [IMP_FX_VIGNETTING] = "vignetting",
         [IMP_FX_DEFOCUS] = "defocus", [IMP_FX_DROPPED_FRAME] = "dropped_frame",
-        [IMP_FX_HOT_PIXELS] = "hot_pixels", [IMP_FX_COUNT] = NULL,
+        [IMP_FX_HOT_PIXELS] = "hot_pixels", [IMP_FX_STAGE_ERROR] = "stage_error", [IMP_FX_COUNT] = NULL,
 };
 
 const char *imp_sim_effect_name(enum imp_sim_effect fx) {
@@ -46,6 +46,17 @@ struct imp_scene {
         double hmin, hmax, frame_height_mm, frame_width_mm;
         int n_layers;
         double plane_slope[2], plane_offset_mm;   /* the last plane layer (checker boards lie on it) */
+        /* What the surface is built from (kept so that a gantry scene rebuilds it per window). */
+        struct imp_layer *layers;
+        struct imp_shape shapes[IMP_SCENE_MAX_REGIONS];
+        int n_shapes;
+        double canvas_mm[2], pitch_mm;
+        /* Gantry scenes (imp_scene_is_gantry): the surface is a window of the painting. */
+        bool gantry;
+        struct imp_scene_gantry gantry_params;
+        struct imp_stage_error stage_error;
+        struct imp_painting_place place;          /* the window's placement on the painting */
+        double window_mm[4];                      /* world x0, y0, x1, y1 of the window */
 };
 
 void imp_scene_free(struct imp_scene *s) {
@@ -59,6 +70,7 @@ void imp_scene_free(struct imp_scene *s) {
         free(s->tint);
         free(s->is_frame);
         free(s->region);
+        free(s->layers);
         free(s);
 }
 
@@ -161,9 +173,24 @@ static int get_unit_vec3(const struct imp_conf *c, const config_setting_t *g, co
         return 0;
 }
 
+static int parse_stage_error(struct imp_scene *s, const struct imp_conf *c, const config_setting_t *g,
+                             struct imp_error *err) {
+        static const char *const known[] = { "sigma_mm", "backlash_mm", "sigma_deg", NULL };
+        config_setting_t *eg = NULL;
+        s->stage_error = (struct imp_stage_error) { .sigma_mm = 0.05, .backlash_mm = 0.0, .sigma_deg = 0.05 };
+        TRY(imp_conf_get_group(c, g, "stage_error", false, &eg, err));
+        if (!eg)
+                return 0;
+        TRY(imp_conf_check_known(c, eg, known, err));
+        TRY(imp_conf_get_double(c, eg, "sigma_mm", false, 0, 10, &s->stage_error.sigma_mm, err));
+        TRY(imp_conf_get_double(c, eg, "backlash_mm", false, 0, 10, &s->stage_error.backlash_mm, err));
+        TRY(imp_conf_get_double(c, eg, "sigma_deg", false, 0, 5, &s->stage_error.sigma_deg, err));
+        return 0;
+}
+
 static int parse_scene_group(struct imp_scene *s, const struct imp_conf *c, struct imp_error *err) {
         static const char *const known[] = { "name", "seed", "effects", "ambient", "dropped_frames",
-                                             "hot_pixels", "indirect", NULL };
+                                             "hot_pixels", "indirect", "stage_error", NULL };
         config_setting_t *g = NULL;
         TRY(imp_conf_get_group(c, NULL, "scene", true, &g, err));
         TRY(imp_conf_check_known(c, g, known, err));
@@ -217,6 +244,7 @@ static int parse_scene_group(struct imp_scene *s, const struct imp_conf *c, stru
         TRY(imp_conf_get_double(c, g, "hot_pixels.fraction", false, 0, 0.1, &s->hot_fraction, err));
         TRY(imp_conf_get_double(c, g, "hot_pixels.e_per_s", false, 0, 1e9, &s->hot_e_per_s, err));
 
+        TRY(parse_stage_error(s, c, g, err));
         s->ind = (struct imp_indirect_params) { .canvas_pitch_mm = 2.0, .frame_pitch_mm = 4.0,
                                                 .paths_per_vertex = 32, .max_bounces = 1, .simplify = 4,
                                                 .seed = s->seed };
@@ -748,10 +776,16 @@ static int parse_varnish(const struct imp_conf *c, config_setting_t *g, struct i
  * its tint (value-noise variation, checkerboard squares). */
 static void assign_regions(struct imp_scene *s, const struct imp_shape *shapes, int nreg) {
         const struct imp_sim_surface *sf = &s->surf;
+        double c = cos(s->place.theta_rad), sn = sin(s->place.theta_rad);
         for (int j = 0; j < sf->ny; j++)
                 for (int i = 0; i < sf->nx; i++) {
                         size_t k = (size_t) j * sf->nx + i;
                         double x = sf->origin_mm[0] + i * sf->pitch_mm, y = sf->origin_mm[1] + j * sf->pitch_mm;
+                        if (s->gantry) {        /* the painting frame (identity otherwise) */
+                                double wx = x, wy = y;
+                                x = c * wx - sn * wy + s->place.offset_mm[0];
+                                y = sn * wx + c * wy + s->place.offset_mm[1];
+                        }
                         int reg = 0;
                         if (s->is_frame[k]) {
                                 reg = nreg;
@@ -785,7 +819,7 @@ static int parse_painting(struct imp_scene *s, const struct imp_conf *c, struct 
         TRY(imp_conf_get_double(c, g, "width_mm", true, 0.1, 1e4, &W, err));
         TRY(imp_conf_get_double(c, g, "height_mm", true, 0.1, 1e4, &H, err));
         TRY(imp_conf_get_double(c, g, "pitch_mm", true, 1e-3, 100, &pitch, err));
-        if ((W / pitch + 1) * (H / pitch + 1) > 4e8)
+        if (!s->gantry && (W / pitch + 1) * (H / pitch + 1) > 4e8)     /* a gantry scene samples windows */
                 return imp_error_set(err, -EINVAL, "%s:%d: painting.pitch_mm: %g mm gives more than 4e8 samples",
                                      imp_conf_path(c), line_of(config_setting_lookup(g, "pitch_mm")), pitch);
         config_setting_t *fr = NULL;
@@ -801,20 +835,27 @@ static int parse_painting(struct imp_scene *s, const struct imp_conf *c, struct 
                         TRY(parse_brdf(c, fr, &frame_brdf, err));
         }
         s->frame_width_mm = fw;
-        TRY(alloc_surface(s, W, H, pitch, fw));
+        s->canvas_mm[0] = W;
+        s->canvas_mm[1] = H;
+        s->pitch_mm = pitch;
+        if (!s->gantry)
+                TRY(alloc_surface(s, W, H, pitch, fw));
 
         config_setting_t *layers = NULL;
         TRY(imp_conf_get_list(c, g, "layers", false, &layers, err));
+        s->layers = calloc(layers ? (size_t) config_setting_length(layers) + 1 : 1, sizeof *s->layers);
+        if (!s->layers)
+                return -ENOMEM;
         for (int i = 0; layers && i < config_setting_length(layers); i++) {
-                struct imp_layer L;
+                struct imp_layer *L = &s->layers[i];
                 config_setting_t *lg = config_setting_get_elem(layers, i);
-                TRY(parse_layer(c, lg, i, s->seed, s->dir, &L, err));
-                if (L.kind == IMP_LAYER_PLANE) {
-                        s->plane_slope[0] = L.slope[0];
-                        s->plane_slope[1] = L.slope[1];
-                        s->plane_offset_mm = L.offset_mm;
+                TRY(parse_layer(c, lg, i, s->seed, s->dir, L, err));
+                if (L->kind == IMP_LAYER_PLANE) {
+                        s->plane_slope[0] = L->slope[0];
+                        s->plane_slope[1] = L->slope[1];
+                        s->plane_offset_mm = L->offset_mm;
                 }
-                int r = imp_painting_add_layer(&s->surf, s->height, &L, err);
+                int r = s->gantry ? 0 : imp_painting_add_layer(&s->surf, s->height, L, err);
                 if (r < 0)
                         return imp_error_prefix(err, "%s:%d: painting.layers.[%d]: ", imp_conf_path(c), line_of(lg), i);
                 s->n_layers++;
@@ -831,7 +872,7 @@ static int parse_painting(struct imp_scene *s, const struct imp_conf *c, struct 
         if (nreg > IMP_SCENE_MAX_REGIONS - 1)
                 return imp_error_set(err, -EINVAL, "%s:%d: painting.regions: at most %d regions, got %d",
                                      imp_conf_path(c), line_of(regions), IMP_SCENE_MAX_REGIONS - 1, nreg);
-        struct imp_shape shapes[IMP_SCENE_MAX_REGIONS];
+        struct imp_shape *shapes = s->shapes;
         if (nreg == 0) {
                 s->regions[0] = (struct imp_scene_region) { .name = "paint",
                         .brdf = { .rho_d = { 0.8, 0.8, 0.8 }, .cx = -1, .cy = -1, .cz = 1, .k = 10 } };
@@ -864,14 +905,160 @@ static int parse_painting(struct imp_scene *s, const struct imp_conf *c, struct 
         TRY(parse_varnish(c, g, s, nreg, err));
         s->regions[nreg] = (struct imp_scene_region) { .name = "frame", .brdf = frame_brdf };
         s->n_regions = nreg + 1;
-
+        s->n_shapes = nreg;
+        if (s->gantry)
+                return 0;       /* built per window (imp_scene_place) */
         assign_regions(s, shapes, nreg);
         compute_normals(s);
         return 0;
 }
 
+/* ---- gantry scenes: the surface is a window of a larger painting ---- */
+
+static int parse_gantry(struct imp_scene *s, const struct imp_conf *c, struct imp_error *err) {
+        static const char *const known[] = { "window_mm", "margin_mm", "truth_pitch_mm", "speed_mm_s",
+                                             "accel_mm_s2", "settle_s", NULL };
+        config_setting_t *g = NULL;
+        TRY(imp_conf_get_group(c, NULL, "gantry", false, &g, err));
+        if (!g)
+                return 0;
+        struct imp_scene_gantry *gp = &s->gantry_params;
+        *gp = (struct imp_scene_gantry) { .margin_mm = 2.0, .speed_mm_s = 50.0, .accel_mm_s2 = 500.0, .settle_s = 0.3 };
+        TRY(imp_conf_check_known(c, g, known, err));
+        TRY(imp_conf_get_doubles(c, g, "window_mm", false, 2, gp->window_mm, 2, NULL, err));
+        TRY(imp_conf_get_double(c, g, "margin_mm", false, 0, 1000, &gp->margin_mm, err));
+        TRY(imp_conf_get_double(c, g, "truth_pitch_mm", false, 1e-3, 100, &gp->truth_pitch_mm, err));
+        TRY(imp_conf_get_double(c, g, "speed_mm_s", false, 1e-3, 1e4, &gp->speed_mm_s, err));
+        TRY(imp_conf_get_double(c, g, "accel_mm_s2", false, 1e-3, 1e6, &gp->accel_mm_s2, err));
+        TRY(imp_conf_get_double(c, g, "settle_s", false, 0, 3600, &gp->settle_s, err));
+        for (int a = 0; a < 2; a++)
+                if (gp->window_mm[a] < 0 || !isfinite(gp->window_mm[a]))
+                        return imp_error_set(err, -EINVAL, "%s:%d: gantry.window_mm: expected two sizes > 0",
+                                             imp_conf_path(c), line_of(g));
+        s->gantry = true;
+        return 0;
+}
+
+/* World x0, y0, x1, y1 of what the cameras see of z = 0, around world (0, 0). */
+static void camera_footprint(const struct imp_rig *rig, double ret[4]) {
+        ret[0] = ret[1] = INFINITY;
+        ret[2] = ret[3] = -INFINITY;
+        for (int i = 0; i < rig->n_cameras; i++) {
+                const struct imp_pinhole *m = &rig->cameras[i].model;
+                for (int k = 0; k < 4; k++) {
+                        double px[2] = { (k & 1) ? m->width - 0.5 : -0.5, (k & 2) ? m->height - 0.5 : -0.5 }, o[3], d[3];
+                        imp_pinhole_ray_world(m, px, o, d);
+                        double t = fabs(d[2]) > 1e-12 ? -o[2] / d[2] : 0;
+                        for (int a = 0; a < 2; a++) {
+                                ret[a] = IMP_MIN(ret[a], o[a] + t * d[a]);
+                                ret[2 + a] = IMP_MAX(ret[2 + a], o[a] + t * d[a]);
+                        }
+                }
+        }
+}
+
+static void free_surface(struct imp_scene *s) {
+        free(s->height);
+        free(s->normals);
+        free(s->tint);
+        free(s->is_frame);
+        free(s->region);
+        free(s->albedo);
+        s->height = s->normals = s->tint = s->albedo = NULL;
+        s->is_frame = s->region = NULL;
+        s->surf.albedo = NULL;
+}
+
+/* The surface over world [w[0], w[2]] × [w[1], w[3]] at `pitch`, all canvas, the layers and
+ * regions evaluated in the painting frame of s->place. */
+static int build_window(struct imp_scene *s, const double w[4], double pitch, struct imp_error *err) {
+        free_surface(s);
+        struct imp_sim_surface *sf = &s->surf;
+        *sf = (struct imp_sim_surface) { .pitch_mm = pitch, .origin_mm = { w[0], w[1] },
+                                         .nx = (int) ceil((w[2] - w[0]) / pitch - 1e-9) + 1,
+                                         .ny = (int) ceil((w[3] - w[1]) / pitch - 1e-9) + 1,
+                                         .canvas_min_mm = { w[0], w[1] } };
+        sf->canvas_max_mm[0] = w[0] + (sf->nx - 1) * pitch;
+        sf->canvas_max_mm[1] = w[1] + (sf->ny - 1) * pitch;
+        if ((double) sf->nx * sf->ny > 4e8)
+                return imp_error_set(err, -E2BIG, "scene %s: a %d × %d sample window is too large", s->name, sf->nx, sf->ny);
+        size_t n = (size_t) sf->nx * sf->ny;
+        s->height = calloc(n, sizeof(float));
+        s->normals = malloc(n * 3 * sizeof(float));
+        s->tint = malloc(n * sizeof(float));
+        s->is_frame = calloc(n, 1);
+        s->region = calloc(n, 1);
+        if (!s->height || !s->normals || !s->tint || !s->is_frame || !s->region)
+                return imp_error_set(err, -ENOMEM, "scene %s: out of memory for a %d × %d window", s->name, sf->nx, sf->ny);
+        sf->height_mm = s->height;
+        sf->is_frame = s->is_frame;
+        s->place.canvas_mm[0] = s->canvas_mm[0];
+        s->place.canvas_mm[1] = s->canvas_mm[1];
+        for (int i = 0; i < s->n_layers; i++) {
+                int r = imp_painting_add_layer_placed(sf, &s->place, s->height, &s->layers[i], err);
+                if (r < 0)
+                        return imp_error_prefix(err, "scene %s: painting.layers.[%d]: ", s->name, i);
+        }
+        assign_regions(s, s->shapes, s->n_shapes);
+        compute_normals(s);
+        return s->fx[IMP_FX_INDIRECT] ? make_albedo(s) : 0;
+}
+
+/* The window around world (0, 0) a tile's cameras see; the first one shows the painting's
+ * centre under the field's centre, unrotated. */
+static int first_window(struct imp_scene *s, const struct imp_conf *c, struct imp_error *err) {
+        const struct imp_scene_gantry *gp = &s->gantry_params;
+        double fp[4];
+        if (gp->window_mm[0] > 0 && gp->window_mm[1] > 0) {
+                fp[0] = -gp->window_mm[0] / 2, fp[1] = -gp->window_mm[1] / 2;
+                fp[2] = gp->window_mm[0] / 2, fp[3] = gp->window_mm[1] / 2;
+        } else {
+                camera_footprint(&s->rig, fp);
+                if (!(isfinite(fp[0]) && isfinite(fp[1]) && isfinite(fp[2]) && isfinite(fp[3])) ||
+                    fp[2] - fp[0] > 1e4 || fp[3] - fp[1] > 1e4)
+                        return imp_error_set(err, -EINVAL, "%s: gantry: the cameras do not look down at z = 0 near "
+                                             "world (0, 0); give gantry.window_mm", imp_conf_path(c));
+        }
+        for (int a = 0; a < 2; a++) {
+                s->window_mm[a] = fp[a] - gp->margin_mm;
+                s->window_mm[2 + a] = fp[2 + a] + gp->margin_mm;
+        }
+        if (!(s->gantry_params.truth_pitch_mm > 0))
+                s->gantry_params.truth_pitch_mm = 2 * s->pitch_mm;
+        struct imp_painting_place pl = { .offset_mm = { s->canvas_mm[0] / 2, s->canvas_mm[1] / 2 } };
+        return imp_scene_place(s, &pl, err);
+}
+
+int imp_scene_place(struct imp_scene *s, const struct imp_painting_place *place, struct imp_error *err) {
+        if (!s || !place || !s->gantry)
+                return imp_error_set(err, -EINVAL, "scene %s: not a gantry scene (no gantry group)", s ? s->name : "?");
+        if (!(isfinite(place->theta_rad) && isfinite(place->offset_mm[0]) && isfinite(place->offset_mm[1])))
+                return imp_error_set(err, -EINVAL, "scene %s: placement: expected finite numbers", s->name);
+        s->place = *place;
+        return build_window(s, s->window_mm, s->pitch_mm, err);
+}
+
+int imp_scene_place_whole(struct imp_scene *s, double pitch_mm, struct imp_error *err) {
+        if (!s || !s->gantry || !(pitch_mm > 0))
+                return imp_error_set(err, -EINVAL, "scene %s: whole painting: not a gantry scene or no pitch",
+                                     s ? s->name : "?");
+        s->place = (struct imp_painting_place) { 0 };
+        double w[4] = { 0, 0, s->canvas_mm[0], s->canvas_mm[1] };
+        return build_window(s, w, pitch_mm, err);
+}
+
+bool imp_scene_is_gantry(const struct imp_scene *s) { return s->gantry; }
+const struct imp_scene_gantry *imp_scene_gantry(const struct imp_scene *s) { return s->gantry ? &s->gantry_params : NULL; }
+const struct imp_stage_error *imp_scene_stage_error(const struct imp_scene *s) {
+        return s->fx[IMP_FX_STAGE_ERROR] ? &s->stage_error : NULL;
+}
+void imp_scene_canvas_size(const struct imp_scene *s, double ret_mm[2]) {
+        ret_mm[0] = s->canvas_mm[0];
+        ret_mm[1] = s->canvas_mm[1];
+}
+
 static int scene_from_conf(const struct imp_conf *c, struct imp_scene **ret, struct imp_error *err) {
-        static const char *const known[] = { "scene", "painting", "rig", NULL };
+        static const char *const known[] = { "scene", "painting", "rig", "gantry", NULL };
         _cleanup_(imp_scene_freep) struct imp_scene *s = calloc(1, sizeof *s);
         if (!s)
                 return -ENOMEM;
@@ -881,8 +1068,11 @@ static int scene_from_conf(const struct imp_conf *c, struct imp_scene **ret, str
                 snprintf(s->dir, sizeof s->dir, "%s", dirname(pathbuf));
         TRY(imp_conf_check_known(c, imp_conf_root(c), known, err));
         TRY(parse_scene_group(s, c, err));
+        TRY(parse_gantry(s, c, err));
         TRY(parse_painting(s, c, err));
         TRY(parse_rig(s, c, err));
+        if (s->gantry)
+                TRY(first_window(s, c, err));
         if (s->fx[IMP_FX_PROJECTOR] && !s->rig.has_projector)
                 return imp_error_set(err, -EINVAL, "%s: scene.effects: `projector` is listed but rig.projector is missing",
                                      imp_conf_path(c));
@@ -912,9 +1102,15 @@ char *imp_scene_describe(const struct imp_scene *s) {
                 return NULL;
         const struct imp_sim_surface *sf = &s->surf;
         fprintf(f, "scene %s (seed %llu)\n", s->name, (unsigned long long) s->seed);
-        fprintf(f, "  painting: %.1f x %.1f mm canvas at %.3f mm pitch; %d x %d samples with frame; %d layers\n",
-                sf->canvas_max_mm[0] - sf->canvas_min_mm[0], sf->canvas_max_mm[1] - sf->canvas_min_mm[1],
-                sf->pitch_mm, sf->nx, sf->ny, s->n_layers);
+        if (s->gantry)
+                fprintf(f, "  painting: %.1f x %.1f mm canvas at %.3f mm pitch, on a gantry: each tile samples a "
+                           "%.1f x %.1f mm window (%d x %d samples); %d layers\n",
+                        s->canvas_mm[0], s->canvas_mm[1], s->pitch_mm, s->window_mm[2] - s->window_mm[0],
+                        s->window_mm[3] - s->window_mm[1], sf->nx, sf->ny, s->n_layers);
+        else
+                fprintf(f, "  painting: %.1f x %.1f mm canvas at %.3f mm pitch; %d x %d samples with frame; %d layers\n",
+                        sf->canvas_max_mm[0] - sf->canvas_min_mm[0], sf->canvas_max_mm[1] - sf->canvas_min_mm[1],
+                        sf->pitch_mm, sf->nx, sf->ny, s->n_layers);
         fprintf(f, "  relief: %.3f .. %.3f mm; frame %.1f mm wide, %.1f mm high\n", s->hmin, s->hmax,
                 s->frame_width_mm, s->frame_height_mm);
         for (int i = 0; i < s->n_regions; i++) {

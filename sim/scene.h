@@ -25,6 +25,7 @@ enum imp_sim_effect {
         IMP_FX_DEFOCUS,         /* Gaussian blur (camera image and projector pattern) */
         IMP_FX_DROPPED_FRAME,   /* the scene's dropped_frames produce no frame */
         IMP_FX_HOT_PIXELS,      /* a fixed sparse set of pixels with a large dark current */
+        IMP_FX_STAGE_ERROR,     /* gantry scenes: the stage lands off its read-back (sim/gantry.h) */
         IMP_FX_COUNT
 };
 
@@ -49,6 +50,7 @@ struct imp_scene_camera_opts {
 };
 
 struct imp_scene;   /* opaque */
+struct imp_painting_place;      /* below */
 
 /* Loads a scene; all errors name FILE:LINE: FIELD. Caller frees with imp_scene_free(). */
 int imp_scene_load(const char *path, struct imp_scene **ret, struct imp_error *err);
@@ -94,6 +96,44 @@ double imp_scene_hot_pixel_e_per_s(const struct imp_scene *s);
 /* Interreflection grid parameters (seed taken from the scene seed). */
 void imp_scene_indirect_params(const struct imp_scene *s, struct imp_indirect_params *ret);
 
+/* ---- gantry scenes: a painting larger than the field of view (docs/painting.md) ----
+ * A scene with a top-level `gantry` group never samples its whole painting: its surface is
+ * a window around the field of view (world x, y, the rig's frame at the current stage
+ * position), rebuilt for each placement of the painting under the rig (imp_scene_place).
+ *   gantry = {
+ *     window_mm = [70.0, 50.0];   # sampled window centred on world (0, 0); default: what the
+ *                                 # cameras see on z = 0 plus margin_mm on every side
+ *     margin_mm = 2.0;
+ *     truth_pitch_mm = 0.1;       # whole-painting truth pitch; default 2 × painting.pitch_mm
+ *     speed_mm_s = 50.0; accel_mm_s2 = 500.0; settle_s = 0.3;   # the simulated gantry's clock
+ *   };
+ *   scene.stage_error = { sigma_mm = 0.05; backlash_mm = 0.02; sigma_deg = 0.05; };
+ *                                 # read only when `stage_error` is in scene.effects */
+struct imp_scene_gantry {
+        double window_mm[2];
+        double margin_mm;
+        double truth_pitch_mm;
+        double speed_mm_s, accel_mm_s2, settle_s;
+};
+struct imp_stage_error {
+        double sigma_mm;              /* repeatability: σ of the landing position, per axis */
+        double backlash_mm;           /* lost motion at a reversal: lands backlash/2 short of the target */
+        double sigma_deg;             /* σ of the small rotation about z per move */
+};
+bool imp_scene_is_gantry(const struct imp_scene *s);
+const struct imp_scene_gantry *imp_scene_gantry(const struct imp_scene *s);
+/* The stage error of a scene that lists `stage_error`, NULL otherwise. */
+const struct imp_stage_error *imp_scene_stage_error(const struct imp_scene *s);
+/* The painting's canvas, mm (its frame: [0, W] × [0, H]). */
+void imp_scene_canvas_size(const struct imp_scene *s, double ret_mm[2]);
+/* Gantry scenes: rebuild the surface as the window the rig sees with the painting placed at
+ * `place` (its canvas_mm is filled in here). Any renderer of the scene must be rebuilt.
+ * -EINVAL for a scene without a gantry group. */
+int imp_scene_place(struct imp_scene *s, const struct imp_painting_place *place, struct imp_error *err);
+/* Gantry scenes: rebuild the surface as the whole painting in its own frame at pitch_mm
+ * (the truth; memory grows with the painting). */
+int imp_scene_place_whole(struct imp_scene *s, double pitch_mm, struct imp_error *err);
+
 /* One printable summary (for `impasto sim info`); malloc'd. */
 char *imp_scene_describe(const struct imp_scene *s);
 
@@ -133,6 +173,19 @@ struct imp_layer {
  * error (message in err). */
 int imp_painting_add_layer(const struct imp_sim_surface *surf, float *h, const struct imp_layer *layer,
                            struct imp_error *err);
+
+/* Where a sampled surface lies on a larger painting (a tile's window on a gantry): the
+ * painting-frame point of world (x, y) is R(theta)·(x, y) + offset; the painting's canvas is
+ * [0, canvas_mm[0]] × [0, canvas_mm[1]] in its frame. Samples off that canvas stay flat. */
+struct imp_painting_place {
+        double theta_rad;
+        double offset_mm[2];
+        double canvas_mm[2];
+};
+/* imp_painting_add_layer with the layer evaluated in the painting frame of `place` (NULL:
+ * the identity over the surface's own canvas, exactly imp_painting_add_layer). */
+int imp_painting_add_layer_placed(const struct imp_sim_surface *surf, const struct imp_painting_place *place, float *h,
+                                  const struct imp_layer *L, struct imp_error *err);
 
 /* Region shapes for the BRDF map. */
 enum imp_shape_kind { IMP_SHAPE_ALL, IMP_SHAPE_BLOB, IMP_SHAPE_STRIPE, IMP_SHAPE_RECT, IMP_SHAPE_CHECKER,

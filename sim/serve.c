@@ -133,6 +133,10 @@ int imp_serve_new(const struct imp_scene *scene, const struct imp_serve_config *
         if (srig->n_lights > IMP_EMU_MAX_LIGHTS)
                 return imp_error_set(err, -EINVAL, "serve: scene %s has %d dome lights, the controller holds %d",
                                      imp_scene_name(scene), srig->n_lights, IMP_EMU_MAX_LIGHTS);
+        if (imp_scene_is_gantry(scene))
+                return imp_error_set(err, -EOPNOTSUPP, "serve: scene %s is a painting on a gantry; serving it (frames "
+                                     "for the emulated stage's position) is not built yet: use `impasto sim render "
+                                     "--painting` (docs/painting.md)", imp_scene_name(scene));
         for (int i = 0; i < srig->n_cameras; i++)
                 if (imp_scene_camera_opts(scene, i)->colour)
                         return imp_error_set(err, -EOPNOTSUPP,

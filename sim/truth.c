@@ -105,3 +105,19 @@ int imp_sim_write_truth(const struct imp_scene *scene, struct imp_render *rd, co
         }
         return 0;
 }
+
+int imp_sim_write_painting_truth(const struct imp_scene *scene, const char *dir, struct imp_error *err) {
+        char tdir[1024], path[1100];
+        if (snprintf(tdir, sizeof tdir, "%s/truth", dir) >= (int) sizeof tdir)
+                return imp_error_set(err, -ENAMETOOLONG, "%s: path too long", dir);
+        int r = imp_mkdir_p(tdir, 0755);
+        if (r < 0)
+                return imp_error_set(err, r, "%s: cannot create: %s", tdir, strerror(-r));
+        _cleanup_json_ json_t *j = truth_json(scene);
+        if (!j)
+                return imp_error_set(err, -ENOMEM, "truth.json: out of memory");
+        snprintf(path, sizeof path, "%s/truth.json", tdir);
+        if ((r = imp_json_save_atomic(path, j, err)) < 0)
+                return r;
+        return write_painting(scene, tdir, err);
+}

@@ -11,12 +11,14 @@ struct imp_plan {
         size_t n_frames;
         struct imp_frame_record *frames;
         int gray_bits[2];
+        struct imp_tile_plan *tiles;    /* the painting group, NULL without one */
 };
 
 void imp_plan_free(struct imp_plan *p) {
         if (!p)
                 return;
         free(p->frames);
+        imp_tile_plan_free(p->tiles);
         free(p);
 }
 
@@ -24,6 +26,7 @@ size_t imp_plan_count(const struct imp_plan *p) { return p->n_frames; }
 const struct imp_frame_record *imp_plan_frame(const struct imp_plan *p, size_t i) {
         return i < p->n_frames ? &p->frames[i] : NULL;
 }
+const struct imp_tile_plan *imp_plan_tiles(const struct imp_plan *p) { return p->tiles; }
 int imp_plan_gray_bits(const struct imp_plan *p, int axis) {
         return axis == 0 || axis == 1 ? p->gray_bits[axis] : 0;
 }
@@ -416,10 +419,25 @@ static int check_expansion(const struct imp_conf *c, const struct imp_rig *rig, 
                              ps->n_cameras, per_camera, worst, fmax(n.dome, fmax(n.sl, n.dark)));
 }
 
+/* The painting group (tiles.h): the tile layout of a whole-painting scan. Its frames are one
+ * tile's (tile 0 of each tile's own capture set), so `tiles` must not be given beside it. */
+static int parse_painting(const struct imp_conf *c, struct imp_plan *p, struct imp_error *err) {
+        config_setting_t *g = NULL;
+        int r = imp_conf_get_group(c, NULL, "painting", false, &g, err);
+        if (r < 0 || !g)
+                return r;
+        config_setting_t *t = config_setting_lookup(imp_conf_root(c), "tiles");
+        if (t)
+                return imp_error_set(err, -EINVAL, "%s:%d: tiles: a plan with a painting group lays its tiles out "
+                                     "from the painting's extent and field of view; remove `tiles`",
+                                     imp_conf_path(c), line_of(t));
+        return imp_tile_plan_from_conf(c, g, &p->tiles, err);
+}
+
 static int plan_from_conf(const struct imp_conf *c, const struct imp_rig *rig, struct imp_plan **ret,
                           struct imp_error *err) {
         static const char *const known[] = { "cameras", "tiles", "gain_db", "structured_light",
-                                             "dome", "dark", "name", "description", NULL };
+                                             "dome", "dark", "name", "description", "painting", NULL };
         struct plan_spec ps = { .tiles = 1 };
         long long tiles = 1, dark = 0;
         int r;
@@ -447,7 +465,9 @@ static int plan_from_conf(const struct imp_conf *c, const struct imp_rig *rig, s
         }
         p->gray_bits[0] = ps.gray_bits[0];
         p->gray_bits[1] = ps.gray_bits[1];
-        r = expand(p, &ps);
+        r = parse_painting(c, p, err);
+        if (r >= 0)
+                r = expand(p, &ps);
         if (r < 0) {
                 imp_plan_free(p);
                 goto out;

@@ -20,6 +20,11 @@
  *            repeat = 1; };              # frames per light × exposure (1..IMP_PLAN_MAX_REPEAT):
  *                                        # for averaging (dark paintings, photon-transfer pairs)
  *   dark = { count = 4; };              # per distinct exposure of the plan
+ *   painting = { extent_mm = [300.0, 200.0]; fov_mm = [60.0, 40.0]; ... };
+ *                                       # a whole painting on a gantry (tiles.h for the
+ *                                       # group): the frames above are ONE tile's, all with
+ *                                       # tile 0 (each tile is its own capture set, see
+ *                                       # docs/painting.md); `tiles` may not be given with it
  *
  * Frame order (per tile, per camera): structured light exposure-major (white, black, then
  * per axis the Gray bits MSB first, each followed by its inverse, then the phase shifts
@@ -34,6 +39,7 @@
 #include "captureset.h"
 #include "error.h"
 #include "rig.h"
+#include "tiles.h"
 
 #define IMP_PLAN_MAX_EXPOSURES 8
 #define IMP_PLAN_MAX_PERIODS 8
@@ -61,6 +67,9 @@ DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_plan *, imp_plan_free);
 size_t imp_plan_count(const struct imp_plan *p);
 /* Frame i (seq == i), with file, crc32 and timestamps empty. */
 const struct imp_frame_record *imp_plan_frame(const struct imp_plan *p, size_t i);
+/* The tile layout of the painting group, NULL for a plan of one field of view. Owned by
+ * the plan. */
+const struct imp_tile_plan *imp_plan_tiles(const struct imp_plan *p);
 /* Gray bits used for axis 0 (x) / 1 (y); 0 when that axis is not scanned. */
 int imp_plan_gray_bits(const struct imp_plan *p, int axis);
 

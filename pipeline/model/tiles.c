@@ -1,6 +1,7 @@
 /* Tile plans (tiles.h): even spacing with at least the asked overlap, serpentine order,
  * per-tile stage targets and height offsets. Pure arithmetic, no I/O but the conf group. */
 #include <math.h>
+#include <stdio.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
@@ -311,4 +312,41 @@ int imp_tile_plan_from_conf(const struct imp_conf *c, const config_setting_t *gr
                 return r;
         *ret = TAKE_PTR(p);
         return 0;
+}
+
+/* ---- painting.json -------------------------------------------------------------------------- */
+
+json_t *imp_tile_plan_painting_json(const struct imp_tile_plan *p, double stage_sigma_mm, double stage_sigma_deg) {
+        const struct imp_tile_options *o = &p->opt;
+        json_t *tiles = json_array();
+        for (size_t k = 0; tiles && k < imp_tile_plan_count(p); k++) {
+                const struct imp_tile *t = &p->tiles[k];
+                char cap[32], copy[32];
+                snprintf(cap, sizeof cap, "tiles/%04zu", k);
+                snprintf(copy, sizeof copy, "copies/%04zu", k);
+                json_t *e = json_pack("{s:I,s:I,s:I,s:[f,f],s:[f,f,f],s:[f,f,f],s:s,s:s}", "index", (json_int_t) k,
+                                      "col", (json_int_t) t->col, "row", (json_int_t) t->row, "center_mm",
+                                      t->center_mm[0], t->center_mm[1], "commanded_mm", t->stage_mm[0],
+                                      t->stage_mm[1], t->stage_mm[2], "readback_mm", t->stage_mm[0], t->stage_mm[1],
+                                      t->stage_mm[2], "capture", cap, "copy", copy);
+                if (!e || json_array_append_new(tiles, e) < 0) {
+                        json_decref(tiles);
+                        return NULL;
+                }
+        }
+        if (!tiles)
+                return NULL;
+        return json_pack("{s:s,s:i,s:[f,f],s:[f,f],s:f,s:[f,f],s:f,s:f,s:I,s:I,s:o}", "format", "impasto-painting",
+                         "version", 1, "extent_mm", o->extent_mm[0], o->extent_mm[1], "fov_mm", o->fov_mm[0],
+                         o->fov_mm[1], "overlap", o->overlap, "origin_mm", o->origin_mm[0], o->origin_mm[1],
+                         "stage_sigma_mm", stage_sigma_mm, "stage_sigma_deg", stage_sigma_deg, "cols",
+                         (json_int_t) p->cols, "rows", (json_int_t) p->rows, "tiles", tiles);
+}
+
+int imp_painting_json_set_readback(json_t *painting, size_t k, const double readback_mm[3]) {
+        json_t *t = json_array_get(json_object_get(painting, "tiles"), k);
+        if (!t)
+                return -ERANGE;
+        json_t *a = json_pack("[f,f,f]", readback_mm[0], readback_mm[1], readback_mm[2]);
+        return a && json_object_set_new(t, "readback_mm", a) == 0 ? 0 : -ENOMEM;
 }

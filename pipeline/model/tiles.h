@@ -31,6 +31,7 @@
 #pragma once
 #include <stdbool.h>
 #include <stddef.h>
+#include <jansson.h>
 #include "conf.h"
 #include "error.h"
 
@@ -126,3 +127,11 @@ struct imp_tile_estimate {
  * through tile by tile in scan order. -EINVAL for a negative or non-finite cost or no worker. */
 int imp_tile_plan_estimate(const struct imp_tile_plan *p, const struct imp_tile_cost *cost,
                            struct imp_tile_estimate *ret);
+
+/* painting.json (docs/painting.md, format "impasto-painting" version 1): extent, field,
+ * overlap, origin, the stage's prior σ and per tile its index, grid cell, nominal centre,
+ * commanded stage target, read-back (the target until set), capture "tiles/NNNN" and copy
+ * "copies/NNNN". NULL when out of memory. */
+json_t *imp_tile_plan_painting_json(const struct imp_tile_plan *p, double stage_sigma_mm, double stage_sigma_deg);
+/* Sets tile k's read-back position. -ERANGE for a tile it does not hold. */
+int imp_painting_json_set_readback(json_t *painting, size_t k, const double readback_mm[3]);

@@ -1,0 +1,33 @@
+# Whole paintings: the plan's painting group, the simulated gantry (sim/gantry.c), stage
+# errors, tile windows, painting.json and the painting-frame truth.
+impasto_test(test-painting LABELS unit LIBS impasto_sim)
+# `plan estimate` of a painting plan: whole-painting figures, and a plan that cannot fit any
+# disk (141 TB) refused with exit 3 and a message naming the bytes and the directory.
+add_test(NAME test-painting-estimate COMMAND sh -c "\
+  out=$($<TARGET_FILE:impasto> plan estimate ${PROJECT_SOURCE_DIR}/config/plans/painting-small.cfg \
+        --scene ${PROJECT_SOURCE_DIR}/config/scenes/painting-small.cfg --json) && \
+  echo \"$out\" | grep -q '\"painting\":{\"tiles\":6,\"cols\":3,\"rows\":2' && \
+  printf 'dome = { lights = \"all\"; exposures_us = [10000.0]; repeat = 2000; };\\npainting = { extent_mm = [5000.0, 5000.0]; fov_mm = [20.0, 20.0]; };\\n' > huge-painting.cfg && \
+  ! $<TARGET_FILE:impasto> plan estimate huge-painting.cfg --scene ${PROJECT_SOURCE_DIR}/config/scenes/painting-small.cfg --target . 2> err.txt; \
+  rc=$?; grep -q 'on disk but . has' err.txt && test $rc -eq 0"
+  WORKING_DIRECTORY ${CMAKE_CURRENT_BINARY_DIR})
+set_tests_properties(test-painting-estimate PROPERTIES LABELS unit TIMEOUT 120)
+# The painting demo end to end on the small painting (render, process and compare six tiles;
+# ~2 min on a loaded 2-core machine): slow.
+add_test(NAME test-painting-demo COMMAND ${PROJECT_SOURCE_DIR}/scripts/demo-painting --no-build
+  --build-dir ${PROJECT_BINARY_DIR} --out ${CMAKE_CURRENT_BINARY_DIR}/demo-painting)
+set_tests_properties(test-painting-demo PROPERTIES LABELS "slow" TIMEOUT 1200)
+# Whole-painting sessions on the gantry (daemon/tile-session.c) against the GRBL emulator on a
+# pseudo-terminal (no network).
+if(TARGET impasto_emu)
+  impasto_test(test-painting-stage LABELS integration fault LIBS impasto_drivers impasto_emu TIMEOUT 120)
+  target_sources(test-painting-stage PRIVATE ${PROJECT_SOURCE_DIR}/daemon/tile-session.c)
+  target_include_directories(test-painting-stage PRIVATE ${PROJECT_SOURCE_DIR}/daemon ${PROJECT_SOURCE_DIR}/sim/emu)
+endif()
+# impastod refuses to start a session of a painting plan until tile sessions are wired in.
+# Modbus port 15931; run in a private network namespace.
+if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WITH_MODBUS)
+  impasto_test(test-painting-daemon LABELS integration LIBS impasto_proto impasto_pipeline impasto_emu TIMEOUT 120)
+  add_dependencies(test-painting-daemon impastod)
+  set_tests_properties(test-painting-daemon PROPERTIES RESOURCE_LOCK gvcp)
+endif()
