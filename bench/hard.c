@@ -118,7 +118,7 @@ static void run_scene(const char *repo, const char *out, const char *name, struc
                 strip_prefix(row->message, repo);
                 return;
         }
-        char *process[] = { "impasto", "process", cap, "--out", copy, "--quiet", NULL };
+        char *process[] = { "impasto", "process", cap, "--out", copy, "--quiet", "--force", NULL };
         row->process_rc = run_self(process, log_out, log_err);
         if (row->process_rc != 0)
                 first_error(log_err, row->message, sizeof row->message);
