@@ -113,7 +113,7 @@ static int load_tile(struct imp_painting *p, const json_t *o, size_t k, const ch
         return load_tile_copy(t, err);
 }
 
-/* truth/tile-poses.json: { "tiles": [ { "index", "x_mm", "y_mm", "theta_deg" } ] }. */
+/* truth/tile-poses.json: { "tiles": [ { "index", "x_mm", "y_mm" (or "offset_mm": [x, y]), "theta_deg" } ] }. */
 static int load_truth(struct imp_painting *p, struct imp_error *err) {
         char path[4200];
         snprintf(path, sizeof path, "%s/truth/tile-poses.json", p->dir);
@@ -132,9 +132,16 @@ static int load_truth(struct imp_painting *p, struct imp_error *err) {
                 long long idx;
                 double x, y, th;
                 json_t *o = json_array_get(arr, i);
+                /* the simulator writes "offset_mm": [x, y] (painting_xy = R(θ)·world_xy + offset,
+                 * world origin at the field centre: the same point as x_mm, y_mm) */
+                json_t *off = json_object_get(o, "offset_mm");
+                bool has_off = json_is_array(off) && json_array_size(off) == 2 &&
+                               json_is_number(json_array_get(off, 0)) && json_is_number(json_array_get(off, 1));
+                if (has_off)
+                        x = json_number_value(json_array_get(off, 0)), y = json_number_value(json_array_get(off, 1));
                 if ((r = imp_json_get_int(o, "index", true, &idx, what, err)) < 0 ||
-                    (r = imp_json_get_double(o, "x_mm", true, &x, what, err)) < 0 ||
-                    (r = imp_json_get_double(o, "y_mm", true, &y, what, err)) < 0 ||
+                    (!has_off && (r = imp_json_get_double(o, "x_mm", true, &x, what, err)) < 0) ||
+                    (!has_off && (r = imp_json_get_double(o, "y_mm", true, &y, what, err)) < 0) ||
                     (r = imp_json_get_double(o, "theta_deg", true, &th, what, err)) < 0)
                         return r;
                 for (size_t k = 0; k < p->n_tiles; k++)

@@ -80,6 +80,8 @@ int imp_mosaic_truth_load(const struct imp_painting *p, struct imp_mosaic_truth_
         char path[4300];
         memset(t, 0, sizeof *t);
         snprintf(path, sizeof path, "%s/truth/height.exr", p->dir);
+        if (access(path, F_OK) < 0)     /* the simulator's name for the same channel */
+                snprintf(path, sizeof path, "%s/truth/heightfield.exr", p->dir);
         if (access(path, F_OK) < 0)
                 return -ENOENT;
         char **names = NULL;
