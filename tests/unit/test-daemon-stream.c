@@ -112,8 +112,11 @@ int main(void) {
         run_session(&h, longplan, "long", 151, setdir, &st);
         fprintf(stderr, "long run: runs %lld frames %lld lost %lld stale %lld stops %lld\n", num(st, "runs"),
                 num(st, "frames"), num(st, "lost"), num(st, "stale"), num(st, "stops"));
-        CHECK_INT_EQ(num(st, "frames"), 150);
-        CHECK_INT_EQ(num(st, "runs"), 1 + num(st, "stops"));
+        /* Every frame streamed, each run but the last one cut; or, when a cut left a single
+         * frame (fewer than a run's minimum of 2), that frame triggered and no run after the cut. */
+        long long sf = num(st, "frames"), sr = num(st, "runs"), ss = num(st, "stops");
+        CHECK_MSG((sf == 150 && sr == 1 + ss) || (sf == 149 && ss >= 1 && sr == ss),
+                  "long run: %lld frames streamed in %lld runs with %lld stops", sf, sr, ss);
         json_decref(st);
 
         /* 3. stream = false for the camera: every frame triggered, one fill per frame */
