@@ -391,6 +391,18 @@ static void daemon_shutdown(struct daemon *d, bool activated) {
                 close(d->lock_fd);      /* (the lock files stay: unlinking them would race a new daemon) */
 }
 
+/* impastod.conf can name the scheduler, but its Slurm settings are read from the file of
+ * --scheduler-config (top-level scheduler/slurm, docs/scale-out.md): never fall back to local
+ * workers silently when Slurm was asked for. */
+static bool scheduler_unconfigured(const struct daemon *d) {
+        if (!d->night || !d->night->scheduler || strcmp(d->night->scheduler, "slurm") || (d->slurm && d->slurm->enabled))
+                return false;
+        log_error("%s: impastod.scheduler: \"slurm\" needs --scheduler-config FILE with the slurm = { … } "
+                  "group (docs/scale-out.md); refusing to run the jobs locally instead",
+                  d->night->conf_path[0] ? d->night->conf_path : "impastod.conf");
+        return true;
+}
+
 int main(int argc, char **argv) {
         struct daemon d = {
                 .socket_path = "/run/impasto/control.sock",
@@ -418,15 +430,8 @@ int main(int argc, char **argv) {
         if (night_conf_load(&d, argc, argv, IMPASTO_DEFAULT_CONF) < 0 || parse_args(argc, argv, &d) < 0 ||
             (d.worker_args && check_worker_args(d.worker_args) < 0))
                 return 2;
-        /* impastod.conf can name the scheduler, but its Slurm settings are read from the file of
-         * --scheduler-config (top-level scheduler/slurm, docs/scale-out.md): never fall back to
-         * local workers silently when Slurm was asked for. */
-        if (d.night && d.night->scheduler && !strcmp(d.night->scheduler, "slurm") && !(d.slurm && d.slurm->enabled)) {
-                log_error("%s: impastod.scheduler: \"slurm\" needs --scheduler-config FILE with the slurm = { … } "
-                          "group (docs/scale-out.md); refusing to run the jobs locally instead",
-                          d.night->conf_path[0] ? d.night->conf_path : "impastod.conf");
+        if (scheduler_unconfigured(&d))
                 return 2;
-        }
         if (d.spawn_workers && access(d.worker_cmd, X_OK) < 0)
                 log_warning("worker %s: %m: every processing job will fail; install it or pass --worker-cmd PATH "
                             "(--no-spawn-workers for impasto-worker@ services)", d.worker_cmd);
