@@ -428,10 +428,11 @@ int main(int argc, char **argv) {
         imp_log_set_ident("impastod");
         /* impastod.conf first (conf.c), the command line overrides it */
         if (night_conf_load(&d, argc, argv, IMPASTO_DEFAULT_CONF) < 0 || parse_args(argc, argv, &d) < 0 ||
-            (d.worker_args && check_worker_args(d.worker_args) < 0))
+            (d.worker_args && check_worker_args(d.worker_args) < 0) || scheduler_unconfigured(&d)) {
+                night_free(&d);
+                sched_slurm_free(&d);
                 return 2;
-        if (scheduler_unconfigured(&d))
-                return 2;
+        }
         if (d.spawn_workers && access(d.worker_cmd, X_OK) < 0)
                 log_warning("worker %s: %m: every processing job will fail; install it or pass --worker-cmd PATH "
                             "(--no-spawn-workers for impasto-worker@ services)", d.worker_cmd);
