@@ -82,6 +82,26 @@ static void on_progress(void *userdata, const char *stage, size_t done, size_t t
         t->cpu = c;
 }
 
+static const struct seg *find_seg(const struct timing *t, const char *name) {
+        for (int i = 0; i < t->n; i++)
+                if (!strcmp(t->s[i].name, name))
+                        return &t->s[i];
+        return NULL;
+}
+
+/* The photometric normals (without the height fusion, which has its own report) against the
+ * BTF fit, both measured in this run: goal ≤ 1. CPU time is the figure a loaded machine
+ * inflates least. */
+static void print_photometric_vs_fit(const struct timing *t) {
+        const struct seg *pn = find_seg(t, "photometric normals"), *fit = find_seg(t, "btf fit");
+        if (!pn || !fit || !(fit->cpu > 0) || !(fit->wall > 0)) {
+                printf("  photometric / fit: (a stage did not run)\n");
+                return;
+        }
+        printf("  photometric / fit: %.2f CPU (%.2f s / %.2f s), %.2f wall (goal ≤ 1.0)\n", pn->cpu / fit->cpu,
+               pn->cpu, fit->cpu, pn->wall / fit->wall);
+}
+
 static double stage_s(json_t *stages, const char *stage, const char *key) {
         json_t *v = json_object_get(json_object_get(stages, stage), key);
         return json_is_number(v) ? json_number_value(v) : -1;
@@ -178,6 +198,7 @@ static int tile_run(int argc, char **argv) {
                 printf("    %-38s %7.2f s  %7.2f s CPU\n", tm.s[i].name, tm.s[i].wall, tm.s[i].cpu);
         printf("    %-38s %7.2f s  %7.2f s CPU\n", "(after the last report: outputs)", t0 + t - tm.wall,
                c0 + cpu - tm.cpu);
+        print_photometric_vs_fit(&tm);
         printf("  processing      %7.2f s wall, %.2f s CPU (load average %.1f before, %.1f after)\n", t, cpu,
                load0[0], load1[0]);
         printf("  capture (plan)  %7.2f s (imp_plan_estimate_s)\n", est);

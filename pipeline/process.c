@@ -181,6 +181,43 @@ out:
         return r;
 }
 
+/* Runs each(ctx, i, err) for i in [0, n) on the OpenMP threads, one stack a thread: reading
+ * and decoding a stack's frames is most of its merge and runs on one thread, so stacks side
+ * by side are what fills the cores (the merge's own loop then runs on its thread alone:
+ * OpenMP does not nest). Progress from the calling thread; returns the error of the first
+ * failing stack in manifest order (those after it are not started once it is known). */
+static int for_each_stack(const struct process_opts *o, const char *stage, size_t n,
+                          int (*each)(void *ctx, size_t i, struct imp_error *err), void *ctx,
+                          struct imp_error *err) {
+        size_t fail = n, done = 0;
+        int r = 0;
+#pragma omp parallel for schedule(dynamic, 1)
+        for (size_t i = 0; i < n; i++) {
+                if (__atomic_load_n(&fail, __ATOMIC_RELAXED) < i)
+                        continue;
+                struct imp_error e = {};
+                int ri = each(ctx, i, &e);
+                if (ri < 0) {
+#pragma omp critical(process_stack_fail)
+                        if (i < fail) {
+                                __atomic_store_n(&fail, i, __ATOMIC_RELAXED);
+                                r = ri;
+                                if (err)
+                                        *err = e;
+                        }
+                }
+                size_t d = __atomic_add_fetch(&done, 1, __ATOMIC_RELAXED);
+#ifdef _OPENMP
+                if (omp_get_thread_num() == 0 && d < n)
+#endif
+                        progress(o, stage, d, n);
+        }
+        if (fail < n)
+                return r;
+        progress(o, stage, n, n);
+        return 0;
+}
+
 /* Collapses a C-channel f32 image to one channel (mean), in place of a new image. */
 static int to_mono(struct imp_image **img) {
         struct imp_image *src = *img;
@@ -334,6 +371,33 @@ static void sl_frames_done(struct sl_frames *f) {
         *f = (struct sl_frames) {};
 }
 
+struct sl_merge_ctx {
+        const struct imp_captureset *cs;
+        const struct stack *stacks;
+        const struct imp_rig_camera *cam;
+        struct sl_frames *f;
+        size_t (*counts)[2];          /* per stack: saturated, dark samples */
+};
+
+/* Stack i merged, to mono, with its saturation mask (a for_each_stack step). */
+static int sl_merge_one(void *ctx, size_t i, struct imp_error *err) {
+        const struct sl_merge_ctx *c = ctx;
+        struct sl_frames *f = c->f;
+        struct imp_hdr_result h = {};
+        int r = merge_stack(c->cs, &c->stacks[i], &c->cam->sensor, &h, err);
+        if (r < 0)
+                return r;
+        c->counts[i][0] = h.n_saturated;
+        c->counts[i][1] = h.n_dark;
+        f->imgs[i] = TAKE_PTR(h.value);
+        r = imp_hdr_saturated_mask(h.flags, &f->sats[i]);
+        imp_hdr_result_done(&h);
+        if (r < 0 || (r = to_mono(&f->imgs[i])) < 0)
+                return imp_error_set(err, r, "out of memory");
+        f->pats[i] = imp_captureset_record(c->cs, c->stacks[i].first)->pattern;
+        return 0;
+}
+
 static int sl_merge(const struct process_opts *o, const struct imp_captureset *cs, const struct imp_rig_camera *cam,
                     struct sl_frames *f, struct imp_error *err) {
         _cleanup_free_ struct stack *stacks = NULL;
@@ -356,22 +420,18 @@ static int sl_merge(const struct process_opts *o, const struct imp_captureset *c
         f->pats = calloc(n_stacks, sizeof *f->pats);
         if (!f->imgs || !f->sats || !f->pats)
                 return imp_error_set(err, -ENOMEM, "out of memory");
+        _cleanup_free_ size_t (*counts)[2] = calloc(n_stacks, sizeof *counts);
+        if (!counts)
+                return imp_error_set(err, -ENOMEM, "out of memory");
         f->n = n_stacks;
+        struct sl_merge_ctx c = { cs, stacks, cam, f, counts };
+        if ((r = for_each_stack(o, "hdr merge", n_stacks, sl_merge_one, &c, err)) < 0)
+                return r;
         for (size_t i = 0; i < n_stacks; i++) {
-                struct imp_hdr_result h = {};
-                if ((r = merge_stack(cs, &stacks[i], &cam->sensor, &h, err)) < 0)
-                        return r;
-                f->n_sat += h.n_saturated;
-                f->n_dark += h.n_dark;
-                f->imgs[i] = TAKE_PTR(h.value);
-                r = imp_hdr_saturated_mask(h.flags, &f->sats[i]);
-                imp_hdr_result_done(&h);
-                if (r < 0 || (r = to_mono(&f->imgs[i])) < 0)
-                        return imp_error_set(err, r, "out of memory");
-                f->pats[i] = imp_captureset_record(cs, stacks[i].first)->pattern;
+                f->n_sat += counts[i][0];
+                f->n_dark += counts[i][1];
                 if (f->pats[i].kind == IMP_PAT_WHITE)
                         f->white_level = median_of(f->imgs[i]->data, (size_t) f->imgs[i]->width * f->imgs[i]->height);
-                progress(o, "hdr merge", i + 1, n_stacks);
         }
         return 0;
 }
@@ -571,9 +631,54 @@ static const struct imp_rig_light *rig_light(const struct imp_rig *rig, int id) 
         return NULL;
 }
 
+struct dome_merge_ctx {
+        const struct process_opts *o;
+        const struct imp_captureset *cs;
+        const struct stack *stacks;
+        size_t holdout_every;         /* 0: none held out */
+        struct dome *d;
+};
+
+/* Dome stack i merged with its validity mask, into its place among the used or the held-out
+ * lights (a for_each_stack step). */
+static int dome_merge_one(void *ctx, size_t i, struct imp_error *err) {
+        const struct dome_merge_ctx *c = ctx;
+        const struct imp_rig *rig = imp_captureset_rig(c->cs);
+        struct dome *d = c->d;
+        int id = imp_captureset_record(c->cs, c->stacks[i].first)->light;
+        const struct imp_rig_light *L = rig_light(rig, id);
+        if (!L)
+                return imp_error_set(err, -EINVAL, "%s/manifest.jsonl: frame %zu: light %d is not in rig.json",
+                                     c->o->capture, c->stacks[i].first, id);
+        struct imp_hdr_result h = {};
+        int r = merge_stack(c->cs, &c->stacks[i], &rig->cameras[0].sensor, &h, err);
+        if (r < 0)
+                return r;
+        /* Validity per pixel from the merge flags (any channel). */
+        struct imp_image *vimg;
+        r = imp_btf_valid_from_hdr(h.flags, &vimg);
+        if (r < 0) {
+                imp_hdr_result_done(&h);
+                return imp_error_set(err, r, "out of memory");
+        }
+        size_t N = c->holdout_every;
+        if (N > 0 && (i + 1) % N == 0) {
+                size_t k = (i + 1) / N - 1;
+                d->ho_frames[k] = TAKE_PTR(h.value);
+                d->ho_valid[k] = vimg;
+                d->ho_lights[k] = *L;
+        } else {
+                size_t k = i - (N > 0 ? i / N : 0);
+                d->frames[k] = TAKE_PTR(h.value);
+                d->valid[k] = vimg;
+                d->lights[k] = *L;
+        }
+        imp_hdr_result_done(&h);
+        return 0;
+}
+
 static int dome_load(const struct process_opts *o, const struct imp_captureset *cs, const struct stack *stacks,
                      size_t n_stacks, struct dome *d, struct imp_error *err) {
-        const struct imp_rig *rig = imp_captureset_rig(cs);
         double t0 = now_s();
         d->n_stacks = n_stacks;
         d->frames = calloc(n_stacks, sizeof *d->frames), d->valid = calloc(n_stacks, sizeof *d->valid);
@@ -581,36 +686,14 @@ static int dome_load(const struct process_opts *o, const struct imp_captureset *
         d->lights = calloc(n_stacks, sizeof *d->lights), d->ho_lights = calloc(n_stacks, sizeof *d->ho_lights);
         if (!d->frames || !d->valid || !d->ho_frames || !d->ho_valid || !d->lights || !d->ho_lights)
                 return imp_error_set(err, -ENOMEM, "out of memory");
-        for (size_t i = 0; i < n_stacks; i++) {
-                int id = imp_captureset_record(cs, stacks[i].first)->light;
-                const struct imp_rig_light *L = rig_light(rig, id);
-                if (!L)
-                        return imp_error_set(err, -EINVAL, "%s/manifest.jsonl: frame %zu: light %d is not in rig.json",
-                                             o->capture, stacks[i].first, id);
-                struct imp_hdr_result h = {};
-                int r = merge_stack(cs, &stacks[i], &rig->cameras[0].sensor, &h, err);
-                if (r < 0)
-                        return r;
-                /* Validity per pixel from the merge flags (any channel). */
-                struct imp_image *vimg;
-                r = imp_btf_valid_from_hdr(h.flags, &vimg);
-                if (r < 0) {
-                        imp_hdr_result_done(&h);
-                        return imp_error_set(err, r, "out of memory");
-                }
-                int N = o->opt->holdout_every;
-                if (N > 0 && (i + 1) % (size_t) N == 0) {
-                        d->ho_frames[d->n_held] = TAKE_PTR(h.value);
-                        d->ho_valid[d->n_held] = vimg;
-                        d->ho_lights[d->n_held++] = *L;
-                } else {
-                        d->frames[d->n_used] = TAKE_PTR(h.value);
-                        d->valid[d->n_used] = vimg;
-                        d->lights[d->n_used++] = *L;
-                }
-                imp_hdr_result_done(&h);
-                progress(o, "dome hdr merge", i + 1, n_stacks);
-        }
+        /* every holdout_every-th stack is held out: stack i's place in either list */
+        size_t N = o->opt->holdout_every > 0 ? (size_t) o->opt->holdout_every : 0;
+        d->n_held = N ? n_stacks / N : 0;
+        d->n_used = n_stacks - d->n_held;
+        struct dome_merge_ctx c = { o, cs, stacks, N, d };
+        int r = for_each_stack(o, "dome hdr merge", n_stacks, dome_merge_one, &c, err);
+        if (r < 0)
+                return r;
         d->seconds = now_s() - t0;
         if (d->n_used == 0)
                 return imp_error_set(err, -EINVAL, "%s: --holdout %d leaves no dome light for the fit",

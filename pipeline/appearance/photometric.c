@@ -49,13 +49,40 @@ static int cmp_double(const void *a, const void *b) {
         return x < y ? -1 : x > y;
 }
 
-/* Median of v[0..n) by insertion into a sorted copy (n ≤ IMP_BTF_MAX_SAMPLES). */
-static double median_small(const double *v, int n, double *tmp) {
+/* The per-sample loops below are built for AVX2 and the x86-64 baseline, the CPU picks at
+ * load time; no FMA, so that the results do not depend on the machine. */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define PN_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define PN_CLONES
+#endif
+
+/* Median of v[0..n) (n ≤ IMP_BTF_MAX_SAMPLES, no NaN): the elements of ranks n/2 and, for
+ * an even n, n/2 − 1, the rank of v[i] being the count of smaller elements, ties broken by
+ * position (the ranks are a permutation of 0..n−1). Counting in vector lanes stops once both
+ * are found; at a texel's sample count it beats qsort's comparator calls several times over
+ * and gives the same value. tmp is unused. */
+PN_CLONES static double median_small(const double *restrict v, int n, double *tmp) {
+        (void) tmp;
         if (n <= 0)
                 return 0;
-        memcpy(tmp, v, (size_t) n * sizeof *tmp);
-        qsort(tmp, (size_t) n, sizeof *tmp, cmp_double);
-        return n & 1 ? tmp[n / 2] : 0.5 * (tmp[n / 2 - 1] + tmp[n / 2]);
+        const int hi = n / 2, lo = n & 1 ? hi : hi - 1;
+        double a = v[0], b = v[0];
+        int found = lo == hi ? 1 : 0;
+        for (int i = 0; i < n; i++) {
+                const double x = v[i];
+                int rank = 0;
+#pragma omp simd reduction(+ : rank)
+                for (int j = 0; j < n; j++)
+                        rank += (v[j] < x) | ((v[j] == x) & (j < i));
+                if (rank == hi)
+                        b = x, found++;
+                if (rank == lo && lo != hi)
+                        a = x, found++;
+                if (found == 2)
+                        break;
+        }
+        return lo == hi ? b : 0.5 * (a + b);
 }
 
 static void keep_geometric(struct imp_pn_texel *ret, uint16_t flags) {
@@ -68,6 +95,7 @@ static void keep_geometric(struct imp_pn_texel *ret, uint16_t flags) {
 struct pn_rows {
         double a[IMP_BTF_MAX_SAMPLES][3], y[IMP_BTF_MAX_SAMPLES], vv[IMP_BTF_MAX_SAMPLES][3];
         double w[IMP_BTF_MAX_SAMPLES], res[IMP_BTF_MAX_SAMPLES], tmp[IMP_BTF_MAX_SAMPLES];
+        double vl[IMP_BTF_MAX_SAMPLES];   /* v·l, for takes_part */
         int m;
 };
 
@@ -86,6 +114,7 @@ static void load_rows(const struct imp_btf_sample *s, int n, struct pn_rows *R) 
                         R->a[m][k] = q->l[k];
                         R->vv[m][k] = q->v[k];
                 }
+                R->vl[m] = R->vv[m][0] * R->a[m][0] + R->vv[m][1] * R->a[m][1] + R->vv[m][2] * R->a[m][2];
                 R->y[m] = V / E;
                 R->w[m] = 1;
                 m++;
@@ -95,13 +124,46 @@ static void load_rows(const struct imp_btf_sample *s, int n, struct pn_rows *R) 
 
 /* Whether sample i takes part for normal nc: not near the mirror direction, not in
  * attached shadow. */
-static bool takes_part(const struct pn_rows *R, int i, const double nc[3], double cone, double min_cos) {
-        double nv = nc[0] * R->vv[i][0] + nc[1] * R->vv[i][1] + nc[2] * R->vv[i][2], rl = 0, nl = 0;
-        for (int k = 0; k < 3; k++) {
-                rl += (2 * nv * nc[k] - R->vv[i][k]) * R->a[i][k];
-                nl += nc[k] * R->a[i][k];
+static inline __attribute__((always_inline)) bool takes_part(const struct pn_rows *R, int i, const double nc[3], double cone, double min_cos) {
+        /* r·l with r = 2(n·v)n − v the mirror direction: 2(n·v)(n·l) − v·l */
+        double nv = nc[0] * R->vv[i][0] + nc[1] * R->vv[i][1] + nc[2] * R->vv[i][2];
+        double nl = nc[0] * R->a[i][0] + nc[1] * R->a[i][1] + nc[2] * R->a[i][2];
+        return 2 * nv * nl - R->vl[i] <= cone && nl >= min_cos;
+}
+
+/* Condition number (largest / smallest eigenvalue) and inverse of the symmetric 3×3 A in
+ * closed form: the eigenvalues by the trigonometric solution of the characteristic cubic
+ * (Smith, "Eigenvalues of a symmetric 3×3 matrix", CACM 4(4), 1961), the inverse by the
+ * adjugate. False when A is nearly singular (smallest eigenvalue ≤ 1e-6 × the largest),
+ * where the cubic's roots lose their relative accuracy: the caller then takes the Jacobi
+ * solver. Far cheaper than Jacobi's sweeps; the same figures to rounding. */
+static bool sym3_cond_inverse(const double A[9], double *ret_cond, double Ainv[9]) {
+        double q = (A[0] + A[4] + A[8]) / 3, p1 = A[1] * A[1] + A[2] * A[2] + A[5] * A[5];
+        double d0 = A[0] - q, d1 = A[4] - q, d2 = A[8] - q;
+        double p = sqrt((d0 * d0 + d1 * d1 + d2 * d2 + 2 * p1) / 6), lmax = q, lmin = q;
+        if (p > 0) {
+                /* r = det((A − qI)/p) / 2 */
+                double r = (d0 * (d1 * d2 - A[5] * A[5]) - A[1] * (A[1] * d2 - A[5] * A[2]) +
+                            A[2] * (A[1] * A[5] - d1 * A[2])) / (2 * p * p * p);
+                double phi = acos(fmax(-1.0, fmin(1.0, r))) / 3;
+                lmax = q + 2 * p * cos(phi);
+                lmin = q + 2 * p * cos(phi + 2 * M_PI / 3);
         }
-        return rl <= cone && nl >= min_cos;
+        if (!(lmin > 1e-6 * lmax) || !isfinite(lmax))
+                return false;
+        double c00 = A[4] * A[8] - A[5] * A[7], c01 = A[5] * A[6] - A[3] * A[8], c02 = A[3] * A[7] - A[4] * A[6];
+        double det = A[0] * c00 + A[1] * c01 + A[2] * c02;
+        if (!(det > 0))
+                return false;
+        double id = 1 / det;
+        Ainv[0] = c00 * id;
+        Ainv[1] = Ainv[3] = c01 * id;
+        Ainv[2] = Ainv[6] = c02 * id;
+        Ainv[4] = (A[0] * A[8] - A[2] * A[6]) * id;
+        Ainv[5] = Ainv[7] = (A[2] * A[3] - A[0] * A[5]) * id;
+        Ainv[8] = (A[0] * A[4] - A[1] * A[3]) * id;
+        *ret_cond = lmax / lmin;
+        return true;
 }
 
 struct pn_state {
@@ -121,23 +183,27 @@ static uint16_t solve_pass(struct pn_rows *R, const struct imp_photometric_param
                 S->used++;
                 for (int j = 0; j < 3; j++) {
                         b[j] += wi * R->a[i][j] * R->y[i];
-                        for (int k = 0; k < 3; k++)
+                        for (int k = j; k < 3; k++)
                                 A[3 * j + k] += wi * R->a[i][j] * R->a[i][k];
                 }
         }
+        A[3] = A[1], A[6] = A[2], A[7] = A[5];
         if (S->used < p->min_samples)
                 return IMP_PN_FEW_SAMPLES;
-        double lam[3], vec[9];
-        imp_eigen_sym3(A, lam, vec);
-        S->cond = lam[0] > 0 ? lam[2] / lam[0] : 1e12;
-        if (!(S->cond <= p->max_cond))
+        if (!sym3_cond_inverse(A, &S->cond, S->Ainv)) {
+                double lam[3], vec[9];
+                imp_eigen_sym3(A, lam, vec);
+                S->cond = lam[0] > 0 ? lam[2] / lam[0] : 1e12;
+                if (!(S->cond <= p->max_cond))
+                        return IMP_PN_ILL_COND;
+                for (int j = 0; j < 9; j++)
+                        S->Ainv[j] = 0;
+                for (int e = 0; e < 3; e++)
+                        for (int j = 0; j < 3; j++)
+                                for (int k = 0; k < 3; k++)
+                                        S->Ainv[3 * j + k] += vec[3 * e + j] * vec[3 * e + k] / lam[e];
+        } else if (!(S->cond <= p->max_cond))
                 return IMP_PN_ILL_COND;
-        for (int j = 0; j < 9; j++)
-                S->Ainv[j] = 0;
-        for (int e = 0; e < 3; e++)
-                for (int j = 0; j < 3; j++)
-                        for (int k = 0; k < 3; k++)
-                                S->Ainv[3 * j + k] += vec[3 * e + j] * vec[3 * e + k] / lam[e];
         for (int j = 0; j < 3; j++)
                 S->g[j] = S->Ainv[3 * j] * b[0] + S->Ainv[3 * j + 1] * b[1] + S->Ainv[3 * j + 2] * b[2];
         double gl = sqrt(S->g[0] * S->g[0] + S->g[1] * S->g[1] + S->g[2] * S->g[2]);
@@ -323,6 +389,7 @@ int imp_photometric_texel(const struct imp_btf_sample *s, int n, const struct im
         }
         struct pn_state S = { .nc = { 0, 0, 1 }, .sigma = p->sigma_floor, .cond = 1e12,
                               .cone = cos(p->spec_cone_deg * DEG) };
+        const double cos_tol = p->tol_deg > 0 ? cos(p->tol_deg * DEG) : INFINITY;
         for (int pass = 0; pass < p->passes; pass++) {
                 uint16_t fail = solve_pass(&R, p, &S);
                 if (fail) {
@@ -333,12 +400,13 @@ int imp_photometric_texel(const struct imp_btf_sample *s, int n, const struct im
                 }
                 double gl = sqrt(S.g[0] * S.g[0] + S.g[1] * S.g[1] + S.g[2] * S.g[2]);
                 double nn[3] = { S.g[0] / gl, S.g[1] / gl, S.g[2] / gl };
-                double moved = acos(fmin(1.0, fabs(nn[0] * S.nc[0] + nn[1] * S.nc[1] + nn[2] * S.nc[2]))) / DEG;
+                /* moved < tol_deg, as cosines (no acos per pass) */
+                bool still = fabs(nn[0] * S.nc[0] + nn[1] * S.nc[1] + nn[2] * S.nc[2]) > cos_tol;
                 bool more = pass + 1 < p->passes;
                 residuals(&R, p, nn, &S, more);
                 for (int k = 0; k < 3; k++)
                         S.nc[k] = nn[k];
-                if (more && pass > 0 && moved < p->tol_deg)
+                if (more && pass > 0 && still)
                         break;
         }
         finish_texel(&R, p, &S, ret);
@@ -529,11 +597,13 @@ struct pn_grid {
         const struct imp_btf_heightfield *hf;
         const struct imp_photometric_params *p, *pf;   /* pf: shadow-filled texels */
         const struct imp_photometric_out *out;
+        const struct imp_btf_extractor *x;
         struct resample rs;
         double *dev, *sig, *rmsv;                    /* per texel, NAN where not refined */
 };
 
-/* Refines every texel of the tile just extracted into smp. */
+/* Extracts (into smp) and refines every texel of the tile: one parallel loop, no barrier
+ * between the two. */
 static void refine_tile(const struct pn_grid *G, struct imp_btf_samples *smp, int x0, int y0, int w, int h,
                         struct imp_photometric_stats *st) {
         const struct imp_btf_heightfield *hf = G->hf;
@@ -542,6 +612,9 @@ static void refine_tile(const struct pn_grid *G, struct imp_btf_samples *smp, in
 #pragma omp parallel for schedule(dynamic, 16) reduction(+ : few, ill, dark, dis, msk, res, amb, rsd, sat)
         for (int k = 0; k < w * h; k++) {
                 size_t i = (size_t) (y0 + k / w) * hf->width + x0 + k % w;
+                smp->count[k] = (uint16_t) imp_btf_extract_texel(G->x, x0 + k % w, y0 + k / w,
+                                                                 &smp->samples[(size_t) k * smp->max_per_texel],
+                                                                 &smp->flags[k], &smp->n_shadowed[k]);
                 struct imp_pn_texel t;
                 bool masked = (smp->flags[k] & (IMP_BTF_MASKED | IMP_BTF_HIDDEN)) || (hf->mask && !hf->mask[i]);
                 if (masked) {
@@ -612,12 +685,21 @@ static void summarise(double *dev, double *sig, double *rmsv, size_t nt, struct 
         if (!n_ref)
                 return;
         st->dev_deg_mean = dev_sum / n_ref;
-        qsort(dev, n_ref, sizeof *dev, cmp_double);
-        qsort(sig, n_ref, sizeof *sig, cmp_double);
-        qsort(rmsv, n_ref, sizeof *rmsv, cmp_double);
-        st->dev_deg_median = dev[n_ref / 2];
-        st->sigma_deg_median = sig[n_ref / 2];
-        st->rms_median = rmsv[n_ref / 2];
+        /* the middle elements by selection: the values are floats widened, so a float copy
+         * selects the same ones (a sort of three 10⁶ arrays was a serial second) */
+        float *tmp = malloc(n_ref * sizeof *tmp);
+        double *v[3] = { dev, sig, rmsv }, *med[3] = { &st->dev_deg_median, &st->sigma_deg_median, &st->rms_median };
+        for (int k = 0; k < 3; k++) {
+                if (!tmp) {
+                        qsort(v[k], n_ref, sizeof *v[k], cmp_double);
+                        *med[k] = v[k][n_ref / 2];
+                        continue;
+                }
+                for (size_t i = 0; i < n_ref; i++)
+                        tmp[i] = (float) v[k][i];
+                *med[k] = imp_select_kth_float(tmp, n_ref, n_ref / 2);
+        }
+        free(tmp);
 }
 
 int imp_photometric_normals(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
@@ -632,11 +714,11 @@ int imp_photometric_normals(const struct imp_btf_heightfield *hf, const struct i
         size_t nt = (size_t) hf->width * hf->height;
         _cleanup_btf_samples_ struct imp_btf_samples *smp = NULL;
         _cleanup_(imp_btf_hf_pyramid_freep) struct imp_btf_hf_pyramid *py = NULL;
+        _cleanup_(imp_btf_extractor_freep) struct imp_btf_extractor *x = NULL;
         int r = imp_btf_samples_new(TILE * TILE, cap->n_lights, &smp);
         if (r < 0)
                 return r;
-        r = imp_btf_hf_pyramid_new(hf, &py);
-        if (r < 0)
+        if ((r = imp_btf_hf_pyramid_new(hf, &py)) < 0 || (r = imp_btf_extractor_new(hf, cap, sp, py, &x)) < 0)
                 return r;
         _cleanup_free_ double *dev = malloc(nt * sizeof *dev), *sig = malloc(nt * sizeof *sig),
                               *rmsv = malloc(nt * sizeof *rmsv);
@@ -648,7 +730,7 @@ int imp_photometric_normals(const struct imp_btf_heightfield *hf, const struct i
         pf.shadow_trim_sigma = p->filled_trim_sigma;
         pf.passes = IMP_MAX(p->passes, p->filled_passes);
         pf.max_dev_deg = p->filled_max_dev_deg > 0 ? p->filled_max_dev_deg : p->max_dev_deg;
-        struct pn_grid G = { .hf = hf, .p = p, .pf = &pf, .out = out, .dev = dev, .sig = sig, .rmsv = rmsv,
+        struct pn_grid G = { .hf = hf, .p = p, .pf = &pf, .out = out, .x = x, .dev = dev, .sig = sig, .rmsv = rmsv,
                              .rs = { .hf = hf, .cap = cap, .light_c = light_c, .sat = sp->saturation_value,
                                      .a = p->lanczos } };
         for (int i = 0; i < 3; i++) {
@@ -670,9 +752,6 @@ int imp_photometric_normals(const struct imp_btf_heightfield *hf, const struct i
                 for (int x0 = 0; x0 < hf->width; x0 += TILE) {
                         int w = hf->width - x0 < TILE ? hf->width - x0 : TILE;
                         int h = hf->height - y0 < TILE ? hf->height - y0 : TILE;
-                        r = imp_btf_samples_extract_pyramid(hf, cap, sp, py, x0, y0, w, h, smp);
-                        if (r < 0)
-                                return r;
                         refine_tile(&G, smp, x0, y0, w, h, &st);
                 }
         summarise(dev, sig, rmsv, nt, &st);
