@@ -12,7 +12,6 @@
 #define DEG (M_PI / 180.0)
 #define PN_SHADOW_FRAC  0.5           /* trimmed samples read below this × the fit */
 #define PN_SHADOW_START 0.25          /* trimming: first solve without samples below this × median */
-#define TILE 64
 
 void imp_photometric_params_default(struct imp_photometric_params *ret) {
         *ret = (struct imp_photometric_params) {
@@ -232,14 +231,20 @@ static void residuals(struct pn_rows *R, const struct imp_photometric_params *p,
         S->rms = sqrt(ss / fmax(sw, 1e-30));
         if (!reweight)
                 return;
+        const double sigma = S->sigma, delta = p->huber_delta;
+        /* Huber: min(1, δ/u) with u = |r|/σ, which is 1 exactly where u ≤ δ; branch-free,
+         * so that the two divisions run in vector lanes */
+#pragma omp simd
         for (int i = 0; i < R->m; i++) {
-                double u = fabs(R->res[i]) / S->sigma;
-                R->w[i] = u <= p->huber_delta ? 1.0 : p->huber_delta / u;
-                /* cast shadow: far below the fit and under half of it */
-                if (p->shadow_trim_sigma > 0 && R->res[i] < -p->shadow_trim_sigma * S->sigma &&
-                    R->y[i] < PN_SHADOW_FRAC * (R->y[i] - R->res[i]))
-                        R->w[i] = 0;
+                double q = delta / (fabs(R->res[i]) / sigma);
+                R->w[i] = isless(q, 1.0) ? q : 1.0;
         }
+        if (p->shadow_trim_sigma > 0)
+                for (int i = 0; i < R->m; i++)
+                        /* cast shadow: far below the fit and under half of it */
+                        if (R->res[i] < -p->shadow_trim_sigma * S->sigma &&
+                            R->y[i] < PN_SHADOW_FRAC * (R->y[i] - R->res[i]))
+                                R->w[i] = 0;
 }
 
 /* The model check: the same rows with a 4th unknown, an ambient term c (V/E = g·l + c).
@@ -602,9 +607,9 @@ struct pn_grid {
         double *dev, *sig, *rmsv;                    /* per texel, NAN where not refined */
 };
 
-/* Extracts (into smp) and refines every texel of the tile: one parallel loop, no barrier
- * between the two. */
-static void refine_tile(const struct pn_grid *G, struct imp_btf_samples *smp, int x0, int y0, int w, int h,
+/* Extracts and refines every texel of the w × h block at (x0, y0): one parallel loop, each
+ * texel's samples in its thread's stack, no barrier between extraction and refinement. */
+static void refine_tile(const struct pn_grid *G, int x0, int y0, int w, int h,
                         struct imp_photometric_stats *st) {
         const struct imp_btf_heightfield *hf = G->hf;
         const struct imp_photometric_out *out = G->out;
@@ -612,24 +617,23 @@ static void refine_tile(const struct pn_grid *G, struct imp_btf_samples *smp, in
 #pragma omp parallel for schedule(dynamic, 16) reduction(+ : few, ill, dark, dis, msk, res, amb, rsd, sat)
         for (int k = 0; k < w * h; k++) {
                 size_t i = (size_t) (y0 + k / w) * hf->width + x0 + k % w;
-                smp->count[k] = (uint16_t) imp_btf_extract_texel(G->x, x0 + k % w, y0 + k / w,
-                                                                 &smp->samples[(size_t) k * smp->max_per_texel],
-                                                                 &smp->flags[k], &smp->n_shadowed[k]);
+                struct imp_btf_sample ts[IMP_BTF_MAX_SAMPLES];   /* 20 KiB of stack */
+                uint16_t sflags, n_shadowed;
+                int count = imp_btf_extract_texel(G->x, x0 + k % w, y0 + k / w, ts, &sflags, &n_shadowed);
                 struct imp_pn_texel t;
-                bool masked = (smp->flags[k] & (IMP_BTF_MASKED | IMP_BTF_HIDDEN)) || (hf->mask && !hf->mask[i]);
+                bool masked = (sflags & (IMP_BTF_MASKED | IMP_BTF_HIDDEN)) || (hf->mask && !hf->mask[i]);
                 if (masked) {
                         t = (struct imp_pn_texel) { .n = { 0, 0, 1 }, .sigma_deg = 180, .flags = IMP_PN_MASKED };
                 } else {
-                        struct imp_btf_sample *ts = &smp->samples[(size_t) k * smp->max_per_texel];
                         const struct imp_photometric_params *pt = hf->mask && hf->mask[i] == 2 ? G->pf : G->p;
                         if (out->normal_bilinear) {
                                 struct imp_pn_texel tb;
-                                imp_photometric_texel(ts, smp->count[k], pt, &tb);
+                                imp_photometric_texel(ts, count, pt, &tb);
                                 to_canvas(&hf->normal[3 * i], &tb, pt, &out->normal_bilinear[3 * i]);
                         }
-                        res += resample_texel(&G->rs, x0 + k % w, y0 + k / w, ts, smp->count[k]);
-                        imp_photometric_texel(ts, smp->count[k], pt, &t);
-                        if ((smp->flags[k] & IMP_BTF_SATURATED) && (t.flags & IMP_PN_FEW_SAMPLES))
+                        res += resample_texel(&G->rs, x0 + k % w, y0 + k / w, ts, count);
+                        imp_photometric_texel(ts, count, pt, &t);
+                        if ((sflags & IMP_BTF_SATURATED) && (t.flags & IMP_PN_FEW_SAMPLES))
                                 t.flags |= IMP_PN_SATURATED;
                 }
                 if (out->flags)
@@ -712,12 +716,9 @@ int imp_photometric_normals(const struct imp_btf_heightfield *hf, const struct i
         if (p->lanczos < 0 || p->lanczos > PN_MAX_LANCZOS)
                 return -EINVAL;
         size_t nt = (size_t) hf->width * hf->height;
-        _cleanup_btf_samples_ struct imp_btf_samples *smp = NULL;
         _cleanup_(imp_btf_hf_pyramid_freep) struct imp_btf_hf_pyramid *py = NULL;
         _cleanup_(imp_btf_extractor_freep) struct imp_btf_extractor *x = NULL;
-        int r = imp_btf_samples_new(TILE * TILE, cap->n_lights, &smp);
-        if (r < 0)
-                return r;
+        int r;
         if ((r = imp_btf_hf_pyramid_new(hf, &py)) < 0 || (r = imp_btf_extractor_new(hf, cap, sp, py, &x)) < 0)
                 return r;
         _cleanup_free_ double *dev = malloc(nt * sizeof *dev), *sig = malloc(nt * sizeof *sig),
@@ -748,12 +749,7 @@ int imp_photometric_normals(const struct imp_btf_heightfield *hf, const struct i
         if (out->normal_bilinear)
                 memcpy(out->normal_bilinear, hf->normal, nt * 3 * sizeof *out->normal_bilinear);
         struct imp_photometric_stats st = { .n_texels = (long) nt };
-        for (int y0 = 0; y0 < hf->height; y0 += TILE)
-                for (int x0 = 0; x0 < hf->width; x0 += TILE) {
-                        int w = hf->width - x0 < TILE ? hf->width - x0 : TILE;
-                        int h = hf->height - y0 < TILE ? hf->height - y0 : TILE;
-                        refine_tile(&G, smp, x0, y0, w, h, &st);
-                }
+        refine_tile(&G, 0, 0, hf->width, hf->height, &st);
         summarise(dev, sig, rmsv, nt, &st);
         if (ret_stats)
                 *ret_stats = st;
