@@ -123,7 +123,8 @@ static void load_rows(const struct imp_btf_sample *s, int n, struct pn_rows *R) 
 
 /* Whether sample i takes part for normal nc: not near the mirror direction, not in
  * attached shadow. */
-static inline __attribute__((always_inline)) bool takes_part(const struct pn_rows *R, int i, const double nc[3], double cone, double min_cos) {
+static inline __attribute__((always_inline)) bool takes_part(const struct pn_rows *R, int i, const double nc[3],
+                                                              double cone, double min_cos) {
         /* r·l with r = 2(n·v)n − v the mirror direction: 2(n·v)(n·l) − v·l */
         double nv = nc[0] * R->vv[i][0] + nc[1] * R->vv[i][1] + nc[2] * R->vv[i][2];
         double nl = nc[0] * R->a[i][0] + nc[1] * R->a[i][1] + nc[2] * R->a[i][2];
