@@ -6,6 +6,7 @@
 #include <stdlib.h>
 #include "btf-synth.h"
 #include "pn-synth.h"
+#include "numerics.h"
 #include "photometric.h"
 #include "test.h"
 
@@ -174,6 +175,43 @@ static void test_cast_shadow(const struct imp_rig_light *L, int nl, uint64_t *rn
         CHECK_LE(e_trim[N / 2], 0.5 * e_plain[N / 2]);
 }
 
+/* The condition number a texel reports is its normal matrix's largest / smallest eigenvalue
+ * (closed form in photometric.c; Jacobi here, to 1e-6), and max_cond cuts exactly there:
+ * 1e-6 above it the texel is solved, 1e-6 below it is flagged ill-conditioned. One solve with
+ * every sample taking part (no attached-shadow test; no light near the mirror direction), on
+ * one low ring (cond ≈ 7), one high ring (≈ 60) and the whole dome. */
+static void test_cond(const struct imp_rig_light *L, int nl, uint64_t *rng) {
+        static struct imp_btf_sample s[IMP_BTF_MAX_SAMPLES];
+        static const int first[3] = { 0, 40, 0 }, count[3] = { 8, 8, 48 };
+        const double P[3] = { 0, 0, 0 }, nt[3] = { 0, 0, 1 };
+        const struct imp_lafortune b = { { 0.5f, 0.5f, 0.5f }, { 0, 0, 0 }, -1, -1, 1, 10 };
+        for (int c = 0; c < 3; c++) {
+                CHECK(first[c] + count[c] <= nl);
+                int m = make_samples(P, nt, nt, L + first[c], count[c], &b, 0.01, rng, s);
+                CHECK_INT_EQ(m, count[c]);
+                double A[9] = { 0 }, lam[3], vec[9];
+                for (int i = 0; i < m; i++)
+                        for (int j = 0; j < 9; j++)
+                                A[j] += (double) s[i].l[j / 3] * s[i].l[j % 3];
+                imp_eigen_sym3(A, lam, vec);
+                double cond = lam[2] / lam[0];
+                struct imp_photometric_params p;
+                imp_photometric_params_default(&p);
+                p.passes = 1;
+                p.spec_cone_deg = 0;
+                p.min_cos = -2;
+                struct imp_pn_texel r;
+                p.max_cond = cond * (1 + 1e-6);
+                CHECK_OK(imp_photometric_texel(s, m, &p, &r));
+                printf("cond: lights %d..%d: %.4f (Jacobi %.4f)\n", first[c], first[c] + count[c] - 1, r.cond, cond);
+                CHECK_NEAR(r.cond / cond, 1.0, 1e-6);
+                CHECK(!(r.flags & IMP_PN_ILL_COND));
+                p.max_cond = cond * (1 - 1e-6);
+                CHECK_OK(imp_photometric_texel(s, m, &p, &r));
+                CHECK(r.flags & IMP_PN_ILL_COND);
+        }
+}
+
 int main(void) {
         struct imp_rig_light L[48];
         static const double elev[6] = { 15, 28, 41, 54, 67, 80 }, centre[3] = { 0, 0, 0 };
@@ -301,5 +339,6 @@ int main(void) {
                 imp_image_free(f);
         }
         test_cast_shadow(L, nl, &rng);
+        test_cond(L, nl, &rng);
         return test_failures_ ? 1 : 0;
 }
