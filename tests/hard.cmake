@@ -18,3 +18,5 @@ if(TARGET impasto)
 endif()
 # Placement under a deep box frame on a synthetic range image (no rendering).
 impasto_test(test-hard-placement LABELS stability unit LIBS impasto_pipeline)
+# σ_h of heights the fusion moved (no rendering).
+impasto_test(test-hard-sigma LABELS stability unit LIBS impasto_pipeline)
