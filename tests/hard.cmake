@@ -7,7 +7,7 @@ impasto_test(test-hard-fast SOURCE unit/test-hard-suite.c LABELS stability TIMEO
                   invalid-dark-dome tilted-55!)
 # --all: every config/scenes/hard-*.cfg must be listed here.
 impasto_test(test-hard-suite LABELS stability slow TIMEOUT 3600
-             ARGS --all ambient black-glossy dark-paint deep-frame deep-frame-8mm distortion dropped-frames
+             ARGS --all ambient ambient-weak black-glossy dark-paint deep-frame deep-frame-8mm distortion dropped-frames
                   flush-frame flush-frame-pale grazing-dome high-gain hot-pixels interreflection
                   invalid-dark-dome invalid-dark-projector invalid-k0 invalid-rho oblique-deep oblique-frame
                   oblique-frame-35 oblique-shallow-30 one-light overexposed shallow-frame tilted-10 tilted-25
