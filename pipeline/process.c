@@ -318,10 +318,16 @@ static int fuse_heights(const struct process_opts *o, struct geometry_out *g, co
         /* back-off where the normals contradict the heights beyond their σ; the σ of
          * filled texels from the normals they were integrated from (fuse.h) */
         struct imp_fuse_texels ft = { normal_sigma_deg, hf->sigma_mm, hf->texel_flags };
+        size_t n_tex = (size_t) hf->nx * hf->ny;
+        _cleanup_free_ float *measured = malloc(n_tex * sizeof(float));
+        if (!measured)
+                return imp_error_set(err, -ENOMEM, "%s: height fusion: out of memory", o->capture);
+        memcpy(measured, hf->height_mm, n_tex * sizeof(float));
         int r = imp_fuse_heights(hf->nx, hf->ny, hf->pitch_mm, hf->height_mm, normal, hf->sigma_mm, hf->mask,
                                  fp, &ft, &fs);
         if (r < 0)
                 return imp_error_set(err, r, "%s: height fusion failed: %s", o->capture, strerror(-r));
+        imp_heightfield_sigma_moved(hf, measured);   /* σ_h covers what the normals moved */
         json_object_set_new(g->stages, "fusion", json_pack("{s:f,s:I,s:I,s:i,s:f,s:f,s:f,s:f,s:f}",
                 "lambda", fp->lambda, "texels", (json_int_t) fs.n_texels, "gradient_rows", (json_int_t) fs.n_rows,
                 "iterations", fs.iterations, "residual_rel", fs.residual_rel, "change_rms_um", fs.change_rms_mm * 1000,

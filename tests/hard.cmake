@@ -5,15 +5,18 @@
 impasto_test(test-hard-fast SOURCE unit/test-hard-suite.c LABELS stability TIMEOUT 900
              ARGS --no-btf --plan hard-geometry deep-frame oblique-frame invalid-k0 invalid-rho
                   invalid-dark-dome tilted-55!)
+# --all: every config/scenes/hard-*.cfg must be listed here.
 impasto_test(test-hard-suite LABELS stability slow TIMEOUT 3600
-             ARGS ambient black-glossy dark-paint deep-frame deep-frame-8mm distortion dropped-frames
-                  flush-frame grazing-dome high-gain hot-pixels interreflection invalid-dark-dome
-                  invalid-dark-projector invalid-k0 invalid-rho oblique-deep oblique-frame
-                  oblique-frame-35 one-light overexposed shallow-frame tilted-10 tilted-25 tilted-55!
-                  tiny-coverage)
+             ARGS --all ambient ambient-weak black-glossy dark-paint deep-frame deep-frame-8mm distortion dropped-frames
+                  flush-frame flush-frame-pale grazing-dome high-gain hot-pixels interreflection
+                  invalid-dark-dome invalid-dark-projector invalid-k0 invalid-rho oblique-deep oblique-frame
+                  oblique-frame-35 oblique-shallow-30 one-light overexposed shallow-frame tilted-10 tilted-25
+                  tilted-55! tiny-coverage)
 if(TARGET impasto)
   add_dependencies(test-hard-fast impasto)
   add_dependencies(test-hard-suite impasto)
 endif()
 # Placement under a deep box frame on a synthetic range image (no rendering).
 impasto_test(test-hard-placement LABELS stability unit LIBS impasto_pipeline)
+# σ_h of heights the fusion moved (no rendering).
+impasto_test(test-hard-sigma LABELS stability unit LIBS impasto_pipeline)

@@ -1197,6 +1197,13 @@ static int rasterise(const struct imp_range_image *range, const struct imp_heigh
         return 0;
 }
 
+void imp_heightfield_sigma_moved(struct imp_heightfield *hf, const float *measured_mm) {
+        size_t n = (size_t) hf->nx * hf->ny;
+        for (size_t t = 0; t < n && measured_mm; t++)
+                if (hf->mask[t] == IMP_HF_MASK_MEASURED && isfinite(hf->height_mm[t]) && isfinite(measured_mm[t]))
+                        hf->sigma_mm[t] = (float) hypot(hf->sigma_mm[t], hf->height_mm[t] - measured_mm[t]);
+}
+
 int imp_heightfield_flag_edges(struct imp_heightfield *hf, int px) {
         size_t n = (size_t) hf->nx * hf->ny;
         _cleanup_free_ uint8_t *solid = malloc(n ? n : 1);

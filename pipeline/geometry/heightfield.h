@@ -170,6 +170,13 @@ void imp_heightfield_done(struct imp_heightfield *hf);   /* frees members; accep
 /* The heightfield stage's figures as a JSON object (for copy.json "stages"). */
 json_t *imp_heightfield_stage_json(const struct imp_heightfield *hf);
 
+/* σ_h of heights another stage has moved (the fusion with photometric normals): a
+ * measured texel whose height moved by Δ from `measured_mm` (the triangulated height, same
+ * grid) gets σ_h = √(σ_h² + Δ²): either the positions or the stage that moved them may be
+ * wrong by about Δ, and σ_h must cover both. Filled texels (their σ comes from the fill)
+ * are left alone. */
+void imp_heightfield_sigma_moved(struct imp_heightfield *hf, const float *measured_mm);
+
 /* Removes the IMP_HF_MASK_FILLED texels whose drop[t] is nonzero (drop NULL: all of
  * them) and then the filled texels no longer 4-connected to a measured texel through
  * filled ones; their values are zeroed. Updates n_mask_texels, n_filled_texels. */

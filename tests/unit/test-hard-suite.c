@@ -1,17 +1,20 @@
 /* The hard-case suite's promises (docs/hard-cases.md, docs/copy-quality.md), end to end
  * through the `impasto` binary on config/scenes/hard-NAME.cfg with config/plans/hard.cfg:
  *
- *   test-hard-suite [--no-btf] [--plan PLAN] NAME...   (PLAN: config/plans/PLAN.cfg, default hard)
+ *   test-hard-suite [--no-btf] [--plan PLAN] [--all] NAME...   (PLAN: config/plans/PLAN.cfg, default hard)
  *
  * Per scene: `sim render`; a scene named invalid-* must be refused by the loader with a
- * FILE:LINE message. Otherwise `process` must exit 0 (a copy), 6 (unusable) or 3 (a
- * capture set that cannot be processed), the last two with copy.json saying "unusable"
- * with a reason and no heightfield.exr, and nothing else; a copy is
+ * FILE:LINE message. Otherwise `process` must exit 0 (a copy), 6 (unusable: copy.json
+ * says "unusable" with a reason) or 3 (a capture set that cannot be processed: an error
+ * naming the capture set on stderr), the last two with no heightfield.exr, and nothing
+ * else; a copy is
  * compared with its truth and must have: no NaN/Inf in any EXR channel; its canvas normal
  * within PLACEMENT_MAX_DEG of the truth's; at most FRAME_MAX of its canvas texels on the
  * truth frame; at most BEYOND_MAX of the unflagged texels beyond 3σ in height and in
- * normal angle; no unflagged normal more than 10° off. A scene listed with a trailing
- * "!" must be refused (exit 6). */
+ * normal angle (both measured: a copy without σ_n fails); no unflagged normal more than
+ * 10° off. A scene listed with a trailing "!" must be refused (exit 6). With --all, every
+ * config/scenes/hard-*.cfg must be among the names (a new scene joins the suite). */
+#include <dirent.h>
 #include <fcntl.h>
 #include <stdbool.h>
 #include <spawn.h>
@@ -68,6 +71,17 @@ static void check_refused_at_load(const char *name, const char *err_path) {
         free(e);
 }
 
+/* Exit 3: the capture set is refused before any stage; stderr names it. */
+static void check_invalid_set(const char *name, const char *cap, const char *copy, const char *err_path) {
+        char *e = slurp(err_path), path[4500];
+        CHECK_MSG(strstr(e, cap) && strstr(e, "error"), "%s: exit 3 without an error naming %s: %s", name, cap, e);
+        fprintf(stderr, "%s: refused: %s", name, e);
+        free(e);
+        snprintf(path, sizeof path, "%s/heightfield.exr", copy);
+        struct stat st;
+        CHECK_MSG(stat(path, &st) != 0, "%s: a refused set has a heightfield", name);
+}
+
 static void check_unusable(const char *name, const char *copy) {
         char path[4500];
         snprintf(path, sizeof path, "%s/copy.json", copy);
@@ -107,11 +121,35 @@ static void check_copy(const char *name, const char *cmp_path) {
                   NUM("frame_texel_fraction"));
         CHECK_MSG(NUM("beyond_3sigma_height") <= BEYOND_MAX, "%s: beyond 3σ height %.4f", name,
                   NUM("beyond_3sigma_height"));
+        CHECK_MSG(json_is_number(json_object_get(c, "beyond_3sigma_height")) &&
+                  json_is_number(json_object_get(c, "beyond_3sigma_normal")), "%s: σ not measurable", name);
         CHECK_MSG(NUM("beyond_3sigma_normal") >= 0 && NUM("beyond_3sigma_normal") <= BEYOND_MAX,
                   "%s: beyond 3σ normal %.4f", name, NUM("beyond_3sigma_normal"));
         CHECK_MSG(over == 0, "%s: %lld unflagged normals more than 10° off", name, over);
 #undef NUM
         json_decref(c);
+}
+
+/* --all: every config/scenes/hard-NAME.cfg is among argv (NAME, or NAME! ). */
+static void check_all_listed(int argc, char **argv) {
+        char dir[4096];
+        snprintf(dir, sizeof dir, "%s/config/scenes", IMPASTO_SOURCE_DIR);
+        DIR *d = opendir(dir);
+        CHECK_MSG(d != NULL, "%s: cannot list", dir);
+        struct dirent *de;
+        while (d && (de = readdir(d))) {
+                size_t len = strlen(de->d_name);
+                if (strncmp(de->d_name, "hard-", 5) || len < 10 || strcmp(de->d_name + len - 4, ".cfg"))
+                        continue;
+                bool listed = false;
+                for (int a = 1; a < argc && !listed; a++) {
+                        size_t n = strcspn(argv[a], "!");
+                        listed = n == len - 9 && !strncmp(argv[a], de->d_name + 5, n);
+                }
+                CHECK_MSG(listed, "%s is not in the suite's list (tests/hard.cmake)", de->d_name);
+        }
+        if (d)
+                closedir(d);
 }
 
 int main(int argc, char **argv) {
@@ -123,6 +161,10 @@ int main(int argc, char **argv) {
                 TEST_SKIP("%s not built", bin);
         bool btf = true;
         for (int a = 1; a < argc; a++) {
+                if (!strcmp(argv[a], "--all")) {
+                        check_all_listed(argc, argv);
+                        continue;
+                }
                 if (!strcmp(argv[a], "--no-btf")) {
                         btf = false;
                         continue;
@@ -155,8 +197,12 @@ int main(int argc, char **argv) {
                 CHECK_MSG(rc == 0 || rc == EXIT_UNUSABLE || rc == EXIT_INVALID, "%s: process exited %d", name, rc);
                 if (must_refuse)
                         CHECK_MSG(rc == EXIT_UNUSABLE, "%s: expected a refusal, process exited %d", name, rc);
-                if (rc == EXIT_UNUSABLE || rc == EXIT_INVALID) {
+                if (rc == EXIT_UNUSABLE) {
                         check_unusable(name, copy);
+                        continue;
+                }
+                if (rc == EXIT_INVALID) {
+                        check_invalid_set(name, cap, copy, err_path);
                         continue;
                 }
                 if (rc != 0)
