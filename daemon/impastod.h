@@ -247,6 +247,9 @@ int painting_prepare_stage(struct session *s, struct imp_proto_error *perr);
  * durable first: 0 = wait for the writer) and checks the stage; 1 = capture the frame.
  * Negative: msg says what and where, *device the device ("stage") or NULL (storage). */
 int painting_step(struct session *s, store_done_fn done, const char **device, char *msg, size_t size);
+/* After frame s->n_captured was grabbed: the stage still stood at its tile (else the frame
+ * is dropped and taken again after the resume). Negative with msg as painting_step. */
+int painting_check_frame(struct session *s, char *msg, size_t size);
 void painting_stamp(const struct session *s, struct imp_frame_record *rec);
 /* A completed session: its last tile done and queued. */
 void painting_finish(struct session *s);

@@ -149,6 +149,24 @@ static int open_tile(struct session *s, size_t k, char *msg, size_t size) {
         tile_dir(s, k, dir, sizeof dir);
         struct imp_error e = { 0 };
         int r;
+        char set[PATH_MAX + 16];
+        snprintf(set, sizeof set, "%.4000s/set.json", dir);
+        if (access(dir, F_OK) == 0 && access(set, F_OK) < 0) {
+                /* no set.json: a create cut short (by a SIGKILL), no frame in it; kept aside */
+                char aside[PATH_MAX + 64];
+                for (int n = 1; n < 1000; n++) {
+                        snprintf(aside, sizeof aside, "%.4000s.interrupted-%d", dir, n);
+                        if (access(aside, F_OK) < 0)
+                                break;
+                }
+                if (rename(dir, aside) < 0) {
+                        snprintf(msg, size, "%s: an interrupted create: moving it to %s: %s", dir, aside,
+                                 strerror(errno));
+                        return -errno;
+                }
+                log_warning("session %s: tile %zu: %s had no set.json (a create cut short): moved to %s", s->id,
+                            k, dir, aside);
+        }
         if (access(dir, F_OK) < 0) {
                 char plan[PATH_MAX + 16];
                 snprintf(plan, sizeof plan, "%.4000s/plan.cfg", s->dir);
@@ -208,10 +226,18 @@ static int check_stage(struct session *s, size_t k, size_t i, char *msg, size_t 
         if (!why)
                 return 0;
         const struct imp_tile *t = imp_tile_plan_tile(s->tiles, k);
-        snprintf(msg, size, "stage: %s during tile %zu (col %u, row %u) before its frame %zu of %zu: the frames "
+        snprintf(msg, size, "stage: %s during tile %zu (col %u, row %u) at its frame %zu of %zu: the frames "
                  "before it are kept; clear the fault, home the stage, then resume (the tile continues at frame "
                  "%zu)", why, k, t->col, t->row, i, s->tile_frames, i);
         return r < 0 ? r : -EIO;
+}
+
+int painting_check_frame(struct session *s, char *msg, size_t size) {
+        size_t k = s->n_captured / s->tile_frames, i = s->n_captured % s->tile_frames;
+        int r = check_stage(s, k, i, msg, size);
+        if (r < 0)
+                s->at_tile = false;
+        return r;
 }
 
 int painting_step(struct session *s, store_done_fn done, const char **device, char *msg, size_t size) {
@@ -221,9 +247,7 @@ int painting_step(struct session *s, store_done_fn done, const char **device, ch
         msg[0] = 0;
         *device = s->d->rigcfg->stage.name;
         if ((int) k == s->cs_tile && s->at_tile) {
-                r = check_stage(s, k, i, msg, size);
-                if (r < 0)
-                        s->at_tile = false;
+                r = painting_check_frame(s, msg, size);
                 return r < 0 ? r : 1;
         }
         if (s->n_frames < s->n_captured)

@@ -480,6 +480,12 @@ static int grab_image(struct session *s, struct dev_camera *cam, unsigned timeou
 static int store_frame(struct session *s, const struct imp_frame_record *rec, struct imp_image *img) {
         struct rigcfg *rc = s->d->rigcfg;
         int r;
+        char msg[1024];
+        if (s->tiles && (r = painting_check_frame(s, msg, sizeof msg)) < 0) {
+                imp_image_free(img);    /* taken maybe elsewhere: taken again on resume */
+                pause_with_fault(s, s->d->rigcfg->stage.name, IMP_PROTO_E_DEVICE, r, msg);
+                return r;
+        }
         if (s->stream_cam && s->n_captured + 1 >= s->stream_end)
                 stream_stop(s);
         /* The light stays on through an exposure stack; off before anything else. */
@@ -799,6 +805,12 @@ int session_start(struct daemon *d, const char *plan_path, const char *name, str
         s->tiles = imp_plan_tiles(plan);
         if (s->tiles)
                 s->frames_total *= imp_tile_plan_count(s->tiles);
+        if (s->tiles && !d->rigcfg->stage.configured) {
+                session_free(s);
+                return imp_proto_error_set(perr, IMP_PROTO_E_INVALID_PLAN, EINVAL, "args.plan",
+                                           "%s: a plan with a painting group needs a stage in the rig config "
+                                           "(rig.stage = { backend; address; }, docs/painting.md)", plan_path);
+        }
         snprintf(s->name, sizeof s->name, "%s", name ? name : "session");
         snprintf(s->plan_path, sizeof s->plan_path, "%s", plan_path);
         make_id(d, s->name, s->id, sizeof s->id);
