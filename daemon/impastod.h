@@ -267,6 +267,8 @@ void session_free(struct session *s);
 struct session *session_find(struct daemon *d, const char *id);
 json_t *session_summary_json(const struct session *s);
 json_t *session_show_json(const struct session *s);
+/* A painting's progress and ETA, by tile and whole (painting_progress_json + "eta_s"), or NULL. */
+json_t *session_painting_json(const struct session *s);
 /* Load a plan against the daemon's rig for validate/estimate. */
 int plan_check(struct daemon *d, const char *path, struct imp_plan **ret, struct imp_proto_error *perr);
 /* On shutdown: stop stepping, leave devices safe, flush. The state file keeps "running" so

@@ -1063,10 +1063,15 @@ json_t *session_show_json(const struct session *s) {
                          (json_int_t) s->n_frames, "steps", (json_int_t) s->frames_total, "frames",
                          (json_int_t) s->n_frames, "interrupted", s->interrupted, "faults", s->faults,
                          "streamed", streamed), s);
-        json_t *pj = j ? painting_progress_json(s, eta_now(s)) : NULL;
-        if (pj) {
-                json_object_set_new(pj, "eta_s", json_real(eta_now(s)));
+        json_t *pj = j ? session_painting_json(s) : NULL;
+        if (pj)
                 json_object_set_new(j, "painting", pj);
-        }
         return j;
+}
+
+json_t *session_painting_json(const struct session *s) {
+        json_t *pj = painting_progress_json(s, eta_now(s));
+        if (pj)
+                json_object_set_new(pj, "eta_s", json_real(eta_now(s)));
+        return pj;
 }
