@@ -83,6 +83,7 @@ struct dev_stage {
         struct imp_stage *stage;
         enum dev_state state;
         char detail[256];
+        double sigma_mm, sigma_deg;     /* repeatability (default 0.05 mm, 0.05°): painting.json's prior */
 };
 
 struct rigcfg {

@@ -22,9 +22,12 @@ static int get_dev(struct imp_conf *c, config_setting_t *g, char *name, size_t n
         static const char *const known[] = { "name", "backend", "address", NULL };
         /* cameras (no default name) may also say `stream = false;` (session.c, streamed runs) */
         static const char *const camera_known[] = { "name", "backend", "address", "stream", NULL };
+        /* the stage's repeatability: the prior of tile poses in painting.json (docs/painting.md) */
+        static const char *const stage_known[] = { "name", "backend", "address", "sigma_mm", "sigma_deg", NULL };
         const char *n = default_name, *b = NULL, *a = NULL;
         int r;
-        if ((r = imp_conf_check_known(c, g, default_name ? known : camera_known, err)) < 0 ||
+        bool stage = default_name && !strcmp(default_name, "stage");
+        if ((r = imp_conf_check_known(c, g, stage ? stage_known : default_name ? known : camera_known, err)) < 0 ||
             (r = imp_conf_get_string(c, g, "name", default_name == NULL, &n, err)) < 0 ||
             (r = imp_conf_get_string(c, g, "backend", true, &b, err)) < 0 ||
             (r = imp_conf_get_string(c, g, "address", true, &a, err)) < 0)
@@ -126,8 +129,12 @@ int rigcfg_load(const char *path, struct rigcfg **ret, struct imp_error *err) {
         }
         sub = config_setting_get_member(g, "stage");
         if (sub) {
+                rc->stage.sigma_mm = 0.05;
+                rc->stage.sigma_deg = 0.05;
                 if ((r = get_dev(c, sub, rc->stage.name, sizeof rc->stage.name, rc->stage.backend,
-                                 rc->stage.address, "stage", err)) < 0)
+                                 rc->stage.address, "stage", err)) < 0 ||
+                    (r = imp_conf_get_double(c, sub, "sigma_mm", false, 1e-6, 100, &rc->stage.sigma_mm, err)) < 0 ||
+                    (r = imp_conf_get_double(c, sub, "sigma_deg", false, 1e-6, 10, &rc->stage.sigma_deg, err)) < 0)
                         goto fail;
                 rc->stage.configured = true;
         }

@@ -56,7 +56,8 @@ int painting_start(struct session *s, const char *plan_text, struct imp_proto_er
                 return imp_proto_error_set(perr, IMP_PROTO_E_IO, errno, NULL, "%s: %s", p, strerror(errno));
         snprintf(p, sizeof p, "%.4000s/rig.json", s->dir);
         if ((r = imp_rig_save(p, &s->rig, &e)) < 0 ||
-            (r = tile_session_open(s->dir, s->tiles, 0, 0, &s->painting, &e)) < 0)
+            (r = tile_session_open(s->dir, s->tiles, s->d->rigcfg->stage.sigma_mm, s->d->rigcfg->stage.sigma_deg,
+                                   &s->painting, &e)) < 0)
                 return imp_proto_error_set(perr, IMP_PROTO_E_IO, -r, NULL, "%s", e.msg);
         return 0;
 }
@@ -312,7 +313,8 @@ int painting_reopen(struct session *s, struct imp_proto_error *perr) {
                                            s->dir);
         close_tile(s);
         set_tiles(s);
-        if (!s->painting && (r = tile_session_open(s->dir, s->tiles, 0, 0, &s->painting, &e)) < 0)
+        if (!s->painting && (r = tile_session_open(s->dir, s->tiles, s->d->rigcfg->stage.sigma_mm,
+                                                   s->d->rigcfg->stage.sigma_deg, &s->painting, &e)) < 0)
                 return imp_proto_error_set(perr, IMP_PROTO_E_IO, -r, NULL, "%s", e.msg);
         size_t n = imp_tile_plan_count(s->tiles), k = tile_session_next(s->painting);
         for (; k < n; k++) {

@@ -57,7 +57,8 @@ static void setup(struct ctx *x, int port) {
                  "rig = {\n  name = \"test-rig\";\n  calibration = \"rig.json\";\n"
                  "  cameras = ( { name = \"cam0\"; backend = \"aravis\"; address = \"127.0.0.1\"; } );\n"
                  "  dome = { backend = \"modbus\"; address = \"127.0.0.1:%d\"; };\n"
-                 "  stage = { backend = \"grbl\"; address = \"%s;baud=115200;timeout_ms=1000\"; };\n};\n",
+                 "  stage = { backend = \"grbl\"; address = \"%s;baud=115200;timeout_ms=1000\"; sigma_mm = 0.02; };\n"
+                 "};\n",
                  port, imp_emu_stage_device(x->emu));
         h_write(x->h.rigcfg, text);
         snprintf(x->plan, sizeof x->plan, "%s/painting.cfg", x->h.dir);
@@ -138,6 +139,9 @@ static void check_painting(const char *sdir) {
         CHECK_OK(imp_json_load(p, &pj, &e));
         json_t *tiles = json_object_get(pj, "tiles");
         CHECK_INT_EQ(json_array_size(tiles), N_TILES);
+        /* the stage's prior as the rig config gives it (the mosaic refuses σ 0); 0.05° by default */
+        CHECK_NEAR(json_number_value(json_object_get(pj, "stage_sigma_mm")), 0.02, 1e-12);
+        CHECK_NEAR(json_number_value(json_object_get(pj, "stage_sigma_deg")), 0.05, 1e-12);
         for (size_t k = 0; k < json_array_size(tiles); k++) {
                 json_t *t = json_array_get(tiles, k);
                 CHECK_MSG(json_is_true(json_object_get(t, "done")), "tile %zu not done", k);
