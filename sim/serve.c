@@ -54,6 +54,8 @@ struct imp_serve {
         const struct imp_tile_plan *tiles;
         double placed_mm[3];
         bool placed;
+        struct imp_rig rig_copy;        /* what imp_serve_rig returns: the renderer is rebuilt */
+        bool have_rig_copy;
 };
 
 /* The tile whose target the carriage stands at (within 1 µm), -1 between tiles. */
@@ -237,6 +239,11 @@ int imp_serve_new(const struct imp_scene *scene, const struct imp_serve_config *
                 goto fail;
         if (!s->render && (r = imp_render_new(scene, &s->render, err)) < 0)
                 goto fail;
+        if ((r = imp_rig_copy(imp_render_rig(s->render), &s->rig_copy)) < 0) {
+                imp_error_set(err, r, "serve: out of memory");
+                goto fail;
+        }
+        s->have_rig_copy = true;
         const struct imp_rig *rig = imp_render_rig(s->render);
         if ((r = imp_emu_rig_new((unsigned) rig->n_lights, &s->rig)) < 0) {
                 imp_error_set(err, r, "serve: emulated rig state");
@@ -308,6 +315,8 @@ void imp_serve_free(struct imp_serve *s) {
         imp_emu_stage_free(s->stage);
         imp_emu_rig_free(s->rig);
         imp_render_free(s->render);
+        if (s->have_rig_copy)
+                imp_rig_free(&s->rig_copy);
         pthread_mutex_destroy(&s->render_lock);
         free(s);
 }
@@ -386,7 +395,7 @@ int imp_serve_fault(struct imp_serve *s, const char *spec, struct imp_error *err
 }
 
 const struct imp_rig *imp_serve_rig(const struct imp_serve *s) {
-        return s ? imp_render_rig(s->render) : NULL;
+        return s ? &s->rig_copy : NULL;
 }
 
 int imp_serve_n_cameras(const struct imp_serve *s) {
@@ -430,7 +439,7 @@ const char *imp_serve_stage_device(const struct imp_serve *s) {
 char *imp_serve_describe(const struct imp_serve *s) {
         if (!s)
                 return NULL;
-        const struct imp_rig *rig = imp_render_rig(s->render);
+        const struct imp_rig *rig = &s->rig_copy;
         char *text = NULL;
         size_t size = 0;
         FILE *f = open_memstream(&text, &size);
