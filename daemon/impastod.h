@@ -84,6 +84,7 @@ struct dev_stage {
         enum dev_state state;
         char detail[256];
         double sigma_mm, sigma_deg;     /* repeatability (default 0.05 mm, 0.05°): painting.json's prior */
+        unsigned settle_timeout_ms;     /* a move not settled by then is stopped (TILE_SETTLE_TIMEOUT_MS) */
 };
 
 struct rigcfg {

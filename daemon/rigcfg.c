@@ -10,6 +10,7 @@
 #include "impastod.h"
 #include "json-util.h"
 #include "log.h"
+#include "tile-session.h"
 
 static const char *const dev_state_names[] = { "absent", "ok", "busy", "fault" };
 
@@ -23,7 +24,8 @@ static int get_dev(struct imp_conf *c, config_setting_t *g, char *name, size_t n
         /* cameras (no default name) may also say `stream = false;` (session.c, streamed runs) */
         static const char *const camera_known[] = { "name", "backend", "address", "stream", NULL };
         /* the stage's repeatability: the prior of tile poses in painting.json (docs/painting.md) */
-        static const char *const stage_known[] = { "name", "backend", "address", "sigma_mm", "sigma_deg", NULL };
+        static const char *const stage_known[] = { "name", "backend", "address", "sigma_mm", "sigma_deg",
+                                                    "settle_timeout_ms", NULL };
         const char *n = default_name, *b = NULL, *a = NULL;
         int r;
         bool stage = default_name && !strcmp(default_name, "stage");
@@ -131,11 +133,14 @@ int rigcfg_load(const char *path, struct rigcfg **ret, struct imp_error *err) {
         if (sub) {
                 rc->stage.sigma_mm = 0.05;
                 rc->stage.sigma_deg = 0.05;
+                long long settle_ms = TILE_SETTLE_TIMEOUT_MS;
                 if ((r = get_dev(c, sub, rc->stage.name, sizeof rc->stage.name, rc->stage.backend,
                                  rc->stage.address, "stage", err)) < 0 ||
                     (r = imp_conf_get_double(c, sub, "sigma_mm", false, 1e-6, 100, &rc->stage.sigma_mm, err)) < 0 ||
-                    (r = imp_conf_get_double(c, sub, "sigma_deg", false, 1e-6, 10, &rc->stage.sigma_deg, err)) < 0)
+                    (r = imp_conf_get_double(c, sub, "sigma_deg", false, 1e-6, 10, &rc->stage.sigma_deg, err)) < 0 ||
+                    (r = imp_conf_get_int(c, sub, "settle_timeout_ms", false, 100, 3600000, &settle_ms, err)) < 0)
                         goto fail;
+                rc->stage.settle_timeout_ms = (unsigned) settle_ms;
                 rc->stage.configured = true;
         }
         rc->config = setting_json(g);

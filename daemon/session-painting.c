@@ -199,7 +199,7 @@ static int open_tile(struct session *s, size_t k, char *msg, size_t size) {
 static int move_to_tile(struct session *s, size_t k, char *msg, size_t size) {
         const struct imp_tile *t = imp_tile_plan_tile(s->tiles, k);
         double rb[3];
-        int r = tile_session_move(stage_of(s), t, TILE_SETTLE_TIMEOUT_MS, rb, msg, size);
+        int r = tile_session_move(stage_of(s), t, s->d->rigcfg->stage.settle_timeout_ms, rb, msg, size);
         if (r < 0)
                 return r;
         memcpy(s->stage_cmd_mm, t->stage_mm, sizeof s->stage_cmd_mm);

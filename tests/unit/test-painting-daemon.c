@@ -7,8 +7,8 @@
  *            records the commanded and read-back pose and shows the carriage there; painting.json
  *            all done; a processing job per tile, the first queued before the scan ends;
  *            progress by tile; the plan with a painting group refused without a stage.
- *   faults:  a limit switch on the way to tile 2, a position lost inside tile 3 and a drive
- *            alarm inside tile 4: each pauses the session with a message naming the tile and
+ *   faults:  a limit switch on the way to tile 2, a position lost inside tile 3, a drive
+ *            alarm inside tile 4 and a move to tile 5 that never settles: each pauses the session with a message naming the tile and
  *            the remedy, keeps every frame, and `session.resume` (which clears and homes)
  *            continues at the first frame not captured; the final capture equals `run`'s.
  *   kill N:  SIGKILL at N random points (0–2 frame events plus 0–30 ms), impastod restarted with
@@ -57,7 +57,8 @@ static void setup(struct ctx *x, int port) {
                  "rig = {\n  name = \"test-rig\";\n  calibration = \"rig.json\";\n"
                  "  cameras = ( { name = \"cam0\"; backend = \"aravis\"; address = \"127.0.0.1\"; } );\n"
                  "  dome = { backend = \"modbus\"; address = \"127.0.0.1:%d\"; };\n"
-                 "  stage = { backend = \"grbl\"; address = \"%s;baud=115200;timeout_ms=1000\"; sigma_mm = 0.02; };\n"
+                 "  stage = { backend = \"grbl\"; address = \"%s;baud=115200;timeout_ms=1000\"; sigma_mm = 0.02;"
+                 " settle_timeout_ms = 3000; };\n"
                  "};\n",
                  port, imp_emu_stage_device(x->emu));
         h_write(x->h.rigcfg, text);
@@ -66,6 +67,13 @@ static void setup(struct ctx *x, int port) {
         h_write(x->plan, "dome = { lights = \"all\"; exposures_us = [1000.0, 2000.0]; };\ndark = { count = 1; };\n"
                          "painting = { extent_mm = [100.0, 54.0]; fov_mm = [40.0, 30.0]; origin_mm = [20.0, 20.0];"
                          " z_mm = 10.0; };\n");
+}
+
+/* The client goes, impastod exits 0 on SIGTERM. */
+static void stop(struct ctx *x, struct tclient *c) {
+        tc_close(c);
+        h_kill(&x->h, SIGTERM);
+        CHECK(h_wait(&x->h, 10000) == 0);
 }
 
 static void start(struct ctx *x, struct tclient *c) {
@@ -231,14 +239,13 @@ static void test_run(struct ctx *x, char *ref, size_t size) {
         session_dir(&c, id, sdir, sizeof sdir);
         check_painting(sdir);
         snprintf(ref, size, "%s", sdir);
-        tc_close(&c);
-        h_kill(&x->h, SIGTERM);
-        CHECK(h_wait(&x->h, 10000) == 0);
+        stop(x, &c);
 }
 
 static unsigned hook_step;
 
-/* Tile 3: position lost after its first frame; tile 4: a drive alarm after its second. */
+/* Tile 3: position lost after its first frame; tile 4: a drive alarm after its second, then
+ * a stalling carriage (on the move to tile 5) near its end. */
 static void inject(struct ctx *x, const json_t *pj) {
         json_int_t tile = json_integer_value(json_object_get(pj, "tile"));
         json_int_t done = json_integer_value(json_object_get(pj, "tile_frames_done"));
@@ -248,6 +255,9 @@ static void inject(struct ctx *x, const json_t *pj) {
         } else if (hook_step == 1 && tile == 4 && done >= 2) {
                 imp_emu_stage_alarm(x->emu, 3);
                 hook_step = 2;
+        } else if (hook_step == 2 && tile == 4 && done >= FRAMES_PER_TILE - 2) {
+                imp_emu_stage_stall(x->emu, true);
+                hook_step = 3;
         }
 }
 
@@ -292,14 +302,21 @@ static void test_faults(struct ctx *x, const char *ref) {
         n = frames_of(&c, id);
         CHECK(n > 4 * FRAMES_PER_TILE + 1 && n < 5 * FRAMES_PER_TILE);
 
+        /* the carriage stalls on its way to tile 5 (from the end of tile 4 on): stopped after
+         * settle_timeout_ms (3 s) */
+        msg[0] = 0;
+        resume(&c, id);
+        CHECK_STR_EQ(follow(x, &c, inject, msg, sizeof msg, NULL), "paused");
+        CHECK_STR_CONTAINS(msg, "the move to tile 5 (col 0, row 1) at (40.000, 59.000, 10.000) mm did not settle");
+        CHECK_INT_EQ(frames_of(&c, id), 5 * FRAMES_PER_TILE);
+        imp_emu_stage_stall(x->emu, false);
+
         resume(&c, id);
         CHECK_STR_EQ(follow(x, &c, NULL, NULL, 0, NULL), "completed");
         session_dir(&c, id, sdir, sizeof sdir);
         check_painting(sdir);
         check_same_capture(ref, sdir);
-        tc_close(&c);
-        h_kill(&x->h, SIGTERM);
-        CHECK(h_wait(&x->h, 10000) == 0);
+        stop(x, &c);
 }
 
 /* SIGKILL at n_kills random points, restarted with --resume. */
@@ -356,9 +373,7 @@ static void test_kills(struct ctx *x, const char *ref, unsigned n_kills) {
         session_dir(&c, id, sdir, sizeof sdir);
         check_painting(sdir);
         check_same_capture(ref, sdir);
-        tc_close(&c);
-        h_kill(&x->h, SIGTERM);
-        CHECK(h_wait(&x->h, 10000) == 0);
+        stop(x, &c);
 }
 
 static void test_no_stage(struct ctx *x) {
@@ -377,9 +392,7 @@ static void test_no_stage(struct ctx *x) {
         char msg[1024] = "";
         CHECK_INT_EQ(tc_err(&c, "session.start", h_arg("plan", x->plan), msg, sizeof msg), IMP_PROTO_E_INVALID_PLAN);
         CHECK_STR_CONTAINS(msg, "painting.cfg: a plan with a painting group needs a stage in the rig config");
-        tc_close(&c);
-        h_kill(&x->h, SIGTERM);
-        CHECK(h_wait(&x->h, 10000) == 0);
+        stop(x, &c);
         snprintf(x->h.rigcfg, sizeof x->h.rigcfg, "%s", saved);
 }
 
