@@ -109,3 +109,5 @@ void imp_client_count_gap(unsigned long long *last_seq, unsigned long long *drop
 /* The `attention` object of status and report (cmd-status.c): each item that needs the
  * operator with the command that acts on it, or "nothing needs attention". */
 void imp_client_print_attention(const json_t *att);
+/* A painting session's progress by tile ("painting" of status, session.show): one line. */
+void imp_client_print_painting(const json_t *p);

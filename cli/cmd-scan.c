@@ -40,6 +40,7 @@ struct follow {
         char session[160];
         unsigned long long last_seq, dropped;
         long long frames, frames_total, faults;
+        long long tile, tiles;          /* a painting's: the tile being captured, of tiles (0: none) */
         double eta_s, t0, rate_t, rate_frames, rate, last_plain;
         char state[32];
         bool done, drawn;
@@ -73,8 +74,11 @@ static void draw(struct follow *f, bool final) {
         if (!final && t - f->last_plain < PLAIN_INTERVAL_S)
                 return;
         f->last_plain = t;
-        printf("progress %s: %lld/%lld frames (%.0f%%), %.1f frames/s, dropped %llu, ETA %s, %s\n", f->session,
-               f->frames, f->frames_total, 100 * frac, f->rate, f->dropped, eta, f->state);
+        char tile[64] = "";
+        if (f->tiles > 0)
+                snprintf(tile, sizeof tile, ", tile %lld of %lld", f->tile + 1, f->tiles);
+        printf("progress %s: %lld/%lld frames (%.0f%%)%s, %.1f frames/s, dropped %llu, ETA %s, %s\n", f->session,
+               f->frames, f->frames_total, 100 * frac, tile, f->rate, f->dropped, eta, f->state);
         fflush(stdout);
 }
 
@@ -106,6 +110,8 @@ static void on_event(void *userdata, const struct imp_proto_message *m) {
                 f->frames = imp_client_int(e, "frames");
                 f->frames_total = imp_client_int(e, "frames_total");
                 f->eta_s = imp_client_num(e, "eta_s");
+                f->tile = imp_client_int(json_object_get(e, "painting"), "tile");
+                f->tiles = imp_client_int(json_object_get(e, "painting"), "tiles");
                 snprintf(f->state, sizeof f->state, "%s", imp_client_str(e, "state"));
                 double t = now_s();
                 if (f->rate_t == 0) {
@@ -313,6 +319,7 @@ static void human_show(const json_t *r) {
                 printf("ended    %s\n", imp_client_str(r, "ended"));
         printf("step     %lld of %lld\nframes   %lld\n", imp_client_int(r, "step"), imp_client_int(r, "steps"),
                imp_client_int(r, "frames"));
+        imp_client_print_painting(json_object_get(r, "painting"));
         const json_t *faults = json_object_get(r, "faults"), *e;
         size_t i;
         json_array_foreach(faults, i, e)

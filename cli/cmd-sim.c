@@ -6,11 +6,12 @@
  *       (docs/painting.md)
  *   impasto sim info --scene FILE [--plan FILE]
  *       prints the scene summary (and the plan's frame count and capture-time estimate)
- *   impasto sim serve --scene FILE [--address A] [--modbus-port P] [--seed N] [--rig-out FILE]
- *                     [--ready-file FILE] [--truth-out DIR] [--fault SPEC]...
+ *   impasto sim serve --scene FILE [--plan FILE] [--address A] [--modbus-port P] [--seed N]
+ *                     [--rig-out FILE] [--ready-file FILE] [--truth-out DIR] [--fault SPEC]...
  *       serves the scene as devices (sim/serve.h) until SIGTERM/SIGINT, then exits 0;
  *       --truth-out writes DIR/truth/ (the ground truth `sim render` writes beside its
- *       capture set) before the ready file appears */
+ *       capture set) before the ready file appears; a gantry scene needs --plan (its painting
+ *       group): the stage is a GRBL controller on a pseudo-terminal (docs/painting.md) */
 #include <fcntl.h>
 #include <getopt.h>
 #include <signal.h>
@@ -49,7 +50,8 @@ struct sim_args {
 static void usage(FILE *f) {
         fprintf(f, "usage: impasto sim render --scene FILE --plan FILE --out DIR [--seed N] [--threads N] [--quiet] [--painting]\n"
                    "       impasto sim info --scene FILE [--plan FILE]\n"
-                   "       impasto sim serve --scene FILE [--address 127.0.0.1] [--modbus-port 15020] [--seed N]\n"
+                   "       impasto sim serve --scene FILE [--plan FILE (a gantry scene's)] [--address 127.0.0.1]\n"
+                   "                         [--modbus-port 15020] [--seed N]\n"
                    "                         [--rig-out FILE] [--ready-file FILE] [--truth-out DIR] [--fault SPEC]...\n"
                    "         --truth-out DIR: write the ground truth into DIR/truth/ (as sim render does)\n"
                    "         SPEC: drop-frame=N, modbus-exception=N[:CODE], modbus-delay=N:MS,\n"
@@ -294,9 +296,16 @@ static int cmd_serve(const struct sim_args *a) {
         if (rc)
                 return rc;
         struct imp_error err = { 0 };
-        struct imp_serve_config cfg = { .address = a->address, .modbus_port = (uint16_t) a->modbus_port };
+        _cleanup_(imp_plan_freep) struct imp_plan *plan = NULL;
+        int r;
+        if (a->plan && (r = imp_plan_load(a->plan, imp_scene_rig(scene), &plan, &err)) < 0) {
+                log_error("%s", err.msg);
+                return IMP_EXIT_USAGE;
+        }
+        struct imp_serve_config cfg = { .address = a->address, .modbus_port = (uint16_t) a->modbus_port,
+                                        .tiles = plan ? imp_plan_tiles(plan) : NULL };
         _cleanup_(imp_serve_freep) struct imp_serve *s = NULL;
-        int r = imp_serve_new(scene, &cfg, &s, &err);
+        r = imp_serve_new(scene, &cfg, &s, &err);
         if (r < 0) {
                 log_error("%s", err.msg[0] ? err.msg : strerror(-r));
                 return 1;

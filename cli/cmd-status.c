@@ -18,6 +18,7 @@ static void human(const json_t *r) {
                        imp_client_str(s, "state"), imp_client_int(s, "step"), imp_client_int(s, "steps"));
         else
                 printf("session  none\n");
+        imp_client_print_painting(json_object_get(s, "painting"));
         if (json_is_object(j))
                 printf("jobs     %lld queued, %lld running, %lld failed\n", imp_client_int(j, "queued"),
                        imp_client_int(j, "running"), imp_client_int(j, "failed"));
@@ -33,6 +34,17 @@ static void human(const json_t *r) {
 }
 
 /* What needs the operator (status, report): each item and the command that acts on it. */
+void imp_client_print_painting(const json_t *p) {
+        if (!json_is_object(p))
+                return;
+        char tile_eta[32], eta[32];
+        printf("painting tile %lld of %lld (%lld done), frame %lld of %lld in it, tile ETA %s, painting ETA %s\n",
+               imp_client_int(p, "tile") + 1, imp_client_int(p, "tiles"), imp_client_int(p, "tiles_done"),
+               imp_client_int(p, "tile_frames_done"), imp_client_int(p, "tile_frames"),
+               imp_client_fmt_duration(imp_client_num(p, "tile_eta_s"), tile_eta, sizeof tile_eta),
+               imp_client_fmt_duration(imp_client_num(p, "eta_s"), eta, sizeof eta));
+}
+
 void imp_client_print_attention(const json_t *att) {
         const json_t *items = json_object_get(att, "items"), *it;
         size_t i;

@@ -18,6 +18,7 @@
 #include "protocol.h"
 #include "rig.h"
 #include "projector.h"
+#include "stage.h"
 
 #define DAEMON_MAX_CAMERAS 4
 #define DAEMON_DEVICE_TIMEOUT_MS 3000
@@ -75,6 +76,17 @@ struct dev_projector {
         char detail[256];
 };
 
+/* The gantry of whole-painting scans (docs/painting.md): `stage = { backend; address; }`. */
+struct dev_stage {
+        bool configured;
+        char name[32], backend[32], address[128];
+        struct imp_stage *stage;
+        enum dev_state state;
+        char detail[256];
+        double sigma_mm, sigma_deg;     /* repeatability (default 0.05 mm, 0.05°): painting.json's prior */
+        unsigned settle_timeout_ms;     /* a move not settled by then is stopped (TILE_SETTLE_TIMEOUT_MS) */
+};
+
 struct rigcfg {
         char name[64];
         char path[PATH_MAX];
@@ -84,6 +96,7 @@ struct rigcfg {
         struct dev_camera cameras[DAEMON_MAX_CAMERAS];
         struct dev_dome dome;
         struct dev_projector projector;
+        struct dev_stage stage;
         int32_t tile_pitch_um;          /* gantry step per tile on dome axis 0 (0: no gantry) */
         unsigned timeout_ms;            /* device open timeout (--device-timeout-ms) */
 };
@@ -179,6 +192,15 @@ struct session {
         } streamed;
         struct imp_pattern *patterns;   /* distinct patterns of the plan (projector upload) */
         unsigned n_patterns;
+        /* A whole painting (session-painting.c, docs/painting.md): the plan's frames are one
+         * tile's, frames_total is tiles × tile_frames, n_frames and n_captured count over the
+         * painting, cs is the current tile's set (SESSION/tiles/NNNN). */
+        const struct imp_tile_plan *tiles;      /* the plan's painting group; NULL: one field */
+        size_t tile_frames;                     /* frames per tile (= frames_total without tiles) */
+        json_t *painting;                       /* SESSION/painting.json */
+        int cs_tile;                            /* the tile of cs, -1 none */
+        bool at_tile;                           /* the stage stands at cs_tile, read back */
+        double stage_cmd_mm[3], stage_rb_mm[3]; /* commanded and read back for cs_tile */
 };
 
 /* store.c: session.json and the state directory. */
@@ -219,6 +241,24 @@ void store_writer_flush(struct store_writer *w);
  * `done` callback, the writer goes once that delivery returns. */
 void store_writer_free(struct store_writer *w);
 
+/* session-painting.c: sessions of a plan with a painting group, tile by tile on the gantry. */
+bool painting_session_dir(const char *dir);
+int painting_start(struct session *s, const char *plan_text, struct imp_proto_error *perr);
+int painting_prepare_stage(struct session *s, struct imp_proto_error *perr);
+/* Before frame s->n_captured: enters its tile when needed (the last tile's frames all
+ * durable first: 0 = wait for the writer) and checks the stage; 1 = capture the frame.
+ * Negative: msg says what and where, *device the device ("stage") or NULL (storage). */
+int painting_step(struct session *s, store_done_fn done, const char **device, char *msg, size_t size);
+/* After frame s->n_captured was grabbed: the stage still stood at its tile (else the frame
+ * is dropped and taken again after the resume). Negative with msg as painting_step. */
+int painting_check_frame(struct session *s, char *msg, size_t size);
+void painting_stamp(const struct session *s, struct imp_frame_record *rec);
+/* A completed session: its last tile done and queued. */
+void painting_finish(struct session *s);
+int painting_reopen(struct session *s, struct imp_proto_error *perr);
+/* {"tiles","tiles_done","tile","tile_frames","tile_frames_done","tile_eta_s"}, NULL without tiles. */
+json_t *painting_progress_json(const struct session *s, double eta_s);
+
 /* session.c */
 int session_start(struct daemon *d, const char *plan_path, const char *name, struct session **ret,
                   struct imp_proto_error *perr);
@@ -229,6 +269,8 @@ void session_free(struct session *s);
 struct session *session_find(struct daemon *d, const char *id);
 json_t *session_summary_json(const struct session *s);
 json_t *session_show_json(const struct session *s);
+/* A painting's progress and ETA, by tile and whole (painting_progress_json + "eta_s"), or NULL. */
+json_t *session_painting_json(const struct session *s);
 /* Load a plan against the daemon's rig for validate/estimate. */
 int plan_check(struct daemon *d, const char *path, struct imp_plan **ret, struct imp_proto_error *perr);
 /* On shutdown: stop stepping, leave devices safe, flush. The state file keeps "running" so
@@ -276,6 +318,8 @@ int daemon_spawn(struct daemon *d, const char *const *argv, int fd_out, int fd_e
                  void *userdata, pid_t *ret_pid, sd_event_source **ret_source);
 int jobs_load(struct daemon *d);
 int jobs_enqueue(struct daemon *d, const struct session *s);
+/* A job of any capture set (a painting's tile): id, set and output given. -EEXIST when queued. */
+int jobs_enqueue_set(struct daemon *d, const char *session, const char *id, const char *set_dir, const char *output);
 int jobs_retry(struct daemon *d, struct job *j, struct imp_proto_error *perr);
 struct job *jobs_find(struct daemon *d, const char *id);
 json_t *job_json(const struct job *j, bool full);

@@ -430,14 +430,20 @@ static json_t *worker_args_json(const struct daemon *d) {
 int jobs_enqueue(struct daemon *d, const struct session *s) {
         if (calibrations_own_session(d, s->id))
                 return 0;       /* its set is calibrated (calibration.c), not processed */
-        if (jobs_find(d, s->id))
+        char out[PATH_MAX];
+        snprintf(out, sizeof out, "%.2000s/outputs/%s", d->state_dir, s->id);
+        return jobs_enqueue_set(d, s->id, s->id, s->dir, out);
+}
+
+int jobs_enqueue_set(struct daemon *d, const char *session, const char *id, const char *set_dir, const char *output) {
+        if (jobs_find(d, id))
                 return -EEXIST;
-        struct job *j = job_new(d, s->id);
+        struct job *j = job_new(d, id);
         if (!j)
                 return -ENOMEM;
-        snprintf(j->session, sizeof j->session, "%s", s->id);
-        snprintf(j->set_dir, sizeof j->set_dir, "%s", s->dir);
-        snprintf(j->output, sizeof j->output, "%s/outputs/%s", d->state_dir, s->id);
+        snprintf(j->session, sizeof j->session, "%s", session);
+        snprintf(j->set_dir, sizeof j->set_dir, "%s", set_dir);
+        snprintf(j->output, sizeof j->output, "%s", output);
         rfc3339_now(j->queued);
         j->worker_args = worker_args_json(d);
         j->state = IMP_JOB_QUEUED;

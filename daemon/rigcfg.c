@@ -10,6 +10,7 @@
 #include "impastod.h"
 #include "json-util.h"
 #include "log.h"
+#include "tile-session.h"
 
 static const char *const dev_state_names[] = { "absent", "ok", "busy", "fault" };
 
@@ -22,9 +23,13 @@ static int get_dev(struct imp_conf *c, config_setting_t *g, char *name, size_t n
         static const char *const known[] = { "name", "backend", "address", NULL };
         /* cameras (no default name) may also say `stream = false;` (session.c, streamed runs) */
         static const char *const camera_known[] = { "name", "backend", "address", "stream", NULL };
+        /* the stage's repeatability: the prior of tile poses in painting.json (docs/painting.md) */
+        static const char *const stage_known[] = { "name", "backend", "address", "sigma_mm", "sigma_deg",
+                                                    "settle_timeout_ms", NULL };
         const char *n = default_name, *b = NULL, *a = NULL;
         int r;
-        if ((r = imp_conf_check_known(c, g, default_name ? known : camera_known, err)) < 0 ||
+        bool stage = default_name && !strcmp(default_name, "stage");
+        if ((r = imp_conf_check_known(c, g, stage ? stage_known : default_name ? known : camera_known, err)) < 0 ||
             (r = imp_conf_get_string(c, g, "name", default_name == NULL, &n, err)) < 0 ||
             (r = imp_conf_get_string(c, g, "backend", true, &b, err)) < 0 ||
             (r = imp_conf_get_string(c, g, "address", true, &a, err)) < 0)
@@ -68,7 +73,7 @@ int rigcfg_load(const char *path, struct rigcfg **ret, struct imp_error *err) {
         if ((r = imp_conf_get_group(c, NULL, "rig", true, &g, err)) < 0)
                 return r;
         static const char *const known[] = { "name", "calibration", "cameras", "projector", "dome",
-                                             "tile_pitch_um", "stream", NULL };
+                                             "stage", "tile_pitch_um", "stream", NULL };
         if ((r = imp_conf_check_known(c, g, known, err)) < 0)
                 return r;
         struct rigcfg *rc = calloc(1, sizeof *rc);
@@ -124,6 +129,20 @@ int rigcfg_load(const char *path, struct rigcfg **ret, struct imp_error *err) {
                         goto fail;
                 rc->projector.configured = true;
         }
+        sub = config_setting_get_member(g, "stage");
+        if (sub) {
+                rc->stage.sigma_mm = 0.05;
+                rc->stage.sigma_deg = 0.05;
+                long long settle_ms = TILE_SETTLE_TIMEOUT_MS;
+                if ((r = get_dev(c, sub, rc->stage.name, sizeof rc->stage.name, rc->stage.backend,
+                                 rc->stage.address, "stage", err)) < 0 ||
+                    (r = imp_conf_get_double(c, sub, "sigma_mm", false, 1e-6, 100, &rc->stage.sigma_mm, err)) < 0 ||
+                    (r = imp_conf_get_double(c, sub, "sigma_deg", false, 1e-6, 10, &rc->stage.sigma_deg, err)) < 0 ||
+                    (r = imp_conf_get_int(c, sub, "settle_timeout_ms", false, 100, 3600000, &settle_ms, err)) < 0)
+                        goto fail;
+                rc->stage.settle_timeout_ms = (unsigned) settle_ms;
+                rc->stage.configured = true;
+        }
         rc->config = setting_json(g);
         *ret = rc;
         return 0;
@@ -145,6 +164,8 @@ void rigcfg_close_devices(struct rigcfg *rc) {
         rc->dome.dome = NULL;
         imp_projector_close(rc->projector.proj);
         rc->projector.proj = NULL;
+        imp_stage_close(rc->stage.stage);
+        rc->stage.stage = NULL;
 }
 
 void rigcfg_free(struct rigcfg *rc) {
@@ -239,6 +260,21 @@ static int open_projector(struct dev_projector *dp, struct imp_error *err) {
         return 0;
 }
 
+static int open_stage(struct dev_stage *ds, struct imp_error *err) {
+        int r = imp_stage_open(ds->backend, ds->address, DAEMON_DEVICE_TIMEOUT_MS, &ds->stage);
+        if (r < 0) {
+                ds->stage = NULL;
+                ds->state = DEV_FAULT;
+                snprintf(ds->detail, sizeof ds->detail, "%s at %s: %s", ds->backend, ds->address, strerror(-r));
+                return imp_error_set(err, r, "stage %s: %s", ds->name, ds->detail);
+        }
+        struct imp_stage_info info = { 0 };
+        (void) imp_stage_get_info(ds->stage, &info);
+        ds->state = DEV_OK;
+        snprintf(ds->detail, sizeof ds->detail, "%s, %u axes", info.model, info.n_axes);
+        return 0;
+}
+
 int rigcfg_open_devices(struct rigcfg *rc, const struct imp_rig *rig, struct imp_error *err) {
         int first = 0, r;
         struct imp_error e = { 0 };
@@ -259,6 +295,8 @@ int rigcfg_open_devices(struct rigcfg *rc, const struct imp_rig *rig, struct imp
                 first = r;
         if (rc->projector.configured && !rc->projector.proj &&
             (r = open_projector(&rc->projector, first ? &e : err)) < 0 && !first)
+                first = r;
+        if (rc->stage.configured && !rc->stage.stage && (r = open_stage(&rc->stage, first ? &e : err)) < 0 && !first)
                 first = r;
         return first;
 }
@@ -290,6 +328,11 @@ json_t *rigcfg_devices_json(struct rigcfg *rc) {
                                                    "class", "dome", "backend", rc->dome.backend,
                                                    "address", rc->dome.address, "state",
                                                    dev_state_name(rc->dome.state), "detail", rc->dome.detail));
+        if (rc->stage.configured)
+                json_array_append_new(a, json_pack("{s:s, s:s, s:s, s:s, s:s, s:s}", "name", rc->stage.name,
+                                                   "class", "stage", "backend", rc->stage.backend,
+                                                   "address", rc->stage.address, "state",
+                                                   dev_state_name(rc->stage.state), "detail", rc->stage.detail));
         return a;
 }
 

@@ -215,6 +215,11 @@ static json_t *cmd_status(struct client *c, const struct imp_proto_request *req,
                 sess = json_pack("{s:s, s:s, s:I, s:I}", "session", d->active->id, "state",
                                  session_state_name(d->active->state), "step", (json_int_t) d->active->n_frames,
                                  "steps", (json_int_t) d->active->frames_total);
+        json_t *painting = d->active ? session_painting_json(d->active) : NULL;
+        if (painting && sess)
+                json_object_set_new(sess, "painting", painting);
+        else
+                json_decref(painting);
         unsigned failed = 0;
         for (struct job *j = d->jobs; j; j = j->next)
                 failed += j->state == IMP_JOB_FAILED;

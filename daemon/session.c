@@ -59,6 +59,11 @@ static uint64_t now_ns(clockid_t clk) {
         return (uint64_t) ts.tv_sec * 1000000000ULL + (uint64_t) ts.tv_nsec;
 }
 
+/* Frame g of the session: of a painting, frame g mod tile_frames of the plan (one tile's). */
+static const struct imp_frame_record *plan_at(const struct session *s, size_t g) {
+        return imp_plan_frame(s->plan, s->tiles && s->tile_frames ? g % s->tile_frames : g);
+}
+
 struct session *session_find(struct daemon *d, const char *id) {
         for (struct session *s = d->sessions; s; s = s->next)
                 if (!strcmp(s->id, id))
@@ -69,6 +74,7 @@ struct session *session_find(struct daemon *d, const char *id) {
 void session_free(struct session *s) {
         if (!s)
                 return;
+        json_decref(s->painting);
         sd_event_source_disable_unref(s->step_source);
         store_writer_free(s->writer);
         imp_captureset_close(s->cs);
@@ -134,22 +140,30 @@ int plan_check(struct daemon *d, const char *path, struct imp_plan **ret, struct
 
 /* ---- events ---------------------------------------------------------------------------- */
 
-static void emit_progress(struct session *s) {
-        double eta_s;
+/* From this run's rate (a painting's: tile moves included), else from the plan's estimate. */
+static double eta_now(const struct session *s) {
         size_t remaining = s->frames_total - s->n_frames;
         size_t done_run = s->n_frames - s->run_started_frames;
-        if (done_run > 0) {
+        if (done_run > 0 && s->state == SESSION_CAPTURING) {
                 double el_s = (double) (now_ns(CLOCK_MONOTONIC) / 1000 - s->run_started_us) / 1e6;
-                eta_s = el_s / (double) done_run * (double) remaining;
-        } else
-                eta_s = s->frames_total ? s->estimate_s * (double) remaining / (double) s->frames_total : 0;
+                return el_s / (double) done_run * (double) remaining;
+        }
+        double est = s->tiles ? s->estimate_s * (double) imp_tile_plan_count(s->tiles) : s->estimate_s;
+        return s->frames_total ? est * (double) remaining / (double) s->frames_total : 0;
+}
+
+static void emit_progress(struct session *s) {
+        double eta_s = eta_now(s);
         const char *st = s->state == SESSION_PAUSED ? "paused" : "running";
-        server_broadcast(s->d, "progress",
-                         json_pack("{s:s, s:I, s:I, s:I, s:I, s:I, s:f, s:s}", "session", s->id,
-                                   "step", (json_int_t) s->n_frames, "steps", (json_int_t) s->frames_total,
-                                   "frames", (json_int_t) s->n_frames,
-                                   "frames_total", (json_int_t) s->frames_total, "bytes",
-                                   (json_int_t) s->bytes, "eta_s", eta_s, "state", st));
+        json_t *ev = json_pack("{s:s, s:I, s:I, s:I, s:I, s:I, s:f, s:s}", "session", s->id,
+                               "step", (json_int_t) s->n_frames, "steps", (json_int_t) s->frames_total,
+                               "frames", (json_int_t) s->n_frames,
+                               "frames_total", (json_int_t) s->frames_total, "bytes",
+                               (json_int_t) s->bytes, "eta_s", eta_s, "state", st);
+        json_t *pj = painting_progress_json(s, eta_s);
+        if (ev && pj)
+                json_object_set_new(ev, "painting", pj);
+        server_broadcast(s->d, "progress", ev);
 }
 
 static void emit_fault(struct session *s, const char *device, enum imp_proto_errcode code, int err,
@@ -171,7 +185,8 @@ static void emit_fault(struct session *s, const char *device, enum imp_proto_err
         if (device)
                 server_broadcast(s->d, "device", json_pack("{s:s, s:s, s:s}", "device", device, "class",
                                                           !strcmp(device, "dome") ? "dome" :
-                                                          !strcmp(device, "projector") ? "projector" : "camera",
+                                                          !strcmp(device, "projector") ? "projector" :
+                                                          !strcmp(device, s->d->rigcfg->stage.name) ? "stage" : "camera",
                                                           "state", "fault"));
 }
 
@@ -261,6 +276,8 @@ static void finish(struct session *s, enum session_state st) {
         s->cs = NULL;
         if (s->d->active == s)
                 s->d->active = NULL;
+        if (st == SESSION_COMPLETED)
+                painting_finish(s);     /* its last tile done and queued (each tile is a job) */
         save(s);
         log_info("session %s: %s, %zu of %zu frames; streamed %zu frames in %zu runs, %zu lost and re-captured, "
                  "%zu stale discarded, %zu runs cut by a full store queue", s->id, session_state_name(st), s->n_frames,
@@ -271,7 +288,7 @@ static void finish(struct session *s, enum session_state st) {
                                                  "path", s->dir));
         /* a session's end is what a calibration waits for (after the event is queued) */
         calibrations_session_ended(s->d, s->id, session_state_name(st));
-        if (st == SESSION_COMPLETED)
+        if (st == SESSION_COMPLETED && !s->tiles)
                 (void) jobs_enqueue(s->d, s);
 }
 
@@ -353,7 +370,7 @@ static int frame_to_image(const struct imp_frame *f, struct imp_image **ret) {
 /* Phase 0: put the rig in the state the frame needs; returns the settle time to wait. */
 static int setup_frame(struct session *s, const struct imp_frame_record *rec, uint64_t *ret_settle_us) {
         struct rigcfg *rc = s->d->rigcfg;
-        const struct imp_frame_record *prev = s->n_captured > 0 ? imp_plan_frame(s->plan, s->n_captured - 1) : NULL;
+        const struct imp_frame_record *prev = s->n_captured > 0 ? plan_at(s, s->n_captured - 1) : NULL;
         bool changed = !prev || s->shown_pattern == -2;
         int r;
         if (rec->tile != s->current_tile && rc->tile_pitch_um > 0 && rc->dome.dome) {
@@ -463,11 +480,17 @@ static int grab_image(struct session *s, struct dev_camera *cam, unsigned timeou
 static int store_frame(struct session *s, const struct imp_frame_record *rec, struct imp_image *img) {
         struct rigcfg *rc = s->d->rigcfg;
         int r;
+        char msg[1024];
+        if (s->tiles && (r = painting_check_frame(s, msg, sizeof msg)) < 0) {
+                imp_image_free(img);    /* taken maybe elsewhere: taken again on resume */
+                pause_with_fault(s, s->d->rigcfg->stage.name, IMP_PROTO_E_DEVICE, r, msg);
+                return r;
+        }
         if (s->stream_cam && s->n_captured + 1 >= s->stream_end)
                 stream_stop(s);
         /* The light stays on through an exposure stack; off before anything else. */
         const struct imp_frame_record *next = s->n_captured + 1 < s->frames_total ?
-                                              imp_plan_frame(s->plan, s->n_captured + 1) : NULL;
+                                              plan_at(s, s->n_captured + 1) : NULL;
         if (rc->dome.dome && rec->light >= 0 && (!next || next->light != rec->light) &&
             (r = imp_dome_all_off(rc->dome.dome)) < 0) {
                 imp_image_free(img);
@@ -486,7 +509,7 @@ static int store_frame(struct session *s, const struct imp_frame_record *rec, st
 /* Switches the camera to free running for the run of frames in rec's state that starts here,
  * when it is long enough and the camera may stream. 1: streaming, 0: capture it triggered. */
 static int stream_start(struct session *s, struct dev_camera *cam) {
-        size_t n = imp_plan_run_length(s->plan, s->n_captured);
+        size_t n = imp_plan_run_length(s->plan, s->tiles ? s->n_captured % s->tile_frames : s->n_captured);
         if (!cam->stream || n < STREAM_MIN_FRAMES)
                 return 0;
         s->stream_t0_ns = now_ns(CLOCK_REALTIME);
@@ -537,6 +560,7 @@ static int stream_frame(struct session *s, const struct imp_frame_record *plan_r
                 s->streamed.lost += imp_camera_frames_skipped(s->stream_last_id, meta.frame_id);
         s->stream_last_id = meta.frame_id;
         struct imp_frame_record rec = *plan_rec;
+        painting_stamp(s, &rec);
         rec.t_light_on_ns = (long long) s->t_light_on_ns;
         rec.t_trigger_ns = (long long) s->stream_t0_ns;         /* the run's start: no trigger per frame */
         rec.t_frame_ns = (long long) now_ns(CLOCK_REALTIME);
@@ -561,6 +585,7 @@ static int expose_frame(struct session *s, const struct imp_frame_record *plan_r
                 return -ENODEV;
         }
         struct imp_frame_record rec = *plan_rec;
+        painting_stamp(s, &rec);
         if ((r = apply_exposure(cam, rec.exposure_us, rec.gain_db)) < 0) {
                 step_failed(s, cam->name, r, "exposure or gain");
                 return r;
@@ -645,8 +670,17 @@ static int step_cb(sd_event_source *src, uint64_t usec, void *userdata) {
         /* Every frame captured, or the writer's queue full: its results step on. */
         if (s->n_captured >= s->frames_total || store_writer_full(s->writer))
                 return 0;
-        const struct imp_frame_record *rec = imp_plan_frame(s->plan, s->n_captured);
+        const struct imp_frame_record *rec = plan_at(s, s->n_captured);
         int r;
+        if (s->tiles && !s->stream_cam && s->phase == 0) {
+                char msg[1024];
+                const char *device = NULL;
+                r = painting_step(s, on_stored, &device, msg, sizeof msg);
+                if (r < 0)
+                        pause_with_fault(s, device, device ? IMP_PROTO_E_DEVICE : IMP_PROTO_E_IO, r, msg);
+                if (r <= 0)
+                        return 0;
+        }
         if (s->stream_cam || s->phase == 0) {
                 char msg[512];
                 /* This frame and those the writer still holds. */
@@ -691,6 +725,8 @@ static int begin_capture(struct session *s, struct imp_proto_error *perr) {
         if (r < 0)
                 return imp_proto_error_set(perr, IMP_PROTO_E_DEVICE, -r, NULL, "%s", e.msg);
         forget_exposures(d->rigcfg);
+        if (s->tiles && (r = painting_prepare_stage(s, perr)) < 0)
+                return r;
         if (s->n_patterns > 0) {
                 if (!d->rigcfg->projector.proj)
                         return imp_proto_error_set(perr, IMP_PROTO_E_INVALID_PLAN, EINVAL, "args.plan",
@@ -702,7 +738,8 @@ static int begin_capture(struct session *s, struct imp_proto_error *perr) {
                                                    "projector %s: uploading %u patterns: %s",
                                                    d->rigcfg->projector.name, s->n_patterns, strerror(-r));
         }
-        if (!s->writer && (r = store_writer_new(d->event, s->cs, on_stored, s, &s->writer)) < 0)
+        /* a painting's writer is its tile's (painting_step) */
+        if (!s->tiles && !s->writer && (r = store_writer_new(d->event, s->cs, on_stored, s, &s->writer)) < 0)
                 return imp_proto_error_set(perr, IMP_PROTO_E_INTERNAL, -r, NULL, "starting the store writer: %s",
                                            strerror(-r));
         s->n_captured = s->n_frames;    /* the writer holds nothing between runs */
@@ -754,12 +791,6 @@ int session_start(struct daemon *d, const char *plan_path, const char *name, str
         int r = plan_load_text(d, plan_path, &plan, &plan_text, perr);
         if (r < 0)
                 return r;
-        if (imp_plan_tiles(plan)) {     /* one tile's frames without the gantry would pass for the painting */
-                imp_plan_free(plan);
-                return imp_proto_error_set(perr, IMP_PROTO_E_INVALID_PLAN, EOPNOTSUPP, "args.plan",
-                                           "%s: a plan with a painting group is scanned tile by tile on a gantry, "
-                                           "which impastod does not run yet (docs/painting.md)", plan_path);
-        }
         struct session *s = calloc(1, sizeof *s);
         if (!s) {
                 imp_plan_free(plan);
@@ -769,6 +800,17 @@ int session_start(struct daemon *d, const char *plan_path, const char *name, str
         s->plan = plan;
         s->faults = json_array();
         s->frames_total = imp_plan_count(plan);
+        s->tile_frames = s->frames_total;
+        s->cs_tile = -1;
+        s->tiles = imp_plan_tiles(plan);
+        if (s->tiles)
+                s->frames_total *= imp_tile_plan_count(s->tiles);
+        if (s->tiles && !d->rigcfg->stage.configured) {
+                session_free(s);
+                return imp_proto_error_set(perr, IMP_PROTO_E_INVALID_PLAN, EINVAL, "args.plan",
+                                           "%s: a plan with a painting group needs a stage in the rig config "
+                                           "(rig.stage = { backend; address; }, docs/painting.md)", plan_path);
+        }
         snprintf(s->name, sizeof s->name, "%s", name ? name : "session");
         snprintf(s->plan_path, sizeof s->plan_path, "%s", plan_path);
         make_id(d, s->name, s->id, sizeof s->id);
@@ -784,7 +826,7 @@ int session_start(struct daemon *d, const char *plan_path, const char *name, str
         }
         uint64_t need = 0;
         for (size_t i = 0; i < s->frames_total; i++)
-                need += store_frame_bytes(&s->rig, imp_plan_frame(plan, i)->camera);
+                need += store_frame_bytes(&s->rig, plan_at(s, i)->camera);
         char msg[512];
         if ((r = check_disk(s, need, msg, sizeof msg)) < 0) {
                 session_free(s);
@@ -794,7 +836,12 @@ int session_start(struct daemon *d, const char *plan_path, const char *name, str
         s->state = SESSION_PREPARING;
         rfc3339_now(s->started);
         struct imp_error e = { 0 };
-        if ((r = imp_captureset_create_with_plan(s->dir, &s->rig, plan_text, strlen(plan_text), &s->cs, &e)) < 0) {
+        if (imp_plan_tiles(plan)) {
+                if ((r = painting_start(s, plan_text, perr)) < 0) {
+                        session_free(s);
+                        return r;
+                }
+        } else if ((r = imp_captureset_create_with_plan(s->dir, &s->rig, plan_text, strlen(plan_text), &s->cs, &e)) < 0) {
                 session_free(s);
                 return imp_proto_error_set(perr, IMP_PROTO_E_IO, -r, NULL, "%s", e.msg);
         }
@@ -853,19 +900,9 @@ static int repair_for_resume(struct session *s, struct imp_proto_error *perr) {
 
 /* Reopen the set (after repair_for_resume), reload rig and plan from it, check the records
  * already there against the plan: capture continues at the first missing seq. */
-static int reopen(struct session *s, struct imp_proto_error *perr) {
+static int load_plan(struct session *s, struct imp_proto_error *perr) {
         struct imp_error e = { 0 };
-        int r = repair_for_resume(s, perr);
-        if (r < 0)
-                return r;
-        r = imp_captureset_open(s->dir, &s->cs, &e);
-        if (r < 0)
-                return imp_proto_error_set(perr, IMP_PROTO_E_IO, -r, NULL, "%s", e.msg);
-        if (!s->have_rig) {
-                if ((r = imp_rig_copy(imp_captureset_rig(s->cs), &s->rig)) < 0)
-                        return imp_proto_error_set(perr, IMP_PROTO_E_INTERNAL, -r, NULL, "out of memory");
-                s->have_rig = true;
-        }
+        int r;
         if (!s->plan) {
                 char p[PATH_MAX + 16];
                 snprintf(p, sizeof p, "%s/plan.cfg", s->dir);
@@ -878,6 +915,42 @@ static int reopen(struct session *s, struct imp_proto_error *perr) {
                         return imp_proto_error_set(perr, IMP_PROTO_E_INTERNAL, -r, NULL, "out of memory");
                 s->estimate_s = imp_plan_estimate_s(s->plan, &s->rig);
         }
+        return 0;
+}
+
+/* A painting's session directory: rig.json and plan.cfg beside painting.json and its tiles. */
+static int reopen_painting(struct session *s, struct imp_proto_error *perr) {
+        struct imp_error e = { 0 };
+        int r;
+        if (!s->have_rig) {
+                char p[PATH_MAX + 16];
+                snprintf(p, sizeof p, "%s/rig.json", s->dir);
+                if ((r = imp_rig_load(p, &s->rig, &e)) < 0)
+                        return imp_proto_error_set(perr, IMP_PROTO_E_IO, -r, NULL, "%s", e.msg);
+                s->have_rig = true;
+        }
+        if ((r = load_plan(s, perr)) < 0)
+                return r;
+        return painting_reopen(s, perr);
+}
+
+static int reopen(struct session *s, struct imp_proto_error *perr) {
+        struct imp_error e = { 0 };
+        if (s->tiles || painting_session_dir(s->dir))
+                return reopen_painting(s, perr);
+        int r = repair_for_resume(s, perr);
+        if (r < 0)
+                return r;
+        r = imp_captureset_open(s->dir, &s->cs, &e);
+        if (r < 0)
+                return imp_proto_error_set(perr, IMP_PROTO_E_IO, -r, NULL, "%s", e.msg);
+        if (!s->have_rig) {
+                if ((r = imp_rig_copy(imp_captureset_rig(s->cs), &s->rig)) < 0)
+                        return imp_proto_error_set(perr, IMP_PROTO_E_INTERNAL, -r, NULL, "out of memory");
+                s->have_rig = true;
+        }
+        if ((r = load_plan(s, perr)) < 0)
+                return r;
         s->frames_total = imp_plan_count(s->plan);
         size_t n = imp_captureset_count(s->cs);
         if (n > s->frames_total)
@@ -924,7 +997,7 @@ int session_resume(struct session *s, struct imp_proto_error *perr) {
         char msg[512];
         uint64_t need = 0;
         for (size_t i = s->n_frames; i < s->frames_total; i++)
-                need += store_frame_bytes(&s->rig, imp_plan_frame(s->plan, i)->camera);
+                need += store_frame_bytes(&s->rig, plan_at(s, i)->camera);
         if ((r = check_disk(s, need, msg, sizeof msg)) < 0) {
                 d->active = s;
                 pause_with_fault(s, NULL, IMP_PROTO_E_IO, r, msg);
@@ -984,10 +1057,21 @@ json_t *session_show_json(const struct session *s) {
         json_t *streamed = json_pack("{s:I, s:I, s:I, s:I, s:I}", "runs", (json_int_t) s->streamed.runs, "frames",
                                      (json_int_t) s->streamed.frames, "lost", (json_int_t) s->streamed.lost,
                                      "stale", (json_int_t) s->streamed.stale, "stops", (json_int_t) s->streamed.stops);
-        return with_damage(json_pack("{s:s, s:s, s:s, s:s, s:s, s:s, s:s?, s:I, s:I, s:I, s:b, s:O, s:o}", "session", s->id,
+        json_t *j = with_damage(json_pack("{s:s, s:s, s:s, s:s, s:s, s:s, s:s?, s:I, s:I, s:I, s:b, s:O, s:o}", "session", s->id,
                          "name", s->name, "state", session_state_name(s->state), "plan", s->plan_path, "path",
                          s->dir, "started", s->started, "ended", s->ended[0] ? s->ended : NULL, "step",
                          (json_int_t) s->n_frames, "steps", (json_int_t) s->frames_total, "frames",
                          (json_int_t) s->n_frames, "interrupted", s->interrupted, "faults", s->faults,
                          "streamed", streamed), s);
+        json_t *pj = j ? session_painting_json(s) : NULL;
+        if (pj)
+                json_object_set_new(j, "painting", pj);
+        return j;
+}
+
+json_t *session_painting_json(const struct session *s) {
+        json_t *pj = painting_progress_json(s, eta_now(s));
+        if (pj)
+                json_object_set_new(pj, "eta_s", json_real(eta_now(s)));
+        return pj;
 }

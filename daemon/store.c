@@ -55,6 +55,21 @@ static size_t count_manifest_lines(const char *dir) {
         return n;
 }
 
+/* A painting's session directory: the frames of its tile sets (tiles/NNNN, in order). */
+static size_t count_frames(const char *dir) {
+        if (!painting_session_dir(dir))
+                return count_manifest_lines(dir);
+        size_t n = 0;
+        for (size_t k = 0; k < 100000; k++) {
+                char p[PATH_MAX + 32];
+                snprintf(p, sizeof p, "%.4000s/tiles/%04zu", dir, k);
+                if (access(p, F_OK) < 0)
+                        break;
+                n += count_manifest_lines(p);
+        }
+        return n;
+}
+
 static struct session *session_new_loaded(struct daemon *d, const char *dir, const char *id) {
         struct session *s = calloc(1, sizeof *s);
         if (!s)
@@ -64,6 +79,7 @@ static struct session *session_new_loaded(struct daemon *d, const char *dir, con
         snprintf(s->dir, sizeof s->dir, "%.4000s", dir);
         s->shown_pattern = -1;
         s->current_tile = -1;
+        s->cs_tile = -1;
         return s;
 }
 
@@ -132,7 +148,7 @@ static int load_one(struct daemon *d, const char *dir, const char *id) {
                 s->state = SESSION_PAUSED;
                 s->interrupted = true;
         }
-        s->n_frames = count_manifest_lines(dir);
+        s->n_frames = count_frames(dir);
         s->next = d->sessions;
         d->sessions = s;
         return 0;

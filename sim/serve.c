@@ -10,11 +10,14 @@
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
+#include <math.h>
+#include "gantry.h"
 #include "render.h"
 #include "serve.h"
 #if defined(IMPASTO_EMU_HAVE_GIGE) && defined(IMPASTO_EMU_HAVE_MODBUS)
 #define SERVE_AVAILABLE 1
 #include "emu.h"
+#include "emu-stage.h"
 #endif
 
 #define DEFAULT_ADDRESS "127.0.0.1"
@@ -33,7 +36,7 @@ struct serve_cam {
 };
 
 struct imp_serve {
-        const struct imp_scene *scene;
+        struct imp_scene *scene;        /* re-placed under the gantry (imp_scene_place) */
         struct imp_render *render;
         pthread_mutex_t render_lock;
         struct imp_emu_rig *rig;
@@ -45,7 +48,54 @@ struct imp_serve {
         char skipped[512];              /* "cam1 on 127.0.0.2: ..." */
         atomic_uint_fast64_t drop_frame;        /* NO_DROP */
         atomic_uint frame_delay_ms;
+        /* A gantry scene: the GRBL controller on a pty; the scene placed for where the
+         * carriage stands (placed_mm) when a frame is filled. */
+        struct imp_emu_stage *stage;
+        const struct imp_tile_plan *tiles;
+        double placed_mm[3];
+        bool placed;
+        struct imp_rig rig_copy;        /* what imp_serve_rig returns: the renderer is rebuilt */
+        bool have_rig_copy;
 };
+
+/* The tile whose target the carriage stands at (within 1 µm), -1 between tiles. */
+static long tile_at(const struct imp_tile_plan *tp, const double pos_mm[3]) {
+        for (size_t k = 0; k < imp_tile_plan_count(tp); k++) {
+                const double *t = imp_tile_plan_tile(tp, k)->stage_mm;
+                if (fabs(t[0] - pos_mm[0]) < 1e-3 && fabs(t[1] - pos_mm[1]) < 1e-3 && fabs(t[2] - pos_mm[2]) < 1e-3)
+                        return (long) k;
+        }
+        return -1;
+}
+
+/* Under render_lock: the painting placed for the carriage's position now. At a tile's target
+ * the pose is `sim render`'s for that tile (stage_error included, deterministic in the seed
+ * and the tile); elsewhere the carriage is where it reads back. The renderer is rebuilt for
+ * the new window (what the tile sees, never the whole painting). */
+static int place_for_stage(struct imp_serve *s, struct imp_error *err) {
+        double pos[3];
+        imp_emu_stage_position(s->stage, pos);
+        if (s->placed && !memcmp(pos, s->placed_mm, sizeof pos))
+                return 0;
+        struct imp_sim_tile_pose pose = { 0 };
+        long k = tile_at(s->tiles, pos);
+        if (k >= 0)
+                imp_sim_tile_pose(s->scene, s->tiles, (size_t) k, &pose);
+        else
+                for (int a = 0; a < 3; a++)
+                        pose.commanded_mm[a] = pose.readback_mm[a] = pose.true_mm[a] = pos[a];
+        struct imp_painting_place pl;
+        imp_sim_tile_place(s->tiles, &pose, &pl);
+        struct imp_render *rd = NULL;
+        int r = imp_scene_place(s->scene, &pl, err);
+        if (r < 0 || (r = imp_render_new(s->scene, &rd, err)) < 0)
+                return r;
+        imp_render_free(s->render);
+        s->render = rd;
+        memcpy(s->placed_mm, pos, sizeof pos);
+        s->placed = true;
+        return 0;
+}
 
 static void blank_frame(struct serve_cam *c, void *buf, int w, int h, int bpp) {
         memset(buf, 0, (size_t) w * h * bpp);
@@ -63,6 +113,13 @@ static int serve_fill(void *userdata, const struct imp_emu_camera_state *st, voi
                 blank_frame(c, buf, w, h, bpp);
                 return 0;
         }
+        pthread_mutex_lock(&s->render_lock);
+        struct imp_error err = { 0 };
+        if (s->stage && place_for_stage(s, &err) < 0) {
+                pthread_mutex_unlock(&s->render_lock);
+                blank_frame(c, buf, w, h, bpp);
+                return -EIO;
+        }
         const struct imp_rig *rig = imp_render_rig(s->render);
         int lit = -1, n_on = 0;
         for (unsigned i = 0; i < st->n_lights && i < (unsigned) rig->n_lights; i++)
@@ -72,6 +129,7 @@ static int serve_fill(void *userdata, const struct imp_emu_camera_state *st, voi
                 }
         /* The renderer forms one light at full intensity. */
         if (n_on > 1 || (n_on == 1 && st->level_permille[lit] != 1000)) {
+                pthread_mutex_unlock(&s->render_lock);
                 blank_frame(c, buf, w, h, bpp);
                 return -ENOTSUP;
         }
@@ -84,16 +142,14 @@ static int serve_fill(void *userdata, const struct imp_emu_camera_state *st, voi
         };
         snprintf(rec.step, sizeof rec.step, "%s", rec.pattern.kind != IMP_PAT_NONE ? "structured-light" : "dome");
         snprintf(rec.camera, sizeof rec.camera, "%s", rig->cameras[c->index].name);
-        struct imp_error err = { 0 };
         struct imp_image *img = NULL;
-        pthread_mutex_lock(&s->render_lock);
         int r = imp_render_frame(s->render, &rec, &img, &err);
+        int bits = rig->cameras[c->index].sensor.bits;
         pthread_mutex_unlock(&s->render_lock);
         if (r < 0) {
                 blank_frame(c, buf, w, h, bpp);
                 return r;
         }
-        int bits = rig->cameras[c->index].sensor.bits;
         int shift = bits > 8 ? bits - 8 : 0;
         /* The sensor is the scene camera's size; a smaller ROI gets its top-left window. */
         for (int y = 0; y < h; y++)
@@ -122,6 +178,28 @@ static int nth_address(const char *base, int k, char out[INET_ADDRSTRLEN]) {
         return inet_ntop(AF_INET, &a, out, INET_ADDRSTRLEN) ? 0 : -EINVAL;
 }
 
+/* The GRBL controller, its travel covering the plan's tiles, and the painting placed at the
+ * first tile until the carriage moves. */
+static int serve_gantry(struct imp_serve *s, const struct imp_tile_plan *tp, struct imp_error *err) {
+        struct imp_emu_stage_config sc = { .n_axes = 3 };
+        for (size_t k = 0; k < imp_tile_plan_count(tp); k++)
+                for (int a = 0; a < 3; a++)
+                        sc.travel_mm[a] = fmax(sc.travel_mm[a], imp_tile_plan_tile(tp, k)->stage_mm[a]);
+        for (int a = 0; a < 3; a++)
+                sc.travel_mm[a] = fmax(50, ceil(sc.travel_mm[a] * 1.2 + 10));
+        int r = imp_emu_stage_grbl_new(&sc, &s->stage);
+        if (r < 0)
+                return imp_error_set(err, r, "serve: GRBL stage controller on a pseudo-terminal: %s", strerror(-r));
+        s->tiles = tp;
+        struct imp_sim_tile_pose pose;
+        imp_sim_tile_pose(s->scene, tp, 0, &pose);
+        struct imp_painting_place pl;
+        imp_sim_tile_place(tp, &pose, &pl);
+        if ((r = imp_scene_place(s->scene, &pl, err)) < 0)
+                return r;
+        return imp_render_new(s->scene, &s->render, err);
+}
+
 int imp_serve_new(const struct imp_scene *scene, const struct imp_serve_config *cfg, struct imp_serve **ret,
                   struct imp_error *err) {
         if (!scene || !ret)
@@ -133,10 +211,9 @@ int imp_serve_new(const struct imp_scene *scene, const struct imp_serve_config *
         if (srig->n_lights > IMP_EMU_MAX_LIGHTS)
                 return imp_error_set(err, -EINVAL, "serve: scene %s has %d dome lights, the controller holds %d",
                                      imp_scene_name(scene), srig->n_lights, IMP_EMU_MAX_LIGHTS);
-        if (imp_scene_is_gantry(scene))
-                return imp_error_set(err, -EOPNOTSUPP, "serve: scene %s is a painting on a gantry; serving it (frames "
-                                     "for the emulated stage's position) is not built yet: use `impasto sim render "
-                                     "--painting` (docs/painting.md)", imp_scene_name(scene));
+        if (imp_scene_is_gantry(scene) && !(cfg && cfg->tiles))
+                return imp_error_set(err, -EINVAL, "serve: scene %s is a painting on a gantry: give the plan whose "
+                                     "painting group places the tiles (--plan, docs/painting.md)", imp_scene_name(scene));
         for (int i = 0; i < srig->n_cameras; i++)
                 if (imp_scene_camera_opts(scene, i)->colour)
                         return imp_error_set(err, -EOPNOTSUPP,
@@ -145,7 +222,7 @@ int imp_serve_new(const struct imp_scene *scene, const struct imp_serve_config *
         struct imp_serve *s = calloc(1, sizeof *s);
         if (!s)
                 return imp_error_set(err, -ENOMEM, "serve: out of memory");
-        s->scene = scene;
+        s->scene = (struct imp_scene *) scene;   /* placed only when it is a gantry scene */
         pthread_mutex_init(&s->render_lock, NULL);
         atomic_init(&s->drop_frame, NO_DROP);
         atomic_init(&s->frame_delay_ms, 0);
@@ -158,8 +235,15 @@ int imp_serve_new(const struct imp_scene *scene, const struct imp_serve_config *
                                   s->address);
                 goto fail;
         }
-        if ((r = imp_render_new(scene, &s->render, err)) < 0)
+        if (imp_scene_is_gantry(scene) && (r = serve_gantry(s, cfg->tiles, err)) < 0)
                 goto fail;
+        if (!s->render && (r = imp_render_new(scene, &s->render, err)) < 0)
+                goto fail;
+        if ((r = imp_rig_copy(imp_render_rig(s->render), &s->rig_copy)) < 0) {
+                imp_error_set(err, r, "serve: out of memory");
+                goto fail;
+        }
+        s->have_rig_copy = true;
         const struct imp_rig *rig = imp_render_rig(s->render);
         if ((r = imp_emu_rig_new((unsigned) rig->n_lights, &s->rig)) < 0) {
                 imp_error_set(err, r, "serve: emulated rig state");
@@ -228,8 +312,11 @@ void imp_serve_free(struct imp_serve *s) {
         for (int i = 0; i < MAX_CAMERAS; i++)
                 imp_emu_gige_free(s->cams[i].gige);     /* joins the camera threads first */
         imp_emu_modbus_free(s->modbus);
+        imp_emu_stage_free(s->stage);
         imp_emu_rig_free(s->rig);
         imp_render_free(s->render);
+        if (s->have_rig_copy)
+                imp_rig_free(&s->rig_copy);
         pthread_mutex_destroy(&s->render_lock);
         free(s);
 }
@@ -308,7 +395,7 @@ int imp_serve_fault(struct imp_serve *s, const char *spec, struct imp_error *err
 }
 
 const struct imp_rig *imp_serve_rig(const struct imp_serve *s) {
-        return s ? imp_render_rig(s->render) : NULL;
+        return s ? &s->rig_copy : NULL;
 }
 
 int imp_serve_n_cameras(const struct imp_serve *s) {
@@ -341,10 +428,18 @@ struct imp_emu_modbus *imp_serve_modbus(struct imp_serve *s) {
         return s ? s->modbus : NULL;
 }
 
+struct imp_emu_stage *imp_serve_stage(struct imp_serve *s) {
+        return s ? s->stage : NULL;
+}
+
+const char *imp_serve_stage_device(const struct imp_serve *s) {
+        return s && s->stage ? imp_emu_stage_device(s->stage) : NULL;
+}
+
 char *imp_serve_describe(const struct imp_serve *s) {
         if (!s)
                 return NULL;
-        const struct imp_rig *rig = imp_render_rig(s->render);
+        const struct imp_rig *rig = &s->rig_copy;
         char *text = NULL;
         size_t size = 0;
         FILE *f = open_memstream(&text, &size);
@@ -363,6 +458,10 @@ char *imp_serve_describe(const struct imp_serve *s) {
                 fprintf(f, ", projector %s %dx%d", rig->projector.name, rig->projector.model.width,
                         rig->projector.model.height);
         fputc('\n', f);
+        if (s->stage)
+                fprintf(f, "stage: GRBL 1.1 on %s (rig config: stage = { backend = \"grbl\"; address = \"%s\"; };), "
+                        "%zu tiles\n", imp_emu_stage_device(s->stage), imp_emu_stage_device(s->stage),
+                        imp_tile_plan_count(s->tiles));
         fclose(f);
         return text;
 }
@@ -388,6 +487,8 @@ uint64_t imp_serve_frames(const struct imp_serve *s, int cam) { (void) s, (void)
 uint64_t imp_serve_blank_frames(const struct imp_serve *s, int cam) { (void) s, (void) cam; return 0; }
 struct imp_emu_rig *imp_serve_emu_rig(struct imp_serve *s) { (void) s; return NULL; }
 struct imp_emu_modbus *imp_serve_modbus(struct imp_serve *s) { (void) s; return NULL; }
+struct imp_emu_stage *imp_serve_stage(struct imp_serve *s) { (void) s; return NULL; }
+const char *imp_serve_stage_device(const struct imp_serve *s) { (void) s; return NULL; }
 char *imp_serve_describe(const struct imp_serve *s) { (void) s; return NULL; }
 
 #endif

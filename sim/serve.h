@@ -28,10 +28,17 @@
 #include "macro.h"
 #include "rig.h"
 #include "scene.h"
+#include "tiles.h"
 
 struct imp_serve_config {
         const char *address;            /* first camera and the Modbus controller; "127.0.0.1" */
         uint16_t modbus_port;           /* default 15020 */
+        /* A gantry scene (required then): the plan's painting group. The rig gets a GRBL 1.1
+         * controller on a pseudo-terminal (imp_serve_stage_device) and every frame is
+         * rendered for where its carriage stands: at a tile's target with the pose `sim
+         * render` gives that tile (stage_error included), elsewhere at the read-back. The
+         * tile plan must outlive the rig. */
+        const struct imp_tile_plan *tiles;
 };
 
 struct imp_serve;
@@ -70,6 +77,10 @@ uint64_t imp_serve_blank_frames(const struct imp_serve *s, int cam);
 /* The emulators, for tests: rig state (lights, pattern) and the Modbus controller. */
 struct imp_emu_rig *imp_serve_emu_rig(struct imp_serve *s);
 struct imp_emu_modbus *imp_serve_modbus(struct imp_serve *s);
+/* A gantry scene's GRBL controller and the pseudo-terminal a client opens, else NULL. */
+struct imp_emu_stage;
+struct imp_emu_stage *imp_serve_stage(struct imp_serve *s);
+const char *imp_serve_stage_device(const struct imp_serve *s);
 /* A printable summary: cameras and addresses (and any skipped), Modbus endpoint, lights,
  * projector size. malloc'd. */
 char *imp_serve_describe(const struct imp_serve *s);

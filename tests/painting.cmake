@@ -24,10 +24,17 @@ if(TARGET impasto_emu)
   target_sources(test-painting-stage PRIVATE ${PROJECT_SOURCE_DIR}/daemon/tile-session.c)
   target_include_directories(test-painting-stage PRIVATE ${PROJECT_SOURCE_DIR}/daemon ${PROJECT_SOURCE_DIR}/sim/emu)
 endif()
-# impastod refuses to start a session of a painting plan until tile sessions are wired in.
-# Modbus port 15931; run in a private network namespace.
+# impastod scanning a painting tile by tile on the GRBL emulator (daemon/session-painting.c):
+# poses per frame, a job per tile, stage faults that pause and resume, 3 SIGKILLs (Modbus port
+# 15931); the slow variant kills it at 20 random points (port 15932). Run in a private network
+# namespace.
 if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WITH_MODBUS)
-  impasto_test(test-painting-daemon LABELS integration LIBS impasto_proto impasto_pipeline impasto_emu TIMEOUT 120)
+  impasto_test(test-painting-daemon LABELS integration fault LIBS impasto_proto impasto_pipeline impasto_emu
+               TIMEOUT 300)
+  target_include_directories(test-painting-daemon PRIVATE ${PROJECT_SOURCE_DIR}/sim/emu)
   add_dependencies(test-painting-daemon impastod)
   set_tests_properties(test-painting-daemon PROPERTIES RESOURCE_LOCK gvcp)
+  add_test(NAME test-painting-daemon-kill COMMAND test-painting-daemon kill 20)
+  set_tests_properties(test-painting-daemon-kill PROPERTIES LABELS "integration;fault;slow" SKIP_RETURN_CODE 77
+                       TIMEOUT 900 RESOURCE_LOCK gvcp)
 endif()

@@ -134,8 +134,13 @@ static int pattern_from_json(const json_t *j, const char *what, struct imp_patte
         return 0;
 }
 
+static json_t *stage_to_json(const struct imp_frame_record *rec) {
+        const double *c = rec->stage_commanded_mm, *b = rec->stage_readback_mm;
+        return json_pack("{s:[f,f,f], s:[f,f,f]}", "commanded_mm", c[0], c[1], c[2], "readback_mm", b[0], b[1], b[2]);
+}
+
 json_t *imp_frame_record_to_json(const struct imp_frame_record *rec) {
-        return json_pack("{s:I, s:s, s:s, s:i, s:o, s:i, s:i, s:f, s:f, s:I, s:I, s:I, s:s, s:I}",
+        json_t *j = json_pack("{s:I, s:s, s:s, s:i, s:o, s:i, s:i, s:f, s:f, s:I, s:I, s:I, s:s, s:I}",
                          "seq", (json_int_t) rec->seq, "step", rec->step, "camera", rec->camera,
                          "tile", rec->tile, "pattern", pattern_to_json(&rec->pattern),
                          "light", rec->light, "exposure_index", rec->exposure_index,
@@ -144,6 +149,9 @@ json_t *imp_frame_record_to_json(const struct imp_frame_record *rec) {
                          "t_trigger_ns", (json_int_t) rec->t_trigger_ns,
                          "t_frame_ns", (json_int_t) rec->t_frame_ns, "file", rec->file,
                          "crc32", (json_int_t) rec->crc32);
+        if (j && rec->has_stage)
+                json_object_set_new(j, "stage", stage_to_json(rec));
+        return j;
 }
 
 static int get_text(const json_t *j, const char *key, char *buf, size_t size, const char *what,
@@ -200,6 +208,15 @@ int imp_frame_record_from_json(const json_t *j, const char *what, struct imp_fra
             (r = get_ranged_int(j, "crc32", 0, UINT32_MAX, &v, what, err)) < 0)
                 return r;
         rec.crc32 = (uint32_t) v;
+        const json_t *st = json_object_get(j, "stage");
+        if (st) {
+                char w[600];
+                snprintf(w, sizeof w, "%.500s: stage", what);
+                if ((r = imp_json_get_doubles(st, "commanded_mm", true, 3, rec.stage_commanded_mm, w, err)) < 0 ||
+                    (r = imp_json_get_doubles(st, "readback_mm", true, 3, rec.stage_readback_mm, w, err)) < 0)
+                        return r;
+                rec.has_stage = true;
+        }
         *ret = rec;
         return 0;
 }
@@ -944,7 +961,9 @@ static const char *record_diff(const struct imp_frame_record *a, const struct im
                : a->light != b->light ? "light" : a->exposure_index != b->exposure_index ? "exposure_index"
                : a->exposure_us != b->exposure_us ? "exposure_us" : a->gain_db != b->gain_db ? "gain_db"
                : a->t_light_on_ns != b->t_light_on_ns ? "t_light_on_ns" : a->t_trigger_ns != b->t_trigger_ns ? "t_trigger_ns"
-               : a->t_frame_ns != b->t_frame_ns ? "t_frame_ns" : strcmp(a->file, b->file) ? "file" : NULL;
+               : a->t_frame_ns != b->t_frame_ns ? "t_frame_ns" : strcmp(a->file, b->file) ? "file"
+               : a->has_stage != b->has_stage || memcmp(a->stage_commanded_mm, b->stage_commanded_mm, sizeof a->stage_commanded_mm) ||
+                 memcmp(a->stage_readback_mm, b->stage_readback_mm, sizeof a->stage_readback_mm) ? "stage" : NULL;
 }
 
 /* The record each frame carries in its ImageDescription must be the manifest's line, field
@@ -1043,6 +1062,9 @@ static const char *plan_diff(const struct imp_frame_record *rec, const struct im
         a.t_frame_ns = want->t_frame_ns;
         memcpy(a.file, want->file, sizeof a.file);
         a.crc32 = want->crc32;
+        a.has_stage = want->has_stage;       /* the gantry's pose is the daemon's, not the plan's */
+        memcpy(a.stage_commanded_mm, want->stage_commanded_mm, sizeof a.stage_commanded_mm);
+        memcpy(a.stage_readback_mm, want->stage_readback_mm, sizeof a.stage_readback_mm);
         return record_diff(&a, want);
 }
 

@@ -23,6 +23,10 @@ struct imp_frame_record {
         long long t_light_on_ns, t_trigger_ns, t_frame_ns;
         char file[64];                /* relative to the set, "frames/000012.tiff" */
         uint32_t crc32;               /* of the frame file's bytes */
+        /* Whole-painting scans (docs/painting.md): where the gantry was told to go and where
+         * it read back for this frame, machine mm (x, y, z); "stage" in the record. */
+        bool has_stage;
+        double stage_commanded_mm[3], stage_readback_mm[3];
 };
 
 struct imp_captureset;   /* opaque */

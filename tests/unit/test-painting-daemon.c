@@ -1,37 +1,419 @@
-/* impastod and painting plans until tile sessions are wired in (docs/painting.md): a plan
- * with a painting group validates and estimates like any plan, but session.start refuses it
- * with a message naming the plan and why, instead of capturing one tile's frames as if they
- * were the painting. Modbus port 15931; run in a private network namespace. */
+/* impastod scanning a whole painting (daemon/session-painting.c, docs/painting.md) on the real
+ * GRBL stage driver against the GRBL emulator on a pseudo-terminal, with the emulated GigE
+ * camera and Modbus dome. The camera's frames carry where the emulated carriage stood when
+ * they were filled (row 1, pixels 0..2: x, y, z in 10 µm), so a frame taken anywhere but at
+ * its tile is seen.
+ *   run:     a 3 × 2 tile painting: one capture set per tile (tiles/NNNN) whose every frame
+ *            records the commanded and read-back pose and shows the carriage there; painting.json
+ *            all done; a processing job per tile, the first queued before the scan ends;
+ *            progress by tile; the plan with a painting group refused without a stage.
+ *   faults:  a limit switch on the way to tile 2, a position lost inside tile 3, a drive
+ *            alarm inside tile 4 and a move to tile 5 that never settles: each pauses the session with a message naming the tile and
+ *            the remedy, keeps every frame, and `session.resume` (which clears and homes)
+ *            continues at the first frame not captured; the final capture equals `run`'s.
+ *   kill N:  SIGKILL at N random points (0–2 frame events plus 0–30 ms), impastod restarted with
+ *            --resume each time; the final capture equals `run`'s: every frame's pixels
+ *            byte-identical and its poses equal.
+ * Modbus port 15931 (15932 for the slow variant); run in a private network namespace. */
 #define _GNU_SOURCE 1
+#include <math.h>
+#include "emu-stage.h"
 #include "test-daemon-harness.c"
 
-#define PORT 15931
 #define N_LIGHTS 4
+#define FRAMES_PER_TILE (2 * N_LIGHTS + 2)     /* and a dark frame per exposure */
+#define N_TILES 6
+#define TOL_MM 0.010            /* IMP_STAGE_DEFAULT_TOLERANCE_MM: what "settled" means */
 
-int main(void) {
+/* The default frame, and the carriage's position where the formula has its row 1. */
+static int fill_at_stage(void *userdata, const struct imp_emu_camera_state *st, void *buf, int width, int height,
+                         int bpp) {
+        int r = imp_emu_fill_default(NULL, st, buf, width, height, bpp);
+        double pos[3];
+        imp_emu_stage_position(userdata, pos);
+        if (bpp == 2 && height > 1 && width > 2)
+                for (int a = 0; a < 3; a++)
+                        ((uint16_t *) buf)[width + a] = (uint16_t) lround(pos[a] * 100);
+        return r;
+}
+
+struct ctx {
         struct harness h;
-        h_setup(&h, PORT, N_LIGHTS);
-        char plan[512], msg[1024] = "";
-        snprintf(plan, sizeof plan, "%s/painting.cfg", h.dir);
-        h_write(plan, "dome = { lights = \"all\"; exposures_us = [1000.0]; };\n"
-                      "painting = { extent_mm = [100.0, 54.0]; fov_mm = [40.0, 30.0]; };\n");
-        h_start(&h, (const char *const[]) { "--min-free-bytes", "0", NULL });
+        struct imp_emu_stage *emu;
+        char plan[512];
+        const char *const *opts;
+};
+
+static void setup(struct ctx *x, int port) {
+        h_setup(&x->h, port, N_LIGHTS);
+        struct imp_emu_stage_config cfg = { .travel_mm = { 400, 300, 50 } };
+        if (imp_emu_stage_grbl_new(&cfg, &x->emu) < 0)
+                exit(2);
+        imp_emu_gige_free(x->h.gige);
+        if (imp_emu_gige_new("127.0.0.1", "IMP-DAEMON", x->h.rig, fill_at_stage, x->emu, &x->h.gige) < 0)
+                exit(2);
+        char text[2048];
+        snprintf(text, sizeof text,
+                 "rig = {\n  name = \"test-rig\";\n  calibration = \"rig.json\";\n"
+                 "  cameras = ( { name = \"cam0\"; backend = \"aravis\"; address = \"127.0.0.1\"; } );\n"
+                 "  dome = { backend = \"modbus\"; address = \"127.0.0.1:%d\"; };\n"
+                 "  stage = { backend = \"grbl\"; address = \"%s;baud=115200;timeout_ms=1000\"; sigma_mm = 0.02;"
+                 " settle_timeout_ms = 3000; };\n"
+                 "};\n",
+                 port, imp_emu_stage_device(x->emu));
+        h_write(x->h.rigcfg, text);
+        snprintf(x->plan, sizeof x->plan, "%s/painting.cfg", x->h.dir);
+        /* stage x of the tiles: 40, 70, 100; y: 35, 59 (test-painting-stage) */
+        h_write(x->plan, "dome = { lights = \"all\"; exposures_us = [1000.0, 2000.0]; };\ndark = { count = 1; };\n"
+                         "painting = { extent_mm = [100.0, 54.0]; fov_mm = [40.0, 30.0]; origin_mm = [20.0, 20.0];"
+                         " z_mm = 10.0; };\n");
+}
+
+/* The client goes, impastod exits 0 on SIGTERM. */
+static void stop(struct ctx *x, struct tclient *c) {
+        tc_close(c);
+        h_kill(&x->h, SIGTERM);
+        CHECK(h_wait(&x->h, 10000) == 0);
+}
+
+static void start(struct ctx *x, struct tclient *c) {
+        h_start(&x->h, x->opts);
+        CHECK_OK(tc_open(c, x->h.socket, true));
+}
+
+/* Reads events until the session ends or pauses (a fault), or timeout. Returns the state
+ * seen ("completed", "paused", ...), copies the last fault's message. Calls hook on every
+ * progress event (for injecting faults at a tile). */
+typedef void (*progress_hook)(struct ctx *x, const json_t *painting);
+static const char *follow(struct ctx *x, struct tclient *c, progress_hook hook, char *fault, size_t size,
+                          bool *job_before_done) {
+        uint64_t end = h_deadline_ms(60000);
+        static char state[32];
+        bool seen_fault = false, paused = false;
+        snprintf(state, sizeof state, "timeout");
+        while (h_now_ms() < end) {
+                struct imp_proto_message m = { 0 };
+                if (tc_read(c, 5000, &m) < 0)
+                        continue;
+                if (m.kind != IMP_PROTO_MSG_EVENT) {
+                        imp_proto_message_done(&m);
+                        continue;
+                }
+                const char *st = json_string_value(json_object_get(m.root, "state"));
+                bool stop = false;
+                if (getenv("IMPASTO_TEST_VERBOSE") && strcmp(m.event, "frame") && strcmp(m.event, "job"))
+                        fprintf(stderr, "event %s state %s\n", m.event, st ? st : "-");
+                if (!strcmp(m.event, "fault") && fault) {
+                        snprintf(fault, size, "%s", json_string_value(json_object_get(m.root, "message")));
+                        seen_fault = true;
+                        stop = paused;
+                }
+                else if (!strcmp(m.event, "job") && job_before_done && c->n_done == 0)
+                        *job_before_done = true;
+                else if (!strcmp(m.event, "done")) {
+                        snprintf(state, sizeof state, "%s", st ? st : "");
+                        stop = true;
+                } else if (!strcmp(m.event, "progress")) {
+                        const json_t *pj = json_object_get(m.root, "painting");
+                        if (hook && pj)
+                                hook(x, pj);
+                        /* a pause flushes the frames in flight (their progress says paused)
+                         * before the fault is announced: wait for the fault too */
+                        if (st && !strcmp(st, "paused")) {
+                                snprintf(state, sizeof state, "paused");
+                                stop = !fault || seen_fault;
+                                paused = true;
+                        }
+                }
+                imp_proto_message_done(&m);
+                if (stop)
+                        break;
+        }
+        return state;
+}
+
+static void session_dir(struct tclient *c, const char *id, char *dir, size_t size) {
+        json_t *r = tc_ok(c, "session.show", h_arg("session", id));
+        snprintf(dir, size, "%s", json_string_value(json_object_get(r, "path")) ?: "");
+        json_decref(r);
+}
+
+/* Every tile set complete, every frame at its tile: poses recorded, pixels showing it. */
+static void check_painting(const char *sdir) {
+        char p[1200];
+        snprintf(p, sizeof p, "%s/painting.json", sdir);
+        _cleanup_json_ json_t *pj = NULL;
+        struct imp_error e = { 0 };
+        CHECK_OK(imp_json_load(p, &pj, &e));
+        json_t *tiles = json_object_get(pj, "tiles");
+        CHECK_INT_EQ(json_array_size(tiles), N_TILES);
+        /* the stage's prior as the rig config gives it (the mosaic refuses σ 0); 0.05° by default */
+        CHECK_NEAR(json_number_value(json_object_get(pj, "stage_sigma_mm")), 0.02, 1e-12);
+        CHECK_NEAR(json_number_value(json_object_get(pj, "stage_sigma_deg")), 0.05, 1e-12);
+        for (size_t k = 0; k < json_array_size(tiles); k++) {
+                json_t *t = json_array_get(tiles, k);
+                CHECK_MSG(json_is_true(json_object_get(t, "done")), "tile %zu not done", k);
+                double cmd[3], rb[3];
+                CHECK_OK(imp_json_get_doubles(t, "commanded_mm", true, 3, cmd, p, &e));
+                CHECK_OK(imp_json_get_doubles(t, "readback_mm", true, 3, rb, p, &e));
+                snprintf(p, sizeof p, "%s/tiles/%04zu", sdir, k);
+                _cleanup_(imp_captureset_closep) struct imp_captureset *cs = NULL;
+                CHECK_OK(imp_captureset_open(p, &cs, &e));
+                if (!cs)
+                        continue;
+                CHECK_INT_EQ(imp_captureset_count(cs), FRAMES_PER_TILE);
+                for (size_t i = 0; i < imp_captureset_count(cs); i++) {
+                        const struct imp_frame_record *rec = imp_captureset_record(cs, i);
+                        CHECK(rec->has_stage);
+                        _cleanup_image_ struct imp_image *img = NULL;
+                        CHECK_OK(imp_captureset_load_frame(cs, i, &img, &e));
+                        for (int a = 0; a < 3 && img; a++) {
+                                CHECK_NEAR(rec->stage_commanded_mm[a], cmd[a], 1e-9);
+                                CHECK_NEAR(rec->stage_readback_mm[a], cmd[a], TOL_MM);
+                                CHECK_NEAR(rec->stage_readback_mm[a], rb[a], 1e-9);
+                                /* where the carriage was when the frame was filled: 10 µm units */
+                                CHECK_NEAR(imp_image_u16(img, 0, 1)[a] / 100.0, cmd[a], 0.011);
+                        }
+                }
+        }
+}
+
+/* The capture of session dir b equals a's: same frames, pixels byte for byte, same poses. */
+static void check_same_capture(const char *a, const char *b) {
+        struct imp_error e = { 0 };
+        size_t same = 0;
+        for (size_t k = 0; k < N_TILES; k++) {
+                char pa[1200], pb[1200];
+                snprintf(pa, sizeof pa, "%s/tiles/%04zu", a, k);
+                snprintf(pb, sizeof pb, "%s/tiles/%04zu", b, k);
+                _cleanup_(imp_captureset_closep) struct imp_captureset *ca = NULL, *cb = NULL;
+                CHECK_OK(imp_captureset_open(pa, &ca, &e));
+                CHECK_OK(imp_captureset_open(pb, &cb, &e));
+                if (!ca || !cb)
+                        return;
+                CHECK_INT_EQ(imp_captureset_count(cb), imp_captureset_count(ca));
+                for (size_t i = 0; i < imp_captureset_count(ca) && i < imp_captureset_count(cb); i++) {
+                        const struct imp_frame_record *ra = imp_captureset_record(ca, i), *rb = imp_captureset_record(cb, i);
+                        CHECK(ra->seq == rb->seq && ra->light == rb->light && ra->exposure_us == rb->exposure_us);
+                        CHECK(rb->has_stage && !memcmp(ra->stage_commanded_mm, rb->stage_commanded_mm, sizeof ra->stage_commanded_mm) &&
+                              !memcmp(ra->stage_readback_mm, rb->stage_readback_mm, sizeof ra->stage_readback_mm));
+                        _cleanup_image_ struct imp_image *ia = NULL, *ib = NULL;
+                        CHECK_OK(imp_captureset_load_frame(ca, i, &ia, &e));
+                        CHECK_OK(imp_captureset_load_frame(cb, i, &ib, &e));
+                        if (!ia || !ib)
+                                continue;
+                        CHECK(ia->width == ib->width && ia->height == ib->height);
+                        bool eq = ia->width == ib->width && ia->height == ib->height &&
+                                  !memcmp(ia->data, ib->data, (size_t) ia->width * (size_t) ia->height * 2);
+                        CHECK_MSG(eq, "tile %zu frame %zu: pixels differ from the uninterrupted scan", k, i);
+                        same += eq;
+                }
+        }
+        CHECK_INT_EQ(same, N_TILES * FRAMES_PER_TILE);
+}
+
+/* The uninterrupted scan; its session directory in ref. */
+static void test_run(struct ctx *x, char *ref, size_t size) {
         struct tclient c;
-        CHECK_OK(tc_open(&c, h.socket, true));
-        if (c.fd < 0)
-                goto out;
-        json_t *r = tc_ok(&c, "plan.validate", h_arg("plan", plan));
-        CHECK_INT_EQ(json_integer_value(json_object_get(r, "frames")), N_LIGHTS);
+        start(x, &c);
+        char id[128], sdir[1024], msg[1024] = "";
+        tc_start_session(&c, x->plan, "run", id, sdir);
+        bool job_early = false;
+        CHECK_STR_EQ(follow(x, &c, NULL, msg, sizeof msg, &job_early), "completed");
+        CHECK_MSG(job_early, "no tile job was queued before the scan ended");
+        json_t *r = tc_ok(&c, "session.show", h_arg("session", id));
+        json_t *pj = json_object_get(r, "painting");
+        CHECK_INT_EQ(json_integer_value(json_object_get(pj, "tiles")), N_TILES);
+        CHECK_INT_EQ(json_integer_value(json_object_get(pj, "tiles_done")), N_TILES);
+        CHECK_INT_EQ(json_integer_value(json_object_get(r, "frames")), N_TILES * FRAMES_PER_TILE);
         json_decref(r);
-        CHECK_INT_EQ(tc_err(&c, "session.start", h_arg("plan", plan), msg, sizeof msg), IMP_PROTO_E_INVALID_PLAN);
-        CHECK_STR_CONTAINS(msg, "painting.cfg: a plan with a painting group");
-        r = tc_ok(&c, "status", NULL);
-        CHECK(r && json_is_null(json_object_get(r, "session")));
+        r = tc_ok(&c, "jobs.list", json_pack("{s:i}", "limit", 1000));
+        size_t tile_jobs = 0, i;
+        json_t *j;
+        json_array_foreach(json_object_get(r, "jobs"), i, j) {
+                const char *jid = json_string_value(json_object_get(j, "job"));
+                tile_jobs += jid && !strncmp(jid, id, strlen(id)) && strstr(jid, "-tile");
+        }
+        CHECK_INT_EQ(tile_jobs, N_TILES);
         json_decref(r);
-        tc_close(&c);
-out:
-        if (h.pid > 0)
-                h_kill(&h, SIGKILL);
-        h_teardown(&h);
+        session_dir(&c, id, sdir, sizeof sdir);
+        check_painting(sdir);
+        snprintf(ref, size, "%s", sdir);
+        stop(x, &c);
+}
+
+static unsigned hook_step;
+
+/* Tile 3: position lost after its first frame; tile 4: a drive alarm after its second, then
+ * a stalling carriage (on the move to tile 5) near its end. */
+static void inject(struct ctx *x, const json_t *pj) {
+        json_int_t tile = json_integer_value(json_object_get(pj, "tile"));
+        json_int_t done = json_integer_value(json_object_get(pj, "tile_frames_done"));
+        if (hook_step == 0 && tile == 3 && done >= 1) {
+                imp_emu_stage_lose_position(x->emu);
+                hook_step = 1;
+        } else if (hook_step == 1 && tile == 4 && done >= 2) {
+                imp_emu_stage_alarm(x->emu, 3);
+                hook_step = 2;
+        } else if (hook_step == 2 && tile == 4 && done >= FRAMES_PER_TILE - 2) {
+                imp_emu_stage_stall(x->emu, true);
+                hook_step = 3;
+        }
+}
+
+static size_t frames_of(struct tclient *c, const char *id) {
+        json_t *r = tc_ok(c, "session.show", h_arg("session", id));
+        size_t n = (size_t) json_integer_value(json_object_get(r, "frames"));
+        json_decref(r);
+        return n;
+}
+
+static void resume(struct tclient *c, const char *id) {
+        json_t *r = tc_ok(c, "session.resume", h_arg("session", id));
+        json_decref(r);
+}
+
+static void test_faults(struct ctx *x, const char *ref) {
+        struct tclient c;
+        start(x, &c);
+        char id[128], sdir[1024], msg[1024] = "";
+        imp_emu_stage_limit_switch_at(x->emu, 0, 85);
+        hook_step = 0;
+        tc_start_session(&c, x->plan, "faults", id, sdir);
+        CHECK_STR_EQ(follow(x, &c, NULL, msg, sizeof msg, NULL), "paused");
+        CHECK_STR_CONTAINS(msg, "hard limit switch hit");
+        CHECK_STR_CONTAINS(msg, "tile 2 (col 2, row 0)");
+        CHECK_STR_CONTAINS(msg, "home the stage, then resume");
+        CHECK_INT_EQ(frames_of(&c, id), 2 * FRAMES_PER_TILE);
+        imp_emu_stage_limit_switch_at(x->emu, 0, NAN);
+
+        msg[0] = 0;
+        resume(&c, id);
+        CHECK_STR_EQ(follow(x, &c, inject, msg, sizeof msg, NULL), "paused");
+        CHECK_STR_CONTAINS(msg, "position lost during tile 3 (col 2, row 1) at its frame");
+        CHECK_STR_CONTAINS(msg, "home the stage, then resume");
+        size_t n = frames_of(&c, id);
+        CHECK(n > 3 * FRAMES_PER_TILE && n < 4 * FRAMES_PER_TILE);
+
+        msg[0] = 0;
+        resume(&c, id);
+        CHECK_STR_EQ(follow(x, &c, inject, msg, sizeof msg, NULL), "paused");
+        CHECK_STR_CONTAINS(msg, "during tile 4 (col 1, row 1)");
+        n = frames_of(&c, id);
+        CHECK(n > 4 * FRAMES_PER_TILE + 1 && n < 5 * FRAMES_PER_TILE);
+
+        /* the carriage stalls on its way to tile 5 (from the end of tile 4 on): stopped after
+         * settle_timeout_ms (3 s) */
+        msg[0] = 0;
+        resume(&c, id);
+        CHECK_STR_EQ(follow(x, &c, inject, msg, sizeof msg, NULL), "paused");
+        CHECK_STR_CONTAINS(msg, "the move to tile 5 (col 0, row 1) at (40.000, 59.000, 10.000) mm did not settle");
+        CHECK_INT_EQ(frames_of(&c, id), 5 * FRAMES_PER_TILE);
+        imp_emu_stage_stall(x->emu, false);
+
+        resume(&c, id);
+        CHECK_STR_EQ(follow(x, &c, NULL, NULL, 0, NULL), "completed");
+        session_dir(&c, id, sdir, sizeof sdir);
+        check_painting(sdir);
+        check_same_capture(ref, sdir);
+        stop(x, &c);
+}
+
+/* SIGKILL at n_kills random points, restarted with --resume. */
+static void test_kills(struct ctx *x, const char *ref, unsigned n_kills) {
+        unsigned seed = 20261126;
+        const char *env = getenv("IMPASTO_TEST_SEED");
+        if (env)
+                seed = (unsigned) strtoul(env, NULL, 10);
+        srand(seed);
+        fprintf(stderr, "seed %u\n", seed);
+        const char *const opts[] = { "--worker-cmd", "/bin/true", "--min-free-bytes", "0", "--resume",
+                                     "--device-timeout-ms", "400", NULL };
+        x->opts = opts;
+        struct tclient c;
+        start(x, &c);
+        char id[128], sdir[1024];
+        tc_start_session(&c, x->plan, "kill", id, sdir);
+        unsigned kills = 0;
+        bool done = false;
+        uint64_t deadline = h_deadline_ms(300000);      /* a hang guard */
+        while (!done && id[0] && h_now_ms() < deadline) {
+                unsigned wait_frames = kills < n_kills ? (unsigned) (rand() % 3) : 100000;
+                unsigned first = c.n_frames;
+                while (c.n_frames < first + wait_frames && !c.n_done) {
+                        struct imp_proto_message m = { 0 };
+                        if (tc_read(&c, 4000, &m) < 0)
+                                break;
+                        imp_proto_message_done(&m);
+                }
+                if (c.n_done) {
+                        CHECK_STR_EQ(c.done_state, "completed");
+                        done = true;
+                        break;
+                }
+                usleep((useconds_t) (rand() % 30000));
+                h_kill(&x->h, SIGKILL);
+                kills++;
+                tc_close(&c);
+                start(x, &c);
+                json_t *r = tc_ok(&c, "session.show", h_arg("session", id));
+                const char *st = json_string_value(json_object_get(r, "state"));
+                if (st && !strcmp(st, "completed"))
+                        done = true;
+                else if (st && !strcmp(st, "paused")) {
+                        struct imp_proto_message m = { 0 };
+                        if (tc_call(&c, "session.resume", h_arg("session", id), &m) == 0)
+                                imp_proto_message_done(&m);
+                }
+                json_decref(r);
+        }
+        fprintf(stderr, "%u kills\n", kills);
+        CHECK_INT_GE(kills, n_kills);
+        CHECK(done);
+        session_dir(&c, id, sdir, sizeof sdir);
+        check_painting(sdir);
+        check_same_capture(ref, sdir);
+        stop(x, &c);
+}
+
+static void test_no_stage(struct ctx *x) {
+        /* the same rig without its stage line */
+        char text[1024];
+        snprintf(text, sizeof text,
+                 "rig = {\n  name = \"test-rig\";\n  calibration = \"rig.json\";\n"
+                 "  cameras = ( { name = \"cam0\"; backend = \"aravis\"; address = \"127.0.0.1\"; } );\n"
+                 "  dome = { backend = \"modbus\"; address = \"127.0.0.1:%d\"; };\n};\n", x->h.port);
+        char saved[300];
+        snprintf(saved, sizeof saved, "%s", x->h.rigcfg);
+        snprintf(x->h.rigcfg, sizeof x->h.rigcfg, "%s/rig-nostage.cfg", x->h.dir);
+        h_write(x->h.rigcfg, text);
+        struct tclient c;
+        start(x, &c);
+        char msg[1024] = "";
+        CHECK_INT_EQ(tc_err(&c, "session.start", h_arg("plan", x->plan), msg, sizeof msg), IMP_PROTO_E_INVALID_PLAN);
+        CHECK_STR_CONTAINS(msg, "painting.cfg: a plan with a painting group needs a stage in the rig config");
+        stop(x, &c);
+        snprintf(x->h.rigcfg, sizeof x->h.rigcfg, "%s", saved);
+}
+
+int main(int argc, char **argv) {
+        /* "kill N" alone (the slow variant, on its own port): the reference run, then N kills */
+        unsigned kills = argc > 2 && !strcmp(argv[1], "kill") ? (unsigned) atoi(argv[2]) : 3;
+        bool only_kills = argc > 2;
+        struct ctx x = { 0 };
+        const char *const opts[] = { "--worker-cmd", "/bin/true", "--min-free-bytes", "0", NULL };
+        x.opts = opts;
+        setup(&x, only_kills ? 15932 : 15931);
+        char ref[1024] = "";
+        test_run(&x, ref, sizeof ref);
+        if (!only_kills) {
+                test_no_stage(&x);
+                test_faults(&x, ref);
+        }
+        test_kills(&x, ref, kills);
+        if (x.h.pid > 0)
+                h_kill(&x.h, SIGKILL);
+        imp_emu_stage_free(x.emu);
+        h_teardown(&x.h);
         return TEST_DONE();
 }
