@@ -15,3 +15,10 @@ if(TARGET impasto AND TARGET impasto-worker)
     COMMAND bash ${PROJECT_SOURCE_DIR}/tests/integration/slurm-worker-oneshot.sh ${PROJECT_BINARY_DIR} ${PROJECT_SOURCE_DIR})
   set_tests_properties(test-worker-oneshot PROPERTIES LABELS "integration;fault" SKIP_RETURN_CODE 77 TIMEOUT 120)
 endif()
+# impasto-worker --batch --finish (no Slurm needed): the mosaic of a two-tile painting batch
+# equals `impasto mosaic` by hand; a failed mosaic fails the batch; one capture: no mosaic.
+if(TARGET impasto AND TARGET impasto-worker)
+  add_test(NAME test-worker-finish
+    COMMAND bash ${PROJECT_SOURCE_DIR}/tests/integration/worker-finish.sh ${PROJECT_BINARY_DIR} ${PROJECT_SOURCE_DIR})
+  set_tests_properties(test-worker-finish PROPERTIES LABELS "integration" SKIP_RETURN_CODE 77 TIMEOUT 180)
+endif()

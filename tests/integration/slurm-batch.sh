@@ -99,6 +99,8 @@ for i in $(seq 0 $((n_sets - 1))); do
 done
 check "the finish step is done" [ "$(st "$tmp/status2.json" finish)" = done ]
 check "the batch result says done" grep -q '"state": "done"' "$batch/result.json"
+check "the finish step found nothing to mosaic (sets of no painting)" \
+  grep -q '"reason": "nothing to mosaic: the captures are not the tiles of a painting' "$batch/result.json"
 check "no partial copy is left" bash -c "! ls -d $copies/*.partial 2>/dev/null | grep -q ."
 
 # same_copy A B: every file byte for byte; copy.json without timings, RSS and the capture path
