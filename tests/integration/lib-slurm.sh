@@ -97,3 +97,27 @@ for f in fa:
         sys.exit(f + " differs")
 PY
 }
+
+# slurm_same_mosaic A B: two outputs of `impasto mosaic`, every file byte for byte except
+# mosaic.json, compared without its tiles' "copy" paths (where the tile copies were read).
+slurm_same_mosaic() {
+  python3 - "$1" "$2" <<'PY'
+import json, os, sys
+a, b = sys.argv[1], sys.argv[2]
+def files(d):
+    return sorted(os.path.relpath(os.path.join(r, f), d) for r, _, fs in os.walk(d) for f in fs)
+def strip(x):
+    if isinstance(x, dict):
+        return {k: strip(v) for k, v in x.items() if k != "copy"}
+    return [strip(v) for v in x] if isinstance(x, list) else x
+if files(a) != files(b):
+    sys.exit("different files")
+for f in files(a):
+    pa, pb = os.path.join(a, f), os.path.join(b, f)
+    if f == "mosaic.json":
+        if strip(json.load(open(pa))) != strip(json.load(open(pb))):
+            sys.exit("mosaic.json differs beyond the tile copies' paths")
+    elif open(pa, "rb").read() != open(pb, "rb").read():
+        sys.exit(f + " differs")
+PY
+}
