@@ -70,11 +70,20 @@ static int map_tiles(const struct imp_batch *b, const char *pdir, json_t *doc, c
                          json_is_array(tiles) ? "fewer than two tiles" : "no \"tiles\" array");
                 return -ENOENT;
         }
+        /* the tasks' captures resolved once (a painting may have hundreds of tiles) */
+        char (*rt)[PATH_MAX] = calloc(b->n_tasks, PATH_MAX);
+        if (!rt) {
+                snprintf(why, why_size, "out of memory");
+                return -ENOMEM;
+        }
+        for (size_t k = 0; k < b->n_tasks; k++)
+                if (!realpath(b->tasks[k].capture, rt[k]))
+                        rt[k][0] = 0;
         size_t i, found = 0;
         json_t *t;
         json_array_foreach(tiles, i, t) {
                 const char *cap = json_string_value(json_object_get(t, "capture"));
-                char p[PATH_MAX + PATH_MAX], rp[PATH_MAX], rt[PATH_MAX];
+                char p[PATH_MAX + PATH_MAX], rp[PATH_MAX];
                 if (!cap)
                         continue;
                 if (cap[0] == '/')
@@ -84,13 +93,14 @@ static int map_tiles(const struct imp_batch *b, const char *pdir, json_t *doc, c
                 if (!realpath(p, rp))
                         continue;
                 for (size_t k = 0; k < b->n_tasks; k++)
-                        if (realpath(b->tasks[k].capture, rt) && !strcmp(rt, rp)) {
+                        if (!strcmp(rt[k], rp)) {
                                 json_object_set_new(t, "capture", json_string(rp));
                                 json_object_set_new(t, "copy", json_string(b->tasks[k].copy));
                                 found++;
                                 break;
                         }
         }
+        free(rt);
         if (found < json_array_size(tiles)) {
                 snprintf(why, why_size, "the batch holds %zu of the %zu tiles of the painting %s", found,
                          json_array_size(tiles), pdir);
@@ -161,7 +171,10 @@ static json_t *mosaic_step(const struct imp_batch *b) {
         snprintf(pj, sizeof pj, "%s/painting.json", pdir);
         if (imp_json_load(pj, &doc, &err) < 0)
                 return json_pack("{s:s, s:s, s:s}", "state", "failed", "painting", pdir, "error", err.msg);
-        if (map_tiles(b, pdir, doc, why, sizeof why) < 0)
+        int m = map_tiles(b, pdir, doc, why, sizeof why);
+        if (m == -ENOMEM)
+                return json_pack("{s:s, s:s, s:s}", "state", "failed", "painting", pdir, "error", why);
+        if (m < 0)
                 return json_pack("{s:s, s:s, s:s+}", "state", "skipped", "painting", pdir, "reason",
                                  "nothing to mosaic: ", why);
         double t0 = mono_s();
