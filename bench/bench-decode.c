@@ -8,8 +8,10 @@
  * Each repetition also times the bandwidth limit on the same thread (every frame read once,
  * a result-sized block written once, allocated as the decoder allocates it) and prints the
  * decode's share of it.
- * Usage: bench-decode [repeats] [data dir] [--impasto-only]; without a data dir the captures
- * are looked for under $IMPASTO_SHARED_DIR (else the build's shared directory). */
+ * Usage: bench-decode [repeats] [data dir] [--impasto-only | --checksum]; without a data dir
+ * the captures are looked for under $IMPASTO_SHARED_DIR (else the build's shared directory).
+ * --checksum prints an FNV-1a 64 of every result map of each capture (1 and all threads)
+ * and exits: two builds decode bit-identically when their lines are equal. */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -70,6 +72,41 @@ static double run_impasto(const struct imp_sl_params *p, size_t *ret_valid, doub
         *ret_cpu = clock_s(CLOCK_THREAD_CPUTIME_ID) - c0;
         *ret_valid = valid;
         return clock_s(CLOCK_MONOTONIC) - t0;
+}
+
+static uint64_t fnv(uint64_t h, const void *p, size_t n) {
+        const uint8_t *b = p;
+        for (size_t i = 0; i < n; i++)
+                h = (h ^ b[i]) * 0x100000001b3ull;
+        return h;
+}
+
+/* One line per capture and thread count: the hash of every map and of the counts. */
+static int print_checksums(const struct imp_sl_params *p1, const struct imp_sl_params *pn) {
+        for (int c = 0; c < NCAP; c++)
+                for (int t = 0; t < 2; t++) {
+                        struct imp_sl_frames fr = { seq, (const struct imp_image *const *) img[c], NFRAMES };
+                        struct imp_sl_result *r = NULL;
+                        struct imp_error err = { 0 };
+                        if (imp_sl_decode(&fr, t ? pn : p1, &r, &err) < 0) {
+                                fprintf(stderr, "%s\n", err.msg);
+                                return 1;
+                        }
+                        size_t n = (size_t) r->width * r->height;
+                        uint64_t h = 0xcbf29ce484222325ull;
+                        const float *maps[] = { r->proj_x, r->proj_y, r->confidence, r->direct,
+                                                r->global, r->modulation, r->sigma_px };
+                        for (size_t m = 0; m < sizeof maps / sizeof *maps; m++)
+                                h = fnv(h, maps[m], n * sizeof(float));
+                        h = fnv(h, r->flags, n * sizeof(uint16_t));
+                        size_t cnt[] = { r->n_valid_x, r->n_valid_y, r->n_valid_xy, r->n_shadow,
+                                         r->n_saturated, r->n_weak, r->n_disagree };
+                        h = fnv(h, cnt, sizeof cnt);
+                        printf("capture %d, %s: %016llx (%zu valid)\n", c, t ? "all threads" : "1 thread",
+                               (unsigned long long) h, r->n_valid_xy);
+                        imp_sl_result_free(r);
+                }
+        return 0;
 }
 
 /* The memory-bandwidth limit of a decode: one read pass over every frame of each capture
@@ -133,7 +170,8 @@ static double run_opencv(int32_t *cx, int32_t *cy, uint8_t *cv, size_t *ret_vali
 
 int main(int argc, char **argv) {
         bool only_imp = argc > 1 && !strcmp(argv[argc - 1], "--impasto-only");
-        if (only_imp)
+        bool checksum = argc > 1 && !strcmp(argv[argc - 1], "--checksum");
+        if (only_imp || checksum)
                 argc--;
         int repeats = argc > 1 ? atoi(argv[1]) : 5;
         const char *dir = argc > 2 ? argv[2] : getenv("IMPASTO_SHARED_DIR") ? getenv("IMPASTO_SHARED_DIR") : IMPASTO_SHARED_DIR;
@@ -172,6 +210,14 @@ int main(int argc, char **argv) {
         max_threads = omp_get_max_threads();
 #endif
         pn.threads = max_threads;
+        if (checksum) {
+                int rc = print_checksums(&p1, &pn);
+                free(seq);
+                for (int c = 0; c < NCAP; c++)
+                        for (int i = 0; i < NFRAMES; i++)
+                                imp_image_free(img[c][i]);
+                return rc;
+        }
 
         size_t n = (size_t) w * h, valid_imp = 0, valid_cv = 0;
         int32_t *cx = malloc(n * sizeof *cx), *cy = malloc(n * sizeof *cy);

@@ -15,3 +15,18 @@ if(TARGET impasto AND TARGET impasto-worker)
     COMMAND bash ${PROJECT_SOURCE_DIR}/tests/integration/slurm-worker-oneshot.sh ${PROJECT_BINARY_DIR} ${PROJECT_SOURCE_DIR})
   set_tests_properties(test-worker-oneshot PROPERTIES LABELS "integration;fault" SKIP_RETURN_CODE 77 TIMEOUT 120)
 endif()
+# impasto-worker --batch --finish (no Slurm needed): the mosaic of a two-tile painting batch
+# equals `impasto mosaic` by hand; a failed mosaic fails the batch; one capture: no mosaic.
+if(TARGET impasto AND TARGET impasto-worker)
+  add_test(NAME test-worker-finish
+    COMMAND bash ${PROJECT_SOURCE_DIR}/tests/integration/worker-finish.sh ${PROJECT_BINARY_DIR} ${PROJECT_SOURCE_DIR})
+  set_tests_properties(test-worker-finish PROPERTIES LABELS "integration" SKIP_RETURN_CODE 77 TIMEOUT 180)
+endif()
+# A 20-tile painting (5 x 4 tiles of tests/data/worker-painting.cfg) through the one-node Slurm:
+# every tile copy and the finish step's mosaic equal local processing's. Several minutes: slow.
+if(TARGET impasto AND TARGET impasto-worker)
+  add_test(NAME test-slurm-painting
+    COMMAND bash ${PROJECT_SOURCE_DIR}/tests/integration/slurm-painting.sh ${PROJECT_BINARY_DIR} ${PROJECT_SOURCE_DIR})
+  set_tests_properties(test-slurm-painting PROPERTIES LABELS "integration;slow" SKIP_RETURN_CODE 77
+    TIMEOUT 1800 RUN_SERIAL TRUE)
+endif()

@@ -3,8 +3,7 @@
  *   --capture SET --copy DIR [--args ARGS]   process SET into DIR, no queue, no daemon
  *   --batch DIR --task N                     task N of DIR/batch.json (N defaults to
  *                                            $SLURM_ARRAY_TASK_ID)
- *   --batch DIR --finish                     the step after every task: checks each copy's
- *                                            result manifest, writes DIR/result.json
+ *   --batch DIR --finish                     the step after every task (finish.c)
  *
  * Idempotent: a copy whose COPY/result.json says done for the same inputs (the fingerprint
  * of the set's manifest.jsonl and the options) is not processed again. A copy is built in
@@ -44,7 +43,7 @@ static int remove_entry(const char *path, const struct stat *st, int flag, struc
 }
 
 /* rm -rf PATH; 0 when it is gone. */
-static int remove_tree(const char *path) {
+int worker_remove_tree(const char *path) {
         struct stat st;
         if (lstat(path, &st) < 0)
                 return errno == ENOENT ? 0 : negative_errno();
@@ -144,21 +143,21 @@ static int write_result(const struct run_info *ri, const char *dir, struct imp_e
 
 /* COPY.partial → COPY: swapped atomically when COPY exists (an older or unfinished copy,
  * then deleted), renamed otherwise. */
-static int publish(const char *partial, const char *copy, struct imp_error *err) {
+int worker_publish(const char *partial, const char *copy, struct imp_error *err) {
         int r = fsync_tree(partial);
         if (r < 0)
                 return imp_error_set(err, r, "%s: cannot sync: %s", partial, strerror(-r));
         if (renameat2(AT_FDCWD, partial, AT_FDCWD, copy, RENAME_EXCHANGE) == 0) {
                 imp_fsync_parent_dir(copy);
-                return remove_tree(partial);    /* now the old copy */
+                return worker_remove_tree(partial);    /* now the old copy */
         }
         if (errno != ENOENT) {
                 /* a file system without RENAME_EXCHANGE: move the old copy aside first */
                 char old[PATH_MAX + 16];
                 snprintf(old, sizeof old, "%s.old", copy);
-                if (remove_tree(old) < 0 || rename(copy, old) < 0)
+                if (worker_remove_tree(old) < 0 || rename(copy, old) < 0)
                         return imp_error_set(err, negative_errno(), "%s: cannot replace: %m", copy);
-                (void) remove_tree(old);
+                (void) worker_remove_tree(old);
         }
         if (rename(partial, copy) < 0)
                 return imp_error_set(err, negative_errno(), "%s: cannot rename to %s: %m", partial, copy);
@@ -198,7 +197,7 @@ static int run_one(const char *name, const char *capture, const char *copy, cons
         struct run_info ri = { capture, copy, args, fp, "", now_s() };
         imp_rfc3339_now(ri.started);
         /* What a killed attempt left is never reused: from scratch. */
-        if ((r = remove_tree(partial)) < 0)
+        if ((r = worker_remove_tree(partial)) < 0)
                 imp_error_set(err, r, "%s: cannot remove the unfinished copy: %s", partial, strerror(-r));
         const char *delay = getenv("IMPASTO_WORKER_TEST_STAGE_DELAY_S");
         struct oneshot_progress ps = { .name = name, .stage_delay_s = delay ? atof(delay) : 0 };
@@ -211,7 +210,7 @@ static int run_one(const char *name, const char *capture, const char *copy, cons
         fflush(stdout);
         if (r == 0 && (r = imp_process_capture(capture, partial, &o, err)) == 0 &&
             (r = write_result(&ri, partial, err)) == 0)
-                r = publish(partial, copy, err);
+                r = worker_publish(partial, copy, err);
         imp_job_unlock(lock, lock_fd);
         *ran = r == 0;
         return r;
@@ -283,38 +282,4 @@ int worker_run_batch_task(const char *dir, long task) {
         }
         imp_batch_done(&b);
         return r < 0 ? WORKER_EXIT_JOB_FAILED : WORKER_EXIT_DONE;
-}
-
-/* The step after every task. Until `impasto mosaic` exists this is the placeholder the
- * docs describe: it checks that every copy is done and writes DIR/result.json listing
- * them; it joins nothing. */
-int worker_run_batch_finish(const char *dir) {
-        struct imp_batch b;
-        struct imp_error err = {};
-        if (imp_batch_load(dir, &b, &err) < 0) {
-                log_error("%s", err.msg);
-                return WORKER_EXIT_BAD_JOB;
-        }
-        _cleanup_json_ json_t *copies = json_array();
-        size_t missing = 0;
-        for (size_t i = 0; i < b.n_tasks; i++) {
-                bool done = imp_result_done(b.tasks[i].copy, NULL);
-                missing += !done;
-                json_array_append_new(copies, json_pack("{s:s, s:b}", "copy", b.tasks[i].copy, "done", done));
-        }
-        char now[32], path[PATH_MAX + 32];
-        imp_rfc3339_now(now);
-        snprintf(path, sizeof path, "%s/" IMP_RESULT_FILE, dir);
-        _cleanup_json_ json_t *doc = json_pack("{s:i, s:s, s:s, s:s, s:O, s:s}", "format", 1, "batch", b.id, "state",
-                                               missing ? "failed" : "done", "ended", now, "copies", copies, "mosaic",
-                                               "not run: placeholder step (no mosaic command yet)");
-        int r = doc ? imp_json_save_atomic(path, doc, &err) : -ENOMEM;
-        if (r < 0)
-                log_error("%s: %s", path, err.msg[0] ? err.msg : "out of memory");
-        else if (missing)
-                log_error("batch %s: %zu of %zu copies are not done", b.id, missing, b.n_tasks);
-        else
-                printf("batch %s: all %zu copies done; %s\n", b.id, b.n_tasks, path);
-        imp_batch_done(&b);
-        return r < 0 || missing ? WORKER_EXIT_JOB_FAILED : WORKER_EXIT_DONE;
 }

@@ -495,10 +495,16 @@ int imp_slurm_status(const struct imp_batch *b, struct imp_slurm_status *s, stru
         snprintf(result, sizeof result, "%s/" IMP_RESULT_FILE, b->dir);
         json_t *doc = NULL;
         struct imp_error e = {};
-        bool finished = imp_json_load(result, &doc, &e) == 0 &&
-                        !strcmp(json_string_value(json_object_get(doc, "state")) ?: "", "done");
+        bool have = imp_json_load(result, &doc, &e) == 0;
+        const char *rstate = have ? json_string_value(json_object_get(doc, "state")) : NULL;
+        bool finished = rstate && !strcmp(rstate, "done");
+        /* the step ran and failed: a copy missing, or the mosaic (its error) */
+        const char *merr = json_string_value(json_object_get(json_object_get(doc, "mosaic"), "error"));
+        char why[sizeof s->finish.error];
+        snprintf(why, sizeof why, "the mosaic failed: %s", merr ? merr : "");
+        task_from(&s->finish, finished ? "done" : rstate ? "failed" : ss ? NULL : "queued",
+                  rstate && !finished && merr ? why : NULL, ss, s->cancelled);
         json_decref(doc);
-        task_from(&s->finish, finished ? "done" : ss ? NULL : "queued", NULL, ss, s->cancelled);
         snprintf(s->finish.job, sizeof s->finish.job, "%ld", fin);
         free(array_of);
         free(lines);

@@ -64,3 +64,60 @@ EOF
   done
   [ $up -eq 1 ] || { tail -5 "$d/slurmctld.log" "$d/slurmd.log"; return 1; }
 }
+
+# slurm_wait_for DESC SECONDS CMD...: polls CMD every 0.2 s (SECONDS × $scale)
+slurm_wait_for() {
+  local what=$1 s=$2; shift 2
+  for _ in $(seq $((s * 5 * scale))); do "$@" && return 0; sleep 0.2; done
+  echo "FAIL timed out waiting: $what"; return 1
+}
+
+# same_copy A B: every file byte for byte; copy.json without timings, RSS and the capture path
+slurm_same_copy() {
+  python3 - "$1" "$2" <<'PY'
+import json, os, sys
+a, b = sys.argv[1], sys.argv[2]
+def files(d):
+    return sorted(os.path.relpath(os.path.join(r, f), d) for r, _, fs in os.walk(d) for f in fs)
+def strip(x):
+    if isinstance(x, dict):
+        return {k: strip(v) for k, v in x.items() if not k.startswith("seconds") and k not in ("peak_rss_kib", "capture")}
+    if isinstance(x, list):
+        return [strip(v) for v in x]
+    return x
+fa, fb = [f for f in files(a) if f != "result.json"], [f for f in files(b) if f != "result.json"]
+if fa != fb:
+    sys.exit("different files: %s vs %s" % (fa, fb))
+for f in fa:
+    pa, pb = os.path.join(a, f), os.path.join(b, f)
+    if f == "copy.json":
+        if strip(json.load(open(pa))) != strip(json.load(open(pb))):
+            sys.exit("copy.json differs beyond timings")
+    elif open(pa, "rb").read() != open(pb, "rb").read():
+        sys.exit(f + " differs")
+PY
+}
+
+# slurm_same_mosaic A B: two outputs of `impasto mosaic`, every file byte for byte except
+# mosaic.json, compared without its tiles' "copy" paths (where the tile copies were read).
+slurm_same_mosaic() {
+  python3 - "$1" "$2" <<'PY'
+import json, os, sys
+a, b = sys.argv[1], sys.argv[2]
+def files(d):
+    return sorted(os.path.relpath(os.path.join(r, f), d) for r, _, fs in os.walk(d) for f in fs)
+def strip(x):
+    if isinstance(x, dict):
+        return {k: strip(v) for k, v in x.items() if k != "copy"}
+    return [strip(v) for v in x] if isinstance(x, list) else x
+if files(a) != files(b):
+    sys.exit("different files")
+for f in files(a):
+    pa, pb = os.path.join(a, f), os.path.join(b, f)
+    if f == "mosaic.json":
+        if strip(json.load(open(pa))) != strip(json.load(open(pb))):
+            sys.exit("mosaic.json differs beyond the tile copies' paths")
+    elif open(pa, "rb").read() != open(pb, "rb").read():
+        sys.exit(f + " differs")
+PY
+}

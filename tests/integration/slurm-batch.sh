@@ -60,19 +60,13 @@ batch=$(tail -1 "$tmp/submit.out")
 check "the array and the finish step are in Slurm's queue" \
   bash -c "[ \$(squeue -h -r -t all -o %i | wc -l) -eq $((n_sets + 1)) ]"
 
-# wait_for DESC SECONDS CMD...: polls CMD every 0.2 s
-wait_for() {
-  local what=$1 s=$2; shift 2
-  for _ in $(seq $((s * 5 * scale))); do "$@" && return 0; sleep 0.2; done
-  echo "FAIL timed out waiting: $what"; return 1
-}
 task1_mid_run() { local n; n=$(grep -c '^task 1: ' "$batch/logs/task-1.out" 2>/dev/null); [ "${n:-0}" -ge 3 ]; }
-wait_for "task 1 mid-run" 90 task1_mid_run || { squeue -t all; exit 1; }
+slurm_wait_for "task 1 mid-run" 90 task1_mid_run || { squeue -t all; exit 1; }
 pid=$(python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["pid"])' "$batch/tasks/1.json")
 kill -9 "$pid"
 echo "ok   killed task 1 (impasto-worker pid $pid) after: $(grep '^task 1: ' "$batch/logs/task-1.out" | tail -1)"
 batch_idle() { ! squeue -h -t pending,running,completing,configuring -n "impasto-tile-$(basename "$batch"),impasto-finish-$(basename "$batch")" | grep -q .; }
-wait_for "the batch to stop" 120 batch_idle || { squeue -t all; exit 1; }
+slurm_wait_for "the batch to stop" 120 batch_idle || { squeue -t all; exit 1; }
 "$imp" jobs list --slurm "$batch" --json >"$tmp/status1.json"
 "$imp" jobs list --slurm "$batch"
 st() { python3 -c 'import json,sys; d=json.load(open(sys.argv[1])); t=sys.argv[2]; print((d["finish"] if t=="finish" else d["tasks"][int(t)])["state"])' "$@"; }
@@ -91,7 +85,7 @@ unset IMPASTO_WORKER_TEST_STAGE_DELAY_S
 rc=$?
 cat "$tmp/retry.out"
 check "jobs retry --slurm resubmits the one failed task" grep -q "1 failed tasks resubmitted" "$tmp/retry.out"
-wait_for "the retried batch to end" 120 batch_idle || { squeue -t all; exit 1; }
+slurm_wait_for "the retried batch to end" 120 batch_idle || { squeue -t all; exit 1; }
 "$imp" jobs list --slurm "$batch" --json >"$tmp/status2.json"
 "$imp" jobs list --slurm "$batch"
 for i in $(seq 0 $((n_sets - 1))); do
@@ -99,35 +93,12 @@ for i in $(seq 0 $((n_sets - 1))); do
 done
 check "the finish step is done" [ "$(st "$tmp/status2.json" finish)" = done ]
 check "the batch result says done" grep -q '"state": "done"' "$batch/result.json"
+check "the finish step found nothing to mosaic (sets of no painting)" \
+  grep -q '"reason": "nothing to mosaic: the captures are not the tiles of a painting' "$batch/result.json"
 check "no partial copy is left" bash -c "! ls -d $copies/*.partial 2>/dev/null | grep -q ."
 
-# same_copy A B: every file byte for byte; copy.json without timings, RSS and the capture path
-same_copy() {
-  python3 - "$1" "$2" <<'PY'
-import json, os, sys
-a, b = sys.argv[1], sys.argv[2]
-def files(d):
-    return sorted(os.path.relpath(os.path.join(r, f), d) for r, _, fs in os.walk(d) for f in fs)
-def strip(x):
-    if isinstance(x, dict):
-        return {k: strip(v) for k, v in x.items() if not k.startswith("seconds") and k not in ("peak_rss_kib", "capture")}
-    if isinstance(x, list):
-        return [strip(v) for v in x]
-    return x
-fa, fb = [f for f in files(a) if f != "result.json"], [f for f in files(b) if f != "result.json"]
-if fa != fb:
-    sys.exit("different files: %s vs %s" % (fa, fb))
-for f in fa:
-    pa, pb = os.path.join(a, f), os.path.join(b, f)
-    if f == "copy.json":
-        if strip(json.load(open(pa))) != strip(json.load(open(pb))):
-            sys.exit("copy.json differs beyond timings")
-    elif open(pa, "rb").read() != open(pb, "rb").read():
-        sys.exit(f + " differs")
-PY
-}
 for i in $(seq 1 "$n_sets"); do
-  check "tile-$i: the Slurm copy equals the local one" same_copy "$tmp/local/tile-$i" "$copies/tile-$i"
+  check "tile-$i: the Slurm copy equals the local one" slurm_same_copy "$tmp/local/tile-$i" "$copies/tile-$i"
 done
 check "the two local runs differ only where stated (sanity of the comparison)" \
   bash -c "[ -n \"\$(cmp $tmp/local/tile-1/heightfield.exr $tmp/local/tile-2/heightfield.exr)\" ]"
@@ -168,13 +139,13 @@ if [ -x "$bin/daemon/impastod" ]; then
     b=$(dslurm batch) t=$(dslurm task); [ -n "$b" ] && [ -n "$t" ] || return 1
     n=$(grep -c "^task $t: " "$b/logs/task-$t.out" 2>/dev/null); [ "${n:-0}" -ge 3 ]
   }
-  wait_for "the daemon's job d2 mid-run" 90 d_mid_run || { cat "$tmp/impastod.log"; squeue -t all; exit 1; }
+  slurm_wait_for "the daemon's job d2 mid-run" 90 d_mid_run || { cat "$tmp/impastod.log"; squeue -t all; exit 1; }
   b=$(dslurm batch) t=$(dslurm task)
   echo "daemon job d2 is task $t of $b: $(cat "$b/tasks/$t.json" | tr -d '\n '); log: $(tr '\n' '|' <"$b/logs/task-$t.out")"
   check "the daemon's job d2 is still running when killed" \
     kill -9 "$(python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["pid"])' "$b/tasks/$t.json")"
   both_done() { [ "$("$imp" jobs --socket "$tmp/control.sock" 2>/dev/null | grep -c ' done ')" -eq 2 ]; }
-  wait_for "both daemon jobs done" 150 both_done
+  slurm_wait_for "both daemon jobs done" 150 both_done
   "$imp" jobs --socket "$tmp/control.sock"
   check "impasto jobs shows both Slurm jobs done" both_done
   "$imp" jobs show d2 --json --socket "$tmp/control.sock" >"$tmp/d2.json"
@@ -183,7 +154,7 @@ if [ -x "$bin/daemon/impastod" ]; then
   check "the daemon resubmitted the killed task" grep -q "resubmitting, attempt 2" "$tmp/impastod.log" ||
     { cat "$tmp/impastod.log"; cat "$b"/logs/*.out; }
   for i in 1 2; do
-    check "daemon job d$i: its copy equals the local one" same_copy "$tmp/local/tile-$i" "$st_dir/outputs/tile-$i"
+    check "daemon job d$i: its copy equals the local one" slurm_same_copy "$tmp/local/tile-$i" "$st_dir/outputs/tile-$i"
   done
 fi
 
