@@ -17,3 +17,9 @@ if(TARGET impasto)
 endif()
 # Placement under a deep box frame on a synthetic range image (no rendering).
 impasto_test(test-hard-placement LABELS stability unit LIBS impasto_pipeline)
+# Unflagged normals honest on a flush frame with every stage (the rims of relief and of
+# flagged regions, normal-trust.h): at most 1 % beyond 3σ_n, none more than 10° off.
+impasto_test(test-hard-normals SOURCE unit/test-hard-suite.c LABELS stability TIMEOUT 900 ARGS flush-frame)
+if(TARGET impasto)
+  add_dependencies(test-hard-normals impasto)
+endif()
