@@ -36,24 +36,24 @@ static double neighbour_angle(int nx, int ny, const uint8_t *mask, const float *
         return mx;
 }
 
-/* Whether texel s's normal was not vouched for before this stage (flags0, sigma0: as
- * given): off the mask, a flag about its samples or its normal (not the location flag
- * frame_adjacent, nor fit_failed, which is the BRDF's), or σ_n above the limit. */
-static bool unvouched(const uint8_t *mask, const uint16_t *flags0, const float *sigma0, size_t s) {
+/* Whether texel s's normal is not vouched for: off the mask, a flag about its samples or
+ * its normal before this stage (flags0; not the location flag frame_adjacent, nor
+ * fit_failed, which is the BRDF's), or σ_n above the limit after rule 1 (sigma1). */
+static bool unvouched(const uint8_t *mask, const uint16_t *flags0, const float *sigma1, size_t s) {
         return !mask[s] || (flags0[s] & ~(IMP_TEXEL_FRAME_ADJACENT | IMP_TEXEL_FIT_FAILED)) ||
-               !(sigma0[s] <= IMP_TEXEL_NORMAL_SIGMA_MAX_DEG);
+               !(sigma1[s] <= IMP_TEXEL_NORMAL_SIGMA_MAX_DEG);
 }
 
 /* Rule 2 at texel (i, j): the largest σ of an unvouched 8-neighbour, −1 when none. */
-static float edge_sigma(int nx, int ny, const uint8_t *mask, const uint16_t *flags0, const float *sigma0, int i,
+static float edge_sigma(int nx, int ny, const uint8_t *mask, const uint16_t *flags0, const float *sigma1, int i,
                         int j) {
         float s = -1;
         for (int y = IMP_MAX(0, j - 1); y <= IMP_MIN(ny - 1, j + 1); y++)
                 for (int x = IMP_MAX(0, i - 1); x <= IMP_MIN(nx - 1, i + 1); x++) {
                         size_t q = (size_t) y * nx + x;
-                        if ((x == i && y == j) || !unvouched(mask, flags0, sigma0, q))
+                        if ((x == i && y == j) || !unvouched(mask, flags0, sigma1, q))
                                 continue;
-                        s = fmaxf(s, mask[q] ? fminf(sigma0[q], NT_EDGE_SIGMA_MAX) : 0.0f);
+                        s = fmaxf(s, mask[q] ? fminf(sigma1[q], NT_EDGE_SIGMA_MAX) : 0.0f);
                 }
         return s;
 }
@@ -65,34 +65,40 @@ int imp_normal_trust(int nx, int ny, const uint8_t *mask, const float *nx_, cons
             !(p->rough_k >= 0) || !isfinite(p->rough_k))
                 return -EINVAL;
         size_t n = (size_t) nx * ny;
-        _cleanup_free_ float *sigma0 = malloc(n * sizeof *sigma0);
+        _cleanup_free_ float *sigma1 = malloc(n * sizeof *sigma1);
         _cleanup_free_ uint16_t *flags0 = malloc(n * sizeof *flags0);
-        if (!sigma0 || !flags0)
+        if (!sigma1 || !flags0)
                 return -ENOMEM;
-        memcpy(sigma0, sigma_n_deg, n * sizeof *sigma0);
         memcpy(flags0, texel_flags, n * sizeof *flags0);
         long cnt = 0, rough = 0, edge = 0;
-#pragma omp parallel for schedule(dynamic, 16) reduction(+ : cnt, rough, edge)
+        /* rule 1 everywhere first: rule 2 reads the neighbours' σ after it */
+#pragma omp parallel for schedule(dynamic, 16) reduction(+ : cnt, rough)
+        for (int j = 0; j < ny; j++)
+                for (int i = 0; i < nx; i++) {
+                        size_t t = (size_t) j * nx + i;
+                        sigma1[t] = sigma_n_deg[t];
+                        if (!mask[t])
+                                continue;
+                        cnt++;
+                        double cv = neighbour_angle(nx, ny, mask, nx_, ny_, i, j);
+                        sigma1[t] = (float) fmin(180.0, hypot(sigma_n_deg[t], p->rough_k * cv));
+                        rough += !(sigma1[t] <= IMP_TEXEL_NORMAL_SIGMA_MAX_DEG) &&
+                                 sigma_n_deg[t] <= IMP_TEXEL_NORMAL_SIGMA_MAX_DEG &&
+                                 !(flags0[t] & IMP_TEXEL_NORMAL_UNCERTAIN);
+                }
+#pragma omp parallel for schedule(dynamic, 16) reduction(+ : edge)
         for (int j = 0; j < ny; j++)
                 for (int i = 0; i < nx; i++) {
                         size_t t = (size_t) j * nx + i;
                         if (!mask[t])
                                 continue;
-                        cnt++;
-                        bool was = texel_flags[t] & IMP_TEXEL_NORMAL_UNCERTAIN;
-                        double cv = neighbour_angle(nx, ny, mask, nx_, ny_, i, j);
-                        float s = (float) fmin(180.0, hypot(sigma0[t], p->rough_k * cv));
-                        bool by_rough = !(s <= IMP_TEXEL_NORMAL_SIGMA_MAX_DEG), by_edge = false;
-                        float se = p->edge ? edge_sigma(nx, ny, mask, flags0, sigma0, i, j) : -1;
-                        if (se >= 0) {
-                                s = fmaxf(s, se);
-                                by_edge = true;
-                        }
-                        sigma_n_deg[t] = s;
-                        if (by_rough || by_edge)
+                        float s = sigma1[t];
+                        bool by_rough = !(s <= IMP_TEXEL_NORMAL_SIGMA_MAX_DEG);
+                        float se = p->edge ? edge_sigma(nx, ny, mask, flags0, sigma1, i, j) : -1;
+                        sigma_n_deg[t] = fmaxf(s, se);
+                        if (by_rough || se >= 0)
                                 texel_flags[t] |= IMP_TEXEL_NORMAL_UNCERTAIN;
-                        rough += !was && by_rough && sigma0[t] <= IMP_TEXEL_NORMAL_SIGMA_MAX_DEG;
-                        edge += !was && by_edge && !by_rough;
+                        edge += se >= 0 && !by_rough && !(flags0[t] & IMP_TEXEL_NORMAL_UNCERTAIN);
                 }
         if (ret_stats)
                 *ret_stats = (struct imp_normal_trust_stats) { .n_texels = cnt, .n_rough_flagged = rough,

@@ -12,8 +12,8 @@
  *     texel's normal and a 4-neighbour's (on the demo the error's rms is ≈ 0.1× that
  *     angle: 0.3° below 3°, 2.9° at 16–24°, 4.6° beyond 32°);
  *  2. edge of an unvouched region: a texel touching (8-neighbourhood) a texel whose normal
- *     was not vouched for (a flag other than frame_adjacent, σ_n above the limit, or a
- *     hole in the mask) takes at least that neighbour's σ_n and the flag
+ *     is not vouched for (a flag other than frame_adjacent and fit_failed, σ_n above the
+ *     limit after rule 1, or a hole in the mask) takes at least that neighbour's σ_n and the flag
  *     IMP_TEXEL_NORMAL_UNCERTAIN: such rims are where the relief or the shadows change
  *     within a texel (79 % of the demo's unflagged normals more than 10° off were there).
  *
