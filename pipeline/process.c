@@ -1027,6 +1027,20 @@ void imp_process_options_default(struct imp_process_options *o) {
         imp_btf_fit_params_default(&o->btf_fit);
         imp_photometric_params_default(&o->photometric);
         imp_fuse_params_default(&o->fuse);
+        imp_normal_trust_params_default(&o->normal_trust);
+}
+
+/* What one normal per texel can promise (normal-trust.h), on the final normals and σ_n. */
+static int normal_trust(const struct process_opts *o, struct geometry_out *g) {
+        struct imp_heightfield *hf = &g->hf;
+        struct imp_normal_trust_stats st = {};
+        int r = imp_normal_trust(hf->nx, hf->ny, hf->mask, hf->nx_, hf->ny_, hf->sigma_n_deg, hf->texel_flags,
+                                 &o->opt->normal_trust, &st);
+        if (r >= 0)
+                json_object_set_new(g->stages, "normal_trust", json_pack("{s:f,s:b,s:I,s:I}",
+                        "rough_k", o->opt->normal_trust.rough_k, "edge", o->opt->normal_trust.edge,
+                        "rough_flagged", (json_int_t) st.n_rough_flagged, "edge_flagged", (json_int_t) st.n_edge_flagged));
+        return r;
 }
 
 /* A refused copy: no heightfield, copy.json with the verdict and the reason. */
@@ -1064,6 +1078,8 @@ int imp_process_capture(const char *capture_dir, const char *copy_dir,
                 drop_fill(&g, NULL);   /* no normals to shape the fill */
         if (r >= 0 && (r = imp_heightfield_flag_edges(&g.hf, IMP_HF_FRAME_ADJACENT_PX)) < 0)
                 imp_error_set(err, r, "out of memory");   /* the mask and σ_n are final now */
+        if (r >= 0 && (r = normal_trust(&o, &g)) < 0)
+                imp_error_set(err, r, "out of memory");
         if (r >= 0)
                 r = classify_boxes(&o, &g, err);
         if (r >= 0)

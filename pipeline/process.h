@@ -8,6 +8,7 @@
 #include "error.h"
 #include "fuse.h"
 #include "heightfield.h"
+#include "normal-trust.h"
 #include "photometric.h"
 
 /* Every stage's options, with the values imp_process_options_default() sets; a caller
@@ -28,6 +29,8 @@ struct imp_process_options {
         struct imp_btf_fit_params btf_fit;            /* max_iter, robust_passes */
         struct imp_photometric_params photometric;
         struct imp_fuse_params fuse;
+        struct imp_normal_trust_params normal_trust;  /* σ_n and flags of normals one texel
+                                                          cannot represent (normal-trust.h) */
         bool btf;                     /* fit the BTF when the set holds a dome sweep */
         int holdout_every;            /* > 0: every Nth dome light (sweep positions N−1,
                                          2N−1, …) is left out of the fit and re-rendered

@@ -20,3 +20,9 @@ endif()
 impasto_test(test-hard-placement LABELS stability unit LIBS impasto_pipeline)
 # σ_h of heights the fusion moved (no rendering).
 impasto_test(test-hard-sigma LABELS stability unit LIBS impasto_pipeline)
+# Unflagged normals honest on a flush frame with every stage (the rims of relief and of
+# flagged regions, normal-trust.h): at most 1 % beyond 3σ_n, none more than 10° off.
+impasto_test(test-hard-normals SOURCE unit/test-hard-suite.c LABELS stability TIMEOUT 900 ARGS flush-frame)
+if(TARGET impasto)
+  add_dependencies(test-hard-normals impasto)
+endif()

@@ -5,3 +5,5 @@ impasto_test(test-photometric-stability LABELS stability LIBS impasto_pipeline)
 # What the fit's residuals cannot show: an ambient term under one usable elevation, and
 # refined normals biased against the geometric ones.
 impasto_test(test-photometric-honest LABELS unit stability LIBS impasto_pipeline)
+# σ_n and flags of normals one texel cannot represent (pipeline/appearance/normal-trust.h).
+impasto_test(test-normal-trust LABELS unit stability LIBS impasto_pipeline)

@@ -21,8 +21,10 @@ enum imp_texel_flag {
         IMP_TEXEL_PHASE_REJECTED = 1u << 8,  /* structured-light decode inconsistent
                                                 (Gray vs phase), position from Gray only */
         IMP_TEXEL_FIT_FAILED     = 1u << 9,  /* BTF fit did not converge or hit a bound */
-        IMP_TEXEL_NORMAL_UNCERTAIN = 1u << 10, /* normal σ above IMP_TEXEL_NORMAL_SIGMA_MAX_DEG:
-                                                 the normal cannot be promised within 10° */
+        IMP_TEXEL_NORMAL_UNCERTAIN = 1u << 10, /* normal σ above IMP_TEXEL_NORMAL_SIGMA_MAX_DEG,
+                                                 or next to a texel whose normal is not
+                                                 vouched for (normal-trust.h): the normal
+                                                 cannot be promised within 10° */
 };
 #define IMP_TEXEL_FLAG_COUNT 11
 #define IMP_TEXEL_NORMAL_SIGMA_MAX_DEG (10.0 / 3)   /* 3σ_n = 10° */

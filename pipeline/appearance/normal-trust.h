@@ -1,0 +1,44 @@
+/* What one normal per texel can promise: the copy's final normals checked against their
+ * own neighbourhood, after every stage has given its σ_n and flags (docs/copy-quality.md
+ * "Normals one texel cannot represent").
+ *
+ * A texel's normal is the shading (or the range plane) of its whole footprint, while the
+ * surface it describes may bend within it: where the relief changes direction within a
+ * texel (a stroke's edge, a groove's wall), the one normal is a blend and its error grows
+ * with the bend. The bend is seen in the copy itself, as the angle between a texel's
+ * normal and its neighbours'. Two rules, both from per-texel evidence only:
+ *
+ *  1. roughness: σ_n grows in quadrature by rough_k × the largest angle between the
+ *     texel's normal and a 4-neighbour's (on the demo the error's rms is ≈ 0.1× that
+ *     angle: 0.3° below 3°, 2.9° at 16–24°, 4.6° beyond 32°);
+ *  2. edge of an unvouched region: a texel touching (8-neighbourhood) a texel whose normal
+ *     is not vouched for (a flag other than frame_adjacent and fit_failed, σ_n above the
+ *     limit after rule 1, or a hole in the mask) takes at least that neighbour's σ_n and the flag
+ *     IMP_TEXEL_NORMAL_UNCERTAIN: such rims are where the relief or the shadows change
+ *     within a texel (79 % of the demo's unflagged normals more than 10° off were there).
+ *
+ * Texels whose σ_n then exceeds IMP_TEXEL_NORMAL_SIGMA_MAX_DEG get NORMAL_UNCERTAIN too.
+ * Library code: no logging; errors are negative errno. */
+#pragma once
+#include <stdbool.h>
+#include <stdint.h>
+
+struct imp_normal_trust_params {
+        double rough_k;               /* σ per degree of the largest neighbour angle (0.1) */
+        bool edge;                    /* rule 2 on (true) */
+};
+void imp_normal_trust_params_default(struct imp_normal_trust_params *ret);
+
+struct imp_normal_trust_stats {
+        long n_texels;                /* mask texels */
+        long n_rough_flagged;         /* newly NORMAL_UNCERTAIN by rule 1 (σ_n was within the
+                                         limit before) */
+        long n_edge_flagged;          /* newly NORMAL_UNCERTAIN by rule 2 (and not by rule 1) */
+};
+
+/* nx·ny texels; mask ≠ 0 on the canvas; nx_, ny_ the unit normals' x, y in the canvas
+ * frame (z ≥ 0 implied); sigma_n_deg and texel_flags (quality.h bits) updated in place on
+ * the mask. ret_stats may be NULL. -EINVAL on bad arguments, -ENOMEM. */
+int imp_normal_trust(int nx, int ny, const uint8_t *mask, const float *nx_, const float *ny_, float *sigma_n_deg,
+                     uint16_t *texel_flags, const struct imp_normal_trust_params *p,
+                     struct imp_normal_trust_stats *ret_stats);

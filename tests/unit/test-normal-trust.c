@@ -1,0 +1,137 @@
+/* What one normal per texel can promise (pipeline/appearance/normal-trust.h).
+ *  1. A roof: two planes tilted ±25° meeting at a ridge that runs through a column of
+ *     texels. The copy's normal there is the blend over the texel's footprint (30 % on
+ *     one side), the truth at the texel's centre the other side's: 15° off, while every
+ *     stage gave σ_n = 1°. With the rules, no unflagged texel is beyond 3σ_n nor more
+ *     than 10° off; without them (rough_k 0, edge off) the ridge is, so the check can fail.
+ *  2. A texel whose normal is not vouched for (photometric_rejected, σ_n 6°) passes its σ
+ *     and NORMAL_UNCERTAIN to its 8 neighbours and no further; frame_adjacent does not.
+ *  3. Bad arguments. */
+#include <errno.h>
+#include <stdbool.h>
+#include <stdint.h>
+#include "normal-trust.h"
+#include "quality.h"
+#include "test.h"
+
+#define N 40
+#define DEG (M_PI / 180.0)
+
+static void set_normal(float *nx, float *ny, int t, double tilt_deg) {
+        nx[t] = (float) sin(tilt_deg * DEG);
+        ny[t] = 0;
+}
+
+static double angle_deg(double ax, double bx) {   /* two normals tilted about y */
+        double az = sqrt(1 - ax * ax), bz = sqrt(1 - bx * bx);
+        return acos(fmin(1.0, ax * bx + az * bz)) / DEG;
+}
+
+/* Runs the roof with p; returns the number of unflagged texels beyond 3σ or over 10°. */
+static int roof(const struct imp_normal_trust_params *p, int *ret_flagged) {
+        static float nx[N * N], ny[N * N], sig[N * N];
+        static uint16_t fl[N * N];
+        static uint8_t mask[N * N];
+        static double truth[N * N];
+        const double tilt = 25, edge = 19.8;  /* ridge at x = 19.8: texel 20 spans 19.5..20.5 */
+        for (int j = 0; j < N; j++)
+                for (int i = 0; i < N; i++) {
+                        int t = j * N + i;
+                        mask[t] = 1;
+                        fl[t] = 0;
+                        sig[t] = 1.0f;
+                        double left = fmin(1.0, fmax(0.0, edge - (i - 0.5)));   /* footprint share left of the ridge */
+                        double a = sin(tilt * DEG), b = sin(-tilt * DEG);
+                        double vx = left * a + (1 - left) * b, vz = cos(tilt * DEG);
+                        double l = sqrt(vx * vx + vz * vz);
+                        set_normal(nx, ny, t, asin(vx / l) / DEG);
+                        truth[t] = i < edge ? a : b;
+                }
+        struct imp_normal_trust_stats st;
+        CHECK_OK(imp_normal_trust(N, N, mask, nx, ny, sig, fl, p, &st));
+        int bad = 0, flagged = 0;
+        for (int t = 0; t < N * N; t++) {
+                double e = angle_deg(nx[t], truth[t]);
+                if (fl[t]) {
+                        flagged++;
+                        continue;
+                }
+                bad += e > 3 * sig[t] || e > 10;
+        }
+        *ret_flagged = flagged;
+        return bad;
+}
+
+static void test_roof(void) {
+        struct imp_normal_trust_params p, off;
+        imp_normal_trust_params_default(&p);
+        off = p;
+        off.rough_k = 0;
+        off.edge = false;
+        int fl_on, fl_off;
+        int bad_on = roof(&p, &fl_on), bad_off = roof(&off, &fl_off);
+        printf("roof: %d bad unflagged texels with the rules (%d flagged), %d without (%d flagged)\n", bad_on, fl_on,
+               bad_off, fl_off);
+        CHECK_INT_EQ(bad_on, 0);
+        CHECK_INT_EQ(bad_off, N);          /* the ridge's column: the check can fail */
+        CHECK_INT_EQ(fl_off, 0);
+        CHECK_LE(fl_on, 4 * N);            /* the two columns either side of the ridge, their rims */
+}
+
+static void test_edge(void) {
+        static float nx[N * N], ny[N * N], sig[N * N];
+        static uint16_t fl[N * N];
+        static uint8_t mask[N * N];
+        for (int t = 0; t < N * N; t++) {
+                mask[t] = 1;
+                nx[t] = ny[t] = 0;
+                sig[t] = 1.0f;
+                fl[t] = 0;
+        }
+        int c = 10 * N + 10, f = 30 * N + 30;
+        fl[c] = IMP_TEXEL_PHOTOMETRIC_REJECTED;
+        sig[c] = 6.0f;
+        fl[f] = IMP_TEXEL_FRAME_ADJACENT;
+        struct imp_normal_trust_params p;
+        imp_normal_trust_params_default(&p);
+        struct imp_normal_trust_stats st;
+        CHECK_OK(imp_normal_trust(N, N, mask, nx, ny, sig, fl, &p, &st));
+        CHECK_INT_EQ(st.n_texels, N * N);
+        CHECK_INT_EQ(st.n_edge_flagged, 8);
+        CHECK_INT_EQ(st.n_rough_flagged, 0);
+        for (int dj = -2; dj <= 2; dj++)
+                for (int di = -2; di <= 2; di++) {
+                        int t = c + dj * N + di;
+                        bool ring = abs(di) <= 1 && abs(dj) <= 1 && (di || dj);
+                        CHECK_MSG(!!(fl[t] & IMP_TEXEL_NORMAL_UNCERTAIN) == (ring || !(di || dj)), "(%d, %d): flags %u", di, dj, fl[t]);
+                        if (ring)
+                                CHECK_NEAR(sig[t], 6.0, 1e-6);
+                        else if (di || dj)
+                                CHECK_NEAR(sig[t], 1.0, 1e-6);
+                }
+        CHECK_INT_EQ(fl[f + 1], 0);        /* frame_adjacent is where, not how well */
+        CHECK_INT_EQ(fl[c] & IMP_TEXEL_PHOTOMETRIC_REJECTED, IMP_TEXEL_PHOTOMETRIC_REJECTED);
+}
+
+static void test_args(void) {
+        float v = 0, s = 1;
+        uint16_t f = 0;
+        uint8_t m = 1;
+        struct imp_normal_trust_params p;
+        imp_normal_trust_params_default(&p);
+        CHECK_ERR(imp_normal_trust(0, 1, &m, &v, &v, &s, &f, &p, NULL), -EINVAL);
+        CHECK_ERR(imp_normal_trust(1, 1, NULL, &v, &v, &s, &f, &p, NULL), -EINVAL);
+        p.rough_k = NAN;
+        CHECK_ERR(imp_normal_trust(1, 1, &m, &v, &v, &s, &f, &p, NULL), -EINVAL);
+        p.rough_k = 0.1;
+        CHECK_OK(imp_normal_trust(1, 1, &m, &v, &v, &s, &f, &p, NULL));
+        CHECK_INT_EQ(f, 0);
+        CHECK_NEAR(s, 1.0, 1e-6);
+}
+
+int main(void) {
+        test_roof();
+        test_edge();
+        test_args();
+        return TEST_DONE();
+}
