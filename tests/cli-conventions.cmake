@@ -10,3 +10,8 @@ set_tests_properties(test-cli-conventions PROPERTIES LABELS unit SKIP_RETURN_COD
 add_test(NAME test-man-completion
   COMMAND sh ${PROJECT_SOURCE_DIR}/tests/install/man-completion.sh ${PROJECT_BINARY_DIR})
 set_tests_properties(test-man-completion PROPERTIES LABELS unit SKIP_RETURN_CODE 77 TIMEOUT 60)
+# Every command given a missing input exits 3 at once, naming it, writing nothing: one
+# table of commands (tests/install/missing-input.sh).
+add_test(NAME test-cli-missing-input
+  COMMAND sh ${PROJECT_SOURCE_DIR}/tests/install/missing-input.sh ${PROJECT_BINARY_DIR} ${PROJECT_SOURCE_DIR})
+set_tests_properties(test-cli-missing-input PROPERTIES LABELS unit SKIP_RETURN_CODE 77 TIMEOUT 300)
