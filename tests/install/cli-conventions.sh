@@ -136,6 +136,26 @@ sys.exit(not (w >= c['nx'] + 100 and h >= c['ny'] + 40))"
   check "render frames the copy: at least 20 % of the 400x300 pixels see it" \
     sh -c '[ "$(cat "$0")" = 0 ] && [ "$(sed -n "s/.*: 400x300, \([0-9]*\) pixels see the copy.*/\1/p" "$1")" -ge 24000 ]' \
     "$tmp/rend.rc" "$tmp/rend.out"
+  # --force over the copy: built beside it and swapped in, nothing of the old copy survives
+  echo stale >"$pv/../stale-from-the-old-copy.txt"
+  run reproc "$imp" process "$tmp/simset" --out "$tmp/simcopy" --threads 1 --no-btf --force
+  check "process --force over a copy: exit 0, no stale file, no BRDF map of the old copy (--no-btf), no leftovers" \
+    sh -c '[ "$(cat "$0")" = 0 ] && [ -s "$1/copy.json" ] && [ ! -e "$1/stale-from-the-old-copy.txt" ] &&
+           [ ! -e "$1/rho_d.exr" ] && [ -z "$(ls -d "$1".* 2>/dev/null)" ]' "$tmp/reproc.rc" "$tmp/simcopy"
+  # without photometric frames: "no BTF possible", for a set planned without a dome and for an
+  # aborted one that lost its dome sweep (refused, naming it)
+  sed '/^dome = {/,/^};/d' "$(dirname "$plan")/quick.cfg" >"$tmp/nodome.cfg"
+  "$imp" sim render --scene "$scene" --plan "$tmp/nodome.cfg" --out "$tmp/nodomeset" --threads 1 >/dev/null 2>&1
+  run nodome "$imp" process "$tmp/nodomeset" --out "$tmp/nodomecopy" --threads 1 --quiet
+  check "process of a set without dome frames: says no BTF possible" \
+    sh -c '[ "$(cat "$0")" = 0 ] && grep -q "^no BTF possible: the capture set has no photometric (dome) frames" "$1"' \
+    "$tmp/nodome.rc" "$tmp/nodome.out"
+  "$imp" sim render --scene "$scene" --plan "$(dirname "$plan")/quick.cfg" --out "$tmp/abortset" --threads 1 >/dev/null 2>&1
+  grep -v -e '"step":"dome"' -e '"step":"dark"' "$tmp/abortset/manifest.jsonl" >"$tmp/m" && mv "$tmp/m" "$tmp/abortset/manifest.jsonl"
+  run abort "$imp" process "$tmp/abortset" --out "$tmp/abortcopy" --threads 1 --quiet
+  check "process of a set aborted before its dome sweep: refused (3), naming the missing dome frames and no BTF" \
+    sh -c '[ "$(cat "$0")" = 3 ] && grep -q "dome: 3 of 3 frames (lights 0, 3, 6): no photometric frame, so no BTF possible" "$1"' \
+    "$tmp/abort.rc" "$tmp/abort.err"
 fi
 
 [ $failures -eq 0 ] || { echo "$failures failed"; exit 1; }
