@@ -18,7 +18,9 @@ static void usage(FILE *f) {
                    "       impasto jobs retry ID [--json] [--socket PATH]\n"
                    "       impasto jobs follow ID [--json] [--socket PATH]   one line per change until it ends\n"
                    "       impasto jobs submit --slurm [options] CAPTURE...   (docs/scale-out.md)\n"
-                   "       impasto jobs list|show|cancel|retry --slurm BATCH\n");
+                   "       impasto jobs list|show|cancel|retry --slurm BATCH\n"
+                   "jobs follow exits 0 when the job is done, 1 when it failed; Ctrl-C detaches (the job goes\n"
+                   "on in impastod) and exits 130.\n");
 }
 
 static void human_list(const json_t *r) {

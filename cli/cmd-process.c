@@ -190,6 +190,20 @@ static void force_swap(const char *out, const char *work) {
                 log_warning("removing the old copy %s: %m", old);
 }
 
+/* A failed run: the message, copy.json's verdict when one was written, the exit code. */
+static int exit_for_error(int r, const struct imp_error *err, const char *out) {
+        log_error("%s", err->msg[0] ? err->msg : strerror(-r));
+        if (r == -ENODATA && print_quality(out))
+                return IMP_EXIT_PROCESS_UNUSABLE;
+        if (r == -EINVAL || r == -EBADMSG || r == -ENODATA) {   /* an unusable copy.json says why */
+                print_quality(out);
+                return IMP_EXIT_PROCESS_INVALID;
+        }
+        if (r == -ENOENT || r == -ENOTDIR || r == -EPROTONOSUPPORT)   /* no set, or not one we read */
+                return IMP_EXIT_PROCESS_INVALID;
+        return IMP_EXIT_PROCESS_FAILED;
+}
+
 /* The places a copy may not go: into the raw capture set (a reader never modifies what it
  * reads), over an existing copy or other files without --force. Returns an exit code, 0 = go. */
 static int check_places(const char *cap, const char *out, bool force) {
@@ -359,18 +373,8 @@ static int run(int argc, char **argv) {
                 : imp_process_capture(argv[optind], dest, &o, &err);
         if (dest != out)
                 force_swap(out, work);
-        if (r < 0) {
-                log_error("%s", err.msg[0] ? err.msg : strerror(-r));
-                if (r == -ENODATA && print_quality(out))
-                        return IMP_EXIT_PROCESS_UNUSABLE;
-                if (r == -EINVAL || r == -EBADMSG || r == -ENODATA) {   /* an unusable copy.json says why */
-                        print_quality(out);
-                        return IMP_EXIT_PROCESS_INVALID;
-                }
-                if (r == -ENOENT || r == -ENOTDIR || r == -EPROTONOSUPPORT)   /* no set, or not one we read */
-                        return IMP_EXIT_PROCESS_INVALID;
-                return IMP_EXIT_PROCESS_FAILED;
-        }
+        if (r < 0)
+                return exit_for_error(r, &err, out);
         clock_gettime(CLOCK_MONOTONIC, &t1);
         printf("digital copy written to %s (%.1f s)\n", out,
                (t1.tv_sec - t0.tv_sec) + (t1.tv_nsec - t0.tv_nsec) * 1e-9);

@@ -30,7 +30,7 @@ static void usage(FILE *f) {
                    "       impasto scan pause|resume|abort SESSION [--json] [--socket PATH]\n"
                    "       impasto scan resume SESSION --follow [--json] [--socket PATH]\n"
                    "       impasto scan follow SESSION [--json] [--socket PATH]\n"
-                   "Ctrl-C while following detaches: the scan goes on in impastod.\n"
+                   "Ctrl-C while following detaches: the scan goes on in impastod (exit 130).\n"
                    "       impasto scan list [--limit N] [--json] [--socket PATH]\n"
                    "       impasto scan show SESSION [--json] [--socket PATH]\n");
 }
