@@ -157,6 +157,22 @@ sys.exit(not (w >= c['nx'] + 100 and h >= c['ny'] + 40))"
   check "process of a set without dome frames: says no BTF possible" \
     sh -c '[ "$(cat "$0")" = 0 ] && grep -q "^no BTF possible: the capture set has no photometric (dome) frames" "$1"' \
     "$tmp/nodome.rc" "$tmp/nodome.out"
+  # JSON: a figure that could not be measured is null, never -1 nor a 0 over no texels (the
+  # copy without a dome has every texel flagged and none filled)
+  run cmpnull "$imp" compare "$tmp/nodomecopy" --truth "$tmp/nodomeset/truth" --json
+  check "compare --json: no -1, and the figures over no texels are null" python3 -c "
+import json, sys
+j = json.load(open('$tmp/cmpnull.out'))
+def walk(x):
+    if isinstance(x, dict):
+        for v in x.values(): yield from walk(v)
+    elif isinstance(x, list):
+        for v in x: yield from walk(v)
+    else: yield x
+assert j['n_unflagged'] == 0 and j['n_filled'] == 0, (j['n_unflagged'], j['n_filled'])
+sys.exit(any(v == -1 for v in walk(j) if isinstance(v, (int, float)) and not isinstance(v, bool)) or
+         any(j[k] is not None for k in ('beyond_3sigma_height', 'beyond_3sigma_normal', 'unflagged_normal_err_deg_max',
+                                        'height_rmse_um_filled', 'normal_err_deg_mean_filled')))"
   "$imp" sim render --scene "$scene" --plan "$(dirname "$plan")/quick.cfg" --out "$tmp/abortset" --threads 1 >/dev/null 2>&1
   grep -v -e '"step":"dome"' -e '"step":"dark"' "$tmp/abortset/manifest.jsonl" >"$tmp/m" && mv "$tmp/m" "$tmp/abortset/manifest.jsonl"
   run abort "$imp" process "$tmp/abortset" --out "$tmp/abortcopy" --threads 1 --quiet
