@@ -18,6 +18,7 @@
 #include <unistd.h>
 #include "client.h"
 #include "commands.h"
+#include "help.h"
 #include "json-util.h"
 #include "log.h"
 #include "numparse.h"
@@ -357,8 +358,16 @@ static int run(int argc, char **argv) {
                 case 'h': usage(stdout); return 0;
                 default: usage(stderr); return IMP_EXIT_USAGE;
                 }
-        if (argc - optind != 2 || (strcmp(argv[optind], "validate") && strcmp(argv[optind], "estimate"))) {
-                usage(stderr);
+        static const char *const verbs[] = { "validate", "estimate" };
+        if (argc - optind >= 1 && strcmp(argv[optind], "validate") && strcmp(argv[optind], "estimate"))
+                return imp_cli_unknown_action("plan", argv[optind], verbs, ARRAY_SIZE(verbs));
+        if (argc - optind != 2) {
+                if (argc - optind == 0)
+                        fprintf(stderr, "impasto plan: expected an action (validate or estimate) and a PLAN\n");
+                else
+                        fprintf(stderr, "impasto plan %s: expected one PLAN, got %d words\n", argv[optind],
+                                argc - optind - 1);
+                fprintf(stderr, "Run 'impasto help plan' for the usage.\n");
                 return IMP_EXIT_USAGE;
         }
         bool estimate = !strcmp(argv[optind], "estimate");

@@ -63,6 +63,24 @@ check "impasto jobs show (no id): says a JOB id is expected" grep -q "expected o
 run statusx "$imp" status extra --socket "$sock"
 check "impasto status extra: names the unexpected argument, exit 2" \
   sh -c '[ "$(cat "$0")" = 2 ] && grep -q "unexpected argument '"'extra'"'" "$1"' "$tmp/statusx.rc" "$tmp/statusx.err"
+# every command with actions: a mistyped action gets "did you mean", a missing word is named
+while IFS='|' read -r args want; do
+  # shellcheck disable=SC2086
+  run words "$imp" $args --socket "$sock"
+  check "impasto $args: exit 2, says: $want" sh -c '[ "$(cat "$0")" = 2 ] && grep -qF -- "$2" "$1"' \
+    "$tmp/words.rc" "$tmp/words.err" "$want"
+done <<'WORDS'
+scan strat|impasto scan: unknown action 'strat'; did you mean 'start'?
+scan show|impasto scan show: expected one SESSION id, got 0 words
+scan|impasto scan: expected an action
+plan estmate x|impasto plan: unknown action 'estmate'; did you mean 'estimate'?
+plan estimate|impasto plan estimate: expected one PLAN, got 0 words
+sim rendr|impasto sim: unknown action 'rendr'; did you mean 'render'?
+queue frob|impasto queue: unknown action 'frob'
+queue move|impasto queue move: expected an ID and a POSITION
+calibrate camra|calibrate: unknown target 'camra'
+bench accuracyy|impasto bench: unknown study 'accuracyy'
+WORDS
 run limit "$imp" jobs list --limit abc --socket "$sock"
 check "impasto jobs --limit abc: refused naming the option, exit 2" \
   sh -c '[ "$(cat "$0")" = 2 ] && grep -q -- "--limit: expected an integer from 1 to 1000, got '"'abc'"'" "$1"' \
