@@ -161,6 +161,12 @@ sys.exit(not (w >= c['nx'] + 100 and h >= c['ny'] + 40))"
   check "render frames the copy: at least 20 % of the 400x300 pixels see it" \
     sh -c '[ "$(cat "$0")" = 0 ] && [ "$(sed -n "s/.*: 400x300, \([0-9]*\) pixels see the copy.*/\1/p" "$1")" -ge 24000 ]' \
     "$tmp/rend.rc" "$tmp/rend.out"
+  # on a terminal the BTF fit shows its progress in steps (it was one 0/1 step: jobs sat at 70 %)
+  if command -v script >/dev/null 2>&1; then
+    script -qc "'$imp' process '$tmp/simset' --out '$tmp/ttycopy' --threads 1" /dev/null >"$tmp/tty.out" 2>&1
+    check "process on a terminal: the btf fit bar moves in at least 10 steps" \
+      sh -c '[ "$(tr "\r" "\n" <"$0" | sed -n "s/^btf fit .* \([0-9]*\)\/[0-9]* .*/\1/p" | sort -u | wc -l)" -ge 10 ]' "$tmp/tty.out"
+  fi
   # --force over the copy: built beside it and swapped in, nothing of the old copy survives
   echo stale >"$pv/../stale-from-the-old-copy.txt"
   run reproc "$imp" process "$tmp/simset" --out "$tmp/simcopy" --threads 1 --no-btf --force
