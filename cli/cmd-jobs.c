@@ -77,7 +77,10 @@ static void print_job_line(const json_t *e, bool json) {
                 const json_t *err = json_object_get(e, "error");
                 printf("job %s: %s%s%s %.0f%% (attempt %lld of %lld)%s%s\n", imp_client_str(e, "job"),
                        imp_client_str(e, "state"), *imp_client_str(e, "stage") ? ", " : "", imp_client_str(e, "stage"),
-                       p == p ? 100 * p : 0, imp_client_int(e, "attempts"), imp_client_int(e, "max_attempts"),
+                       p == p ? 100 * p : 0,
+                       json_is_integer(json_object_get(e, "attempt")) ? imp_client_int(e, "attempt")
+                                                                     : imp_client_int(e, "attempts"),
+                       imp_client_int(e, "max_attempts"),
                        json_is_object(err) ? ": " : "", json_is_object(err) ? imp_client_str(err, "message") : "");
         }
         fflush(stdout);

@@ -137,7 +137,8 @@ int queue_load(struct daemon *d) {
                 struct queue_entry *q = n->n_queue < NIGHT_QUEUE_MAX ? calloc(1, sizeof *q) : NULL;
                 char what[PATH_MAX + 64];
                 snprintf(what, sizeof what, "%s: entries[%zu].", p, i);
-                int k = q ? entry_from_json(e, what, q, &err) : -ENOMEM;
+                int k = q ? entry_from_json(e, what, q, &err) :
+                        imp_error_set(&err, -ENOSPC, "%sa queue holds at most %d entries", what, NIGHT_QUEUE_MAX);
                 if (k < 0) {            /* this entry is lost to the queue (kept in the file set aside) */
                         free(q);
                         if (!lost++)

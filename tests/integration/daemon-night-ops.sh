@@ -87,7 +87,7 @@ check "Ctrl-C during jobs follow: detached, it goes on, how to follow again" \
 touch "$tmp/release"
 wait $jf_end; rc=$?
 check "jobs follow follows the job to its end: one line per change, exit 1 for a failed job" \
-  sh -c '[ $1 -eq 1 ] && grep -q "^job $2: running" "$0" && grep -q "^job $2: failed.*exit status 3" "$0"' "$tmp/jf-end.txt" $rc "$job"
+  sh -c '[ $1 -eq 1 ] && grep -q "^job $2: running 0% (attempt 1 of 1)" "$0" && grep -q "^job $2: failed.*exit status 3" "$0"' "$tmp/jf-end.txt" $rc "$job"
 
 # a long scan, paused at once: the queue waits behind it
 st scan start "$tmp/plans/archival.cfg" --name long --json >"$tmp/long.json" 2>&1
