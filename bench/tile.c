@@ -164,7 +164,7 @@ static int tile_run(int argc, char **argv) {
         double est;
         if (capture_estimate(capture, &est) < 0) {
                 fprintf(stderr, "impasto bench tile: no capture set at %s (run scripts/demo, or pass one)\n", capture);
-                return IMP_EXIT_FAILURE;
+                return IMP_EXIT_BAD_INPUT;
         }
         struct imp_process_options o;
         imp_process_options_default(&o);

@@ -81,10 +81,14 @@ static int run(int argc, char **argv) {
         printf("placement          %8.2f °   (copy canvas normal to the truth's)\n", res.placement_deg);
         printf("frame as canvas    %8.4f     (fraction of the copy's canvas texels)\n", res.frame_texel_fraction);
         printf("flagged            %8.4f     (fraction of the compared texels)\n", res.flagged_fraction);
-        printf("beyond 3σ          %8.4f height, %.4f normal (unflagged texels, %zu)\n",
-               res.beyond_3sigma_height, res.beyond_3sigma_normal, res.n_unflagged);
-        printf("unflagged normals  %8.2f ° max, %zu over 10°\n", res.unflagged_normal_err_deg_max,
-               res.unflagged_normal_over_10deg);
+        if (!res.n_unflagged)
+                printf("beyond 3σ          not measured (every compared texel is flagged)\n");
+        else {
+                printf("beyond 3σ          %8.4f height, %.4f normal (unflagged texels, %zu)\n",
+                       res.beyond_3sigma_height, res.beyond_3sigma_normal, res.n_unflagged);
+                printf("unflagged normals  %8.2f ° max, %zu over 10°\n", res.unflagged_normal_err_deg_max,
+                       res.unflagged_normal_over_10deg);
+        }
         if (!has_app)
                 return 0;
         printf("rho_d rel. error   %8.4f     median (90th pct %.4f) over %zu texel-channels\n",

@@ -97,18 +97,20 @@ static int run(int argc, char **argv) {
                 log_error("--to lp: the dome stack comes from the capture set: give --capture CAPSET");
                 return 2;
         }
-        int r = imp_mkdir_p(out, 0755);
-        if (r < 0) {
-                log_error("%s: %s", out, strerror(-r));
-                return 1;
-        }
+        /* the copy first: bad input leaves no empty output directory behind */
         struct imp_error err = {};
         struct imp_copy copy;
-        r = imp_copy_load(argv[optind], &copy, &err);
+        int r = imp_copy_load(argv[optind], &copy, &err);
         if (r < 0) {
                 log_error("%s: not a readable digital copy: %s", argv[optind], err.msg[0] ? err.msg : strerror(-r));
                 imp_copy_done(&copy);
                 return 3;
+        }
+        r = imp_mkdir_p(out, 0755);
+        if (r < 0) {
+                log_error("%s: %s", out, strerror(-r));
+                imp_copy_done(&copy);
+                return 1;
         }
         if (!strcmp(fmt, "tiff-height")) {
                 char path[PATH_MAX];

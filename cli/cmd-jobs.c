@@ -18,7 +18,9 @@ static void usage(FILE *f) {
                    "       impasto jobs retry ID [--json] [--socket PATH]\n"
                    "       impasto jobs follow ID [--json] [--socket PATH]   one line per change until it ends\n"
                    "       impasto jobs submit --slurm [options] CAPTURE...   (docs/scale-out.md)\n"
-                   "       impasto jobs list|show|cancel|retry --slurm BATCH\n");
+                   "       impasto jobs list|show|cancel|retry --slurm BATCH\n"
+                   "jobs follow exits 0 when the job is done, 1 when it failed; Ctrl-C detaches (the job goes\n"
+                   "on in impastod) and exits 130.\n");
 }
 
 static void human_list(const json_t *r) {
@@ -75,7 +77,10 @@ static void print_job_line(const json_t *e, bool json) {
                 const json_t *err = json_object_get(e, "error");
                 printf("job %s: %s%s%s %.0f%% (attempt %lld of %lld)%s%s\n", imp_client_str(e, "job"),
                        imp_client_str(e, "state"), *imp_client_str(e, "stage") ? ", " : "", imp_client_str(e, "stage"),
-                       p == p ? 100 * p : 0, imp_client_int(e, "attempts"), imp_client_int(e, "max_attempts"),
+                       p == p ? 100 * p : 0,
+                       json_is_integer(json_object_get(e, "attempt")) ? imp_client_int(e, "attempt")
+                                                                     : imp_client_int(e, "attempts"),
+                       imp_client_int(e, "max_attempts"),
                        json_is_object(err) ? ": " : "", json_is_object(err) ? imp_client_str(err, "message") : "");
         }
         fflush(stdout);

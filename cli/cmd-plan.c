@@ -18,6 +18,7 @@
 #include <unistd.h>
 #include "client.h"
 #include "commands.h"
+#include "help.h"
 #include "json-util.h"
 #include "log.h"
 #include "numparse.h"
@@ -158,8 +159,24 @@ static void human_estimate(const json_t *r) {
         printf("%s\n", json_object_get(r, "painting") ? " per tile" : "");
         if (json_object_get(r, "painting"))
                 human_painting(json_object_get(r, "painting"));
-        const json_t *acc = json_object_get(r, "expected_accuracy");
+        const json_t *acc = json_object_get(r, "expected_accuracy"), *other = json_object_get(r, "accuracy_not_measured");
         json_t *cpu = json_object_get(acc, "processing_cpu_s");
+        if (json_is_object(other)) {
+                const json_t *m = json_object_get(other, "measured");
+                const char *scene = json_string_value(json_object_get(m, "scene")) ?: "the study scene";
+                printf("processing    not measured for this rig (%.1f s CPU on %s with %lld frames)\n",
+                       imp_client_num(m, "processing_cpu_s"), scene, imp_client_int(m, "frames"));
+                printf("expected accuracy  not measured for %lld lights of a %lld-light dome (%lld frames): the "
+                       "preset's figures (height RMSE %.1f µm, normal error %.1f°) were measured on %s",
+                       imp_client_int(other, "lights"), imp_client_int(other, "dome_lights"),
+                       imp_client_int(other, "frames"), imp_client_num(m, "height_rmse_um"),
+                       imp_client_num(m, "normal_err_deg_mean"), scene);
+                if (json_is_integer(json_object_get(m, "dome_lights")))
+                        printf("'s %lld-light dome", imp_client_int(m, "dome_lights"));
+                printf(" with %lld frames; impasto bench accuracy measures them on this rig's scene\n",
+                       imp_client_int(m, "frames"));
+                return;
+        }
         if (json_is_number(cpu))
                 printf("processing    %.1f s CPU as measured on %s (impasto bench accuracy)\n",
                        json_number_value(cpu), json_string_value(json_object_get(acc, "scene")) ?: "the study scene");
@@ -199,6 +216,51 @@ static json_t *expected_accuracy(const char *plan_path) {
         return json_is_object(e) ? json_incref(e) : NULL;
 }
 
+/* The preset's figures hold for the configuration they were measured with: on a rig where the
+ * plan expands to other frames (another light count, another projector) they are not
+ * promised but shown as "accuracy_not_measured" with this rig's frames and lights. */
+/* The dome size of the rig a preset was measured on: PLAN_DIR/../scenes/SCENE.cfg's rig, or -1. */
+static int measured_dome(const char *plan_path, const json_t *acc) {
+        const char *scene = json_string_value(json_object_get(acc, "scene"));
+        char dir[PATH_MAX], path[PATH_MAX + 300];
+        snprintf(dir, sizeof dir, "%s", plan_path);
+        if (!scene || strchr(scene, '/') ||
+            snprintf(path, sizeof path, "%s/../scenes/%.200s.cfg", dirname(dir), scene) >= (int) sizeof path)
+                return -1;
+        _cleanup_(imp_scene_freep) struct imp_scene *sc = NULL;
+        struct imp_error err = {};
+        return imp_scene_load(path, &sc, &err) < 0 ? -1 : imp_scene_rig(sc)->n_lights;
+}
+
+static void set_accuracy(json_t *res, const char *plan_path, const struct imp_plan *plan, const struct imp_rig *rig,
+                         json_t *acc) {
+        size_t n = imp_plan_count(plan), lights = 0;
+        int max = -1;
+        for (size_t i = 0; i < n; i++)
+                max = IMP_MAX(max, imp_plan_frame(plan, i)->light);
+        _cleanup_free_ bool *seen = calloc((size_t) max + 2, sizeof *seen);
+        for (size_t i = 0; seen && i < n; i++) {
+                int l = imp_plan_frame(plan, i)->light;
+                if (l >= 0 && !seen[l]) {
+                        seen[l] = true;
+                        lights++;
+                }
+        }
+        json_t *measured = json_object_get(acc, "frames");
+        int dome = measured_dome(plan_path, acc);
+        if ((!json_is_integer(measured) || (size_t) json_integer_value(measured) == n) &&
+            (dome < 0 || dome == rig->n_lights)) {
+                json_object_set_new(res, "expected_accuracy", acc);
+                return;
+        }
+        if (dome >= 0)
+                json_object_set_new(acc, "dome_lights", json_integer(dome));
+        json_object_set_new(res, "expected_accuracy", json_null());
+        json_object_set_new(res, "accuracy_not_measured", json_pack("{s:I, s:I, s:i, s:o}", "frames", (json_int_t) n,
+                                                                    "lights", (json_int_t) lights, "dome_lights",
+                                                                    rig->n_lights, "measured", acc));
+}
+
 static int load_rig(const char *rig_path, const char *scene_path, struct imp_rig *ret) {
         struct imp_error err = {};
         int r;
@@ -235,14 +297,14 @@ static int offline(const char *plan_path, const char *rig_path, const char *scen
                 return r == -ENOMEM ? IMP_EXIT_FAILURE : IMP_EXIT_BAD_INPUT;
         }
         _cleanup_json_ json_t *res = offline_result(plan, &rig, estimate, po);
+        json_t *acc = res && estimate ? expected_accuracy(plan_path) : NULL;
+        if (acc)
+                set_accuracy(res, plan_path, plan, &rig, acc);
         imp_rig_free(&rig);
         if (!res)
                 return log_error("out of memory"), IMP_EXIT_FAILURE;
         if (estimate && (rc = check_disk(res, po->target ? po->target : ".")))
                 return rc;
-        json_t *acc = estimate ? expected_accuracy(plan_path) : NULL;
-        if (acc)
-                json_object_set_new(res, "expected_accuracy", acc);
         if (json) {
                 _cleanup_free_ char *s = json_dumps(res, JSON_COMPACT | JSON_PRESERVE_ORDER);
                 puts(s ? s : "{}");
@@ -296,8 +358,16 @@ static int run(int argc, char **argv) {
                 case 'h': usage(stdout); return 0;
                 default: usage(stderr); return IMP_EXIT_USAGE;
                 }
-        if (argc - optind != 2 || (strcmp(argv[optind], "validate") && strcmp(argv[optind], "estimate"))) {
-                usage(stderr);
+        static const char *const verbs[] = { "validate", "estimate" };
+        if (argc - optind >= 1 && strcmp(argv[optind], "validate") && strcmp(argv[optind], "estimate"))
+                return imp_cli_unknown_action("plan", argv[optind], verbs, ARRAY_SIZE(verbs));
+        if (argc - optind != 2) {
+                if (argc - optind == 0)
+                        fprintf(stderr, "impasto plan: expected an action (validate or estimate) and a PLAN\n");
+                else
+                        fprintf(stderr, "impasto plan %s: expected one PLAN, got %d words\n", argv[optind],
+                                argc - optind - 1);
+                fprintf(stderr, "Run 'impasto help plan' for the usage.\n");
                 return IMP_EXIT_USAGE;
         }
         bool estimate = !strcmp(argv[optind], "estimate");

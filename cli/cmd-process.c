@@ -1,8 +1,10 @@
 /* `impasto process CAPTURE_DIR --out COPY_DIR`: a capture set in, the digital copy out
  * (pipeline/process.c does the work), with a progress bar on a terminal and one line per
  * stage otherwise, both with the overall ETA. */
+#define _GNU_SOURCE 1
 #include <dirent.h>
 #include <errno.h>
+#include <ftw.h>
 #include <getopt.h>
 #include <limits.h>
 #include <stdio.h>
@@ -44,6 +46,15 @@ static bool print_quality(const char *out) {
         json_array_foreach(json_object_get(q, "reasons"), i, r)
                 printf("  %s\n", json_string_value(r));
         return !strcmp(v, "unusable");
+}
+
+/* A copy without its BRDF maps although the BTF was asked for: the set had no dome sweep. */
+static void say_if_no_btf(const char *out) {
+        char path[PATH_MAX + 16];
+        snprintf(path, sizeof path, "%s/rho_d.exr", out);
+        if (access(path, F_OK) < 0)
+                printf("no BTF possible: the capture set has no photometric (dome) frames; the copy holds the "
+                       "geometry only (heights, boxes), no BRDF maps\n");
 }
 
 /* Progress of the whole run: the stage's place in it (imp_process_fraction) gives the ETA. */
@@ -143,6 +154,54 @@ static bool nonempty_dir(const char *dir) {
                 if (strcmp(e->d_name, ".") && strcmp(e->d_name, ".."))
                         return true;
         return false;
+}
+
+static int rm_entry(const char *path, const struct stat *st, int flag, struct FTW *ftw) {
+        return remove(path) < 0 ? -1 : 0;
+}
+
+/* --force over an existing copy: the new copy is built beside it (OUT.partial-PID, same file
+ * system) and swapped in when this run wrote one, so no file of the old copy survives in the
+ * new one and a run that writes nothing leaves the old copy as it was. */
+static int force_place(const char *out, char *work, size_t size) {
+        size_t n = strlen(out);
+        while (n > 1 && out[n - 1] == '/')
+                n--;
+        if (snprintf(work, size, "%.*s.partial-%d", (int) n, out, (int) getpid()) >= (int) size)
+                return -ENAMETOOLONG;
+        return 0;
+}
+
+static void force_swap(const char *out, const char *work) {
+        char path[PATH_MAX + 48], old[PATH_MAX + 48];
+        snprintf(path, sizeof path, "%s/copy.json", work);
+        if (access(path, F_OK) < 0) {
+                (void) nftw(work, rm_entry, 16, FTW_DEPTH | FTW_PHYS);
+                log_notice("--out %s: left as it was (this run wrote no copy)", out);
+                return;
+        }
+        snprintf(old, sizeof old, "%s", work);
+        memcpy(strrchr(old, '.'), ".old-", 5);          /* OUT.old-PID */
+        if (rename(out, old) < 0 || rename(work, out) < 0) {
+                log_error("--out %s: replacing the old copy: %m; the new one is in %s", out, work);
+                return;
+        }
+        if (nftw(old, rm_entry, 16, FTW_DEPTH | FTW_PHYS) < 0)
+                log_warning("removing the old copy %s: %m", old);
+}
+
+/* A failed run: the message, copy.json's verdict when one was written, the exit code. */
+static int exit_for_error(int r, const struct imp_error *err, const char *out) {
+        log_error("%s", err->msg[0] ? err->msg : strerror(-r));
+        if (r == -ENODATA && print_quality(out))
+                return IMP_EXIT_PROCESS_UNUSABLE;
+        if (r == -EINVAL || r == -EBADMSG || r == -ENODATA) {   /* an unusable copy.json says why */
+                print_quality(out);
+                return IMP_EXIT_PROCESS_INVALID;
+        }
+        if (r == -ENOENT || r == -ENOTDIR || r == -EPROTONOSUPPORT)   /* no set, or not one we read */
+                return IMP_EXIT_PROCESS_INVALID;
+        return IMP_EXIT_PROCESS_FAILED;
 }
 
 /* The places a copy may not go: into the raw capture set (a reader never modifies what it
@@ -300,24 +359,27 @@ static int run(int argc, char **argv) {
         imp_po_options_default(&po);
         po.btf = o.btf;
         po.threads = o.threads;
-        int r = range_only ? imp_process_range(argv[optind], out, &err)
-                : photometric_only ? imp_process_photometric(argv[optind], out, &po, &err)
-                : imp_process_capture(argv[optind], out, &o, &err);
-        if (r < 0) {
-                log_error("%s", err.msg[0] ? err.msg : strerror(-r));
-                if (r == -ENODATA && print_quality(out))
-                        return IMP_EXIT_PROCESS_UNUSABLE;
-                if (r == -EINVAL || r == -EBADMSG || r == -ENODATA) {   /* an unusable copy.json says why */
-                        print_quality(out);
-                        return IMP_EXIT_PROCESS_INVALID;
+        char work[PATH_MAX + 32];
+        const char *dest = out;
+        if (force && nonempty_dir(out)) {
+                if (force_place(out, work, sizeof work) < 0) {
+                        log_error("--out %s: name too long", out);
+                        return IMP_EXIT_PROCESS_USAGE;
                 }
-                if (r == -ENOENT || r == -ENOTDIR || r == -EPROTONOSUPPORT)   /* no set, or not one we read */
-                        return IMP_EXIT_PROCESS_INVALID;
-                return IMP_EXIT_PROCESS_FAILED;
+                dest = work;
         }
+        int r = range_only ? imp_process_range(argv[optind], dest, &err)
+                : photometric_only ? imp_process_photometric(argv[optind], dest, &po, &err)
+                : imp_process_capture(argv[optind], dest, &o, &err);
+        if (dest != out)
+                force_swap(out, work);
+        if (r < 0)
+                return exit_for_error(r, &err, out);
         clock_gettime(CLOCK_MONOTONIC, &t1);
         printf("digital copy written to %s (%.1f s)\n", out,
                (t1.tv_sec - t0.tv_sec) + (t1.tv_nsec - t0.tv_nsec) * 1e-9);
+        if (o.btf && !range_only)
+                say_if_no_btf(out);
         return print_quality(out) ? IMP_EXIT_PROCESS_UNUSABLE : 0;
 }
 

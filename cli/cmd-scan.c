@@ -20,6 +20,7 @@
 #include <unistd.h>
 #include "client.h"
 #include "commands.h"
+#include "help.h"
 #include "log.h"
 
 #define BAR_WIDTH 30
@@ -30,7 +31,7 @@ static void usage(FILE *f) {
                    "       impasto scan pause|resume|abort SESSION [--json] [--socket PATH]\n"
                    "       impasto scan resume SESSION --follow [--json] [--socket PATH]\n"
                    "       impasto scan follow SESSION [--json] [--socket PATH]\n"
-                   "Ctrl-C while following detaches: the scan goes on in impastod.\n"
+                   "Ctrl-C while following detaches: the scan goes on in impastod (exit 130).\n"
                    "       impasto scan list [--limit N] [--json] [--socket PATH]\n"
                    "       impasto scan show SESSION [--json] [--socket PATH]\n");
 }
@@ -327,6 +328,26 @@ static void human_show(const json_t *r) {
                        imp_client_str(e, "code"), imp_client_str(e, "message"));
 }
 
+/* Says what was wrong with the words after `impasto scan`. */
+static int bad_args(const char *verb, int n) {
+        static const char *const verbs[] = { "start", "follow", "pause", "resume", "abort", "list", "show" };
+        bool known = false;
+        for (size_t i = 0; i < ARRAY_SIZE(verbs); i++)
+                known = known || !strcmp(verb, verbs[i]);
+        if (!verb[0])
+                fprintf(stderr, "impasto scan: expected an action (one of: start, follow, pause, resume, abort, list, "
+                        "show)\n");
+        else if (!known)
+                return imp_cli_unknown_action("scan", verb, verbs, ARRAY_SIZE(verbs));
+        else if (!strcmp(verb, "list"))
+                fprintf(stderr, "impasto scan list: takes no arguments besides --limit N, got %d\n", n - 1);
+        else
+                fprintf(stderr, "impasto scan %s: expected one %s, got %d words\n", verb,
+                        strcmp(verb, "start") ? "SESSION id" : "PLAN", n - 1);
+        fprintf(stderr, "Run 'impasto help scan' for the usage.\n");
+        return IMP_EXIT_USAGE;
+}
+
 static int run(int argc, char **argv) {
         struct imp_client_opts o = {};
         const char *name = NULL;
@@ -380,8 +401,7 @@ static int run(int argc, char **argv) {
                 if (!strcmp(verb, verbs[i][0]))
                         return imp_client_simple(&o, verbs[i][1], json_pack("{s:s}", "session", argv[optind + 1]),
                                                  strcmp(verb, "show") ? human_state : human_show);
-        usage(stderr);
-        return IMP_EXIT_USAGE;
+        return bad_args(verb, n);
 }
 
 const struct imp_command imp_cmd_scan = {

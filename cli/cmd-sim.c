@@ -26,6 +26,7 @@
 #endif
 #include "captureset.h"
 #include "commands.h"
+#include "help.h"
 #include "exit-codes.h"
 #include "log.h"
 #include "plan.h"
@@ -354,6 +355,9 @@ static int run(int argc, char **argv) {
                 usage(argc < 2 ? stderr : stdout);
                 return argc < 2 ? IMP_EXIT_USAGE : 0;
         }
+        static const char *const verbs[] = { "render", "serve", "info" };
+        if (strcmp(argv[1], "render") && strcmp(argv[1], "serve") && strcmp(argv[1], "info"))
+                return imp_cli_unknown_action("sim", argv[1], verbs, ARRAY_SIZE(verbs));
         struct sim_args a = { 0 };
         if (parse_args(argc - 1, argv + 1, &a) < 0) {
                 usage(stderr);
@@ -370,9 +374,7 @@ static int run(int argc, char **argv) {
                 }
                 return cmd_info(&a);
         }
-        log_error("sim: unknown subcommand '%s'", argv[1]);
-        usage(stderr);
-        return IMP_EXIT_USAGE;
+        return IMP_EXIT_USAGE;          /* (not reached: the action was checked above) */
 }
 
 const struct imp_command imp_cmd_sim = {

@@ -17,7 +17,9 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include "commands.h"
+#include "exit-codes.h"
 #include "copy-load.h"
 #include "json-util.h"
 #include "log.h"
@@ -306,6 +308,15 @@ static int run(int argc, char **argv) {
                 log_error("expected one COPY_DIR");
                 usage(stderr);
                 return 2;
+        }
+        /* nothing there: bad input at once, like every command (the error page below is for a
+         * copy that exists but cannot be read, shown where the operator looks: the browser) */
+        struct stat st;
+        int sr = stat(argv[optind], &st);
+        if (sr < 0 || !S_ISDIR(st.st_mode)) {
+                log_error("%s: %s (expected a digital copy directory)", argv[optind],
+                          sr < 0 ? strerror(errno) : "not a directory");
+                return IMP_EXIT_BAD_INPUT;
         }
         struct view_state v = { .copy_dir = argv[optind], .cell_px = cell };
         struct imp_error err = {};

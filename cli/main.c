@@ -23,7 +23,8 @@ static void usage(FILE *f) {
                 if (commands[i])
                         fprintf(f, "  %-10s %s\n", commands[i]->name, commands[i]->summary);
         fprintf(f, "\n'impasto help COMMAND' (or impasto COMMAND --help) describes a command; impasto --version\n");
-        fprintf(f, "exit codes: 0 ok, 1 failure, 2 usage, 3 bad input, 4 daemon unreachable, 5 permission denied\n");
+        fprintf(f, "exit codes: 0 ok, 1 failure, 2 usage, 3 bad input, 4 daemon unreachable, 5 permission denied,\n"
+                   "            6 result undetermined, 130 detached from a followed scan or job (Ctrl-C)\n");
 }
 
 int main(int argc, char **argv) {

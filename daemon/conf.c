@@ -1,14 +1,16 @@
 /* impastod.conf: the daemon's own config file (docs/daemon.md, "Config file"), read before
  * the command line, whose options override it. One group `impastod = { … }` in the config
  * format of the rig config (libconfig); an unknown field, a wrong type or a value out of
- * range stops the start with FILE:LINE: FIELD and what was expected. The group `slurm`
- * belongs to the Slurm job backend (scheduler = "slurm"), which reads it itself. */
+ * range stops the start with FILE:LINE: FIELD and what was expected. The top-level group
+ * `slurm = { … }` next to it holds the Slurm settings of impastod.scheduler = "slurm" (the
+ * group of a --scheduler-config file, read by the same reader: sched-slurm.c). */
 #include <string.h>
 #include <unistd.h>
 #include "conf.h"
 #include "impastod.h"
 #include "log.h"
 #include "night.h"
+#include "sched-slurm.h"
 
 static const char *night_conf_path(int argc, char **argv, const char *def, bool *required) {
         *required = false;
@@ -84,7 +86,12 @@ static int conf_apply(struct daemon *d, struct imp_conf *c, struct imp_error *er
         static const char *const known[] = { "rig", "state_dir", "socket", "worker", "worker_args", "calibrate_cmd",
                                              "plan_dirs", "resume", "hook", "hook_timeout_s", "disk_low_mib",
                                              "min_free_mib", "job_attempts", "retries", "spawn_workers",
-                                             "scheduler", "slurm", NULL };
+                                             "scheduler", NULL };
+        config_setting_t *nested = config_setting_get_member(g, "slurm");
+        if (nested)
+                return imp_error_set(err, -EINVAL, "%s:%d: impastod.slurm: the slurm = { … } group goes at the top "
+                                     "level of the file, next to impastod = { … }", imp_conf_path(c),
+                                     config_setting_source_line(nested));
         if ((r = imp_conf_check_known(c, g, known, err)) < 0 || (r = conf_paths(d, c, g, err)) < 0)
                 return r;
         static const char *const policies[] = { "manual", "interrupted", NULL };
@@ -149,6 +156,11 @@ int night_conf_load(struct daemon *d, int argc, char **argv, const char *def) {
                 return r;
         }
         snprintf(n->conf_path, sizeof n->conf_path, "%s", path);
+        config_setting_t *slurm = NULL;
+        bool want = n->scheduler && !strcmp(n->scheduler, "slurm");
+        if ((want || (imp_conf_get_group(c, NULL, "slurm", false, &slurm, &err) >= 0 && slurm)) &&
+            (r = sched_slurm_configure_conf(d, path, want)) < 0)
+                return r;
         return 0;
 }
 

@@ -54,17 +54,23 @@ static void job_read_verdict(struct job *j) {
                 log_warning("%s: quality.verdict \"%.32s\" is not ok, degraded or unusable, ignoring", p, v);
 }
 
+/* The attempt under way for a running job whose worker has not counted it yet (the spawn's),
+ * else the attempts counted: what "attempt N of M" shows. */
+static int job_attempt_now(const struct job *j) {
+        return j->attempts + (j->state == IMP_JOB_RUNNING && j->pid > 0 && j->attempts == j->spawn_attempts);
+}
+
 json_t *job_json(const struct job *j, bool full) {
         const char *stage = j->stage[0] ? j->stage : NULL, *verdict = j->verdict[0] ? j->verdict : NULL;
         if (!full)
                 return json_pack("{s:s, s:s, s:s, s:s, s:f, s:s?, s:i, s:s*}", "job", j->id, "session", j->session,
                                  "state", imp_job_state_name(j->state), "queued", j->queued, "progress", j->progress,
                                  "stage", stage, "attempts", j->attempts, "verdict", verdict);
-        return json_pack("{s:s, s:s, s:s, s:s, s:s?, s:s?, s:s?, s:o?, s:i, s:i, s:s, s:f, s:s?, s:O?, s:s*}", "job",
-                         j->id, "session", j->session, "state", imp_job_state_name(j->state), "queued", j->queued,
-                         "started", j->started[0] ? j->started : NULL, "ended", j->ended[0] ? j->ended : NULL,
+        return json_pack("{s:s, s:s, s:s, s:s, s:s?, s:s?, s:s?, s:o?, s:i, s:i, s:i, s:s, s:f, s:s?, s:O?, s:s*}",
+                         "job", j->id, "session", j->session, "state", imp_job_state_name(j->state), "queued",
+                         j->queued, "started", j->started[0] ? j->started : NULL, "ended", j->ended[0] ? j->ended : NULL,
                          "output", j->state == IMP_JOB_DONE ? j->output : NULL, "error", job_error_json(j),
-                         "attempts", j->attempts, "max_attempts", j->max_attempts, "set", j->set_dir, "progress",
+                         "attempts", j->attempts, "attempt", job_attempt_now(j), "max_attempts", j->max_attempts, "set", j->set_dir, "progress",
                          j->progress, "stage", stage, "worker_args", j->worker_args, "verdict", verdict);
 }
 
@@ -238,8 +244,7 @@ static void job_announce(struct daemon *d, struct job *j) {
                                     j->attempts, j->max_attempts, j->error);
                 else
                         log_info("job %s: %s (attempt %d of %d)", j->id, imp_job_state_name(j->state),
-                                 j->attempts + (j->state == IMP_JOB_RUNNING && j->pid > 0 &&
-                                                j->attempts == j->spawn_attempts), j->max_attempts);
+                                 job_attempt_now(j), j->max_attempts);
         }
         j->ev_sent = true;
         j->ev_state = j->state;
@@ -247,10 +252,10 @@ static void job_announce(struct daemon *d, struct job *j) {
         j->ev_progress = j->progress;
         snprintf(j->ev_stage, sizeof j->ev_stage, "%s", j->stage);
         server_broadcast(d, "job",
-                         json_pack("{s:s, s:s, s:s, s:f, s:s?, s:i, s:i, s:s?, s:o?, s:s*}", "job", j->id,
+                         json_pack("{s:s, s:s, s:s, s:f, s:s?, s:i, s:i, s:i, s:s?, s:o?, s:s*}", "job", j->id,
                                    "session", j->session, "state", imp_job_state_name(j->state), "progress",
                                    j->progress, "stage", j->stage[0] ? j->stage : NULL, "attempts", j->attempts,
-                                   "max_attempts", j->max_attempts, "output", j->state == IMP_JOB_DONE ? j->output : NULL,
+                                   "attempt", job_attempt_now(j), "max_attempts", j->max_attempts, "output", j->state == IMP_JOB_DONE ? j->output : NULL,
                                    "error", j->state == IMP_JOB_QUEUED || j->state == IMP_JOB_RUNNING ? NULL
                                    : job_error_json(j), "verdict", j->verdict[0] ? j->verdict : NULL));
 }

@@ -42,7 +42,8 @@ struct night {
         unsigned n_queue;
         unsigned queue_next_id;
         sd_event_source *queue_defer;
-        bool queue_broken;              /* queue.json unreadable: no change, no start */
+        bool queue_broken;              /* queue.json unreadable and not moved aside: no change, no start */
+        char queue_damaged[1024];       /* what was wrong with the queue.json moved aside at start */
 };
 
 /* conf.c: makes d->night and reads the config file (--config PATH or --config=PATH in

@@ -88,6 +88,31 @@ static int entry_from_json(const json_t *e, const char *what, struct queue_entry
         return 0;
 }
 
+/* A damaged queue.json (not JSON, truncated, a field of the wrong type) is never rewritten
+ * over: it is moved aside to queue.json.damaged-TIME, the entries that could be read stay
+ * queued (saved anew), the journal and `status` name the file, the field and where the
+ * rest is. When it cannot be moved the queue stops (queue_broken) until it is fixed. */
+static void queue_set_aside(struct daemon *d, const char *p, const char *msg, unsigned n_lost) {
+        /* n_lost 0: the file could not be read at all */
+        struct night *n = d->night;
+        char ts[32], aside[PATH_MAX + 64];
+        rfc3339_now(ts);
+        snprintf(aside, sizeof aside, "%s.damaged-%s", p, ts);
+        if (rename(p, aside) < 0) {
+                n->queue_broken = true;
+                log_error("scan queue %s; moving it to %s: %m; the queue is stopped until the file is fixed or removed",
+                          msg, aside);
+                return;
+        }
+        char lost[64] = "none of its entries could be read";
+        if (n_lost)
+                snprintf(lost, sizeof lost, "%u entr%s not queued", n_lost, n_lost == 1 ? "y" : "ies");
+        snprintf(n->queue_damaged, sizeof n->queue_damaged, "%.700s; kept as %.200s (%s)", msg, aside, lost);
+        log_error("scan queue %s; the queue goes on with the %u entries that could be read", n->queue_damaged,
+                  n->n_queue);
+        (void) queue_save(d);
+}
+
 int queue_load(struct daemon *d) {
         struct night *n = d->night;
         char p[PATH_MAX + 16];
@@ -96,23 +121,29 @@ int queue_load(struct daemon *d) {
         if (access(p, F_OK) < 0)
                 return 0;
         _cleanup_json_ json_t *j = NULL;
-        struct imp_error err = { 0 };
+        struct imp_error err = { 0 }, first = { 0 };
         int r = imp_json_load(p, &j, &err);
         const json_t *a = json_object_get(j, "entries"), *e;
         if (r >= 0 && !json_is_array(a))
                 r = imp_error_set(&err, -EINVAL, "%s: entries: expected an array", p);
+        if (r < 0)
+                first = err;
         size_t i;
+        unsigned lost = 0;
         struct queue_entry **tail = &n->queue;
         json_array_foreach(a, i, e) {
-                if (r < 0 || n->n_queue >= NIGHT_QUEUE_MAX)
+                if (r < 0)
                         break;
-                struct queue_entry *q = calloc(1, sizeof *q);
+                struct queue_entry *q = n->n_queue < NIGHT_QUEUE_MAX ? calloc(1, sizeof *q) : NULL;
                 char what[PATH_MAX + 64];
                 snprintf(what, sizeof what, "%s: entries[%zu].", p, i);
-                if (!q || (r = entry_from_json(e, what, q, &err)) < 0) {
+                int k = q ? entry_from_json(e, what, q, &err) :
+                        imp_error_set(&err, -ENOSPC, "%sa queue holds at most %d entries", what, NIGHT_QUEUE_MAX);
+                if (k < 0) {            /* this entry is lost to the queue (kept in the file set aside) */
                         free(q);
-                        r = r < 0 ? r : -ENOMEM;
-                        break;
+                        if (!lost++)
+                                first = err;
+                        continue;
                 }
                 *tail = q;
                 tail = &q->next;
@@ -121,10 +152,11 @@ int queue_load(struct daemon *d) {
         json_t *next = json_object_get(j, "next_id");
         if (json_is_integer(next) && json_integer_value(next) > 0 && json_integer_value(next) < 1000000000)
                 n->queue_next_id = (unsigned) json_integer_value(next);
-        if (r < 0) {
-                n->queue_broken = true;
-                log_error("scan queue %s: %s; the queue is stopped until the file is fixed or removed", p, err.msg);
-                return r;
+        else if (r < 0 || lost)
+                n->queue_next_id = 1000;        /* ids of the lost entries are not reused */
+        if (r < 0 || lost) {
+                queue_set_aside(d, p, first.msg, r < 0 ? 0 : lost);
+                return -EBADMSG;
         }
         if (n->n_queue)
                 log_info("scan queue: %u plans waiting (%s)", n->n_queue, p);
@@ -291,6 +323,17 @@ json_t *queue_cancel(struct daemon *d, const char *id, struct imp_proto_error *e
 
 /* For `status`: entries that could not start, with what to do. */
 void queue_attention(struct daemon *d, json_t *list) {
+        struct night *n = d->night;
+        if (n->queue_damaged[0] || n->queue_broken) {
+                char msg[1200], action[PATH_MAX + 200];
+                snprintf(msg, sizeof msg, "the scan queue file was damaged: %s",
+                         n->queue_damaged[0] ? n->queue_damaged : "it could not be moved aside; the queue is stopped");
+                snprintf(action, sizeof action, "%s: re-add the plans it held with impasto queue add PLAN --name NAME, "
+                         "then remove the damaged file (it stays listed here until impastod restarts)",
+                         n->queue_broken ? "fix or remove STATE/queue.json and restart impastod" : "read the file kept aside");
+                json_array_append_new(list, json_pack("{s:s, s:s, s:s}", "kind", "queue_damaged", "message", msg,
+                                                      "action", action));
+        }
         for (struct queue_entry *q = d->night->queue; q; q = q->next)
                 if (q->error[0]) {
                         char action[128];

@@ -1,5 +1,5 @@
-/* impastod's Slurm scheduler (docs/scale-out.md): with `scheduler = "slurm"` in the file of
- * --scheduler-config, queued jobs are not run here but submitted together as one batch
+/* impastod's Slurm scheduler (docs/scale-out.md): with `scheduler = "slurm"` (impastod.conf's
+ * impastod.scheduler, or the file of --scheduler-config), queued jobs are not run here but submitted together as one batch
  * (pipeline/model/slurm.h: a job array of impasto-worker --batch tasks and the finish step
  * after them). Each job's file records its batch and task ("slurm": {"batch", "task"}); a
  * timer reads the batches' state back (their files, squeue, sacct) into the jobs, which are
@@ -18,18 +18,45 @@ bool sched_slurm_active(const struct daemon *d) {
         return d->slurm && d->slurm->enabled;
 }
 
-int sched_slurm_configure(struct daemon *d, const char *path) {
-        static struct imp_slurm_config c;
-        imp_slurm_config_default(&c, "");   /* "": --worker-cmd, whatever its place on the command line */
+static struct imp_slurm_config slurm_config;
+
+static void configured(const struct imp_slurm_config *c) {
+        if (c->enabled)
+                log_info("scheduler slurm: batches in %s/batches, partition %s, account %s, %d CPUs and %s per task",
+                         c->shared_dir, c->partition[0] ? c->partition : "(default)",
+                         c->account[0] ? c->account : "(default)", c->cpus_per_task, c->mem[0] ? c->mem : "(default) memory");
+}
+
+/* impastod.conf: impastod.scheduler = "slurm" takes its settings from the top-level
+ * slurm = { … } group of the same file (the group a --scheduler-config file holds, read by
+ * the same reader); --scheduler-config, read after it, overrides both. */
+int sched_slurm_configure_conf(struct daemon *d, const char *path, bool slurm) {
+        struct imp_slurm_config *c = &slurm_config;
+        imp_slurm_config_default(c, "");    /* "": --worker-cmd, whatever its place on the command line */
         struct imp_error err = {};
-        int r = imp_slurm_config_load(path, &c, &err);
+        int r = imp_slurm_config_load(path, c, &err);
+        if (r < 0)
+                return log_error("config: %s", err.msg), r;
+        c->enabled = slurm;
+        if (slurm && !c->shared_dir[0])
+                return log_error("config: %s: slurm.shared_dir: required with impastod.scheduler = \"slurm\" (a "
+                                 "top-level slurm = { shared_dir = \"DIR\"; … } group next to impastod = { … }, DIR "
+                                 "mounted at the same path on every node; or --scheduler-config FILE)", path),
+                       -EINVAL;
+        d->slurm = c;
+        configured(c);
+        return 0;
+}
+
+int sched_slurm_configure(struct daemon *d, const char *path) {
+        struct imp_slurm_config *c = &slurm_config;
+        imp_slurm_config_default(c, "");    /* "": --worker-cmd, whatever its place on the command line */
+        struct imp_error err = {};
+        int r = imp_slurm_config_load(path, c, &err);
         if (r < 0)
                 return log_error("--scheduler-config: %s", err.msg), r;
-        d->slurm = &c;
-        if (c.enabled)
-                log_info("scheduler slurm: batches in %s/batches, partition %s, account %s, %d CPUs and %s per task",
-                         c.shared_dir, c.partition[0] ? c.partition : "(default)",
-                         c.account[0] ? c.account : "(default)", c.cpus_per_task, c.mem[0] ? c.mem : "(default) memory");
+        d->slurm = c;
+        configured(c);
         return 0;
 }
 

@@ -11,6 +11,8 @@ struct imp_proto_error;
 
 /* --scheduler-config FILE (pipeline/model/slurm.h's format). */
 int sched_slurm_configure(struct daemon *d, const char *path);
+/* impastod.conf's top-level slurm group, enabled when slurm (impastod.scheduler = "slurm"). */
+int sched_slurm_configure_conf(struct daemon *d, const char *path, bool slurm);
 bool sched_slurm_active(const struct daemon *d);
 /* The job file's "slurm" member into j (jobs.c's reader). */
 void sched_slurm_read(struct job *j, const json_t *doc);

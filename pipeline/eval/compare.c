@@ -518,9 +518,15 @@ int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_com
         return 0;
 }
 
+/* A figure over n texels: null when there were none (not a 0 that reads as perfect). */
+static json_t *figure_over(double v, size_t n) {
+        return n ? json_real(v) : json_null();
+}
+
 json_t *imp_compare_result_to_json(const struct imp_compare_result *r) {
-        /* mask_iou_observable and beyond_3sigma_normal are -1 when not measurable: null */
-        return json_pack("{s:f,s:f,s:f,s:f,s:f,s:f,s:o,s:I,s:I,s:I,s:f,s:f,s:f,s:f,s:f,s:f,s:I,s:f,s:o,s:f,s:I,s:f}",
+        /* mask_iou_observable and beyond_3sigma_normal are -1 when not measurable: null; the
+         * figures of the filled and of the unflagged texels are null when there are none */
+        return json_pack("{s:f,s:f,s:f,s:f,s:f,s:f,s:o,s:I,s:I,s:I,s:o,s:o,s:f,s:f,s:f,s:f,s:I,s:o,s:o,s:o,s:I,s:f}",
                          "height_rmse_um", r->height_rmse_um,
                          "height_offset_mm", r->height_offset_mm,
                          "height_max_abs_um", r->height_max_abs_um,
@@ -531,15 +537,15 @@ json_t *imp_compare_result_to_json(const struct imp_compare_result *r) {
                          "nan_count", (json_int_t) r->nan_count,
                          "n_compared", (json_int_t) r->n_compared,
                          "n_filled", (json_int_t) r->n_filled,
-                         "height_rmse_um_filled", r->height_rmse_um_filled,
-                         "normal_err_deg_mean_filled", r->normal_err_deg_mean_filled,
+                         "height_rmse_um_filled", figure_over(r->height_rmse_um_filled, r->n_filled),
+                         "normal_err_deg_mean_filled", figure_over(r->normal_err_deg_mean_filled, r->n_filled),
                          "height_rmse_um_measured", r->height_rmse_um_measured,
                          "normal_err_deg_mean_measured", r->normal_err_deg_mean_measured,
                          "placement_deg", r->placement_deg, "frame_texel_fraction", r->frame_texel_fraction,
                          "n_unflagged", (json_int_t) r->n_unflagged,
-                         "beyond_3sigma_height", r->beyond_3sigma_height,
-                         "beyond_3sigma_normal", imp_json_figure(r->beyond_3sigma_normal),
-                         "unflagged_normal_err_deg_max", r->unflagged_normal_err_deg_max,
+                         "beyond_3sigma_height", figure_over(r->beyond_3sigma_height, r->n_unflagged),
+                         "beyond_3sigma_normal", r->n_unflagged ? imp_json_figure(r->beyond_3sigma_normal) : json_null(),
+                         "unflagged_normal_err_deg_max", figure_over(r->unflagged_normal_err_deg_max, r->n_unflagged),
                          "unflagged_normal_over_10deg", (json_int_t) r->unflagged_normal_over_10deg,
                          "flagged_fraction", r->flagged_fraction);
 }

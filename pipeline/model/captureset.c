@@ -1102,6 +1102,9 @@ static void describe_missing(json_t *steps, char *buf, size_t size) {
                 n = strlen(buf);
                 if (json_array_size(lights))
                         snprintf(buf + n, size - n, "%s)", json_array_size(lights) > 8 ? ", …" : "");
+                n = strlen(buf);
+                if (!strcmp(step, "dome") && miss == json_integer_value(json_object_get(o, "planned")))
+                        snprintf(buf + n, size - n, ": no photometric frame, so no BTF possible");
         }
 }
 
