@@ -168,6 +168,27 @@ static double run_opencv(int32_t *cx, int32_t *cy, uint8_t *cv, size_t *ret_vali
         return clock_s(CLOCK_MONOTONIC) - t0;
 }
 
+/* The real captures, every frame of every capture, into img[][]. */
+static int load_images(const char *dir) {
+        for (int c = 0; c < NCAP; c++)
+                for (int i = 0; i < NFRAMES; i++) {
+                        char path[1024];
+                        struct imp_error err = { 0 };
+                        snprintf(path, sizeof path, "%s/capture_%d/graycode_%02d.png", dir, c, i);
+                        if (imp_png_read(path, &img[c][i], &err) < 0) {
+                                fprintf(stderr, "%s\n", err.msg);
+                                return -1;
+                        }
+                }
+        return 0;
+}
+
+static void free_images(void) {
+        for (int c = 0; c < NCAP; c++)
+                for (int i = 0; i < NFRAMES; i++)
+                        imp_image_free(img[c][i]);
+}
+
 int main(int argc, char **argv) {
         bool only_imp = argc > 1 && !strcmp(argv[argc - 1], "--impasto-only");
         bool checksum = argc > 1 && !strcmp(argv[argc - 1], "--checksum");
@@ -181,16 +202,8 @@ int main(int argc, char **argv) {
                 dir = dbuf;
         }
         repeats = repeats < 1 ? 1 : repeats > MAX_REPS ? MAX_REPS : repeats;
-        for (int c = 0; c < NCAP; c++)
-                for (int i = 0; i < NFRAMES; i++) {
-                        char path[1024];
-                        struct imp_error err = { 0 };
-                        snprintf(path, sizeof path, "%s/capture_%d/graycode_%02d.png", dir, c, i);
-                        if (imp_png_read(path, &img[c][i], &err) < 0) {
-                                fprintf(stderr, "%s\n", err.msg);
-                                return 1;
-                        }
-                }
+        if (load_images(dir) < 0)
+                return 1;
         int w = img[0][0]->width, h = img[0][0]->height;
         double mpix = (double) w * h * NCAP / 1e6;
         fprintf(stderr, "loaded %d captures of %d frames, %dx%d; peak RSS %.1f MiB\n", NCAP,
@@ -213,9 +226,7 @@ int main(int argc, char **argv) {
         if (checksum) {
                 int rc = print_checksums(&p1, &pn);
                 free(seq);
-                for (int c = 0; c < NCAP; c++)
-                        for (int i = 0; i < NFRAMES; i++)
-                                imp_image_free(img[c][i]);
+                free_images();
                 return rc;
         }
 
@@ -291,8 +302,6 @@ int main(int argc, char **argv) {
         free(cy);
         free(cv);
         free(seq);
-        for (int c = 0; c < NCAP; c++)
-                for (int i = 0; i < NFRAMES; i++)
-                        imp_image_free(img[c][i]);
+        free_images();
         return 0;
 }
