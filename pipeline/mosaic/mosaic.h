@@ -98,6 +98,7 @@ struct imp_mosaic_adjust_stats {
         double theta_change_rms_deg;
         double chi2_pairs, chi2_priors;   /* weighted squared residuals after the solve */
         double pair_resid_rms_um;     /* pair measurements' in-plane misfit after the solve */
+        double variance_factor;       /* the pairs' information divided by this (≥ 1) */
 };
 /* Global least squares over the pose graph: every pair's measurement with its information,
  * every tile's stage prior with its σ; the priors fix the gauge. Updates p's poses. */
