@@ -101,7 +101,13 @@ static int mosaic_fn(const void *a, int fd) {
         return mosaic_child(x->dir, x->out, fd);
 }
 
-static int one_size(struct size_arg *x, const char *tmp, int k) {
+/* What the summary needs of each size. */
+struct size_figures {
+        bool done;
+        double s_per_tile, rss_mib;
+};
+
+static int one_size(struct size_arg *x, const char *tmp, int k, struct size_figures *ret) {
         snprintf(x->dir, sizeof x->dir, "%s/painting-%d", tmp, k);
         snprintf(x->out, sizeof x->out, "%s/mosaic-%d", tmp, k);
         long rss_synth, rss;
@@ -125,9 +131,31 @@ static int one_size(struct size_arg *x, const char *tmp, int k) {
                x->s.extent_mm[0], x->s.extent_mm[1], b.tiles, b.pairs_ok, synth_s, b.register_s, b.write_s,
                total / b.tiles, rss / 1024.0, b.loads, b.resident, b.reg_um, b.seam_um);
         fflush(stdout);
+        *ret = (struct size_figures) { true, total / b.tiles, rss / 1024.0 };
         char cmd[1400];
         snprintf(cmd, sizeof cmd, "rm -rf '%s' '%s'", x->dir, x->out);
         return system(cmd) == 0 ? 0 : 1;
+}
+
+/* The issue's figures: peak RSS of the largest painting against 4 GiB, and linear time:
+ * the time per tile of the largest painting over the smallest's (1 is linear, a quadratic
+ * step would give ~19 from 9 to 169 tiles; below 1 the fixed costs spread over more tiles,
+ * or the shared machine was less loaded). */
+static void summary(const struct size_figures f[3]) {
+        double rss = 0, first = 0, last = 0;
+        int n = 0;
+        for (int k = 0; k < 3; k++)
+                if (f[k].done) {
+                        rss = fmax(rss, f[k].rss_mib), n++;
+                        if (!(first > 0))
+                                first = f[k].s_per_tile;
+                        last = f[k].s_per_tile;
+                }
+        printf("summary: peak RSS %.1f MiB (%s 4 GiB)", rss, rss <= 4096 ? "within" : "OVER");
+        if (n >= 2)
+                printf("; time per tile, largest painting over smallest: %.2f (%s)", last / first,
+                       last / first <= 1.5 ? "linear or better" : "grows faster than linear");
+        printf("\n");
 }
 
 static int run(int argc, char **argv) {
@@ -167,6 +195,7 @@ static int run(int argc, char **argv) {
         printf("mosaic bench: tiles of 60 × 40 mm at %.3f mm, 20%% overlap, stage σ 50 µm / 0.05°, cache %zu MiB\n", pitch,
                cache_bytes >> 20);
         int r = 0;
+        struct size_figures f[3] = { 0 };
         for (int k = 0; k < 3 && r == 0; k++) {
                 if (only >= 0 && k != only)
                         continue;
@@ -174,9 +203,11 @@ static int run(int argc, char **argv) {
                 imp_mosaic_synth_default(&x.s);
                 x.s.extent_mm[0] = sizes[k][0], x.s.extent_mm[1] = sizes[k][1];
                 x.s.fov_mm[0] = 60, x.s.fov_mm[1] = 40, x.s.pitch_mm = pitch;
-                r = one_size(&x, tmp, k);
+                r = one_size(&x, tmp, k, &f[k]);
         }
         rmdir(tmp);
+        if (r == 0)
+                summary(f);
         return r ? IMP_EXIT_FAILURE : IMP_EXIT_OK;
 }
 

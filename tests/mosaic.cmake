@@ -3,3 +3,5 @@ impasto_test(test-mosaic LIBS impasto_mosaic TIMEOUT 300)
 # The command as an operator runs it, with the stage-prior figures beside the registered ones.
 impasto_test(test-mosaic-cli LIBS impasto_mosaic TIMEOUT 300)
 add_dependencies(test-mosaic-cli impasto)
+# The simulator's conventions: the painting truth's sample grid; registration on normals when heights are noisy.
+impasto_test(test-mosaic-truth LIBS impasto_mosaic TIMEOUT 300)

@@ -98,6 +98,7 @@ struct imp_mosaic_adjust_stats {
         double theta_change_rms_deg;
         double chi2_pairs, chi2_priors;   /* weighted squared residuals after the solve */
         double pair_resid_rms_um;     /* pair measurements' in-plane misfit after the solve */
+        double variance_factor;       /* the pairs' information divided by this (≥ 1) */
 };
 /* Global least squares over the pose graph: every pair's measurement with its information,
  * every tile's stage prior with its σ; the priors fix the gauge. Updates p's poses. */
@@ -160,13 +161,14 @@ void imp_mosaic_synth_default(struct imp_mosaic_synth *s);
 double imp_mosaic_synth_height(const struct imp_mosaic_synth *s, double x_mm, double y_mm);
 int imp_mosaic_synth_write(const struct imp_mosaic_synth *s, const char *dir, struct imp_error *err);
 
-/* DIR/truth/height.exr (channel "height", mm, painting frame; texel (I, J) at
- * (I·extent_x/W, J·extent_y/H)) as a truth for imp_mosaic_write: -ENOENT when absent.
+/* DIR/truth/height.exr or heightfield.exr (channel "height", mm, painting frame; sample
+ * (I, J) at truth/truth.json's origin_mm + (I, J)·pitch_mm when that file is there (the
+ * simulator's), else at (I·extent_x/W, J·extent_y/H)) as a truth for imp_mosaic_write: -ENOENT when absent.
  * The sampler is bilinear; NAN outside. Free with imp_mosaic_truth_done(). */
 struct imp_mosaic_truth_exr {
         struct imp_image *img;
         int channel;
-        double pitch_mm[2];
+        double pitch_mm[2], origin_mm[2];   /* sample (I, J) at origin + (I·pitch_x, J·pitch_y) */
 };
 int imp_mosaic_truth_load(const struct imp_painting *p, struct imp_mosaic_truth_exr *ret, struct imp_mosaic_truth *ret_truth,
                           struct imp_error *err);

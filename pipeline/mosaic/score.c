@@ -6,6 +6,8 @@
 #include <string.h>
 #include <unistd.h>
 #include "image.h"
+#include "json-util.h"
+#include "macro.h"
 #include "mosaic.h"
 
 /* The 4 corners and the centre of tile t: estimated and true painting positions. */
@@ -64,7 +66,7 @@ int imp_mosaic_registration_error(const struct imp_painting *p, struct imp_mosai
 
 static double truth_exr_height(void *ctx, double x, double y) {
         const struct imp_mosaic_truth_exr *t = ctx;
-        double fi = x / t->pitch_mm[0], fj = y / t->pitch_mm[1];
+        double fi = (x - t->origin_mm[0]) / t->pitch_mm[0], fj = (y - t->origin_mm[1]) / t->pitch_mm[1];
         if (!(fi >= 0 && fj >= 0 && fi <= t->img->width - 1 && fj <= t->img->height - 1))
                 return NAN;
         int i = (int) fi, j = (int) fj;
@@ -73,6 +75,33 @@ static double truth_exr_height(void *ctx, double x, double y) {
         double h00 = imp_image_f32(t->img, i, j)[t->channel], h10 = imp_image_f32(t->img, i + 1, j)[t->channel];
         double h01 = imp_image_f32(t->img, i, j + 1)[t->channel], h11 = imp_image_f32(t->img, i + 1, j + 1)[t->channel];
         return (1 - fy) * ((1 - fx) * h00 + fx * h10) + fy * ((1 - fx) * h01 + fx * h11);
+}
+
+/* The truth's sample grid: the simulator's truth/truth.json gives it (sample (I, J) at
+ * origin + (I, J)·pitch: point samples from the canvas corner to its far corner, so W =
+ * extent/pitch + 1); without it, the synthetic convention (I·extent_x/W, J·extent_y/H). */
+static int truth_grid(const struct imp_painting *p, struct imp_mosaic_truth_exr *t, struct imp_error *err) {
+        char path[4300];
+        t->pitch_mm[0] = p->extent_mm[0] / t->img->width, t->pitch_mm[1] = p->extent_mm[1] / t->img->height;
+        t->origin_mm[0] = t->origin_mm[1] = 0;
+        snprintf(path, sizeof path, "%s/truth/truth.json", p->dir);
+        if (access(path, F_OK) < 0)
+                return 0;
+        _cleanup_json_ json_t *j = NULL;
+        double pitch;
+        long long nx, ny;
+        int r = imp_json_load(path, &j, err);
+        if (r < 0 || (r = imp_json_get_double(j, "pitch_mm", true, &pitch, path, err)) < 0 ||
+            (r = imp_json_get_doubles(j, "origin_mm", true, 2, t->origin_mm, path, err)) < 0 ||
+            (r = imp_json_get_int(j, "nx", true, &nx, path, err)) < 0 || (r = imp_json_get_int(j, "ny", true, &ny, path, err)) < 0)
+                return r;
+        if (!(pitch > 0) || !isfinite(t->origin_mm[0]) || !isfinite(t->origin_mm[1]) || nx != t->img->width ||
+            ny != t->img->height)
+                return imp_error_set(err, -EBADMSG, "%s: expected pitch_mm > 0, a finite origin_mm and nx, ny of the "
+                                     "heightfield (%d × %d), got %g, %lld × %lld", path, t->img->width, t->img->height,
+                                     pitch, nx, ny);
+        t->pitch_mm[0] = t->pitch_mm[1] = pitch;
+        return 0;
 }
 
 int imp_mosaic_truth_load(const struct imp_painting *p, struct imp_mosaic_truth_exr *t, struct imp_mosaic_truth *ret,
@@ -94,7 +123,10 @@ int imp_mosaic_truth_load(const struct imp_painting *p, struct imp_mosaic_truth_
                 imp_mosaic_truth_done(t);
                 return imp_error_set(err, -EBADMSG, "%s: expected a channel \"height\" over at least 2×2 texels", path);
         }
-        t->pitch_mm[0] = p->extent_mm[0] / t->img->width, t->pitch_mm[1] = p->extent_mm[1] / t->img->height;
+        if ((r = truth_grid(p, t, err)) < 0) {
+                imp_mosaic_truth_done(t);
+                return r;
+        }
         *ret = (struct imp_mosaic_truth) { truth_exr_height, t };
         return 0;
 }
