@@ -175,6 +175,23 @@ static void detach_on_interrupt(const char *session) {
         (void) sigaction(SIGTERM, &sa, NULL);
 }
 
+/* Subscribes to the session events (progress, fault, done) and notes the sequence number to
+ * follow from; 0, or the exit code after saying why. */
+static int subscribe_session_events(struct imp_client *c, struct follow *f) {
+        _cleanup_proto_message_ struct imp_proto_message sub = {};
+        struct imp_error err = {};
+        json_t *args = json_pack("{s:[s,s,s]}", "events", "progress", "fault", "done");
+        int r = imp_client_call(c, "subscribe", args, NULL, NULL, &sub, &err);
+        if (r < 0) {
+                log_error("%s", err.msg);
+                return imp_client_exit_for_errno(r);
+        }
+        if (!sub.ok)
+                return imp_client_report_error("subscribe", &sub);
+        f->last_seq = (unsigned long long) imp_client_int(sub.result, "seq");
+        return 0;
+}
+
 static int follow_session(struct imp_client *c, struct follow *f) {
         struct imp_error err = {};
         detach_on_interrupt(f->session);
@@ -205,18 +222,8 @@ static int scan_start(const struct imp_client_opts *o, const char *plan, const c
         struct follow f = { .json = o->json, .tty = isatty(STDERR_FILENO), .quiet = wait && !follow,
                             .eta_s = NAN, .t0 = now_s() };
         struct imp_error err = {};
-        if (follow || wait) {
-                _cleanup_proto_message_ struct imp_proto_message sub = {};
-                json_t *args = json_pack("{s:[s,s,s]}", "events", "progress", "fault", "done");
-                int r = imp_client_call(c, "subscribe", args, NULL, NULL, &sub, &err);
-                if (r < 0) {
-                        log_error("%s", err.msg);
-                        return imp_client_exit_for_errno(r);
-                }
-                if (!sub.ok)
-                        return imp_client_report_error("subscribe", &sub);
-                f.last_seq = (unsigned long long) imp_client_int(sub.result, "seq");
-        }
+        if ((follow || wait) && (rc = subscribe_session_events(c, &f)))
+                return rc;
         json_t *args = json_pack("{s:s}", "plan", plan);
         if (args && name)
                 json_object_set_new(args, "name", json_string(name));
@@ -251,18 +258,11 @@ static int scan_follow(const struct imp_client_opts *o, const char *session, boo
         struct follow f = { .json = o->json, .tty = isatty(STDERR_FILENO), .eta_s = NAN, .t0 = now_s() };
         snprintf(f.session, sizeof f.session, "%s", session);
         struct imp_error err = {};
-        _cleanup_proto_message_ struct imp_proto_message sub = {}, reply = {};
-        json_t *args = json_pack("{s:[s,s,s]}", "events", "progress", "fault", "done");
-        int r = imp_client_call(c, "subscribe", args, NULL, NULL, &sub, &err);
-        if (r < 0) {
-                log_error("%s", err.msg);
-                return imp_client_exit_for_errno(r);
-        }
-        if (!sub.ok)
-                return imp_client_report_error("subscribe", &sub);
-        f.last_seq = (unsigned long long) imp_client_int(sub.result, "seq");
+        _cleanup_proto_message_ struct imp_proto_message reply = {};
+        if ((rc = subscribe_session_events(c, &f)))
+                return rc;
         const char *cmd = resume ? "session.resume" : "session.show";
-        r = imp_client_call(c, cmd, json_pack("{s:s}", "session", session), on_event, &f, &reply, &err);
+        int r = imp_client_call(c, cmd, json_pack("{s:s}", "session", session), on_event, &f, &reply, &err);
         if (r < 0) {
                 log_error("%s", err.msg);
                 return imp_client_exit_for_errno(r);

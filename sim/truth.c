@@ -76,19 +76,10 @@ static int write_painting(const struct imp_scene *scene, const char *dir, struct
 int imp_sim_write_truth(const struct imp_scene *scene, struct imp_render *rd, const char *dir,
                         struct imp_error *err) {
         char tdir[1024], path[1100];
-        if (snprintf(tdir, sizeof tdir, "%s/truth", dir) >= (int) sizeof tdir)
-                return imp_error_set(err, -ENAMETOOLONG, "%s: path too long", dir);
-        int r = imp_mkdir_p(tdir, 0755);
+        int r = imp_sim_write_painting_truth(scene, dir, err);     /* truth/, truth.json, the painting */
         if (r < 0)
-                return imp_error_set(err, r, "%s: cannot create: %s", tdir, strerror(-r));
-        _cleanup_json_ json_t *j = truth_json(scene);
-        if (!j)
-                return imp_error_set(err, -ENOMEM, "truth.json: out of memory");
-        snprintf(path, sizeof path, "%s/truth.json", tdir);
-        if ((r = imp_json_save_atomic(path, j, err)) < 0)
                 return r;
-        if ((r = write_painting(scene, tdir, err)) < 0)
-                return r;
+        snprintf(tdir, sizeof tdir, "%s/truth", dir);
         const struct imp_rig *rig = imp_render_rig(rd);
         snprintf(path, sizeof path, "%s/rig.json", tdir);
         if ((r = imp_rig_save(path, rig, err)) < 0)
