@@ -53,6 +53,8 @@ static void human_show(const json_t *r) {
         const json_t *e = json_object_get(r, "error");
         if (json_is_object(e))
                 printf("error    %s: %s\n", imp_client_str(e, "code"), imp_client_str(e, "message"));
+        if (*imp_client_str(r, "log"))
+                printf("log      %s\n", imp_client_str(r, "log"));
 }
 
 static void human_retry(const json_t *r) {

@@ -299,6 +299,7 @@ struct job {
         char verdict[16];               /* the copy's quality.verdict once done ("" when it has none) */
         json_t *worker_args;            /* as written into the file (string or null) */
         pid_t pid;                      /* our worker child, 0 when none */
+        off_t log_start;                /* where this attempt's output starts in STATE/jobs/<id>.log */
         int spawn_attempts;             /* attempts in the file when the child was started */
         bool claim_seen;                /* the child was seen to claim the job (it accounts for it) */
         sd_event_source *child_source;

@@ -21,6 +21,7 @@
 
 #define JOB_RETRY_DELAY_US 500000ULL    /* before attempt n+1 after a failed one: n × this */
 #define JOB_POLL_US 2000000ULL          /* re-read of claims held by workers we did not start */
+#define JOB_LOG_ECHO_MAX 16384          /* the tail of an attempt's output echoed to our log */
 
 struct job *jobs_find(struct daemon *d, const char *id) {
         for (struct job *j = d->jobs; j; j = j->next)
@@ -54,6 +55,11 @@ static void job_read_verdict(struct job *j) {
                 log_warning("%s: quality.verdict \"%.32s\" is not ok, degraded or unusable, ignoring", p, v);
 }
 
+/* STATE/jobs/<id>.log: what our worker children printed, attempt after attempt. */
+static void job_log_path(const struct job *j, char *buf, size_t size) {
+        snprintf(buf, size, "%.3000s/jobs/%s.log", j->d->state_dir, j->id);
+}
+
 /* The attempt under way for a running job whose worker has not counted it yet (the spawn's),
  * else the attempts counted: what "attempt N of M" shows. */
 static int job_attempt_now(const struct job *j) {
@@ -66,12 +72,16 @@ json_t *job_json(const struct job *j, bool full) {
                 return json_pack("{s:s, s:s, s:s, s:s, s:f, s:s?, s:i, s:s*}", "job", j->id, "session", j->session,
                                  "state", imp_job_state_name(j->state), "queued", j->queued, "progress", j->progress,
                                  "stage", stage, "attempts", j->attempts, "verdict", verdict);
-        return json_pack("{s:s, s:s, s:s, s:s, s:s?, s:s?, s:s?, s:o?, s:i, s:i, s:i, s:s, s:f, s:s?, s:O?, s:s*}",
+        char logp[PATH_MAX + 200];
+        struct stat st;
+        job_log_path(j, logp, sizeof logp);
+        const char *log = lstat(logp, &st) == 0 && S_ISREG(st.st_mode) ? logp : NULL;
+        return json_pack("{s:s, s:s, s:s, s:s, s:s?, s:s?, s:s?, s:o?, s:i, s:i, s:i, s:s, s:f, s:s?, s:O?, s:s*, s:s*}",
                          "job", j->id, "session", j->session, "state", imp_job_state_name(j->state), "queued",
                          j->queued, "started", j->started[0] ? j->started : NULL, "ended", j->ended[0] ? j->ended : NULL,
                          "output", j->state == IMP_JOB_DONE ? j->output : NULL, "error", job_error_json(j),
                          "attempts", j->attempts, "attempt", job_attempt_now(j), "max_attempts", j->max_attempts, "set", j->set_dir, "progress",
-                         j->progress, "stage", stage, "worker_args", j->worker_args, "verdict", verdict);
+                         j->progress, "stage", stage, "worker_args", j->worker_args, "verdict", verdict, "log", log);
 }
 
 /* ---- the file ----------------------------------------------------------------------------- */
@@ -334,10 +344,60 @@ int daemon_spawn(struct daemon *d, const char *const *argv, int fd_out, int fd_e
 }
 
 static int job_spawn(struct daemon *d, struct job *j) {
-        char file[PATH_MAX + 200];
+        char file[PATH_MAX + 200], logp[PATH_MAX + 200];
         job_path(j, IMP_JOB_FILE_QUEUE, file, sizeof file);
+        job_log_path(j, logp, sizeof logp);
         const char *const argv[] = { d->worker_cmd, file, NULL };
-        return daemon_spawn(d, argv, -1, -1, job_exited, j, &j->pid, &j->child_source);
+        /* The worker's output goes to the job's log (echoed to ours when it exits), so that a
+         * worker that dies without writing its error still leaves its last words with the job. */
+        _cleanup_close_ int fd = open(logp, O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC | O_NOFOLLOW, 0640);
+        if (fd >= 0) {
+                char now[32];
+                rfc3339_now(now);
+                dprintf(fd, "== %s: attempt %d, %s %s\n", now, j->attempts + 1, d->worker_cmd, file);
+                j->log_start = lseek(fd, 0, SEEK_END);
+        } else
+                log_warning("job %s: %s: %s; the worker's output goes to ours", j->id, logp, strerror(errno));
+        return daemon_spawn(d, argv, fd, fd, job_exited, j, &j->pid, &j->child_source);
+}
+
+/* Echoes what the attempt just ended printed (its last JOB_LOG_ECHO_MAX bytes) to our log and
+ * leaves its last non-empty line in last[] ("" when it printed nothing). */
+static void job_log_collect(const struct job *j, char *last, size_t size) {
+        char logp[PATH_MAX + 200];
+        last[0] = 0;
+        job_log_path(j, logp, sizeof logp);
+        _cleanup_close_ int fd = open(logp, O_RDONLY | O_CLOEXEC | O_NOFOLLOW);
+        struct stat st;
+        if (fd < 0 || fstat(fd, &st) < 0 || st.st_size <= j->log_start)
+                return;
+        off_t from = IMP_MAX(j->log_start, st.st_size - JOB_LOG_ECHO_MAX);
+        char *buf = malloc(JOB_LOG_ECHO_MAX + 1);
+        ssize_t n = buf ? pread(fd, buf, (size_t) (st.st_size - from), from) : -1;
+        if (n <= 0) {
+                free(buf);
+                return;
+        }
+        buf[n] = 0;
+        for (char *line = buf, *nl; line && *line; line = nl) {
+                if ((nl = strchr(line, '\n')))
+                        *nl++ = 0;
+                if (!line[strspn(line, " \t\r")])
+                        continue;
+                log_info("job %s: worker: %s", j->id, line);
+                snprintf(last, size, "%s", line);
+        }
+        free(buf);
+}
+
+/* The daemon's account of an attempt that ended badly, with the worker's last words. */
+static void job_why(const struct job *j, const char *what, const char *last, char *buf, size_t size) {
+        char logp[PATH_MAX + 200];
+        job_log_path(j, logp, sizeof logp);
+        if (last[0])
+                snprintf(buf, size, "%.400s; its last output: \"%.240s\" (all of it in %.300s)", what, last, logp);
+        else
+                snprintf(buf, size, "%.400s; it printed nothing", what);
 }
 
 void jobs_kick(struct daemon *d) {
@@ -380,24 +440,27 @@ static int job_exited(sd_event_source *src, const siginfo_t *si, void *userdata)
         char how[64];
         snprintf(how, sizeof how, "%s %d", si->si_code == CLD_EXITED ? "exit status" : "killed by signal",
                  si->si_status);
+        char last[512], what[PATH_MAX + 256], why[sizeof j->error];
+        job_log_collect(j, last, sizeof last);
         enum imp_job_file which;
         int r = job_read(j, &which, NULL);
         if (r < 0) {
-                snprintf(j->error, sizeof j->error, "the job file is gone or unreadable after %.200s exited (%s)",
+                snprintf(what, sizeof what, "the job file is gone or unreadable after %.200s exited (%s)",
                          d->worker_cmd, how);
+                job_why(j, what, last, j->error, sizeof j->error);
                 j->state = IMP_JOB_FAILED;
         } else if (which == IMP_JOB_FILE_CLAIM) {
-                char why[PATH_MAX + 128];
-                snprintf(why, sizeof why, "%.200s stopped during attempt %d (%s)", d->worker_cmd, j->attempts, how);
+                snprintf(what, sizeof what, "%.200s stopped during attempt %d (%s)", d->worker_cmd, j->attempts, how);
+                job_why(j, what, last, why, sizeof why);
                 if (job_recover(j, why) <= 0)
                         j->state = IMP_JOB_RUNNING; /* another worker holds the claim */
         } else if (j->state == IMP_JOB_QUEUED && j->attempts == j->spawn_attempts && !j->claim_seen) {
                 /* (once the claim was seen, a queued file is the worker's retry or an
                  * operator's jobs.retry that came before the child's exit) */
-                char why[PATH_MAX + 256];
-                snprintf(why, sizeof why, "%.200s %.300s/jobs/%s.json: %s without processing the job "
+                snprintf(what, sizeof what, "%.200s %.300s/jobs/%s.json: %s without processing the job "
                          "(attempt %d of %d)", d->worker_cmd, d->state_dir, j->id, how, j->attempts + 1,
                          j->max_attempts);
+                job_why(j, what, last, why, sizeof why);
                 job_account(j, why);
         }
         job_announce(d, j);

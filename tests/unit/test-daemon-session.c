@@ -224,7 +224,13 @@ int main(void) {
         h_kill(&h, SIGTERM);
         CHECK(h_wait(&h, 10000) == 0);
 
-        h_start(&h, (const char *const[]) { "--worker-cmd", "/bin/false", "--job-attempts", "2",
+        /* A worker that dies without touching its job: its last words reach the job's error,
+         * all it printed is in the job's log. */
+        char dying[512];
+        snprintf(dying, sizeof dying, "%s/dying-worker.sh", h.dir);
+        h_write(dying, "#!/bin/sh\necho \"opening $1\"\necho 'worker: out of luck on this tile' >&2\nexit 1\n");
+        CHECK_MSG(chmod(dying, 0755) == 0, "chmod %s: %s", dying, strerror(errno));
+        h_start(&h, (const char *const[]) { "--worker-cmd", dying, "--job-attempts", "2",
                                             "--min-free-bytes", "0", NULL });
         CHECK_OK(tc_open(&c, h.socket, true));
         if (c.fd < 0)
@@ -238,7 +244,26 @@ int main(void) {
         r = tc_ok(&c, "jobs.show", h_arg("job", id3));
         CHECK_STR_EQ(json_string_value(json_object_get(r, "state")), "failed");
         CHECK_INT_EQ(json_integer_value(json_object_get(r, "attempts")), 2);
-        CHECK_STR_CONTAINS(json_string_value(json_object_get(json_object_get(r, "error"), "message")), "exit status 1");
+        const char *msg3 = json_string_value(json_object_get(json_object_get(r, "error"), "message"));
+        CHECK_STR_CONTAINS(msg3, "exit status 1");
+        CHECK_STR_CONTAINS(msg3, "its last output: \"worker: out of luck on this tile\"");
+        const char *logp = json_string_value(json_object_get(r, "log"));
+        CHECK_MSG(logp != NULL, "jobs.show names no log");
+        if (logp) {
+                char *text = NULL;
+                size_t len = 0;
+                FILE *lf = fopen(logp, "r");
+                CHECK_MSG(lf != NULL, "%s: %s", logp, strerror(errno));
+                if (lf) {
+                        text = calloc(1, 8192);
+                        len = text ? fread(text, 1, 8191, lf) : 0;
+                        fclose(lf);
+                }
+                /* both attempts, standard output and error */
+                CHECK_MSG(len > 0 && strstr(text, "attempt 1") && strstr(text, "attempt 2") && strstr(text, "opening /"),
+                          "the job's log: %s", text ? text : "(unread)");
+                free(text);
+        }
         json_decref(r);
         r = tc_ok(&c, "jobs.retry", h_arg("job", id3));
         CHECK_STR_EQ(json_string_value(json_object_get(r, "state")), "queued");
