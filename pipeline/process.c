@@ -910,7 +910,7 @@ out:
 static void reason(json_t *reasons, enum imp_verdict *v, enum imp_verdict at_least, const char *fmt, ...)
         _printf_(4, 5);
 static void reason(json_t *reasons, enum imp_verdict *v, enum imp_verdict at_least, const char *fmt, ...) {
-        char buf[256];
+        char buf[512];
         va_list ap;
         va_start(ap, fmt);
         vsnprintf(buf, sizeof buf, fmt, ap);
@@ -939,9 +939,15 @@ static json_t *quality_json(const struct geometry_out *g, const char *refusal) {
         if (refusal)
                 reason(reasons, &v, IMP_VERDICT_UNUSABLE, "%s", refusal);
         else {
-                if (flagged > QUALITY_FLAGGED_DEGRADED)
-                        reason(reasons, &v, IMP_VERDICT_DEGRADED, "%.0f %% of the canvas texels are flagged",
-                               100 * flagged);
+                if (flagged > QUALITY_FLAGGED_DEGRADED) {
+                        unsigned top = 0;       /* the flag behind most of it, and what would lift it */
+                        for (unsigned k = 1; k < IMP_TEXEL_FLAG_COUNT; k++)
+                                if (per[k] > per[top])
+                                        top = k;
+                        reason(reasons, &v, IMP_VERDICT_DEGRADED, "%.0f %% of the canvas texels are flagged, "
+                               "%.0f %% %s (%s)", 100 * flagged, 100.0 * per[top] / den, imp_texel_flag_name(top),
+                               imp_texel_flag_advice(top));
+                }
                 if (hf->n_filled_texels > QUALITY_FILLED_DEGRADED * den)
                         reason(reasons, &v, IMP_VERDICT_DEGRADED, "%.0f %% of the canvas was filled from normals",
                                100.0 * hf->n_filled_texels / den);

@@ -31,6 +31,8 @@ enum imp_texel_flag {
 
 /* The flag's name as it appears in copy.json ("saturated", "dark", …); NULL past the end. */
 const char *imp_texel_flag_name(unsigned bit_index);
+/* What the flag means on the painting and what would lift it, one clause; NULL past the end. */
+const char *imp_texel_flag_advice(unsigned bit_index);
 
 /* The verdict on a whole copy. */
 enum imp_verdict {

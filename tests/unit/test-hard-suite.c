@@ -137,6 +137,33 @@ static void check_copy(const char *name, const char *cmp_path) {
         json_decref(c);
 }
 
+/* A copy with more than 25 % of its texels flagged is degraded, and the reason names the flag
+ * most of them carry (so that the verdict says what to change, not only "flagged"). */
+static void check_verdict(const char *name, const char *copy) {
+        char path[4500];
+        snprintf(path, sizeof path, "%s/copy.json", copy);
+        json_error_t je;
+        json_t *j = json_load_file(path, 0, &je);
+        CHECK_MSG(j != NULL, "%s: %s: %s", name, path, je.text);
+        json_t *q = json_object_get(j, "quality"), *flags = json_object_get(q, "flags");
+        const char *v = json_string_value(json_object_get(q, "verdict")), *top = NULL, *k;
+        double best = -1;
+        json_t *val;
+        json_object_foreach(flags, k, val)
+                if (json_number_value(val) > best) {
+                        best = json_number_value(val);
+                        top = k;
+                }
+        if (json_number_value(json_object_get(q, "flagged_fraction")) > 0.25) {
+                const char *why = json_string_value(json_array_get(json_object_get(q, "reasons"), 0));
+                CHECK_MSG(v && strcmp(v, "ok"), "%s: %.0f %% flagged, verdict %s", name,
+                          100 * json_number_value(json_object_get(q, "flagged_fraction")), v ? v : "(none)");
+                CHECK_MSG(why && top && strstr(why, top) && strchr(why, '('), "%s: the reason \"%s\" does not name %s "
+                          "and what would lift it", name, why ? why : "", top ? top : "?");
+        }
+        json_decref(j);
+}
+
 /* --all: every config/scenes/hard-NAME.cfg is among argv (NAME, or NAME! ). */
 static void check_all_listed(int argc, char **argv) {
         char dir[4096];
@@ -219,6 +246,7 @@ int main(int argc, char **argv) {
                 CHECK_MSG(rc == 0, "%s: compare exited %d", name, rc);
                 if (rc == 0)
                         check_copy(name, cmp);
+                check_verdict(name, copy);
         }
         return TEST_DONE();
 }
