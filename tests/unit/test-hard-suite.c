@@ -82,12 +82,19 @@ static void check_invalid_set(const char *name, const char *cap, const char *cop
         CHECK_MSG(stat(path, &st) != 0, "%s: a refused set has a heightfield", name);
 }
 
-static void check_unusable(const char *name, const char *copy) {
+/* COPY/copy.json, NULL (and a failed check) when it cannot be read. */
+static json_t *load_copy_json(const char *name, const char *copy) {
         char path[4500];
         snprintf(path, sizeof path, "%s/copy.json", copy);
         json_error_t je;
         json_t *j = json_load_file(path, 0, &je);
         CHECK_MSG(j != NULL, "%s: %s: %s", name, path, je.text);
+        return j;
+}
+
+static void check_unusable(const char *name, const char *copy) {
+        char path[4500];
+        json_t *j = load_copy_json(name, copy);
         json_t *q = json_object_get(j, "quality");
         const char *v = json_string_value(json_object_get(q, "verdict"));
         const char *why = json_string_value(json_array_get(json_object_get(q, "reasons"), 0));
