@@ -34,6 +34,10 @@ if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WI
   target_include_directories(test-painting-daemon PRIVATE ${PROJECT_SOURCE_DIR}/sim/emu)
   add_dependencies(test-painting-daemon impastod)
   set_tests_properties(test-painting-daemon PROPERTIES RESOURCE_LOCK gvcp)
+  # The same session on the Modbus stage driver and emulator (ports 15933, 15934).
+  add_test(NAME test-painting-daemon-modbus COMMAND test-painting-daemon modbus)
+  set_tests_properties(test-painting-daemon-modbus PROPERTIES LABELS "integration;fault" SKIP_RETURN_CODE 77
+                       TIMEOUT 300 RESOURCE_LOCK gvcp)
   add_test(NAME test-painting-daemon-kill COMMAND test-painting-daemon kill 20)
   set_tests_properties(test-painting-daemon-kill PROPERTIES LABELS "integration;fault;slow" SKIP_RETURN_CODE 77
                        TIMEOUT 900 RESOURCE_LOCK gvcp)
