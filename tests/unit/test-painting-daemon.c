@@ -451,6 +451,57 @@ static void test_kills(struct ctx *x, const char *ref, unsigned n_kills) {
         stop(x, &c);
 }
 
+/* plan.estimate of the painting plan: the whole painting's figures, the very object the
+ * offline `plan estimate` prints (imp_plan_painting_estimate_json on the same rig, plan and
+ * tile bytes, the stage's feed), the options taken, and a painting the store cannot hold
+ * refused. */
+static void test_estimate(struct ctx *x) {
+        struct tclient c;
+        start(x, &c);
+        struct imp_error e = { 0 };
+        struct imp_rig rig = { 0 };
+        CHECK_OK(imp_rig_load(x->h.rigjson, &rig, &e));
+        _cleanup_(imp_plan_freep) struct imp_plan *plan = NULL;
+        CHECK_OK(imp_plan_load(x->plan, &rig, &plan, &e));
+        json_t *r = tc_ok(&c, "plan.estimate", h_arg("plan", x->plan));
+        const json_t *got = json_object_get(r, "painting");
+        CHECK_INT_EQ(json_integer_value(json_object_get(got, "tiles")), N_TILES);
+        CHECK_INT_EQ(json_integer_value(json_object_get(got, "frames")), N_TILES * FRAMES_PER_TILE);
+        double tile_bytes = (double) json_integer_value(json_object_get(r, "bytes"));
+        CHECK_NEAR(json_number_value(json_object_get(got, "bytes")), N_TILES * tile_bytes, 1e-6);
+        CHECK_INT_EQ(json_integer_value(json_object_get(r, "disk_needed")), (json_int_t) (N_TILES * tile_bytes));
+        struct imp_plan_painting_opts o = { .speed_mm_s = IMP_PLAN_STAGE_SPEED_MM_S, .settle_s = IMP_PLAN_SETTLE_S,
+                                            .process_s = -1, .workers = 1 };
+        json_t *want = plan ? imp_plan_painting_estimate_json(plan, &rig, tile_bytes, &o) : NULL;
+        CHECK_MSG(want && got && json_equal(want, (json_t *) got), "the daemon's painting figures differ from the offline ones");
+        CHECK(json_number_value(json_object_get(got, "capture_s")) > json_number_value(json_object_get(got, "move_s")));
+        json_decref(want);
+        json_decref(r);
+        /* the options */
+        r = tc_ok(&c, "plan.estimate", json_pack("{s:s, s:{s:i, s:f, s:f}}", "plan", x->plan, "painting", "workers", 2,
+                                                 "process_s", 7.5, "settle_s", 2.0));
+        got = json_object_get(r, "painting");
+        CHECK_INT_EQ(json_integer_value(json_object_get(got, "workers")), 2);
+        CHECK_NEAR(json_number_value(json_object_get(got, "tile_process_s")), 7.5, 1e-12);
+        CHECK_NEAR(json_number_value(json_object_get(got, "settle_s")), 2.0, 1e-12);
+        CHECK_NEAR(json_number_value(json_object_get(got, "process_s")), 7.5 * N_TILES, 1e-9);
+        json_decref(r);
+        char msg[1024] = "";
+        CHECK_INT_EQ(tc_err(&c, "plan.estimate", json_pack("{s:s, s:{s:i}}", "plan", x->plan, "painting", "workers", 0),
+                            msg, sizeof msg), IMP_PROTO_E_BAD_ARGUMENT);
+        CHECK_STR_CONTAINS(msg, "args.painting.workers");
+        /* 313 × 313 tiles of 10 000 frames: terabytes */
+        char huge[600];
+        snprintf(huge, sizeof huge, "%s/huge-painting.cfg", x->h.dir);
+        h_write(huge, "dome = { lights = \"all\"; exposures_us = [1000.0]; repeat = 2000; };\n"
+                      "painting = { extent_mm = [5000.0, 5000.0]; fov_mm = [20.0, 20.0]; };\n");
+        CHECK_INT_EQ(tc_err(&c, "plan.estimate", h_arg("plan", huge), msg, sizeof msg), IMP_PROTO_E_INVALID_PLAN);
+        CHECK_STR_CONTAINS(msg, "the whole painting needs");
+        CHECK_STR_CONTAINS(msg, "it will not fit");
+        imp_rig_free(&rig);
+        stop(x, &c);
+}
+
 static void test_no_stage(struct ctx *x) {
         /* the same rig without its stage line */
         char text[1024];
@@ -483,6 +534,8 @@ int main(int argc, char **argv) {
         char ref[1024] = "";
         test_run(&x, ref, sizeof ref);
         if (!only_kills) {
+                if (!x.modbus)
+                        test_estimate(&x);
                 test_no_stage(&x);
                 test_faults(&x, ref);
         }
