@@ -251,9 +251,11 @@ int painting_start(struct session *s, const char *plan_text, struct imp_proto_er
 int painting_prepare_stage(struct session *s, struct imp_proto_error *perr);
 /* Before frame s->n_captured: enters its tile when needed (the last tile's frames all
  * durable first: 0 = wait for the writer) and checks the stage; 1 = capture the frame;
- * PAINTING_POLL = the stage is homing or moving: step again in PAINTING_POLL_US.
+ * PAINTING_POLL = the stage is homing or moving: step again in PAINTING_POLL_US;
+ * PAINTING_MOVE_STARTED = as PAINTING_POLL, a move to the tile was just sent (announce it).
  * Negative: msg says what and where, *device the device ("stage") or NULL (storage). */
 #define PAINTING_POLL 2
+#define PAINTING_MOVE_STARTED 3
 #define PAINTING_POLL_US (IMP_STAGE_POLL_INTERVAL_MS * 1000u)
 int painting_step(struct session *s, store_done_fn done, const char **device, char *msg, size_t size);
 /* Pausing, ending or shutting down: a homing or move in progress is soft-stopped (the

@@ -243,7 +243,7 @@ static int start_move(struct session *s, size_t k, char *msg, size_t size) {
         s->at_tile = false;
         log_info("session %s: stage: moving to tile %zu (col %u, row %u) at (%.3f, %.3f, %.3f) mm", s->id, k, t->col,
                  t->row, t->stage_mm[0], t->stage_mm[1], t->stage_mm[2]);
-        return PAINTING_POLL;
+        return PAINTING_MOVE_STARTED;
 }
 
 /* One poll of the move to tile k: PAINTING_POLL while it goes on; 1 once settled and read
