@@ -27,17 +27,11 @@
 #include "scene.h"
 
 #define FRAME_BYTES_PER_PIXEL 2   /* frames are stored as 16-bit TIFF (docs/capture-set.md) */
-/* Processing one tile on one worker, per frame-megapixel captured: `impasto process` of one
- * tile of config/scenes/painting-small.cfg (50 frames of 0.03 Mpix) took 3.9 s on a loaded
- * 2-core machine (docs/painting.md); --process-s gives a measured figure instead. */
-#define PROCESS_S_PER_FRAME_MPIX 2.6
-#define DEFAULT_SPEED_MM_S 50.0  /* drivers/stage.h IMP_STAGE_DEFAULT_SPEED_MM_S: the feed the daemon moves at */
-#define DEFAULT_SETTLE_S 0.5      /* a gantry move's acceleration and settling, beyond speed */
 
 /* How the whole-painting figures are played through (options of `plan estimate`). */
 struct painting_opts {
-        double speed_mm_s, settle_s, process_s;   /* process_s < 0: from the frames */
-        unsigned workers;
+        struct imp_plan_painting_opts est;
+        unsigned given;                           /* 1 --workers, 2 --stage-speed, 4 --settle, 8 --process-s */
         const char *target;                       /* directory whose free space must hold the plan */
 };
 
@@ -60,36 +54,6 @@ static bool same_step(const struct imp_frame_record *a, const struct imp_frame_r
                a->pattern.inverse == b->pattern.inverse && strcmp(a->camera, b->camera);
 }
 
-/* Whole-painting figures of a plan with a painting group (tiles.h): tiles, frames, bytes,
- * capture (moves included) and processing time, processing overlapping capture. */
-static json_t *painting_result(const struct imp_plan *plan, const struct imp_rig *rig, double tile_bytes,
-                               const struct painting_opts *po) {
-        const struct imp_tile_plan *tp = imp_plan_tiles(plan);
-        double mpix = 0;
-        for (size_t i = 0; i < imp_plan_count(plan); i++)
-                for (int c = 0; c < rig->n_cameras; c++)
-                        if (!strcmp(rig->cameras[c].name, imp_plan_frame(plan, i)->camera))
-                                mpix += rig->cameras[c].model.width * (double) rig->cameras[c].model.height * 1e-6;
-        struct imp_tile_cost cost = {
-                .frames = imp_plan_count(plan), .bytes = tile_bytes, .capture_s = imp_plan_estimate_s(plan, rig),
-                .process_s = po->process_s >= 0 ? po->process_s : mpix * PROCESS_S_PER_FRAME_MPIX,
-                .workers = po->workers, .speed_mm_s = po->speed_mm_s, .settle_s = po->settle_s,
-        };
-        struct imp_tile_estimate e;
-        if (imp_tile_plan_estimate(tp, &cost, &e) < 0)
-                return NULL;
-        unsigned cols, rows;
-        imp_tile_plan_grid(tp, &cols, &rows);
-        double step[2], overlap[2];
-        imp_tile_plan_spacing(tp, step, overlap);
-        return json_pack("{s:I,s:I,s:I,s:[f,f],s:I,s:f,s:f,s:f,s:f,s:f,s:f,s:I,s:f,s:f}", "tiles", (json_int_t) e.tiles,
-                         "cols", (json_int_t) cols, "rows", (json_int_t) rows, "overlap", overlap[0], overlap[1],
-                         "frames", (json_int_t) e.frames, "bytes", e.bytes, "move_s", e.move_s, "capture_s",
-                         e.capture_s, "process_s", e.process_s, "wall_s", e.wall_s, "tile_process_s", cost.process_s,
-                         "workers", (json_int_t) cost.workers, "stage_speed_mm_s", cost.speed_mm_s, "settle_s",
-                         cost.settle_s);
-}
-
 static json_t *offline_result(const struct imp_plan *plan, const struct imp_rig *rig, bool estimate,
                               const struct painting_opts *po) {
         size_t n = imp_plan_count(plan), steps = 0;
@@ -108,7 +72,7 @@ static json_t *offline_result(const struct imp_plan *plan, const struct imp_rig 
         json_t *res = json_pack("{s:I,s:I,s:I,s:f}", "steps", (json_int_t) steps, "frames", (json_int_t) n, "bytes",
                                 (json_int_t) bytes, "duration_s", imp_plan_estimate_s(plan, rig));
         if (res && imp_plan_tiles(plan))
-                json_object_set_new(res, "painting", painting_result(plan, rig, bytes, po));
+                json_object_set_new(res, "painting", imp_plan_painting_estimate_json(plan, rig, bytes, &po->est));
         return res;
 }
 
@@ -317,16 +281,37 @@ static int offline(const char *plan_path, const char *rig_path, const char *scen
 
 static int painting_option(int c, const char *arg, struct painting_opts *po) {
         int workers = 1;
+        po->given |= c == 'W' ? 1u : c == 'V' ? 2u : c == 'T' ? 4u : 8u;
         switch (c) {
         case 'W':
                 if (imp_parse_int("--workers", arg, 1, 256, &workers) < 0)
                         return -EINVAL;
-                po->workers = (unsigned) workers;
+                po->est.workers = (unsigned) workers;
                 return 0;
-        case 'V': return imp_parse_double("--stage-speed", arg, 1e-3, 1e4, &po->speed_mm_s);
-        case 'T': return imp_parse_double("--settle", arg, 0, 3600, &po->settle_s);
-        default: return imp_parse_double("--process-s", arg, 0, 1e6, &po->process_s);
+        case 'V': return imp_parse_double("--stage-speed", arg, 1e-3, 1e4, &po->est.speed_mm_s);
+        case 'T': return imp_parse_double("--settle", arg, 0, 3600, &po->est.settle_s);
+        default: return imp_parse_double("--process-s", arg, 0, 1e6, &po->est.process_s);
         }
+}
+
+/* plan.validate / plan.estimate's args: the plan and, for an estimate, the painting options
+ * given on the command line (the others are the daemon's: its stage's feed, one job at a time). */
+static json_t *daemon_args(const char *plan, bool estimate, const struct painting_opts *po) {
+        json_t *args = json_pack("{s:s}", "plan", plan);
+        json_t *pj = estimate && po->given ? json_object() : NULL;
+        if (pj && po->given & 1)
+                json_object_set_new(pj, "workers", json_integer(po->est.workers));
+        if (pj && po->given & 2)
+                json_object_set_new(pj, "stage_speed_mm_s", json_real(po->est.speed_mm_s));
+        if (pj && po->given & 4)
+                json_object_set_new(pj, "settle_s", json_real(po->est.settle_s));
+        if (pj && po->given & 8)
+                json_object_set_new(pj, "process_s", json_real(po->est.process_s));
+        if (pj && args)
+                json_object_set_new(args, "painting", pj);
+        else
+                json_decref(pj);
+        return args;
 }
 
 static int run(int argc, char **argv) {
@@ -340,8 +325,8 @@ static int run(int argc, char **argv) {
                 { "workers", required_argument, NULL, 'W' }, { "stage-speed", required_argument, NULL, 'V' },
                 { "settle", required_argument, NULL, 'T' }, { "process-s", required_argument, NULL, 'P' },
                 { "target", required_argument, NULL, 'D' }, {} };
-        struct painting_opts po = { .speed_mm_s = DEFAULT_SPEED_MM_S, .settle_s = DEFAULT_SETTLE_S,
-                                    .process_s = -1, .workers = 1 };
+        struct painting_opts po = { .est = { .speed_mm_s = IMP_PLAN_STAGE_SPEED_MM_S, .settle_s = IMP_PLAN_SETTLE_S,
+                                             .process_s = -1, .workers = 1 } };
         int c;
         while ((c = getopt_long(argc, argv, "h", opts, NULL)) >= 0)
                 switch (c) {
@@ -383,7 +368,10 @@ static int run(int argc, char **argv) {
         char abs[PATH_MAX];
         if (realpath(plan, abs))   /* the daemon opens the plan itself */
                 plan = abs;
-        return imp_client_simple(&o, estimate ? "plan.estimate" : "plan.validate", json_pack("{s:s}", "plan", plan),
+        json_t *args = daemon_args(plan, estimate, &po);
+        if (po.target)
+                log_warning("plan estimate --daemon: --target ignored: the daemon checks its own store");
+        return imp_client_simple(&o, estimate ? "plan.estimate" : "plan.validate", args,
                                  estimate ? human_estimate : human_validate);
 }
 

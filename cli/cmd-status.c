@@ -43,6 +43,8 @@ void imp_client_print_painting(const json_t *p) {
                imp_client_int(p, "tile_frames_done"), imp_client_int(p, "tile_frames"),
                imp_client_fmt_duration(imp_client_num(p, "tile_eta_s"), tile_eta, sizeof tile_eta),
                imp_client_fmt_duration(imp_client_num(p, "eta_s"), eta, sizeof eta));
+        if (json_is_string(json_object_get(p, "stage")))
+                printf("stage    %s\n", imp_client_str(p, "stage"));
 }
 
 void imp_client_print_attention(const json_t *att) {

@@ -201,6 +201,10 @@ struct session {
         int cs_tile;                            /* the tile of cs, -1 none */
         bool at_tile;                           /* the stage stands at cs_tile, read back */
         double stage_cmd_mm[3], stage_rb_mm[3]; /* commanded and read back for cs_tile */
+        /* A stage operation in progress, polled by the step timer (the loop never waits on
+         * the gantry): homing before the scan, or the move to cs_tile. */
+        enum { STAGE_OP_NONE, STAGE_OP_HOMING, STAGE_OP_MOVING } stage_op;
+        uint64_t stage_deadline_us;             /* imp_stage_deadline_us() of the operation */
 };
 
 /* store.c: session.json and the state directory. */
@@ -246,9 +250,17 @@ bool painting_session_dir(const char *dir);
 int painting_start(struct session *s, const char *plan_text, struct imp_proto_error *perr);
 int painting_prepare_stage(struct session *s, struct imp_proto_error *perr);
 /* Before frame s->n_captured: enters its tile when needed (the last tile's frames all
- * durable first: 0 = wait for the writer) and checks the stage; 1 = capture the frame.
+ * durable first: 0 = wait for the writer) and checks the stage; 1 = capture the frame;
+ * PAINTING_POLL = the stage is homing or moving: step again in PAINTING_POLL_US;
+ * PAINTING_MOVE_STARTED = as PAINTING_POLL, a move to the tile was just sent (announce it).
  * Negative: msg says what and where, *device the device ("stage") or NULL (storage). */
+#define PAINTING_POLL 2
+#define PAINTING_MOVE_STARTED 3
+#define PAINTING_POLL_US (IMP_STAGE_POLL_INTERVAL_MS * 1000u)
 int painting_step(struct session *s, store_done_fn done, const char **device, char *msg, size_t size);
+/* Pausing, ending or shutting down: a homing or move in progress is soft-stopped (the
+ * session moves to its tile again when it resumes). */
+void painting_stop_stage(struct session *s);
 /* After frame s->n_captured was grabbed: the stage still stood at its tile (else the frame
  * is dropped and taken again after the resume). Negative with msg as painting_step. */
 int painting_check_frame(struct session *s, char *msg, size_t size);
@@ -256,7 +268,8 @@ void painting_stamp(const struct session *s, struct imp_frame_record *rec);
 /* A completed session: its last tile done and queued. */
 void painting_finish(struct session *s);
 int painting_reopen(struct session *s, struct imp_proto_error *perr);
-/* {"tiles","tiles_done","tile","tile_frames","tile_frames_done","tile_eta_s"}, NULL without tiles. */
+/* {"tiles","tiles_done","tile","tile_frames","tile_frames_done","tile_eta_s"} and, while the
+ * stage works, "stage": "homing" or "moving to tile N (x, y) mm"; NULL without tiles. */
 json_t *painting_progress_json(const struct session *s, double eta_s);
 
 /* session.c */

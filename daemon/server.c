@@ -270,23 +270,67 @@ static json_t *cmd_plan_validate(struct client *c, const struct imp_proto_reques
         return v;
 }
 
+/* args.painting of plan.estimate: {"workers","stage_speed_mm_s","settle_s","process_s"}, each
+ * optional; the defaults are the rig's (the stage's feed as configured, one job at a time). */
+static int estimate_opts(struct daemon *d, const json_t *args, struct imp_plan_painting_opts *o,
+                         struct imp_proto_error *e) {
+        struct imp_stage_config sc;
+        *o = (struct imp_plan_painting_opts) { .speed_mm_s = IMP_PLAN_STAGE_SPEED_MM_S, .settle_s = IMP_PLAN_SETTLE_S,
+                                               .process_s = -1, .workers = 1 };
+        if (d->rigcfg->stage.stage && imp_stage_get_config(d->rigcfg->stage.stage, &sc) == 0)
+                o->speed_mm_s = sc.speed_mm_s;
+        const json_t *p = json_object_get(args, "painting");
+        static const struct { const char *key; double lo, hi; } f[] = {
+                { "workers", 1, 256 }, { "stage_speed_mm_s", 1e-3, 1e4 }, { "settle_s", 0, 3600 },
+                { "process_s", 0, 1e6 },
+        };
+        double *dst[] = { NULL, &o->speed_mm_s, &o->settle_s, &o->process_s };
+        for (size_t i = 0; i < ARRAY_SIZE(f); i++) {
+                const json_t *v = json_object_get(p, f[i].key);
+                if (!v)
+                        continue;
+                double x = json_number_value(v);
+                if (!json_is_number(v) || !(x >= f[i].lo && x <= f[i].hi) || (i == 0 && !json_is_integer(v)))
+                        return imp_proto_error_set(e, IMP_PROTO_E_BAD_ARGUMENT, EINVAL, "args.painting",
+                                                   "args.painting.%s: expected a number in [%g, %g]%s", f[i].key,
+                                                   f[i].lo, f[i].hi, i == 0 ? " (an integer)" : "");
+                if (i == 0)
+                        o->workers = (unsigned) x;
+                else
+                        *dst[i] = x;
+        }
+        return 0;
+}
+
 static json_t *cmd_plan_estimate(struct client *c, const struct imp_proto_request *req, struct imp_proto_error *e) {
         struct daemon *d = c->d;
         char planp[PATH_MAX];
-        struct imp_plan *plan = NULL;
-        if (client_plan(c, req->args, planp, e) < 0 || plan_check(d, planp, &plan, e) < 0)
+        struct imp_plan_painting_opts po;
+        _cleanup_(imp_plan_freep) struct imp_plan *plan = NULL;
+        if (client_plan(c, req->args, planp, e) < 0 || estimate_opts(d, req->args, &po, e) < 0 ||
+            plan_check(d, planp, &plan, e) < 0)
                 return NULL;
         uint64_t bytes = 0, free_b = 0;
         size_t n = imp_plan_count(plan);
         for (size_t i = 0; i < n; i++)
                 bytes += store_frame_bytes(&d->rig, imp_plan_frame(plan, i)->camera);
         (void) store_free_bytes(d->state_dir, &free_b);
-        json_t *v = json_pack("{s:I, s:I, s:I, s:f, s:I, s:I}", "steps", (json_int_t) n, "frames", (json_int_t) n,
-                              "bytes", (json_int_t) bytes, "duration_s", imp_plan_estimate_s(plan, &d->rig),
-                              "disk_needed", (json_int_t) (bytes + d->min_free_bytes), "disk_free",
-                              (json_int_t) free_b);
-        imp_plan_free(plan);
-        return v;
+        /* a painting's: every tile's, as the offline estimate (imp_plan_painting_estimate_json) */
+        json_t *painting = imp_plan_tiles(plan) ? imp_plan_painting_estimate_json(plan, &d->rig, (double) bytes, &po)
+                                                : NULL;
+        double need = (painting ? json_number_value(json_object_get(painting, "bytes")) : (double) bytes) +
+                      (double) d->min_free_bytes;
+        if (need > (double) free_b) {
+                json_decref(painting);
+                return imp_proto_error_set(e, IMP_PROTO_E_INVALID_PLAN, ENOSPC, "args.plan",
+                                           "%s: %s %.0f bytes with the %llu kept free, the store %s has %llu free: "
+                                           "it will not fit", planp, imp_plan_tiles(plan) ? "the whole painting needs"
+                                           : "needs", need, (unsigned long long) d->min_free_bytes, d->state_dir,
+                                           (unsigned long long) free_b), NULL;
+        }
+        return json_pack("{s:I, s:I, s:I, s:f, s:I, s:I, s:o*}", "steps", (json_int_t) n, "frames", (json_int_t) n,
+                         "bytes", (json_int_t) bytes, "duration_s", imp_plan_estimate_s(plan, &d->rig), "disk_needed",
+                         (json_int_t) need, "disk_free", (json_int_t) free_b, "painting", painting);
 }
 
 static json_t *cmd_session_start(struct client *c, const struct imp_proto_request *req, struct imp_proto_error *e) {

@@ -63,7 +63,8 @@ int painting_start(struct session *s, const char *plan_text, struct imp_proto_er
 }
 
 /* Before capturing (start, resume): a latched fault cleared and the position known, homing
- * when needed (a restarted daemon, a limit switch, a lost position). Blocks for the homing. */
+ * when needed (a restarted daemon, a limit switch, a lost position). The homing is started
+ * here and polled by painting_step: the event loop does not wait for it. */
 int painting_prepare_stage(struct session *s, struct imp_proto_error *perr) {
         struct dev_stage *ds = &s->d->rigcfg->stage;
         if (!ds->configured)
@@ -82,11 +83,14 @@ int painting_prepare_stage(struct session *s, struct imp_proto_error *perr) {
                 if (r >= 0)
                         r = imp_stage_get_status(ds->stage, &st);
         }
+        s->stage_op = STAGE_OP_NONE;
         if (r >= 0 && !(st.flags & IMP_STAGE_HOMED)) {
                 log_notice("session %s: stage: position not known, homing", s->id);
                 r = imp_stage_home(ds->stage);
-                if (r >= 0)
-                        r = imp_stage_wait_settled(ds->stage, STAGE_HOME_TIMEOUT_MS, &st);
+                if (r >= 0) {
+                        s->stage_op = STAGE_OP_HOMING;
+                        s->stage_deadline_us = imp_stage_deadline_us(STAGE_HOME_TIMEOUT_MS);
+                }
         }
         s->at_tile = false;
         if (r < 0)
@@ -95,6 +99,38 @@ int painting_prepare_stage(struct session *s, struct imp_proto_error *perr) {
                                            "the gantry, then resume", ds->name, strerror(-r),
                                            imp_stage_last_error(ds->stage));
         return 0;
+}
+
+/* The homing started by painting_prepare_stage: PAINTING_POLL while it runs, 0 once homed. */
+static int poll_homing(struct session *s, char *msg, size_t size) {
+        struct dev_stage *ds = &s->d->rigcfg->stage;
+        int r = imp_stage_poll_settled(ds->stage, s->stage_deadline_us, STAGE_HOME_TIMEOUT_MS, NULL);
+        if (r == -EAGAIN)
+                return PAINTING_POLL;
+        s->stage_op = STAGE_OP_NONE;
+        if (r < 0) {
+                snprintf(msg, size, "stage %s: homing before the scan: %s (%s): check the gantry, then resume",
+                         ds->name, strerror(-r), imp_stage_last_error(ds->stage));
+                return r;
+        }
+        log_notice("session %s: stage: homed", s->id);
+        return 0;
+}
+
+void painting_stop_stage(struct session *s) {
+        if (s->stage_op == STAGE_OP_NONE)
+                return;
+        struct imp_stage *stage = stage_of(s);
+        int r = stage ? imp_stage_soft_stop(stage) : -ENODEV;
+        if (r < 0)
+                log_warning("session %s: stage: soft-stopping the %s: %s (%s)", s->id,
+                            s->stage_op == STAGE_OP_HOMING ? "homing" : "move", strerror(-r),
+                            imp_stage_last_error(stage));
+        else
+                log_notice("session %s: stage: %s soft-stopped", s->id,
+                           s->stage_op == STAGE_OP_HOMING ? "homing" : "move to the tile");
+        s->stage_op = STAGE_OP_NONE;
+        s->at_tile = false;
 }
 
 static void queue_tile(struct session *s, size_t k) {
@@ -196,19 +232,45 @@ static int open_tile(struct session *s, size_t k, char *msg, size_t size) {
         return r;
 }
 
-static int move_to_tile(struct session *s, size_t k, char *msg, size_t size) {
+/* The move to tile k (the open tile set's) is sent; painting_step polls it. */
+static int start_move(struct session *s, size_t k, char *msg, size_t size) {
+        const struct imp_tile *t = imp_tile_plan_tile(s->tiles, k);
+        int r = tile_session_move_start(stage_of(s), t, msg, size);
+        if (r < 0)
+                return r;
+        s->stage_op = STAGE_OP_MOVING;
+        s->stage_deadline_us = imp_stage_deadline_us(s->d->rigcfg->stage.settle_timeout_ms);
+        s->at_tile = false;
+        log_info("session %s: stage: moving to tile %zu (col %u, row %u) at (%.3f, %.3f, %.3f) mm", s->id, k, t->col,
+                 t->row, t->stage_mm[0], t->stage_mm[1], t->stage_mm[2]);
+        return PAINTING_MOVE_STARTED;
+}
+
+/* One poll of the move to tile k: PAINTING_POLL while it goes on; 1 once settled and read
+ * back (the read-back in painting.json at once): the tile's frames follow. */
+static int poll_move(struct session *s, size_t k, char *msg, size_t size) {
         const struct imp_tile *t = imp_tile_plan_tile(s->tiles, k);
         double rb[3];
-        int r = tile_session_move(stage_of(s), t, s->d->rigcfg->stage.settle_timeout_ms, rb, msg, size);
+        int r = tile_session_move_poll(stage_of(s), t, s->stage_deadline_us, s->d->rigcfg->stage.settle_timeout_ms,
+                                       rb, msg, size);
+        if (r == 0)
+                return PAINTING_POLL;
+        s->stage_op = STAGE_OP_NONE;
         if (r < 0)
                 return r;
         memcpy(s->stage_cmd_mm, t->stage_mm, sizeof s->stage_cmd_mm);
         memcpy(s->stage_rb_mm, rb, sizeof s->stage_rb_mm);
         s->at_tile = true;
         struct imp_error e = { 0 };
-        if ((r = tile_session_record(s->dir, s->painting, k, rb, false, &e)) < 0)
+        if ((r = tile_session_record(s->dir, s->painting, k, rb, false, &e)) < 0) {
                 snprintf(msg, size, "%s", e.msg);
-        return r;
+                return r;
+        }
+        s->shown_pattern = -2;          /* settle at the tile's first frame */
+        log_info("session %s: tile %zu of %zu at (%.3f, %.3f, %.3f) mm, frame %zu of %zu", s->id, k + 1,
+                 imp_tile_plan_count(s->tiles), s->stage_rb_mm[0], s->stage_rb_mm[1], s->stage_rb_mm[2],
+                 s->n_captured % s->tile_frames, s->tile_frames);
+        return 1;
 }
 
 /* Between frames of a tile: the stage must still stand where the tile's frames were taken. */
@@ -242,11 +304,15 @@ int painting_check_frame(struct session *s, char *msg, size_t size) {
 }
 
 int painting_step(struct session *s, store_done_fn done, const char **device, char *msg, size_t size) {
-        size_t k = s->n_captured / s->tile_frames, i = s->n_captured % s->tile_frames;
+        size_t k = s->n_captured / s->tile_frames;
         struct imp_error e = { 0 };
         int r;
         msg[0] = 0;
         *device = s->d->rigcfg->stage.name;
+        if (s->stage_op == STAGE_OP_HOMING && (r = poll_homing(s, msg, size)) != 0)
+                return r;
+        if (s->stage_op == STAGE_OP_MOVING)
+                return poll_move(s, k, msg, size);
         if ((int) k == s->cs_tile && s->at_tile) {
                 r = painting_check_frame(s, msg, size);
                 return r < 0 ? r : 1;
@@ -271,13 +337,7 @@ int painting_step(struct session *s, store_done_fn done, const char **device, ch
                 *device = NULL;
                 return r;
         }
-        if ((r = move_to_tile(s, k, msg, size)) < 0)
-                return r;
-        s->shown_pattern = -2;          /* settle at the tile's first frame */
-        log_info("session %s: tile %zu of %zu at (%.3f, %.3f, %.3f) mm, frame %zu of %zu", s->id, k + 1,
-                 imp_tile_plan_count(s->tiles), s->stage_rb_mm[0], s->stage_rb_mm[1], s->stage_rb_mm[2], i,
-                 s->tile_frames);
-        return 1;
+        return start_move(s, k, msg, size);
 }
 
 void painting_stamp(const struct session *s, struct imp_frame_record *rec) {
@@ -348,7 +408,16 @@ json_t *painting_progress_json(const struct session *s, double eta_s) {
         size_t in_tile = s->n_frames - k * s->tile_frames;
         size_t left = s->frames_total - s->n_frames;
         double tile_eta = left > 0 && eta_s >= 0 ? eta_s * (double) (s->tile_frames - in_tile) / (double) left : 0;
-        return json_pack("{s:I, s:I, s:I, s:I, s:I, s:f}", "tiles", (json_int_t) n, "tiles_done", (json_int_t) done,
-                         "tile", (json_int_t) k, "tile_frames", (json_int_t) s->tile_frames, "tile_frames_done",
-                         (json_int_t) in_tile, "tile_eta_s", tile_eta);
+        json_t *j = json_pack("{s:I, s:I, s:I, s:I, s:I, s:f}", "tiles", (json_int_t) n, "tiles_done",
+                              (json_int_t) done, "tile", (json_int_t) k, "tile_frames", (json_int_t) s->tile_frames,
+                              "tile_frames_done", (json_int_t) in_tile, "tile_eta_s", tile_eta);
+        if (j && s->stage_op != STAGE_OP_NONE) {
+                char what[200] = "homing";
+                const struct imp_tile *t = s->cs_tile >= 0 ? imp_tile_plan_tile(s->tiles, (size_t) s->cs_tile) : NULL;
+                if (s->stage_op == STAGE_OP_MOVING && t)
+                        snprintf(what, sizeof what, "moving to tile %d (col %u, row %u) at (%.3f, %.3f, %.3f) mm",
+                                 s->cs_tile, t->col, t->row, t->stage_mm[0], t->stage_mm[1], t->stage_mm[2]);
+                json_object_set_new(j, "stage", json_string(what));
+        }
+        return j;
 }

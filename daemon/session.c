@@ -249,6 +249,8 @@ static void stream_stop(struct session *s) {
 }
 
 static void release_rig(struct session *s) {
+        if (s->tiles)
+                painting_stop_stage(s);
         stream_stop(s);
         rigcfg_safe_state(s->d->rigcfg);
         forget_exposures(s->d->rigcfg);
@@ -678,6 +680,13 @@ static int step_cb(sd_event_source *src, uint64_t usec, void *userdata) {
                 r = painting_step(s, on_stored, &device, msg, sizeof msg);
                 if (r < 0)
                         pause_with_fault(s, device, device ? IMP_PROTO_E_DEVICE : IMP_PROTO_E_IO, r, msg);
+                if (r == PAINTING_POLL || r == PAINTING_MOVE_STARTED) {
+                        /* the stage homes or moves: clients are served meanwhile */
+                        if (r == PAINTING_MOVE_STARTED)
+                                emit_progress(s);       /* "painting": {"stage": "moving to tile …"} */
+                        (void) schedule(s, PAINTING_POLL_US);
+                        return 0;
+                }
                 if (r <= 0)
                         return 0;
         }

@@ -3,6 +3,7 @@
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
+#include <unistd.h>
 #include "json-util.h"
 #include "tile-session.h"
 
@@ -35,21 +36,36 @@ static int move_failed(struct imp_stage *stage, const struct imp_tile *t, int r,
         return r;
 }
 
-int tile_session_move(struct imp_stage *stage, const struct imp_tile *t, unsigned settle_timeout_ms,
-                      double ret_readback_mm[3], char *msg, size_t size) {
-        unsigned mask = tile_mask(stage);
+int tile_session_move_start(struct imp_stage *stage, const struct imp_tile *t, char *msg, size_t size) {
         struct imp_stage_status st = { 0 };
-        int r = imp_stage_move_to(stage, t->stage_mm, mask);
+        int r = imp_stage_move_to(stage, t->stage_mm, tile_mask(stage));
         if (r == -EIO)
                 (void) imp_stage_get_status(stage, &st);
-        if (r < 0)
-                return move_failed(stage, t, r, &st, msg, size);
-        r = imp_stage_wait_settled(stage, settle_timeout_ms, &st);
+        return r < 0 ? move_failed(stage, t, r, &st, msg, size) : 0;
+}
+
+int tile_session_move_poll(struct imp_stage *stage, const struct imp_tile *t, uint64_t deadline_us,
+                           unsigned settle_timeout_ms, double ret_readback_mm[3], char *msg, size_t size) {
+        unsigned mask = tile_mask(stage);
+        struct imp_stage_status st = { 0 };
+        int r = imp_stage_poll_settled(stage, deadline_us, settle_timeout_ms, &st);
+        if (r == -EAGAIN)
+                return 0;
         if (r < 0)
                 return move_failed(stage, t, r, &st, msg, size);
         for (int a = 0; a < 3; a++)
                 ret_readback_mm[a] = a < 2 || (mask & IMP_STAGE_Z) ? st.position_mm[a] : t->stage_mm[a];
-        return 0;
+        return 1;
+}
+
+int tile_session_move(struct imp_stage *stage, const struct imp_tile *t, unsigned settle_timeout_ms,
+                      double ret_readback_mm[3], char *msg, size_t size) {
+        int r = tile_session_move_start(stage, t, msg, size);
+        uint64_t deadline = imp_stage_deadline_us(settle_timeout_ms);
+        while (r >= 0 && (r = tile_session_move_poll(stage, t, deadline, settle_timeout_ms, ret_readback_mm, msg,
+                                                     size)) == 0)
+                usleep(IMP_STAGE_POLL_INTERVAL_MS * 1000u);
+        return r < 0 ? r : 0;
 }
 
 static int save(const char *dir, const json_t *painting, struct imp_error *err) {

@@ -8,6 +8,7 @@
 #include <jansson.h>
 #include <stdbool.h>
 #include <stddef.h>
+#include <stdint.h>
 #include "error.h"
 #include "stage.h"
 #include "tiles.h"
@@ -20,6 +21,13 @@
 int tile_session_move(struct imp_stage *stage, const struct imp_tile *t, unsigned settle_timeout_ms,
                       double ret_readback_mm[3], char *msg, size_t size);
 
+/* The same in two halves for an event loop: _start sends the move (0, or a negative errno
+ * and msg as above); _poll reads the status once: 0 not settled yet (poll again), 1 settled
+ * (ret_readback_mm filled), negative with msg once it failed or deadline_us
+ * (imp_stage_deadline_us(settle_timeout_ms)) has passed (the stage then soft-stopped). */
+int tile_session_move_start(struct imp_stage *stage, const struct imp_tile *t, char *msg, size_t size);
+int tile_session_move_poll(struct imp_stage *stage, const struct imp_tile *t, uint64_t deadline_us,
+                           unsigned settle_timeout_ms, double ret_readback_mm[3], char *msg, size_t size);
 /* DIR/painting.json: loaded when it exists (and then checked against the plan: same tile
  * count and targets), otherwise made from the plan. Tiles carry "done": true once captured.
  * Caller owns *ret (json_decref). */

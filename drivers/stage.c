@@ -22,9 +22,9 @@ static const struct imp_stage_ops *const stage_backends[] = {
         NULL,
 };
 
-/* Status polls while waiting. GRBL's own guidance is at most 5 to 10 reports a second on
- * a slow line; 10 ms is fine on USB and loopback and keeps the settle latency small. */
-#define STAGE_POLL_INTERVAL_US 10000
+/* Status polls while waiting (IMP_STAGE_POLL_INTERVAL_MS). GRBL's own guidance is at most 5
+ * to 10 reports a second on a slow line; 10 ms is fine on USB and loopback and keeps the
+ * settle latency small. */
 
 struct imp_stage {
         const struct imp_stage_ops *ops;
@@ -279,38 +279,47 @@ static bool settled(const struct imp_stage *s, const struct imp_stage_status *st
         return true;
 }
 
-int imp_stage_wait_settled(struct imp_stage *s, unsigned timeout_ms, struct imp_stage_status *ret_status) {
+uint64_t imp_stage_deadline_us(unsigned timeout_ms) {
+        return now_us() + (uint64_t) timeout_ms * 1000u;
+}
+
+int imp_stage_poll_settled(struct imp_stage *s, uint64_t deadline_us, unsigned timeout_ms,
+                           struct imp_stage_status *ret_status) {
         if (!s)
                 return -EINVAL;
         s->error[0] = 0;
-        uint64_t deadline = now_us() + (uint64_t) timeout_ms * 1000u;
         char pose[128], target[128];
-        for (;;) {
-                struct imp_stage_status st = {};
-                int r = s->ops->get_status(s->state, &st);
-                if (r < 0)
-                        return stage_fail(s, r, "waiting to settle: reading status");
-                if (ret_status)
-                        *ret_status = st;
-                if (st.fault != IMP_STAGE_FAULT_NONE)
-                        return stage_fail(s, -EIO, "waiting to settle: %s (controller code %u) at %s",
-                                          imp_stage_fault_name(st.fault), st.fault_code,
-                                          pose_str(s, st.position_mm, 0, pose, sizeof pose));
-                if (settled(s, &st))
-                        return 0;
-                if (now_us() >= deadline) {
-                        if (s->ops->soft_stop)
-                                (void) s->ops->soft_stop(s->state);
-                        return stage_fail(s, -ETIMEDOUT, "not settled after %u ms (%s%s), stopped at %s, target %s",
-                                          timeout_ms, st.flags & IMP_STAGE_HOMING ? "homing" :
-                                          st.flags & IMP_STAGE_MOVING ? "still moving" : "idle off target",
-                                          st.flags & IMP_STAGE_HOMED ? "" : ", not homed",
-                                          pose_str(s, st.position_mm, 0, pose, sizeof pose),
-                                          s->target_mask ? pose_str(s, s->target_mm, s->target_mask, target, sizeof target)
-                                                         : "home");
-                }
-                usleep(STAGE_POLL_INTERVAL_US);
-        }
+        struct imp_stage_status st = {};
+        int r = s->ops->get_status(s->state, &st);
+        if (r < 0)
+                return stage_fail(s, r, "waiting to settle: reading status");
+        if (ret_status)
+                *ret_status = st;
+        if (st.fault != IMP_STAGE_FAULT_NONE)
+                return stage_fail(s, -EIO, "waiting to settle: %s (controller code %u) at %s",
+                                  imp_stage_fault_name(st.fault), st.fault_code,
+                                  pose_str(s, st.position_mm, 0, pose, sizeof pose));
+        if (settled(s, &st))
+                return 0;
+        if (now_us() < deadline_us)
+                return -EAGAIN;
+        if (s->ops->soft_stop)
+                (void) s->ops->soft_stop(s->state);
+        return stage_fail(s, -ETIMEDOUT, "not settled after %u ms (%s%s), stopped at %s, target %s",
+                          timeout_ms, st.flags & IMP_STAGE_HOMING ? "homing" :
+                          st.flags & IMP_STAGE_MOVING ? "still moving" : "idle off target",
+                          st.flags & IMP_STAGE_HOMED ? "" : ", not homed",
+                          pose_str(s, st.position_mm, 0, pose, sizeof pose),
+                          s->target_mask ? pose_str(s, s->target_mm, s->target_mask, target, sizeof target)
+                                         : "home");
+}
+
+int imp_stage_wait_settled(struct imp_stage *s, unsigned timeout_ms, struct imp_stage_status *ret_status) {
+        uint64_t deadline = imp_stage_deadline_us(timeout_ms);
+        int r;
+        while ((r = imp_stage_poll_settled(s, deadline, timeout_ms, ret_status)) == -EAGAIN)
+                usleep(IMP_STAGE_POLL_INTERVAL_MS * 1000u);
+        return r;
 }
 
 int imp_stage_soft_stop(struct imp_stage *s) {

@@ -127,6 +127,15 @@ int imp_stage_move_to(struct imp_stage *stage, const double target_mm[IMP_STAGE_
  * latched meanwhile, or the controller's own error. ret_status (may be NULL) gets the last
  * status read, on failure too. */
 int imp_stage_wait_settled(struct imp_stage *stage, unsigned timeout_ms, struct imp_stage_status *ret_status);
+/* The same, one status read at a time, for a caller with its own event loop (impastod): 0
+ * settled, -EAGAIN not yet (poll again in IMP_STAGE_POLL_INTERVAL_MS or so), otherwise what
+ * imp_stage_wait_settled() returns once deadline_us (imp_stage_deadline_us()) has passed
+ * (the stage soft-stopped; timeout_ms only names it in the message). One call blocks at most
+ * for the controller's answer to a status query. */
+#define IMP_STAGE_POLL_INTERVAL_MS 10
+uint64_t imp_stage_deadline_us(unsigned timeout_ms);
+int imp_stage_poll_settled(struct imp_stage *stage, uint64_t deadline_us, unsigned timeout_ms,
+                           struct imp_stage_status *ret_status);
 int imp_stage_get_status(struct imp_stage *stage, struct imp_stage_status *ret_status);
 /* Decelerate to a stop and forget the rest of the move; the position stays known. */
 int imp_stage_soft_stop(struct imp_stage *stage);

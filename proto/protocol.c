@@ -110,6 +110,11 @@ const char *const imp_proto_event_types[] = { "progress", "frame", "device", "fa
 
 static const struct imp_proto_field no_args[] = { END };
 static const struct imp_proto_field plan_args[] = { PLAN, END };
+static const struct imp_proto_field estimate_args[] = {
+        PLAN,
+        { .name = "painting", .type = IMP_PROTO_T_OBJECT, .what = "whole-painting estimate options" },
+        END,
+};
 static const struct imp_proto_field session_args[] = { SESSION, END };
 static const struct imp_proto_field job_args[] = { JOB, END };
 static const struct imp_proto_field list_args[] = { LIMIT, END };
@@ -154,7 +159,7 @@ static const struct imp_proto_command commands[] = {
         C("rig",            RIG,            false, no_args,        "the loaded rig configuration and its calibration"),
         C("devices",        DEVICES,        false, no_args,        "each device with its state"),
         C("plan.validate",  PLAN_VALIDATE,  false, plan_args,      "check a scan plan against the rig"),
-        C("plan.estimate",  PLAN_ESTIMATE,  false, plan_args,      "frames, bytes and time a plan will take"),
+        C("plan.estimate",  PLAN_ESTIMATE,  false, estimate_args,      "frames, bytes and time a plan will take"),
         C("session.start",  SESSION_START,  true,  start_args,     "start a capture session from a plan"),
         C("session.pause",  SESSION_PAUSE,  true,  session_args,   "pause a running session after the current frame"),
         C("session.resume", SESSION_RESUME, true,  session_args,   "resume a paused or interrupted session"),

@@ -25,7 +25,8 @@ if(TARGET impasto_emu)
   target_include_directories(test-painting-stage PRIVATE ${PROJECT_SOURCE_DIR}/daemon ${PROJECT_SOURCE_DIR}/sim/emu)
 endif()
 # impastod scanning a painting tile by tile on the GRBL emulator (daemon/session-painting.c):
-# poses per frame, a job per tile, stage faults that pause and resume, 3 SIGKILLs (Modbus port
+# poses per frame, a job per tile, stage faults that pause and resume, status answered and
+# pause soft-stopping while a move is pending, plan.estimate's painting figures, 3 SIGKILLs (Modbus port
 # 15931); the slow variant kills it at 20 random points (port 15932). Run in a private network
 # namespace.
 if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WITH_MODBUS)
@@ -34,6 +35,10 @@ if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WI
   target_include_directories(test-painting-daemon PRIVATE ${PROJECT_SOURCE_DIR}/sim/emu)
   add_dependencies(test-painting-daemon impastod)
   set_tests_properties(test-painting-daemon PROPERTIES RESOURCE_LOCK gvcp)
+  # The same session on the Modbus stage driver and emulator (ports 15933, 15934).
+  add_test(NAME test-painting-daemon-modbus COMMAND test-painting-daemon modbus)
+  set_tests_properties(test-painting-daemon-modbus PROPERTIES LABELS "integration;fault" SKIP_RETURN_CODE 77
+                       TIMEOUT 300 RESOURCE_LOCK gvcp)
   add_test(NAME test-painting-daemon-kill COMMAND test-painting-daemon kill 20)
   set_tests_properties(test-painting-daemon-kill PROPERTIES LABELS "integration;fault;slow" SKIP_RETURN_CODE 77
                        TIMEOUT 900 RESOURCE_LOCK gvcp)

@@ -551,3 +551,33 @@ double imp_plan_estimate_s(const struct imp_plan *p, const struct imp_rig *rig) 
         }
         return total_us * 1e-6;
 }
+
+json_t *imp_plan_painting_estimate_json(const struct imp_plan *p, const struct imp_rig *rig, double tile_bytes,
+                                        const struct imp_plan_painting_opts *o) {
+        const struct imp_tile_plan *tp = imp_plan_tiles(p);
+        if (!tp || !o)
+                return NULL;
+        double mpix = 0;
+        for (size_t i = 0; i < imp_plan_count(p); i++)
+                for (int c = 0; c < rig->n_cameras; c++)
+                        if (!strcmp(rig->cameras[c].name, imp_plan_frame(p, i)->camera))
+                                mpix += rig->cameras[c].model.width * (double) rig->cameras[c].model.height * 1e-6;
+        struct imp_tile_cost cost = {
+                .frames = imp_plan_count(p), .bytes = tile_bytes, .capture_s = imp_plan_estimate_s(p, rig),
+                .process_s = o->process_s >= 0 ? o->process_s : mpix * IMP_PLAN_PROCESS_S_PER_FRAME_MPIX,
+                .workers = o->workers, .speed_mm_s = o->speed_mm_s, .settle_s = o->settle_s,
+        };
+        struct imp_tile_estimate e;
+        if (imp_tile_plan_estimate(tp, &cost, &e) < 0)
+                return NULL;
+        unsigned cols, rows;
+        imp_tile_plan_grid(tp, &cols, &rows);
+        double step[2], overlap[2];
+        imp_tile_plan_spacing(tp, step, overlap);
+        return json_pack("{s:I,s:I,s:I,s:[f,f],s:I,s:f,s:f,s:f,s:f,s:f,s:f,s:I,s:f,s:f}", "tiles", (json_int_t) e.tiles,
+                         "cols", (json_int_t) cols, "rows", (json_int_t) rows, "overlap", overlap[0], overlap[1],
+                         "frames", (json_int_t) e.frames, "bytes", e.bytes, "move_s", e.move_s, "capture_s",
+                         e.capture_s, "process_s", e.process_s, "wall_s", e.wall_s, "tile_process_s", cost.process_s,
+                         "workers", (json_int_t) cost.workers, "stage_speed_mm_s", cost.speed_mm_s, "settle_s",
+                         cost.settle_s);
+}

@@ -34,6 +34,7 @@
  * imp_plan_same_state: repeats, dark frames of one exposure) form a run that the daemon
  * captures with the camera free-running (docs/daemon.md, "Streamed runs"). */
 #pragma once
+#include <jansson.h>
 #include <stdbool.h>
 #include <stddef.h>
 #include "captureset.h"
@@ -86,3 +87,22 @@ size_t imp_plan_run_length(const struct imp_plan *p, size_t i);
  * projector pattern between consecutive frames). Repeats count as frames (the simulator's
  * clock charges them the same). Cameras absent from the rig count a readout of 0. */
 double imp_plan_estimate_s(const struct imp_plan *p, const struct imp_rig *rig);
+
+/* The whole-painting estimate of a plan with a painting group (`impasto plan estimate`
+ * offline and impastod's plan.estimate give the same object, docs/painting.md). Processing
+ * one tile on one worker costs, per frame-megapixel captured, what one tile of
+ * config/scenes/painting-small.cfg (50 frames of 0.03 Mpix) took: 3.9 s on a loaded 2-core
+ * machine; process_s gives a measured figure instead. */
+#define IMP_PLAN_PROCESS_S_PER_FRAME_MPIX 2.6
+#define IMP_PLAN_STAGE_SPEED_MM_S 50.0  /* drivers/stage.h IMP_STAGE_DEFAULT_SPEED_MM_S */
+#define IMP_PLAN_SETTLE_S 0.5           /* a gantry move's acceleration and settling, beyond speed */
+struct imp_plan_painting_opts {
+        double speed_mm_s, settle_s;    /* the gantry's feed and per-move settle */
+        double process_s;               /* one tile on one worker; < 0: from the frames */
+        unsigned workers;               /* tiles processed at once, ≥ 1 */
+};
+/* {"tiles","cols","rows","overlap":[x,y],"frames","bytes","move_s","capture_s","process_s",
+ * "wall_s","tile_process_s","workers","stage_speed_mm_s","settle_s"} for tile_bytes bytes per
+ * tile; NULL without a painting group, for a bad option, or out of memory. */
+json_t *imp_plan_painting_estimate_json(const struct imp_plan *p, const struct imp_rig *rig, double tile_bytes,
+                                        const struct imp_plan_painting_opts *o);

@@ -243,6 +243,14 @@ bool imp_emu_stage_homed(struct imp_emu_stage *e) {
         return h;
 }
 
+bool imp_emu_stage_moving(struct imp_emu_stage *e) {
+        pthread_mutex_lock(&e->lock);
+        (void) emu_motion_update_locked(e);
+        bool moving = e->motion.phase != EMU_PHASE_IDLE;
+        pthread_mutex_unlock(&e->lock);
+        return moving;
+}
+
 unsigned imp_emu_stage_n_moves(struct imp_emu_stage *e) {
         pthread_mutex_lock(&e->lock);
         unsigned n = e->n_moves;

@@ -67,6 +67,8 @@ void imp_emu_stage_mute(struct imp_emu_stage *emu, bool mute);
 /* The axes' positions now, mm. */
 void imp_emu_stage_position(struct imp_emu_stage *emu, double ret_mm[IMP_EMU_STAGE_MAX_AXES]);
 bool imp_emu_stage_homed(struct imp_emu_stage *emu);
+/* A move or homing is running (a stalled move stays running until it is stopped). */
+bool imp_emu_stage_moving(struct imp_emu_stage *emu);
 /* Moves started (homing excluded) and, for GRBL, resets (Ctrl-X) received. */
 unsigned imp_emu_stage_n_moves(struct imp_emu_stage *emu);
 unsigned imp_emu_stage_n_resets(struct imp_emu_stage *emu);

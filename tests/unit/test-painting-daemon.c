@@ -1,5 +1,6 @@
 /* impastod scanning a whole painting (daemon/session-painting.c, docs/painting.md) on the real
- * GRBL stage driver against the GRBL emulator on a pseudo-terminal, with the emulated GigE
+ * GRBL stage driver against the GRBL emulator on a pseudo-terminal (or, with "modbus", the
+ * Modbus stage driver against the Modbus stage emulator on loopback), with the emulated GigE
  * camera and Modbus dome. The camera's frames carry where the emulated carriage stood when
  * they were filled (row 1, pixels 0..2: x, y, z in 10 µm), so a frame taken anywhere but at
  * its tile is seen.
@@ -11,10 +12,14 @@
  *            alarm inside tile 4 and a move to tile 5 that never settles: each pauses the session with a message naming the tile and
  *            the remedy, keeps every frame, and `session.resume` (which clears and homes)
  *            continues at the first frame not captured; the final capture equals `run`'s.
+ *            While the move to tile 5 is pending, another client's `status` is answered and
+ *            says "moving to tile 5" (the event loop never waits on the stage), and a
+ *            `session.pause` then soft-stops the stalled carriage without a fault.
  *   kill N:  SIGKILL at N random points (0–2 frame events plus 0–30 ms), impastod restarted with
  *            --resume each time; the final capture equals `run`'s: every frame's pixels
  *            byte-identical and its poses equal.
- * Modbus port 15931 (15932 for the slow variant); run in a private network namespace. */
+ * Modbus port 15931 (15932 for the slow variant; 15933 and the stage's 15934 for "modbus"); run
+ * in a private network namespace. */
 #define _GNU_SOURCE 1
 #include <math.h>
 #include "emu-stage.h"
@@ -40,15 +45,30 @@ static int fill_at_stage(void *userdata, const struct imp_emu_camera_state *st, 
 struct ctx {
         struct harness h;
         struct imp_emu_stage *emu;
+        bool modbus;                    /* the Modbus stage instead of GRBL */
+        struct tclient *watch;          /* a second client, not subscribed (test_faults) */
+        bool saw_moving;                /* its status answered during the move to tile 5 */
         char plan[512];
         const char *const *opts;
 };
 
 static void setup(struct ctx *x, int port) {
         h_setup(&x->h, port, N_LIGHTS);
-        struct imp_emu_stage_config cfg = { .travel_mm = { 400, 300, 50 } };
-        if (imp_emu_stage_grbl_new(&cfg, &x->emu) < 0)
+        struct imp_emu_stage_config cfg = { .port = (uint16_t) (port + 1), .travel_mm = { 400, 300, 50 } };
+        int r = x->modbus ? imp_emu_stage_modbus_new(&cfg, &x->emu) : imp_emu_stage_grbl_new(&cfg, &x->emu);
+        if (r == -EADDRINUSE) {
+                fprintf(stderr, "TCP port %d on 127.0.0.1 is busy\n", port + 1);
+                exit(77);
+        }
+        if (r < 0)
                 exit(2);
+        char stage[256];
+        if (x->modbus)
+                snprintf(stage, sizeof stage, "backend = \"modbus\"; address = \"127.0.0.1:%d;timeout_ms=1000\";",
+                         port + 1);
+        else
+                snprintf(stage, sizeof stage, "backend = \"grbl\"; address = \"%s;baud=115200;timeout_ms=1000\";",
+                         imp_emu_stage_device(x->emu));
         imp_emu_gige_free(x->h.gige);
         if (imp_emu_gige_new("127.0.0.1", "IMP-DAEMON", x->h.rig, fill_at_stage, x->emu, &x->h.gige) < 0)
                 exit(2);
@@ -57,10 +77,9 @@ static void setup(struct ctx *x, int port) {
                  "rig = {\n  name = \"test-rig\";\n  calibration = \"rig.json\";\n"
                  "  cameras = ( { name = \"cam0\"; backend = \"aravis\"; address = \"127.0.0.1\"; } );\n"
                  "  dome = { backend = \"modbus\"; address = \"127.0.0.1:%d\"; };\n"
-                 "  stage = { backend = \"grbl\"; address = \"%s;baud=115200;timeout_ms=1000\"; sigma_mm = 0.02;"
-                 " settle_timeout_ms = 3000; };\n"
+                 "  stage = { %s sigma_mm = 0.02; settle_timeout_ms = 3000; };\n"
                  "};\n",
-                 port, imp_emu_stage_device(x->emu));
+                 port, stage);
         h_write(x->h.rigcfg, text);
         snprintf(x->plan, sizeof x->plan, "%s/painting.cfg", x->h.dir);
         /* stage x of the tiles: 40, 70, 100; y: 35, 59 (test-painting-stage) */
@@ -244,6 +263,25 @@ static void test_run(struct ctx *x, char *ref, size_t size) {
 
 static unsigned hook_step;
 
+/* Asks x->watch for `status` until the painting's stage says want (true) or the session is
+ * no longer capturing (false: an answer that came only once the move was over). */
+static bool status_shows(struct ctx *x, const char *want) {
+        for (int tries = 0; tries < 500; tries++) {
+                json_t *r = tc_ok(x->watch, "status", NULL);
+                const json_t *sess = json_object_get(r, "session");
+                const char *st = json_string_value(json_object_get(sess, "state"));
+                const char *stage = json_string_value(json_object_get(json_object_get(sess, "painting"), "stage"));
+                bool seen = stage && strstr(stage, want), capturing = st && !strcmp(st, "capturing");
+                if (getenv("IMPASTO_TEST_VERBOSE"))
+                        fprintf(stderr, "status: %s, stage %s\n", st ? st : "-", stage ? stage : "-");
+                json_decref(r);
+                if (seen || !capturing)
+                        return seen;
+                usleep(10000);
+        }
+        return false;
+}
+
 /* Tile 3: position lost after its first frame; tile 4: a drive alarm after its second, then
  * a stalling carriage (on the move to tile 5) near its end. */
 static void inject(struct ctx *x, const json_t *pj) {
@@ -258,6 +296,10 @@ static void inject(struct ctx *x, const json_t *pj) {
         } else if (hook_step == 2 && tile == 4 && done >= FRAMES_PER_TILE - 2) {
                 imp_emu_stage_stall(x->emu, true);
                 hook_step = 3;
+        } else if (hook_step == 3 && tile == 5) {
+                /* tile 4 stored: the (stalling) move to tile 5 comes next */
+                hook_step = 4;
+                x->saw_moving = status_shows(x, "moving to tile 5 (col 0, row 1)");
         }
 }
 
@@ -273,9 +315,38 @@ static void resume(struct tclient *c, const char *id) {
         json_decref(r);
 }
 
+static size_t faults_of(struct tclient *c, const char *id) {
+        json_t *r = tc_ok(c, "session.show", h_arg("session", id));
+        size_t n = json_array_size(json_object_get(r, "faults"));
+        json_decref(r);
+        return n;
+}
+
+/* The move to tile 5 still stalls: resumed, then paused while it is pending. The pause is
+ * answered at once, stops the carriage (soft-stop) and records no fault; events up to the
+ * pause are read off c. */
+static void test_pause_moving(struct ctx *x, struct tclient *c, const char *id) {
+        size_t faults = faults_of(c, id);
+        resume(c, id);
+        CHECK_MSG(status_shows(x, "moving to tile 5 (col 0, row 1)"), "status did not show the pending move");
+        CHECK(imp_emu_stage_moving(x->emu));
+        json_t *r = tc_ok(x->watch, "session.pause", h_arg("session", id));
+        json_decref(r);
+        CHECK_MSG(!imp_emu_stage_moving(x->emu), "the stalled carriage still moves after the pause");
+        /* on the other client: a call on c would take the events follow() reads */
+        r = tc_ok(x->watch, "session.show", h_arg("session", id));
+        CHECK_STR_EQ(json_string_value(json_object_get(r, "state")), "paused");
+        json_decref(r);
+        CHECK_INT_EQ(faults_of(x->watch, id), faults);
+        CHECK_INT_EQ(frames_of(x->watch, id), 5 * FRAMES_PER_TILE);
+        CHECK_STR_EQ(follow(x, c, NULL, NULL, 0, NULL), "paused");
+}
+
 static void test_faults(struct ctx *x, const char *ref) {
-        struct tclient c;
+        struct tclient c, w;
         start(x, &c);
+        CHECK_OK(tc_open(&w, x->h.socket, false));
+        x->watch = &w;
         char id[128], sdir[1024], msg[1024] = "";
         imp_emu_stage_limit_switch_at(x->emu, 0, 85);
         hook_step = 0;
@@ -308,7 +379,9 @@ static void test_faults(struct ctx *x, const char *ref) {
         resume(&c, id);
         CHECK_STR_EQ(follow(x, &c, inject, msg, sizeof msg, NULL), "paused");
         CHECK_STR_CONTAINS(msg, "the move to tile 5 (col 0, row 1) at (40.000, 59.000, 10.000) mm did not settle");
+        CHECK_MSG(x->saw_moving, "no status answer said \"moving to tile 5\" while the move was pending");
         CHECK_INT_EQ(frames_of(&c, id), 5 * FRAMES_PER_TILE);
+        test_pause_moving(x, &c, id);
         imp_emu_stage_stall(x->emu, false);
 
         resume(&c, id);
@@ -316,6 +389,8 @@ static void test_faults(struct ctx *x, const char *ref) {
         session_dir(&c, id, sdir, sizeof sdir);
         check_painting(sdir);
         check_same_capture(ref, sdir);
+        tc_close(&w);
+        x->watch = NULL;
         stop(x, &c);
 }
 
@@ -376,6 +451,57 @@ static void test_kills(struct ctx *x, const char *ref, unsigned n_kills) {
         stop(x, &c);
 }
 
+/* plan.estimate of the painting plan: the whole painting's figures, the very object the
+ * offline `plan estimate` prints (imp_plan_painting_estimate_json on the same rig, plan and
+ * tile bytes, the stage's feed), the options taken, and a painting the store cannot hold
+ * refused. */
+static void test_estimate(struct ctx *x) {
+        struct tclient c;
+        start(x, &c);
+        struct imp_error e = { 0 };
+        struct imp_rig rig = { 0 };
+        CHECK_OK(imp_rig_load(x->h.rigjson, &rig, &e));
+        _cleanup_(imp_plan_freep) struct imp_plan *plan = NULL;
+        CHECK_OK(imp_plan_load(x->plan, &rig, &plan, &e));
+        json_t *r = tc_ok(&c, "plan.estimate", h_arg("plan", x->plan));
+        const json_t *got = json_object_get(r, "painting");
+        CHECK_INT_EQ(json_integer_value(json_object_get(got, "tiles")), N_TILES);
+        CHECK_INT_EQ(json_integer_value(json_object_get(got, "frames")), N_TILES * FRAMES_PER_TILE);
+        double tile_bytes = (double) json_integer_value(json_object_get(r, "bytes"));
+        CHECK_NEAR(json_number_value(json_object_get(got, "bytes")), N_TILES * tile_bytes, 1e-6);
+        CHECK_INT_EQ(json_integer_value(json_object_get(r, "disk_needed")), (json_int_t) (N_TILES * tile_bytes));
+        struct imp_plan_painting_opts o = { .speed_mm_s = IMP_PLAN_STAGE_SPEED_MM_S, .settle_s = IMP_PLAN_SETTLE_S,
+                                            .process_s = -1, .workers = 1 };
+        json_t *want = plan ? imp_plan_painting_estimate_json(plan, &rig, tile_bytes, &o) : NULL;
+        CHECK_MSG(want && got && json_equal(want, (json_t *) got), "the daemon's painting figures differ from the offline ones");
+        CHECK(json_number_value(json_object_get(got, "capture_s")) > json_number_value(json_object_get(got, "move_s")));
+        json_decref(want);
+        json_decref(r);
+        /* the options */
+        r = tc_ok(&c, "plan.estimate", json_pack("{s:s, s:{s:i, s:f, s:f}}", "plan", x->plan, "painting", "workers", 2,
+                                                 "process_s", 7.5, "settle_s", 2.0));
+        got = json_object_get(r, "painting");
+        CHECK_INT_EQ(json_integer_value(json_object_get(got, "workers")), 2);
+        CHECK_NEAR(json_number_value(json_object_get(got, "tile_process_s")), 7.5, 1e-12);
+        CHECK_NEAR(json_number_value(json_object_get(got, "settle_s")), 2.0, 1e-12);
+        CHECK_NEAR(json_number_value(json_object_get(got, "process_s")), 7.5 * N_TILES, 1e-9);
+        json_decref(r);
+        char msg[1024] = "";
+        CHECK_INT_EQ(tc_err(&c, "plan.estimate", json_pack("{s:s, s:{s:i}}", "plan", x->plan, "painting", "workers", 0),
+                            msg, sizeof msg), IMP_PROTO_E_BAD_ARGUMENT);
+        CHECK_STR_CONTAINS(msg, "args.painting.workers");
+        /* 313 × 313 tiles of 10 000 frames: terabytes */
+        char huge[600];
+        snprintf(huge, sizeof huge, "%s/huge-painting.cfg", x->h.dir);
+        h_write(huge, "dome = { lights = \"all\"; exposures_us = [1000.0]; repeat = 2000; };\n"
+                      "painting = { extent_mm = [5000.0, 5000.0]; fov_mm = [20.0, 20.0]; };\n");
+        CHECK_INT_EQ(tc_err(&c, "plan.estimate", h_arg("plan", huge), msg, sizeof msg), IMP_PROTO_E_INVALID_PLAN);
+        CHECK_STR_CONTAINS(msg, "the whole painting needs");
+        CHECK_STR_CONTAINS(msg, "it will not fit");
+        imp_rig_free(&rig);
+        stop(x, &c);
+}
+
 static void test_no_stage(struct ctx *x) {
         /* the same rig without its stage line */
         char text[1024];
@@ -398,19 +524,23 @@ static void test_no_stage(struct ctx *x) {
 
 int main(int argc, char **argv) {
         /* "kill N" alone (the slow variant, on its own port): the reference run, then N kills */
+        /* "modbus": the Modbus stage, run and faults (its own ports) */
         unsigned kills = argc > 2 && !strcmp(argv[1], "kill") ? (unsigned) atoi(argv[2]) : 3;
         bool only_kills = argc > 2;
-        struct ctx x = { 0 };
+        struct ctx x = { .modbus = argc > 1 && !strcmp(argv[1], "modbus") };
         const char *const opts[] = { "--worker-cmd", "/bin/true", "--min-free-bytes", "0", NULL };
         x.opts = opts;
-        setup(&x, only_kills ? 15932 : 15931);
+        setup(&x, x.modbus ? 15933 : only_kills ? 15932 : 15931);
         char ref[1024] = "";
         test_run(&x, ref, sizeof ref);
         if (!only_kills) {
+                if (!x.modbus)
+                        test_estimate(&x);
                 test_no_stage(&x);
                 test_faults(&x, ref);
         }
-        test_kills(&x, ref, kills);
+        if (!x.modbus)
+                test_kills(&x, ref, kills);
         if (x.h.pid > 0)
                 h_kill(&x.h, SIGKILL);
         imp_emu_stage_free(x.emu);
