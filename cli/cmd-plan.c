@@ -33,6 +33,9 @@
 #define PROCESS_S_PER_FRAME_MPIX 2.6
 #define DEFAULT_SPEED_MM_S 50.0  /* drivers/stage.h IMP_STAGE_DEFAULT_SPEED_MM_S: the feed the daemon moves at */
 #define DEFAULT_SETTLE_S 0.5      /* a gantry move's acceleration and settling, beyond speed */
+/* With --scene of a gantry scene, the moves default to the scene's gantry (sim/scene.h): its
+ * speed, and its settle plus speed/acceleration, what the trapezoidal profile adds to a move
+ * longer than speed²/acceleration (sim/gantry.c), so that the estimate follows the simulator. */
 
 /* How the whole-painting figures are played through (options of `plan estimate`). */
 struct painting_opts {
@@ -48,7 +51,8 @@ static void usage(FILE *f) {
                    "  --rig RIG.json  the rig's model (rig.json of a capture set or of `impasto calibrate`)\n"
                    "         --target DIR: refuse a plan whose bytes exceed DIR's free space (default .)\n"
                    "         a plan with a painting group: whole-painting figures; --workers tiles processed at once,\n"
-                   "         --stage-speed and --settle the gantry's moves, --process-s one tile's processing\n");
+                   "         --stage-speed and --settle the gantry's moves (default: a --scene's gantry, else 50 mm/s\n"
+                   "         and 0.5 s), --process-s one tile's processing\n");
 }
 
 /* A step is one exposure of the rig: consecutive frames that differ only by camera. */
@@ -261,7 +265,17 @@ static void set_accuracy(json_t *res, const char *plan_path, const struct imp_pl
                                                                     rig->n_lights, "measured", acc));
 }
 
-static int load_rig(const char *rig_path, const char *scene_path, struct imp_rig *ret) {
+static void gantry_defaults(const struct imp_scene_gantry *g, struct painting_opts *po) {
+        if (!g || g->speed_mm_s <= 0 || g->accel_mm_s2 <= 0)
+                return;
+        if (po->speed_mm_s < 0)
+                po->speed_mm_s = g->speed_mm_s;
+        if (po->settle_s < 0)
+                po->settle_s = g->settle_s + po->speed_mm_s / g->accel_mm_s2;
+}
+
+/* The rig from --rig or --scene; a gantry scene's moves fill the options not given. */
+static int load_rig(const char *rig_path, const char *scene_path, struct imp_rig *ret, struct painting_opts *po) {
         struct imp_error err = {};
         int r;
         if (rig_path)
@@ -271,6 +285,8 @@ static int load_rig(const char *rig_path, const char *scene_path, struct imp_rig
                 r = imp_scene_load(scene_path, &scene, &err);
                 if (r >= 0)
                         r = imp_rig_copy(imp_scene_rig(scene), ret);
+                if (r >= 0 && imp_scene_is_gantry(scene))
+                        gantry_defaults(imp_scene_gantry(scene), po);
         }
         if (r < 0) {
                 log_error("%s", err.msg[0] ? err.msg : strerror(-r));
@@ -283,11 +299,15 @@ static int load_rig(const char *rig_path, const char *scene_path, struct imp_rig
 }
 
 static int offline(const char *plan_path, const char *rig_path, const char *scene_path, bool estimate, bool json,
-                   const struct painting_opts *po) {
+                   struct painting_opts *po) {
         struct imp_rig rig = {};
-        int rc = load_rig(rig_path, scene_path, &rig);
+        int rc = load_rig(rig_path, scene_path, &rig, po);
         if (rc)
                 return rc;
+        if (po->speed_mm_s < 0)
+                po->speed_mm_s = DEFAULT_SPEED_MM_S;
+        if (po->settle_s < 0)
+                po->settle_s = DEFAULT_SETTLE_S;
         struct imp_error err = {};
         _cleanup_(imp_plan_freep) struct imp_plan *plan = NULL;
         int r = imp_plan_load(plan_path, &rig, &plan, &err);
@@ -340,8 +360,7 @@ static int run(int argc, char **argv) {
                 { "workers", required_argument, NULL, 'W' }, { "stage-speed", required_argument, NULL, 'V' },
                 { "settle", required_argument, NULL, 'T' }, { "process-s", required_argument, NULL, 'P' },
                 { "target", required_argument, NULL, 'D' }, {} };
-        struct painting_opts po = { .speed_mm_s = DEFAULT_SPEED_MM_S, .settle_s = DEFAULT_SETTLE_S,
-                                    .process_s = -1, .workers = 1 };
+        struct painting_opts po = { .speed_mm_s = -1, .settle_s = -1, .process_s = -1, .workers = 1 };
         int c;
         while ((c = getopt_long(argc, argv, "h", opts, NULL)) >= 0)
                 switch (c) {
