@@ -61,6 +61,9 @@ sys.exit(1 if bad else 0)
 PY
 }
 check "the figures are sane (summary JSON)" sane
-check "no daemon or emulator left running from the demo's directory" \
-  bash -c "! pgrep -f '$tmp/demo/' >/dev/null"
+# ([i], [s]: the pattern must not match a command line that holds the pattern itself)
+no_leftovers() {
+  ! pgrep -f "[i]mpastod --rig $tmp/demo/" >/dev/null && ! pgrep -f "[s]im serve .*$tmp/demo/" >/dev/null
+}
+check "no daemon or emulator left running from the demo's directory" no_leftovers
 finish
