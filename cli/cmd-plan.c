@@ -27,6 +27,9 @@
 #include "scene.h"
 
 #define FRAME_BYTES_PER_PIXEL 2   /* frames are stored as 16-bit TIFF (docs/capture-set.md) */
+/* With --scene of a gantry scene, the moves default to the scene's gantry (sim/scene.h): its
+ * speed, and its settle plus speed/acceleration, what the trapezoidal profile adds to a move
+ * longer than speed²/acceleration (sim/gantry.c), so that the estimate follows the simulator. */
 
 /* How the whole-painting figures are played through (options of `plan estimate`). */
 struct painting_opts {
@@ -42,7 +45,8 @@ static void usage(FILE *f) {
                    "  --rig RIG.json  the rig's model (rig.json of a capture set or of `impasto calibrate`)\n"
                    "         --target DIR: refuse a plan whose bytes exceed DIR's free space (default .)\n"
                    "         a plan with a painting group: whole-painting figures; --workers tiles processed at once,\n"
-                   "         --stage-speed and --settle the gantry's moves, --process-s one tile's processing\n");
+                   "         --stage-speed and --settle the gantry's moves (default: a --scene's gantry, else 50 mm/s\n"
+                   "         and 0.5 s), --process-s one tile's processing\n");
 }
 
 /* A step is one exposure of the rig: consecutive frames that differ only by camera. */
@@ -225,7 +229,17 @@ static void set_accuracy(json_t *res, const char *plan_path, const struct imp_pl
                                                                     rig->n_lights, "measured", acc));
 }
 
-static int load_rig(const char *rig_path, const char *scene_path, struct imp_rig *ret) {
+static void gantry_defaults(const struct imp_scene_gantry *g, struct painting_opts *po) {
+        if (!g || g->speed_mm_s <= 0 || g->accel_mm_s2 <= 0)
+                return;
+        if (!(po->given & 2))
+                po->est.speed_mm_s = g->speed_mm_s;
+        if (!(po->given & 4))
+                po->est.settle_s = g->settle_s + po->est.speed_mm_s / g->accel_mm_s2;
+}
+
+/* The rig from --rig or --scene; a gantry scene's moves fill the options not given. */
+static int load_rig(const char *rig_path, const char *scene_path, struct imp_rig *ret, struct painting_opts *po) {
         struct imp_error err = {};
         int r;
         if (rig_path)
@@ -235,6 +249,8 @@ static int load_rig(const char *rig_path, const char *scene_path, struct imp_rig
                 r = imp_scene_load(scene_path, &scene, &err);
                 if (r >= 0)
                         r = imp_rig_copy(imp_scene_rig(scene), ret);
+                if (r >= 0 && imp_scene_is_gantry(scene))
+                        gantry_defaults(imp_scene_gantry(scene), po);
         }
         if (r < 0) {
                 log_error("%s", err.msg[0] ? err.msg : strerror(-r));
@@ -247,9 +263,9 @@ static int load_rig(const char *rig_path, const char *scene_path, struct imp_rig
 }
 
 static int offline(const char *plan_path, const char *rig_path, const char *scene_path, bool estimate, bool json,
-                   const struct painting_opts *po) {
+                   struct painting_opts *po) {
         struct imp_rig rig = {};
-        int rc = load_rig(rig_path, scene_path, &rig);
+        int rc = load_rig(rig_path, scene_path, &rig, po);
         if (rc)
                 return rc;
         struct imp_error err = {};

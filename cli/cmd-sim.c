@@ -11,7 +11,8 @@
  *       serves the scene as devices (sim/serve.h) until SIGTERM/SIGINT, then exits 0;
  *       --truth-out writes DIR/truth/ (the ground truth `sim render` writes beside its
  *       capture set) before the ready file appears; a gantry scene needs --plan (its painting
- *       group): the stage is a GRBL controller on a pseudo-terminal (docs/painting.md) */
+ *       group): the stage is a GRBL controller on a pseudo-terminal (docs/painting.md), and
+ *       --truth-out writes the whole painting's truth and truth/tile-poses.json */
 #include <fcntl.h>
 #include <getopt.h>
 #include <signal.h>
@@ -320,7 +321,17 @@ static int cmd_serve(const struct sim_args *a) {
                 log_error("%s", err.msg[0] ? err.msg : strerror(-r));
                 return 1;
         }
-        if (a->truth_out) {
+        if (a->truth_out && imp_scene_is_gantry(scene)) {
+                /* The painting's truth and every tile's true pose, on a scene of its own (the
+                 * served one is re-placed under the carriage). */
+                _cleanup_(imp_scene_freep) struct imp_scene *whole = NULL;
+                if ((rc = load_scene(a, &whole)))
+                        return rc;
+                if ((r = imp_sim_write_painting_truth_plan(whole, plan, a->truth_out, &err)) < 0) {
+                        log_error_errno(r, "--truth-out %s: %s", a->truth_out, err.msg[0] ? err.msg : "truth: %m");
+                        return 1;
+                }
+        } else if (a->truth_out) {
                 /* The served frames come from a renderer of this scene (imp_serve_rig is its
                  * rig); a second renderer of the same scene gives the same truth. */
                 _cleanup_(imp_render_freep) struct imp_render *rd = NULL;

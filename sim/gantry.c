@@ -194,6 +194,24 @@ double imp_sim_painting_clock_s(const struct imp_scene *scene, const struct imp_
         return t_ns * 1e-9;
 }
 
+int imp_sim_write_painting_truth_plan(struct imp_scene *scene, const struct imp_plan *plan, const char *out,
+                                      struct imp_error *err) {
+        const struct imp_tile_plan *tp = imp_plan_tiles(plan);
+        int r = check_gantry(scene, tp, err);
+        if (r < 0)
+                return r;
+        struct painting_run run = { .scene = scene, .plan = plan, .out = out, .tp = tp };
+        _cleanup_json_ json_t *poses = json_array();
+        if (!poses)
+                return imp_error_set(err, -ENOMEM, "sim: out of memory");
+        for (size_t k = 0; k < imp_tile_plan_count(tp); k++) {
+                struct imp_sim_tile_pose pose;
+                imp_sim_tile_pose(scene, tp, k, &pose);
+                json_array_append_new(poses, pose_json(k, imp_tile_plan_tile(tp, k), &pose, imp_tile_plan_options(tp)));
+        }
+        return write_painting_truth(&run, poses, err);
+}
+
 int imp_sim_render_painting(struct imp_scene *scene, const struct imp_plan *plan, const char *plan_path,
                             const char *out, imp_sim_progress_fn progress, void *userdata,
                             struct imp_sim_painting_result *ret, struct imp_error *err) {

@@ -40,6 +40,13 @@ void imp_sim_stamp(struct imp_frame_record *rec, const struct imp_frame_record *
  * without rendering a frame; 0 without a painting group or a gantry scene. */
 double imp_sim_painting_clock_s(const struct imp_scene *scene, const struct imp_plan *plan, double *ret_move_s);
 
+/* OUT/truth/ of the painting `plan` scans, as imp_sim_render_painting writes it (the whole
+ * painting at gantry.truth_pitch_mm, truth/tile-poses.json), without rendering a frame: what
+ * `sim serve --truth-out` writes for a gantry scene, whose frames take the same poses. The
+ * scene's surface is left as the whole painting (serve a scene loaded apart). */
+int imp_sim_write_painting_truth_plan(struct imp_scene *scene, const struct imp_plan *plan, const char *out,
+                                      struct imp_error *err);
+
 struct imp_sim_painting_result {
         size_t tiles, frames, dropped;
         double clock_s;                 /* the simulated clock: first frame to the last */

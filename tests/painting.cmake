@@ -12,11 +12,25 @@ add_test(NAME test-painting-estimate COMMAND sh -c "\
   rc=$?; grep -q 'on disk but . has' err.txt && test $rc -eq 0"
   WORKING_DIRECTORY ${CMAKE_CURRENT_BINARY_DIR})
 set_tests_properties(test-painting-estimate PROPERTIES LABELS unit TIMEOUT 120)
-# The painting demo end to end on the small painting (render, process and compare six tiles;
-# ~2 min on a loaded 2-core machine): slow.
-add_test(NAME test-painting-demo COMMAND ${PROJECT_SOURCE_DIR}/scripts/demo-painting --no-build
-  --build-dir ${PROJECT_BINARY_DIR} --out ${CMAKE_CURRENT_BINARY_DIR}/demo-painting)
-set_tests_properties(test-painting-demo PROPERTIES LABELS "slow" TIMEOUT 1200)
+# `plan estimate` of a whole painting within 10 % of the simulator's clock (sim info: computed,
+# not wall time): painting-small, painting-300x200 and a slow gantry whose moves dominate.
+add_test(NAME test-painting-estimate-clock COMMAND bash ${PROJECT_SOURCE_DIR}/tests/integration/painting-estimate-clock.sh
+  ${PROJECT_BINARY_DIR} ${PROJECT_SOURCE_DIR})
+set_tests_properties(test-painting-estimate-clock PROPERTIES LABELS unit TIMEOUT 120 SKIP_RETURN_CODE 77)
+# The painting demo end to end on the small painting (scripts/demo-painting): through impastod,
+# `sim serve` and the GRBL emulator (Modbus port 15933, the GigE port: run in a private network
+# namespace), checking the figures it prints (~3 min on a loaded 2-core machine): slow; and the
+# offline path (sim render, process, mosaic).
+if(TARGET impastod AND IMPASTO_WITH_ARAVIS AND IMPASTO_WITH_MODBUS)
+  add_test(NAME test-painting-demo COMMAND bash ${PROJECT_SOURCE_DIR}/tests/integration/painting-demo.sh
+    ${PROJECT_BINARY_DIR} ${PROJECT_SOURCE_DIR} 15933)
+  set_tests_properties(test-painting-demo PROPERTIES LABELS "integration;slow" TIMEOUT 1800 SKIP_RETURN_CODE 77
+                       RESOURCE_LOCK gvcp)
+endif()
+add_test(NAME test-painting-demo-offline COMMAND bash ${PROJECT_SOURCE_DIR}/tests/integration/painting-demo.sh
+  ${PROJECT_BINARY_DIR} ${PROJECT_SOURCE_DIR} 0 --offline)
+set_tests_properties(test-painting-demo-offline PROPERTIES LABELS "integration;slow" TIMEOUT 1800
+                     SKIP_RETURN_CODE 77)
 # Whole-painting sessions on the gantry (daemon/tile-session.c) against the GRBL emulator on a
 # pseudo-terminal (no network).
 if(TARGET impasto_emu)
