@@ -386,6 +386,7 @@ struct scene {
         double cam_c[3];              /* camera centre, canvas frame */
         double hmax;
         const struct imp_btf_hf_pyramid *py;  /* levels = 0: plain march */
+        const struct imp_btf_horizon *hz;     /* rays it clears are not marched */
         double (*light_c)[3];         /* light positions, canvas frame */
         double colour_inv[IMP_BTF_MAX_SAMPLES][3];
 };
@@ -425,7 +426,7 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
         mat_apply(sc->R, sc->t, P, Pw);
         if (!(vloc[2] > 0.0) || !imp_pinhole_project(cap->camera, Pw, px) || !(px[0] >= 0.0 && px[1] >= 0.0 &&
             px[0] <= cap->camera->width - 1 && px[1] <= cap->camera->height - 1) ||
-            march(hf, p, sc->py, sc->hmax, P, wv, dist_c, NULL)) {
+            (!imp_btf_horizon_clear(sc->hz, u, v, wv) && march(hf, p, sc->py, sc->hmax, P, wv, dist_c, NULL))) {
                 *ret_flags = IMP_BTF_HIDDEN;
                 return;
         }
@@ -445,7 +446,7 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
                 double e_cos = imp_btf_light_irradiance(&cap->lights[j], Pw) * lloc[2];
                 if (!(e_cos >= p->min_e_cos))
                         continue;
-                if (march(hf, p, sc->py, sc->hmax, P, wl, r, NULL)) {
+                if (!imp_btf_horizon_clear(sc->hz, u, v, wl) && march(hf, p, sc->py, sc->hmax, P, wl, r, NULL)) {
                         shadowed++;
                         continue;
                 }
@@ -489,11 +490,13 @@ struct imp_btf_extractor {
         struct imp_btf_sample_params p;
         struct scene sc;
         double (*light_c)[3];
+        struct imp_btf_horizon *hz;
 };
 
 void imp_btf_extractor_free(struct imp_btf_extractor *x) {
         if (!x)
                 return;
+        imp_btf_horizon_free(x->hz);
         free(x->light_c);
         free(x);
 }
@@ -522,6 +525,12 @@ int imp_btf_extractor_new(const struct imp_btf_heightfield *hf, const struct imp
         x->hf = hf;
         x->cap = cap;
         x->p = *p;
+        r = imp_btf_horizon_new(hf, p->shadow_bias_texels * hf->pitch_mm, &x->hz);
+        if (r < 0) {
+                imp_btf_extractor_free(x);
+                return r;
+        }
+        sc->hz = x->hz;
         double cw[3];
         imp_pinhole_centre(cap->camera, cw);
         mat_apply_inv(sc->R, sc->t, cw, sc->cam_c);
