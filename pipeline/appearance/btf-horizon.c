@@ -28,7 +28,7 @@
 
 struct imp_btf_horizon {
         int width, height;
-        float *slope;                 /* 4 per texel: quadrant q = (du < 0) | (dv < 0) << 1 */
+        float *slope;                 /* 4 planes of width·height: quadrant q = (du < 0) | (dv < 0) << 1 */
 };
 
 void imp_btf_horizon_free(struct imp_btf_horizon *hz) {
@@ -67,14 +67,12 @@ static double near_rise(const struct imp_btf_heightfield *hf, int u, int v, int 
  * only drops what lies outside it). tmp: scratch of the same size. */
 static void grow_box(const float *src, float *tmp, float *dst, int W, int H, int q, int qd) {
         int su = qd & 1 ? -q : q, sv = qd & 2 ? -q : q;
-#pragma omp parallel for schedule(static)
         for (int v = 0; v < H; v++)
                 for (int u = 0; u < W; u++) {
                         int u2 = IMP_MIN(IMP_MAX(u + su, 0), W - 1);
                         float a = src[(size_t) v * W + u], b = src[(size_t) v * W + u2];
                         tmp[(size_t) v * W + u] = a > b ? a : b;
                 }
-#pragma omp parallel for schedule(static)
         for (int v = 0; v < H; v++) {
                 int v2 = IMP_MIN(IMP_MAX(v + sv, 0), H - 1);
                 for (int u = 0; u < W; u++) {
@@ -84,17 +82,17 @@ static void grow_box(const float *src, float *tmp, float *dst, int W, int H, int
         }
 }
 
-/* One quadrant: the near band, then the boxes of radius 2, 3, 4, 6, 9, 13, … */
+/* One quadrant into its plane of slope: the near band, then the boxes of radius 2, 3, 4,
+ * 6, 9, 13, … (serial: the quadrants run in parallel, one parallel region in all). */
 static void quadrant_bound(const struct imp_btf_heightfield *hf, double bias_mm, int qd, float *M, float *tmp,
                            float *M2, float *slope) {
         const int W = hf->width, H = hf->height;
         const size_t n = (size_t) W * H;
         const double ip = 1.0 / hf->pitch_mm;
-#pragma omp parallel for schedule(static)
         for (int v = 0; v < H; v++)
                 for (int u = 0; u < W; u++) {
                         size_t i = (size_t) v * W + u;
-                        slope[4 * i + qd] = (float) (near_rise(hf, u, v, qd) * ip);
+                        slope[i] = (float) (near_rise(hf, u, v, qd) * ip);
                         M[i] = ffinite(hf->height_mm[i]);
                 }
         grow_box(M, tmp, M2, W, H, 1, qd);
@@ -108,18 +106,20 @@ static void quadrant_bound(const struct imp_btf_heightfield *hf, double bias_mm,
                 other = t;
                 /* cur = Mq(r + q): the band (r, r + q]. */
                 const double run_mm = r * hf->pitch_mm;
-#pragma omp parallel for schedule(static)
                 for (size_t i = 0; i < n; i++) {
                         double h = hf->height_mm[i];
                         if (!isfinite(h))
                                 continue;
                         double g = ((double) cur[i] - bias_mm + HZ_EPS_MM - h) / run_mm;
-                        float *sq = &slope[4 * i + qd];
+                        float *sq = &slope[i];
                         if (g > *sq)
                                 *sq = (float) g;
                 }
                 r += q;
         }
+        /* Round each bound up to the next float: the comparison is in double. */
+        for (size_t i = 0; i < n; i++)
+                slope[i] = nextafterf(slope[i], HUGE_VALF);
 }
 
 int imp_btf_horizon_new(const struct imp_btf_heightfield *hf, double bias_mm, struct imp_btf_horizon **ret) {
@@ -128,38 +128,41 @@ int imp_btf_horizon_new(const struct imp_btf_heightfield *hf, double bias_mm, st
                 return -EINVAL;
         const size_t n = (size_t) hf->width * hf->height;
         struct imp_btf_horizon *hz = calloc(1, sizeof *hz);
-        float *M = malloc(n * sizeof *M), *tmp = malloc(n * sizeof *tmp), *M2 = malloc(n * sizeof *M2);
-        if (hz)
-                hz->slope = malloc(4 * n * sizeof *hz->slope);
-        if (!hz || !hz->slope || !M || !tmp || !M2) {
+        if (!hz || !(hz->slope = malloc(4 * n * sizeof *hz->slope))) {
                 imp_btf_horizon_free(hz);
-                free(M);
-                free(tmp);
-                free(M2);
                 return -ENOMEM;
         }
         hz->width = hf->width;
         hz->height = hf->height;
-        for (int qd = 0; qd < 4; qd++)
-                quadrant_bound(hf, bias_mm, qd, M, tmp, M2, hz->slope);
-        /* Round each bound up to the next float: the comparison is in double. */
-        for (size_t i = 0; i < 4 * n; i++)
-                hz->slope[i] = nextafterf(hz->slope[i], HUGE_VALF);
-        free(M);
-        free(tmp);
-        free(M2);
+        bool oom = false;
+#pragma omp parallel for schedule(dynamic, 1)
+        for (int qd = 0; qd < 4; qd++) {
+                float *M = malloc(n * sizeof *M), *tmp = malloc(n * sizeof *tmp), *M2 = malloc(n * sizeof *M2);
+                if (M && tmp && M2)
+                        quadrant_bound(hf, bias_mm, qd, M, tmp, M2, hz->slope + qd * n);
+                else
+#pragma omp atomic write
+                        oom = true;
+                free(M);
+                free(tmp);
+                free(M2);
+        }
+        if (oom) {
+                imp_btf_horizon_free(hz);
+                return -ENOMEM;
+        }
         *ret = hz;
         return 0;
 }
 
 bool imp_btf_horizon_clear(const struct imp_btf_horizon *hz, int u, int v, const double d[3]) {
-        if (!(d[2] > 0.0))
+        if (!hz || !(d[2] > 0.0))
                 return false;
         int q = (d[0] < 0.0) | (d[1] < 0.0) << 1;
         double run = sqrt(d[0] * d[0] + d[1] * d[1]);
-        return d[2] >= (double) hz->slope[4 * ((size_t) v * hz->width + u) + q] * run;
+        return d[2] >= (double) hz->slope[(size_t) q * hz->width * hz->height + (size_t) v * hz->width + u] * run;
 }
 
 double imp_btf_horizon_slope(const struct imp_btf_horizon *hz, int u, int v, int q) {
-        return hz->slope[4 * ((size_t) v * hz->width + u) + (q & 3)];
+        return hz->slope[(size_t) (q & 3) * hz->width * hz->height + (size_t) v * hz->width + u];
 }

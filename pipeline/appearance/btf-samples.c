@@ -141,11 +141,13 @@ struct imp_btf_hf_pyramid {
         int lw[PYR_LEVELS_MAX], lh[PYR_LEVELS_MAX];
         float *lvl[PYR_LEVELS_MAX];   /* one allocation, lvl[0] owns it */
         double hmax;                  /* highest finite height (-HUGE_VAL: none) */
+        struct imp_btf_horizon *hz;   /* conservative horizon for bias 0 (btf-horizon.c) */
 };
 
 void imp_btf_hf_pyramid_free(struct imp_btf_hf_pyramid *py) {
         if (!py)
                 return;
+        imp_btf_horizon_free(py->hz);
         free(py->lvl[0]);
         free(py);
 }
@@ -164,6 +166,11 @@ int imp_btf_hf_pyramid_new(const struct imp_btf_heightfield *hf, struct imp_btf_
         py->height_mm = hf->height_mm;
         py->width = hf->width;
         py->height = hf->height;
+        int r = imp_btf_horizon_new(hf, 0.0, &py->hz);
+        if (r < 0) {
+                free(py);
+                return r;
+        }
         if (hf->width < 2 || hf->height < 2) {
                 py->hmax = imp_btf_heightfield_hmax(hf);
                 *ret = py;
@@ -183,7 +190,7 @@ int imp_btf_hf_pyramid_new(const struct imp_btf_heightfield *hf, struct imp_btf_
         }
         float *buf = malloc(total * sizeof *buf);
         if (!buf) {
-                free(py);
+                imp_btf_hf_pyramid_free(py);
                 return -ENOMEM;
         }
         py->levels = n;
@@ -490,13 +497,11 @@ struct imp_btf_extractor {
         struct imp_btf_sample_params p;
         struct scene sc;
         double (*light_c)[3];
-        struct imp_btf_horizon *hz;
 };
 
 void imp_btf_extractor_free(struct imp_btf_extractor *x) {
         if (!x)
                 return;
-        imp_btf_horizon_free(x->hz);
         free(x->light_c);
         free(x);
 }
@@ -525,12 +530,8 @@ int imp_btf_extractor_new(const struct imp_btf_heightfield *hf, const struct imp
         x->hf = hf;
         x->cap = cap;
         x->p = *p;
-        r = imp_btf_horizon_new(hf, p->shadow_bias_texels * hf->pitch_mm, &x->hz);
-        if (r < 0) {
-                imp_btf_extractor_free(x);
-                return r;
-        }
-        sc->hz = x->hz;
+        /* The pyramid's horizon is built for bias 0: conservative for any bias ≥ 0. */
+        sc->hz = p->shadow_bias_texels >= 0.0 ? py->hz : NULL;
         double cw[3];
         imp_pinhole_centre(cap->camera, cw);
         mat_apply_inv(sc->R, sc->t, cw, sc->cam_c);
