@@ -5,7 +5,8 @@
  * (pitch 0.05 mm, ±1 mm: long shadow rays, many shadowed samples). Prints a table with
  * texels/s and peak RSS. --fit-only: (1) alone (for profiles). --checksum: an FNV-1a 64 of
  * every fitted texel of each fit-only case (one pass each): two builds fit bit-identically
- * when their lines are equal. */
+ * when their lines are equal. --grid: (2) alone (extraction profiles, e.g. under callgrind
+ * with --toggle-collect=imp_btf_fit_grid). */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -263,10 +264,13 @@ int main(int argc, char **argv) {
                 printf("| case                         | texels   | texels/s   | µs/texel  | per CPU-s  |\n");
                 printf("|------------------------------|----------|------------|-----------|------------|\n");
         }
-        bench_fit(L, 0, "matte");
-        bench_fit(L, 1, "semi-glossy k=20");
-        bench_fit(L, 2, "glossy k=100");
-        bench_fit(L, -1, "mixed");
+        bool grid_only = argc > 1 && !strcmp(argv[1], "--grid");
+        if (!grid_only) {
+                bench_fit(L, 0, "matte");
+                bench_fit(L, 1, "semi-glossy k=20");
+                bench_fit(L, 2, "glossy k=100");
+                bench_fit(L, -1, "mixed");
+        }
         if (fit_only)
                 return 0;
         bench_grid(L, false);

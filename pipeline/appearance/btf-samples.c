@@ -141,11 +141,13 @@ struct imp_btf_hf_pyramid {
         int lw[PYR_LEVELS_MAX], lh[PYR_LEVELS_MAX];
         float *lvl[PYR_LEVELS_MAX];   /* one allocation, lvl[0] owns it */
         double hmax;                  /* highest finite height (-HUGE_VAL: none) */
+        struct imp_btf_horizon *hz;   /* conservative horizon for bias 0 (btf-horizon.c) */
 };
 
 void imp_btf_hf_pyramid_free(struct imp_btf_hf_pyramid *py) {
         if (!py)
                 return;
+        imp_btf_horizon_free(py->hz);
         free(py->lvl[0]);
         free(py);
 }
@@ -164,6 +166,11 @@ int imp_btf_hf_pyramid_new(const struct imp_btf_heightfield *hf, struct imp_btf_
         py->height_mm = hf->height_mm;
         py->width = hf->width;
         py->height = hf->height;
+        int r = imp_btf_horizon_new(hf, 0.0, &py->hz);
+        if (r < 0) {
+                free(py);
+                return r;
+        }
         if (hf->width < 2 || hf->height < 2) {
                 py->hmax = imp_btf_heightfield_hmax(hf);
                 *ret = py;
@@ -183,7 +190,7 @@ int imp_btf_hf_pyramid_new(const struct imp_btf_heightfield *hf, struct imp_btf_
         }
         float *buf = malloc(total * sizeof *buf);
         if (!buf) {
-                free(py);
+                imp_btf_hf_pyramid_free(py);
                 return -ENOMEM;
         }
         py->levels = n;
@@ -386,6 +393,7 @@ struct scene {
         double cam_c[3];              /* camera centre, canvas frame */
         double hmax;
         const struct imp_btf_hf_pyramid *py;  /* levels = 0: plain march */
+        const struct imp_btf_horizon *hz;     /* rays it clears are not marched */
         double (*light_c)[3];         /* light positions, canvas frame */
         double colour_inv[IMP_BTF_MAX_SAMPLES][3];
 };
@@ -425,7 +433,7 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
         mat_apply(sc->R, sc->t, P, Pw);
         if (!(vloc[2] > 0.0) || !imp_pinhole_project(cap->camera, Pw, px) || !(px[0] >= 0.0 && px[1] >= 0.0 &&
             px[0] <= cap->camera->width - 1 && px[1] <= cap->camera->height - 1) ||
-            march(hf, p, sc->py, sc->hmax, P, wv, dist_c, NULL)) {
+            (!imp_btf_horizon_clear(sc->hz, u, v, wv) && march(hf, p, sc->py, sc->hmax, P, wv, dist_c, NULL))) {
                 *ret_flags = IMP_BTF_HIDDEN;
                 return;
         }
@@ -445,7 +453,7 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
                 double e_cos = imp_btf_light_irradiance(&cap->lights[j], Pw) * lloc[2];
                 if (!(e_cos >= p->min_e_cos))
                         continue;
-                if (march(hf, p, sc->py, sc->hmax, P, wl, r, NULL)) {
+                if (!imp_btf_horizon_clear(sc->hz, u, v, wl) && march(hf, p, sc->py, sc->hmax, P, wl, r, NULL)) {
                         shadowed++;
                         continue;
                 }
@@ -522,6 +530,8 @@ int imp_btf_extractor_new(const struct imp_btf_heightfield *hf, const struct imp
         x->hf = hf;
         x->cap = cap;
         x->p = *p;
+        /* The pyramid's horizon is built for bias 0: conservative for any bias ≥ 0. */
+        sc->hz = p->shadow_bias_texels >= 0.0 ? py->hz : NULL;
         double cw[3];
         imp_pinhole_centre(cap->camera, cw);
         mat_apply_inv(sc->R, sc->t, cw, sc->cam_c);

@@ -124,12 +124,30 @@ int imp_btf_samples_extract(const struct imp_btf_heightfield *hf, const struct i
 
 /* A max pyramid of a heightfield's cells, which lets the shadow and visibility rays of
  * the extraction skip, exactly, the stretches where they pass above every height (same
- * hits as the plain march). It refers to hf->height_mm: heights must not change while it
+ * hits as the plain march), and the heightfield's conservative horizon (below), which
+ * spares the march altogether for the rays it clears. It refers to hf->height_mm: heights must not change while it
  * is in use. Caller frees with imp_btf_hf_pyramid_free(). -EINVAL, -ENOMEM. */
 struct imp_btf_hf_pyramid;
 int imp_btf_hf_pyramid_new(const struct imp_btf_heightfield *hf, struct imp_btf_hf_pyramid **ret);
 void imp_btf_hf_pyramid_free(struct imp_btf_hf_pyramid *py);
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_btf_hf_pyramid *, imp_btf_hf_pyramid_free);
+
+/* A conservative horizon (btf-horizon.c): per texel and quadrant of azimuth, an upper
+ * bound on the slope at which a ray leaving the texel can still pass below the surface
+ * by more than bias_mm. Built once per heightfield (O(texels · log size)) for every light
+ * and the camera: imp_btf_hf_pyramid_new() builds one for bias 0 (valid for any bias ≥ 0)
+ * and the extractor marches only the rays it cannot clear, so its decisions are the
+ * march's. -EINVAL, -ENOMEM. */
+struct imp_btf_horizon;
+int imp_btf_horizon_new(const struct imp_btf_heightfield *hf, double bias_mm, struct imp_btf_horizon **ret);
+void imp_btf_horizon_free(struct imp_btf_horizon *hz);
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_btf_horizon *, imp_btf_horizon_free);
+/* True when the ray from texel (u, v) (on the surface) along unit direction d cannot be
+ * blocked: imp_btf_heightfield_ray() with the same bias would then find no hit. False
+ * says nothing (march it). */
+bool imp_btf_horizon_clear(const struct imp_btf_horizon *hz, int u, int v, const double d[3]);
+/* The bound itself (rise over run) at texel (u, v) for quadrant q = (du < 0) | (dv < 0)·2. */
+double imp_btf_horizon_slope(const struct imp_btf_horizon *hz, int u, int v, int q);
 
 /* imp_btf_samples_extract() with a pyramid built once for many tiles (the plain call
  * builds one per call). -EINVAL also when py was built from another heightfield. */
