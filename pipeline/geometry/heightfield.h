@@ -40,6 +40,12 @@ struct imp_heightfield_options {
                                          footprint are not rasterised (holes stay holes);
                                          default 4 */
         bool skip_extraction;         /* keep every valid point (no seed fill / erosion) */
+        /* A painting's tile (docs/painting.md): the field of view lies inside the paint, no
+         * frame can be in it, so the frame search is off: the canvas is every valid point
+         * within relief_max_mm of the robust plane (outliers still dropped), with no seed
+         * fill, gradient or slope barrier, albedo trim, erosion or shadow fill; the base
+         * plane and the placement checks run as usual. Default false. */
+        bool whole_field;
         /* Additions for issue #4 (docs/geometry.md has the measured trade-offs). */
         double slope_max;             /* the fill does not cross between 4-neighbours whose
                                          first-PCA height differs by more than step_min_mm
