@@ -6,6 +6,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
+#include "heightfield.h"
 #include "json-util.h"
 #include "plan.h"
 #include "process-painting.h"
@@ -79,8 +80,8 @@ static int pitch_of(const struct imp_captureset *cs, const json_t *painting, con
         pitch = rig->n_cameras > 0 ? footprint_on_canvas_plane(&rig->cameras[0].model) : 0;
         if (!(pitch > 0))
                 return 0;   /* no pitch to give: the copy chooses its own */
-        ret->pitch_mm = round(pitch * 1e4) / 1e4;
-        ret->pitch_source = "camera footprint on the painting's plane";
+        ret->pitch_mm = round(IMP_HF_PITCH_NOISE_CAP * pitch * 1e4) / 1e4;
+        ret->pitch_source = "1.02 x the camera footprint on the painting's plane";
         return 0;
 }
 

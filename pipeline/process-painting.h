@@ -16,11 +16,13 @@ struct imp_painting_tile {
         int index;                    /* the tile's index in painting.json, -1 when unknown */
         double pitch_mm;              /* the painting's pitch for its tile copies (0 when not a
                                          tile): painting.json "pitch_mm" when it gives one,
-                                         else the camera footprint on the rig's canvas plane
-                                         at the principal point (the same for every tile:
-                                         the gantry moves the whole rig), rounded to 0.1 µm */
-        const char *pitch_source;     /* "painting.json pitch_mm" or "camera footprint on the
-                                         painting's plane" (static strings) */
+                                         else IMP_HF_PITCH_NOISE_CAP × the camera footprint
+                                         on the rig's canvas plane at the principal point
+                                         (what a copy of one field picks on a clean scan;
+                                         the same for every tile: the gantry moves the
+                                         whole rig), rounded to 0.1 µm */
+        const char *pitch_source;     /* "painting.json pitch_mm" or "1.02 x the camera
+                                         footprint on the painting's plane" (static strings) */
 };
 
 /* Marks: the set's plan.cfg has a painting group (the plan of one tile), or

@@ -28,7 +28,6 @@
 #define HF_DEFAULT_RELIEF_MAX     3.0    /* mm: impasto rarely stands higher */
 #define HF_DEFAULT_MIN_CANVAS_FRAC 0.02
 #define HF_DEFAULT_MIN_CANVAS_PTS 200
-#define HF_PITCH_NOISE_CAP        1.02   /* pitch at most this × the footprint on the plane */
 
 void imp_heightfield_options_default(struct imp_heightfield_options *opt) {
         *opt = (struct imp_heightfield_options) {
@@ -1317,7 +1316,7 @@ int imp_heightfield_extract(const struct imp_range_image *range, const struct im
          * hair above the footprint, by the relief's slope) capped by the footprint on the
          * plane, which range noise does not grow. (At the footprint itself the demo
          * measured worse: 3.65 µm and 2.26° against 3.13 µm and 1.72° at 1.009 × it.) */
-        hf.pitch_mm = opt->pitch_mm > 0 ? opt->pitch_mm : fmin(hf.neighbour_mm, HF_PITCH_NOISE_CAP * hf.footprint_mm);
+        hf.pitch_mm = opt->pitch_mm > 0 ? opt->pitch_mm : fmin(hf.neighbour_mm, IMP_HF_PITCH_NOISE_CAP * hf.footprint_mm);
         /* Mesh edges are 3-D distances: measured against the 3-D neighbour distance. */
         double max_edge = opt->max_edge_factor * fmax(hf.neighbour_mm, hf.pitch_mm);
         struct hf_ctx c = { .r = range, .canvas = canvas, .uvh = uvh, .nrm = nrm, .sig = sig, .sig_n_deg = sig_n,
