@@ -239,6 +239,7 @@ static void usage(FILE *f) {
                    "                       [--no-photometric-normals] [--threads N] [--gray-only]\n"
                    "                       [--btf-iterations N] [--btf-robust-passes N] [--no-shadow-test]\n"
                    "                       [--photometric-only | --range-only] [--allow-incomplete] [--force]\n"
+                   "                       [--frame-search | --no-frame-search]\n"
                    "  COPY_DIR must lie outside CAPTURE_DIR and be new or empty; --force writes over\n"
                    "                an existing copy\n"
                    "  --photometric-only  dome frames alone (e.g. `impasto import photometric`): normals, albedo,\n"
@@ -253,6 +254,11 @@ static void usage(FILE *f) {
                    "                --gray-only decodes the Gray code alone; --btf-iterations N LM\n"
                    "                iterations per pass (0: default); --btf-robust-passes N Huber\n"
                    "                reweightings (-1: default); --no-shadow-test keeps self-shadowed samples\n"
+                   "  --pitch MM    the copy's grid pitch; without it (or 0) a painting's tile gets the\n"
+                   "                painting's pitch (docs/painting.md), any other set its camera footprint\n"
+                   "  --no-frame-search  the whole field is canvas (no frame looked for): the default for a\n"
+                   "                painting's tile (its plan.cfg has a painting group, or ../../painting.json\n"
+                   "                lists it); --frame-search looks for a frame even there\n"
                    "  --allow-incomplete  process a set that lacks frames of its plan (refused\n"
                    "                otherwise); what is missing goes to copy.json provenance.incomplete\n");
 }
@@ -288,6 +294,7 @@ static int run(int argc, char **argv) {
                 { "no-shadow-test", no_argument, NULL, 'S' },
                 { "photometric-only", no_argument, NULL, 'O' }, { "range-only", no_argument, NULL, 'Z' },
                 { "allow-incomplete", no_argument, NULL, 'A' }, { "force", no_argument, NULL, 'F' },
+                { "frame-search", no_argument, NULL, 'f' }, { "no-frame-search", no_argument, NULL, 'W' },
                 { "help", no_argument, NULL, 'h' }, {}
         };
         bool photometric_only = false, range_only = false, force = false;
@@ -314,6 +321,8 @@ static int run(int argc, char **argv) {
                         break;
                 }
                 case 'B': o.btf = false; break;
+                case 'f': o.frame_search = IMP_FRAME_SEARCH_ON; break;
+                case 'W': o.frame_search = IMP_FRAME_SEARCH_OFF; break;
                 case 'P': o.photometric_normals = false; break;
                 case 'H':
                         if (int_arg("holdout", optarg, 0, &o.holdout_every) < 0)

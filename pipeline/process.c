@@ -22,6 +22,7 @@
 #include "hdr.h"
 #include "fuse.h"
 #include "heightfield.h"
+#include "process-painting.h"
 #include "json-util.h"
 #include "photometric.h"
 #include "process.h"
@@ -50,6 +51,8 @@ struct process_opts {
         const char *capture, *out;
         const struct imp_process_options *opt;
         json_t *incomplete;           /* what the set lacks of its plan (allow_incomplete) */
+        struct imp_heightfield_options hf;   /* opt->heightfield with the painting tile's changes */
+        json_t *painting_tile;        /* provenance.painting_tile, NULL when not one */
 };
 
 static double now_s(void) {
@@ -486,7 +489,7 @@ static int sl_range(const struct process_opts *o, const struct imp_rig *rig, str
 /* Canvas extraction and the heightfield (seed §4.2); a refusal marks g->refused. */
 static int heightfield_stage(const struct process_opts *o, const struct imp_range_image *range,
                              const struct imp_sl_result *sl, struct geometry_out *g, struct imp_error *err) {
-        struct imp_heightfield_options ho = o->opt->heightfield;
+        struct imp_heightfield_options ho = o->hf;
         ho.albedo = sl->direct;   /* a flush frame's albedo step */
         if (!(o->opt->btf && o->opt->photometric_normals && o->opt->fuse_heights))
                 ho.shadow_fill_px = 0;   /* the fill needs normals to shape it */
@@ -984,9 +987,37 @@ static int write_copy_json(const struct process_opts *o, const struct geometry_o
                 return imp_error_set(err, -ENOMEM, "copy.json: out of memory");
         if (o->incomplete)
                 json_object_set(json_object_get(j, "provenance"), "incomplete", o->incomplete);
+        if (o->painting_tile)
+                json_object_set(json_object_get(j, "provenance"), "painting_tile", o->painting_tile);
         char path[4096];
         snprintf(path, sizeof path, "%s/copy.json", o->out);
         return imp_json_save_atomic(path, j, err);
+}
+
+/* A painting's tile (process-painting.h): no frame search unless asked for, the painting's
+ * pitch unless one was given; o->hf is what the heightfield stage uses. */
+static int painting_tile(struct process_opts *o, const struct imp_captureset *cs, struct imp_error *err) {
+        o->hf = o->opt->heightfield;
+        struct imp_painting_tile pt;
+        int r = imp_painting_tile_detect(cs, &pt, err);
+        if (r < 0)
+                return r;
+        enum { GIVEN, PAINTING, OWN } pitch_from = o->hf.pitch_mm > 0 ? GIVEN : OWN;
+        if (pt.is_tile && pitch_from == OWN && pt.pitch_mm > 0)
+                o->hf.pitch_mm = pt.pitch_mm, pitch_from = PAINTING;
+        int fs = o->opt->frame_search;
+        o->hf.whole_field = fs == IMP_FRAME_SEARCH_OFF || (fs == IMP_FRAME_SEARCH_AUTO && pt.is_tile);
+        if (!pt.is_tile && !o->hf.whole_field)
+                return 0;
+        o->painting_tile = json_pack("{s:b,s:s?,s:b,s:s}", "is_tile", pt.is_tile, "marker", pt.marker,
+                                     "frame_search", !o->hf.whole_field, "pitch_source",
+                                     pitch_from == GIVEN ? "--pitch" : pitch_from == PAINTING ? pt.pitch_source
+                                                                                              : "the copy's own");
+        if (o->painting_tile && pt.index >= 0)
+                json_object_set_new(o->painting_tile, "index", json_integer(pt.index));
+        if (o->painting_tile && pitch_from == PAINTING)
+                json_object_set_new(o->painting_tile, "pitch_mm", json_real(pt.pitch_mm));
+        return o->painting_tile ? 0 : imp_error_set(err, -ENOMEM, "out of memory");
 }
 
 /* A set lacking frames of its plan is refused unless allow_incomplete (then o->incomplete). */
@@ -1065,8 +1096,10 @@ int imp_process_capture(const char *capture_dir, const char *copy_dir,
         double t0 = now_s();
         _cleanup_(imp_captureset_closep) struct imp_captureset *cs = NULL;
         int r = imp_captureset_open(capture_dir, &cs, err);
-        if (r < 0 || (r = check_complete(&o, cs, err)) < 0)
+        if (r < 0 || (r = check_complete(&o, cs, err)) < 0 || (r = painting_tile(&o, cs, err)) < 0) {
+                json_decref(o.incomplete);
                 return r;
+        }
         r = imp_mkdir_p(copy_dir, 0755);
         if (r < 0)
                 return imp_error_set(err, r, "%s: cannot create the copy directory: %s", copy_dir,
@@ -1096,6 +1129,7 @@ int imp_process_capture(const char *capture_dir, const char *copy_dir,
                 write_refusal(&o, &g, now_s() - t0, err);
         geometry_out_done(&g);
         json_decref(o.incomplete);
+        json_decref(o.painting_tile);
 #ifdef _OPENMP
         omp_set_num_threads(threads_before);
 #endif

@@ -50,6 +50,12 @@ struct imp_process_options {
                                          triangulated positions (low frequencies) and the
                                          normals (high ones), pipeline/geometry/fuse.h; copy.json
                                          stages.fusion. Default true */
+        /* A painting's tile (process-painting.h): the heightfield's frame search is off
+         * (heightfield.whole_field) unless frame_search says otherwise, and a heightfield
+         * pitch_mm <= 0 becomes the painting's pitch; copy.json provenance.painting_tile
+         * says what marked the set, the pitch and where it came from. */
+        enum { IMP_FRAME_SEARCH_AUTO = 0,     /* off for a painting's tile, on otherwise (default) */
+               IMP_FRAME_SEARCH_ON, IMP_FRAME_SEARCH_OFF } frame_search;
         /* Progress per stage (may be NULL); called from the calling thread. */
         void (*progress)(void *userdata, const char *stage, size_t done, size_t total);
         void *userdata;

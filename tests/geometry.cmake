@@ -8,6 +8,8 @@ impasto_test(test-geometry-stability LABELS stability LIBS impasto_pipeline)
 # Heights from positions and normals (pipeline/geometry/fuse.c, Nehab et al. 2005): synthetic
 # surfaces with a known answer.
 impasto_test(test-fuse LIBS impasto_pipeline)
+# The back-off over longer baselines: coherently wrong normals on a ridge's flanks.
+impasto_test(test-fuse-segment LIBS impasto_pipeline)
 # Fusion where the normals are wrong: back-off and the σ of filled texels.
 impasto_test(test-fuse-stability LABELS stability LIBS impasto_pipeline)
 # Projector-shadow fill (heightfield.h shadow_fill_px, fuse.h mask value 2): synthetic

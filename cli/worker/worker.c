@@ -234,11 +234,15 @@ int worker_parse_args(const char *args, struct imp_process_options *o, char *msg
                         o->btf = false;
                         continue;
                 }
+                if ((!strcmp(w, "--frame-search") || !strcmp(w, "--no-frame-search")) && !eq) {
+                        o->frame_search = w[2] == 'n' ? IMP_FRAME_SEARCH_OFF : IMP_FRAME_SEARCH_ON;
+                        continue;
+                }
                 bool known = !strcmp(w, "--holdout") || !strcmp(w, "--pitch") || !strcmp(w, "--cell") ||
                              !strcmp(w, "--delta");
                 if (!known) {
                         snprintf(msg, size, "worker_args: unknown option \"%s\" (known: --holdout N, --pitch MM, "
-                                 "--cell N, --delta FRACTION, --no-btf)", w);
+                                 "--cell N, --delta FRACTION, --no-btf, --frame-search, --no-frame-search)", w);
                         return -EINVAL;
                 }
                 const char *v = eq ? eq + 1 : strtok_r(NULL, " \t\n", &save);

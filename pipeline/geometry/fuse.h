@@ -33,6 +33,14 @@ struct imp_fuse_params {
         double max_row_sigma;
         double fill_normal_sigma_deg; /* σ of a normal when none is given, for the σ of
                                          filled texels (3) */
+        /* The back-off over longer baselines (with normal_sigma_deg and sigma_mm): a row is
+         * also left out when the slopes integrated along the segment of half-length
+         * 2 … segment_max texels centred on it disagree with the measured heights at the
+         * segment's ends beyond max_row_sigma × those heights' σ (the normals' σ left
+         * out: a coherent error hides behind it). < 2: off. Default 4 (8 measured the same
+         * on hard-tilted-10/25, and leaves out twice the rows). */
+        int segment_max;
+#define IMP_FUSE_SEGMENT_MAX 256
 };
 void imp_fuse_params_default(struct imp_fuse_params *ret);
 

@@ -28,7 +28,6 @@
 #define HF_DEFAULT_RELIEF_MAX     3.0    /* mm: impasto rarely stands higher */
 #define HF_DEFAULT_MIN_CANVAS_FRAC 0.02
 #define HF_DEFAULT_MIN_CANVAS_PTS 200
-#define HF_PITCH_NOISE_CAP        1.02   /* pitch at most this × the footprint on the plane */
 
 void imp_heightfield_options_default(struct imp_heightfield_options *opt) {
         *opt = (struct imp_heightfield_options) {
@@ -1024,6 +1023,24 @@ static int canvas_mask(const struct imp_range_image *range, const struct imp_hei
         return 0;
 }
 
+/* A painting's tile: every valid point within relief_max_mm of the robust plane. */
+static void whole_field_mask(const struct imp_range_image *range, const struct imp_heightfield_options *opt,
+                             const double m1[3], const double n1[3], struct imp_heightfield *hf, uint8_t *canvas) {
+        size_t N = (size_t) range->width * range->height;
+        for (size_t i = 0; i < N; i++) {
+                canvas[i] = 0;
+                if (!range->valid[i])
+                        continue;
+                const float *X = range->xyz + 3 * i;
+                double d[3] = { X[0] - m1[0], X[1] - m1[1], X[2] - m1[2] };
+                if (fabs(imp_dot3(d, n1)) > opt->relief_max_mm)
+                        hf->n_excluded_points++;
+                else
+                        canvas[i] = 1;
+        }
+        hf->step_min_used_mm = INFINITY;   /* no slope barrier */
+}
+
 /* The canvas's base plane: the PCA plane of the canvas points at or below the median
  * height over the current plane, HF_BASE_PASSES times. Relief (a ridge, strokes) stands
  * on the base; in a least-squares plane through every point it tilts the plane towards
@@ -1130,7 +1147,7 @@ static int project_canvas(const struct imp_range_image *range, const struct imp_
                 ss += hh * hh;
         }
         hf->plane_rms_mm = sqrt(ss / hf->n_canvas_points);
-        if (opt->shadow_fill_px > 0 && !opt->skip_extraction) {   /* frame threshold: h99 + (h99 − h1) */
+        if (opt->shadow_fill_px > 0 && !opt->skip_extraction && !opt->whole_field) {   /* frame threshold: h99 + (h99 − h1) */
                 float c1, c99;
                 int r;
                 if ((r = percentile(hv, k, 1, &c1)) < 0 || (r = percentile(hv, k, 99, &c99)) < 0)
@@ -1158,7 +1175,7 @@ static int alloc_grid(struct imp_heightfield *hf) {
 static int rasterise(const struct imp_range_image *range, const struct imp_heightfield_options *opt,
                      const uint8_t *canvas, struct frame_pts *f, struct hf_ctx *c, struct imp_heightfield *hf) {
         int w = range->width, h = range->height, r;
-        bool fill = opt->shadow_fill_px > 0 && !opt->skip_extraction;
+        bool fill = opt->shadow_fill_px > 0 && !opt->skip_extraction && !opt->whole_field;   /* no frame */
         if (fill) {   /* room for the fill; cropped again below */
                 double pad = opt->shadow_fill_px * hf->pitch_mm;
                 f->umin -= pad, f->vmin -= pad, f->umax += pad, f->vmax += pad;
@@ -1278,6 +1295,8 @@ int imp_heightfield_extract(const struct imp_range_image *range, const struct im
         if (opt->skip_extraction) {
                 for (size_t i = 0; i < N; i++)
                         canvas[i] = range->valid[i] != 0;
+        } else if (opt->whole_field) {
+                whole_field_mask(range, opt, f.m, n1, &hf, canvas);
         } else if ((r = canvas_mask(range, opt, f.m, n1, &hf, canvas)) < 0)
                 return r == -ENODATA ? imp_error_set(err, r, "no canvas: no seed point of low gradient near "
                                                      "the image centre") : r;
@@ -1297,7 +1316,7 @@ int imp_heightfield_extract(const struct imp_range_image *range, const struct im
          * hair above the footprint, by the relief's slope) capped by the footprint on the
          * plane, which range noise does not grow. (At the footprint itself the demo
          * measured worse: 3.65 µm and 2.26° against 3.13 µm and 1.72° at 1.009 × it.) */
-        hf.pitch_mm = opt->pitch_mm > 0 ? opt->pitch_mm : fmin(hf.neighbour_mm, HF_PITCH_NOISE_CAP * hf.footprint_mm);
+        hf.pitch_mm = opt->pitch_mm > 0 ? opt->pitch_mm : fmin(hf.neighbour_mm, IMP_HF_PITCH_NOISE_CAP * hf.footprint_mm);
         /* Mesh edges are 3-D distances: measured against the 3-D neighbour distance. */
         double max_edge = opt->max_edge_factor * fmax(hf.neighbour_mm, hf.pitch_mm);
         struct hf_ctx c = { .r = range, .canvas = canvas, .uvh = uvh, .nrm = nrm, .sig = sig, .sig_n_deg = sig_n,

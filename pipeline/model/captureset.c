@@ -1052,6 +1052,10 @@ static int load_own_plan(const struct imp_captureset *cs, struct imp_plan **ret,
         return imp_plan_load_string(text, p, &cs->rig, ret, err);
 }
 
+int imp_captureset_load_plan(const struct imp_captureset *cs, struct imp_plan **ret, struct imp_error *err) {
+        return load_own_plan(cs, ret, err);
+}
+
 /* The record of `rec` must be the plan's frame of the same seq (what was captured is what
  * the plan asked for): the first field that differs, or NULL. */
 static const char *plan_diff(const struct imp_frame_record *rec, const struct imp_frame_record *want) {

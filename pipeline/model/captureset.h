@@ -81,6 +81,11 @@ int imp_captureset_load_frame(const struct imp_captureset *cs, size_t i, struct 
  * its seq (-EBADMSG naming the manifest line and field). Reads only. */
 int imp_captureset_check_complete(const struct imp_captureset *cs, json_t **ret_missing, struct imp_error *err);
 
+/* The set's own plan.cfg, expanded against its rig (read as text, no @include); *ret NULL
+ * when the set has no plan. Caller frees with imp_plan_free(). Reads only. */
+struct imp_plan;
+int imp_captureset_load_plan(const struct imp_captureset *cs, struct imp_plan **ret, struct imp_error *err);
+
 json_t *imp_frame_record_to_json(const struct imp_frame_record *rec);
 int imp_frame_record_from_json(const json_t *j, const char *what, struct imp_frame_record *ret,
                                struct imp_error *err);

@@ -1,0 +1,5 @@
+# A painting's tile processed as one (pipeline/process-painting.h): no frame search, the
+# painting's pitch, copy.json provenance.painting_tile; impasto process and impasto-worker.
+if(TARGET impasto AND TARGET impasto-worker)
+  impasto_test(test-painting-tile LABELS integration LIBS impasto_pipeline TIMEOUT 300)
+endif()
