@@ -1516,6 +1516,17 @@ static void raise_phase_sigma(struct imp_sl_result *res) {
 
 int imp_sl_decode(const struct imp_sl_frames *in, const struct imp_sl_params *p,
                   struct imp_sl_result **ret, struct imp_error *err) {
+        if (!ret)
+                return imp_error_set(err, -EINVAL, "structured light: no result pointer");
+        struct imp_sl_result *res = NULL;
+        int r = imp_sl_decode_reuse(in, p, &res, err);
+        if (r == 0)
+                *ret = res;
+        return r;
+}
+
+int imp_sl_decode_reuse(const struct imp_sl_frames *in, const struct imp_sl_params *p,
+                        struct imp_sl_result **ret, struct imp_error *err) {
         if (!p || !ret)
                 return imp_error_set(err, -EINVAL, "structured light: no parameters");
         if (!(p->black_level >= 0 && p->black_level < 1))
@@ -1535,11 +1546,15 @@ int imp_sl_decode(const struct imp_sl_frames *in, const struct imp_sl_params *p,
         if (r < 0)
                 return r;
 
-        _cleanup_(imp_sl_result_freep) struct imp_sl_result *res = NULL;
-        r = result_new(pl->width, pl->height, &res);
-        if (r < 0)
-                return imp_error_set(err, r, "structured light: out of memory for %dx%d maps",
-                                     pl->width, pl->height);
+        _cleanup_(imp_sl_result_freep) struct imp_sl_result *fresh = NULL;
+        struct imp_sl_result *res = *ret;
+        if (!res || res->width != pl->width || res->height != pl->height) {
+                r = result_new(pl->width, pl->height, &fresh);
+                if (r < 0)
+                        return imp_error_set(err, r, "structured light: out of memory for %dx%d maps",
+                                             pl->width, pl->height);
+                res = fresh;
+        }
 
         int nthreads = 1;
 #ifdef _OPENMP
@@ -1590,6 +1605,9 @@ int imp_sl_decode(const struct imp_sl_frames *in, const struct imp_sl_params *p,
         }
         if (any_phase)          /* else no pixel is IMP_SL_SUBPIXEL_*: nothing to raise */
                 raise_phase_sigma(res);
-        *ret = TAKE_PTR(res);
+        if (fresh) {
+                imp_sl_result_free(*ret);
+                *ret = TAKE_PTR(fresh);
+        }
         return 0;
 }
