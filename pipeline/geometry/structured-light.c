@@ -890,7 +890,7 @@ DEFINE_GRAY_INT(gray_int_u16, uint16_t, int32_t, uint32_t, (1 << 20), NO_BYTES) 
  * straight to bytes: ⌊min(L_d, 255)⌋ = min(⌊L_d⌋, 255), ⌈min(L_g, 255)⌉ = min(⌈L_g⌉, 255),
  * and ⌈L_g⌉ ≤ 255 ⇔ L_g ≤ 255 (L_d, L_g ≥ 0, finite). Bit-identical to gray_int_u8 with
  * gray_u8_axis (test-sl-decode, bench-decode --checksum), without its 16-bit round trips. */
-static inline __attribute__((always_inline)) void u8_thresholds(
+static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void u8_thresholds(
                 int n, const uint8_t *restrict mx, const uint8_t *restrict mn, float k1, float k2,
                 float b, uint8_t always, float *restrict ld, float *restrict lg, uint8_t *restrict td8,
                 uint8_t *restrict tg8, uint8_t *restrict tgok, uint8_t *restrict alw8) {
@@ -913,15 +913,27 @@ static inline __attribute__((always_inline)) void u8_thresholds(
 }
 
 /* Axis a's block result into the combine step's rows: the binary code (Gray → binary on the
- * 16-bit code, g ^ g>>1 ^ g>>2 …), the weak-bit count and the smallest contrast. */
-static inline __attribute__((always_inline)) void u8_axis_out(
-                int n, int nbits, const uint8_t (*restrict g8)[IBLK], const uint8_t *restrict wk8,
-                const uint8_t *restrict cm8, uint32_t *restrict code, uint32_t *restrict weak,
-                float *restrict cmin) {
-        const int low = nbits > 8 ? nbits - 8 : 0;      /* bits in g8[1] */
+ * 16-bit code, g ^ g>>1 ^ g>>2 …), the weak-bit count and the smallest contrast. This loop
+ * and u8_thresholds are functions of their own: inlined into the block loop, gcc 12 leaves
+ * them scalar (≈ 100 instructions a pixel under callgrind). */
+static __attribute__((noinline, CLONES)) void u8_axis_out(
+                int n, int nbits, const uint8_t *restrict g0, const uint8_t *restrict g1,
+                const uint8_t *restrict wk8, const uint8_t *restrict cm8, uint32_t *restrict code,
+                uint32_t *restrict weak, float *restrict cmin) {
+        uint16_t g[IBLK];
+        if (nbits > 8) {
+                const int low = nbits - 8;      /* bits in g1 */
+                SIMD
+                for (int x = 0; x < n; x++)
+                        g[x] = (uint16_t) ((g0[x] << low) | g1[x]);
+        } else {
+                SIMD
+                for (int x = 0; x < n; x++)
+                        g[x] = g0[x];
+        }
         SIMD
         for (int x = 0; x < n; x++) {
-                uint16_t v = (uint16_t) ((g8[0][x] << low) | (low ? g8[1][x] : 0));
+                uint16_t v = g[x];
                 v ^= v >> 1;
                 v ^= v >> 2;
                 v ^= v >> 4;
@@ -971,7 +983,7 @@ static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void gray
                                 cm8[x] = 255;
                         }
                         gray_u8_planes(im, ax, y, x0, n, td8, tg8, alw8, tgok, lim, g8, wk8, cm8, hi8);
-                        u8_axis_out(n, ax->nbits, (const uint8_t (*)[IBLK]) g8, wk8, cm8,
+                        u8_axis_out(n, ax->nbits, g8[0], g8[1], wk8, cm8,
                                     (uint32_t *) R[R_CODE0 + a] + x0, (uint32_t *) R[R_WEAK0 + a] + x0,
                                     R[R_CMIN0 + a] + x0);
                 }
