@@ -54,6 +54,7 @@ static void stats(const double *v, int n, double *med, double *lo, double *hi) {
 
 static struct imp_image *img[NCAP][NFRAMES];
 static struct imp_pattern *seq;
+static struct imp_sl_result *kept[2];  /* impasto's maps, 1 thread and all threads, reused */
 
 /* All captures once into *r (imp_sl_decode_reuse: the maps are allocated once, before the
  * timed runs, as OpenCV's three output maps are); *ret_cpu: thread CPU time. Returns wall
@@ -87,11 +88,11 @@ static uint64_t fnv(uint64_t h, const void *p, size_t n) {
  * decode gets a new result each time, the all-threads decode reuses one result across the
  * captures (imp_sl_decode_reuse): equal lines also say that reuse leaves nothing stale. */
 static int print_checksums(const struct imp_sl_params *p1, const struct imp_sl_params *pn) {
-        struct imp_sl_result *kept = NULL;
+        struct imp_sl_result *reused = NULL;
         for (int c = 0; c < NCAP; c++)
                 for (int t = 0; t < 2; t++) {
                         struct imp_sl_frames fr = { seq, (const struct imp_image *const *) img[c], NFRAMES };
-                        struct imp_sl_result *r = t ? kept : NULL;
+                        struct imp_sl_result *r = t ? reused : NULL;
                         struct imp_error err = { 0 };
                         if (imp_sl_decode_reuse(&fr, t ? pn : p1, &r, &err) < 0) {
                                 fprintf(stderr, "%s\n", err.msg);
@@ -110,11 +111,11 @@ static int print_checksums(const struct imp_sl_params *p1, const struct imp_sl_p
                         printf("capture %d, %s: %016llx (%zu valid)\n", c, t ? "all threads" : "1 thread",
                                (unsigned long long) h, r->n_valid_xy);
                         if (t)
-                                kept = r;
+                                reused = r;
                         else
                                 imp_sl_result_free(r);
                 }
-        imp_sl_result_free(kept);
+        imp_sl_result_free(reused);
         return 0;
 }
 
@@ -180,6 +181,16 @@ static double run_opencv(int32_t *cx, int32_t *cy, uint8_t *cv, size_t *ret_vali
         return clock_s(CLOCK_MONOTONIC) - t0;
 }
 
+/* The result maps of both impasto runs and the limit's block allocated (and faulted in)
+ * before the timed runs, as OpenCV's maps are. */
+static int warm_up(const struct imp_sl_params *p1, const struct imp_sl_params *pn, struct imp_sl_result **r1,
+                   struct imp_sl_result **rn) {
+        size_t valid, bytes;
+        double cpu;
+        return run_impasto(p1, r1, &valid, &cpu) < 0 || run_impasto(pn, rn, &valid, &cpu) < 0 ||
+               run_bandwidth(&cpu, &bytes) < 0 ? -1 : 0;
+}
+
 /* The real captures, every frame of every capture, into img[][]. */
 static int load_images(const char *dir) {
         for (int c = 0; c < NCAP; c++)
@@ -196,6 +207,8 @@ static int load_images(const char *dir) {
 }
 
 static void free_images(void) {
+        imp_sl_result_free(kept[0]);
+        imp_sl_result_free(kept[1]);
         for (int c = 0; c < NCAP; c++)
                 for (int i = 0; i < NFRAMES; i++)
                         imp_image_free(img[c][i]);
@@ -250,20 +263,17 @@ int main(int argc, char **argv) {
         double t1[MAX_REPS], tn[MAX_REPS], tc[MAX_REPS], u1[MAX_REPS], uc[MAX_REPS], un;
         double r1[MAX_REPS], rn[MAX_REPS], ru[MAX_REPS], ub[MAX_REPS], fb[MAX_REPS];
         size_t bw_bytes = 0;
-        double rss_imp = 0, warm;
-        /* the result maps allocated (and faulted in) before the timed runs, as OpenCV's are */
-        struct imp_sl_result *r1_keep = NULL, *rn_keep = NULL;
-        if (run_impasto(&p1, &r1_keep, &valid_imp, &warm) < 0 || run_impasto(&pn, &rn_keep, &valid_imp, &warm) < 0 ||
-            run_bandwidth(&warm, &bw_bytes) < 0)
+        double rss_imp = 0;
+        if (warm_up(&p1, &pn, &kept[0], &kept[1]) < 0)
                 return 1;
         for (int rep = 0; rep < repeats; rep++) {
                 for (int step = 0; step < 3; step++) {
                         int which = rep % 2 ? 2 - step : step;      /* flip the order */
                         double t;
                         if (which == 0)
-                                t = t1[rep] = run_impasto(&p1, &r1_keep, &valid_imp, &u1[rep]);
+                                t = t1[rep] = run_impasto(&p1, &kept[0], &valid_imp, &u1[rep]);
                         else if (which == 1)
-                                t = tn[rep] = run_impasto(&pn, &rn_keep, &valid_imp, &un);
+                                t = tn[rep] = run_impasto(&pn, &kept[1], &valid_imp, &un);
                         else if (!only_imp)
                                 t = tc[rep] = run_opencv(cx, cy, cv, &valid_cv, &uc[rep]);
                         else
@@ -315,8 +325,6 @@ int main(int argc, char **argv) {
                100 * m, 100 * lo, 100 * hi);
         printf("  peak RSS: %.1f MiB after impasto, %.1f MiB at the end (frames: %.1f MiB)\n",
                rss_imp, peak_rss_mib(), (double) n * NFRAMES * NCAP / (1 << 20));
-        imp_sl_result_free(r1_keep);
-        imp_sl_result_free(rn_keep);
         free(cx);
         free(cy);
         free(cv);
