@@ -887,13 +887,16 @@ DEFINE_GRAY_INT(gray_int_u16, uint16_t, int32_t, uint32_t, (1 << 20), NO_BYTES) 
 /* ---- u8 frames with white, black and every Gray plane's inverse (the procam captures, the
  * simulator's plans): the whole block in byte lanes. L_max / L_min are byte maxima, and the
  * thresholds go from the float L_d, L_g (same formulas, same values as gray_int_u8_thr)
- * straight to bytes: ⌊min(L_d, 255)⌋ = min(⌊L_d⌋, 255), ⌈min(L_g, 255)⌉ = min(⌈L_g⌉, 255),
- * and ⌈L_g⌉ ≤ 255 ⇔ L_g ≤ 255 (L_d, L_g ≥ 0, finite). Bit-identical to gray_int_u8 with
- * gray_u8_axis (test-sl-decode, bench-decode --checksum), without its 16-bit round trips. */
+ * straight to bytes: ⌊min(L_d, 255)⌋ = min(⌊L_d⌋, 255), and with c = ⌈min(L_g, 256)⌉,
+ * min(c, 255) = min(⌈L_g⌉, 255) and c ≤ 255 ⇔ ⌈L_g⌉ ≤ 255 (L_d, L_g ≥ 0, finite).
+ * Bit-identical to gray_int_u8 with gray_u8_axis (test-sl-decode, bench-decode --checksum),
+ * without its 16-bit round trips. */
 static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void u8_thresholds(
                 int n, const uint8_t *restrict mx, const uint8_t *restrict mn, float k1, float k2,
                 float b, uint8_t always, float *restrict ld, float *restrict lg, uint8_t *restrict td8,
                 uint8_t *restrict tg8, uint8_t *restrict tgok, uint8_t *restrict alw8) {
+        /* in 32-bit lanes first: float → byte conversions in one loop stay scalar in gcc 12 */
+        int32_t ti[IBLK], gi[IBLK], ai[IBLK];
         SIMD
         for (int x = 0; x < n; x++) {
                 float lmax = mx[x], lmin = mn[x];
@@ -903,12 +906,18 @@ static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void u8_t
                 lg[x] = e;
                 float dc = MINF(d, 255.0f);
                 int32_t s = (int32_t) dc;
-                td8[x] = (uint8_t) (s - ((float) s > dc));
-                float ec = MINF(e, 255.0f);
+                ti[x] = s - ((float) s > dc);
+                float ec = MINF(e, 256.0f);     /* ⌈·⌉ = 256 exactly when L_g > 255 */
                 int32_t t = (int32_t) ec;
-                tg8[x] = (uint8_t) (t + ((float) t < ec));
-                tgok[x] = e <= 255.0f;
-                alw8[x] = (uint8_t) ((d > e) | always);
+                gi[x] = t + ((float) t < ec);
+                ai[x] = (d > e) | always;
+        }
+        SIMD
+        for (int x = 0; x < n; x++) {
+                td8[x] = (uint8_t) ti[x];
+                tg8[x] = (uint8_t) (gi[x] > 255 ? 255 : gi[x]);
+                tgok[x] = gi[x] <= 255;
+                alw8[x] = (uint8_t) ai[x];
         }
 }
 
