@@ -87,6 +87,34 @@ static void on_progress(void *userdata, const char *stage, size_t done, size_t t
         }
 }
 
+/* Tests only: with IMPASTO_WORKER_TEST_HOLD=DIR a job that has processed its capture, before
+ * its last step (the result manifest and publishing the copy), writes DIR/C.held with its pid
+ * (C the copy directory's last name: copies/tile-2 → tile-2.held) and waits until
+ * DIR/release exists (10 min at most), so that a test kills a job that is certainly running
+ * and then lets the others finish. Always true (it only delays). */
+static bool test_hold(const char *name, const char *copy) {
+        const char *dir = getenv("IMPASTO_WORKER_TEST_HOLD");
+        if (!dir || !*dir)
+                return true;
+        char held[PATH_MAX], tmp[PATH_MAX + 8], release[PATH_MAX];
+        const char *base = strrchr(copy, '/');
+        snprintf(held, sizeof held, "%s/%s.held", dir, base ? base + 1 : copy);
+        snprintf(tmp, sizeof tmp, "%s.tmp", held);
+        snprintf(release, sizeof release, "%s/release", dir);
+        FILE *f = fopen(tmp, "w");
+        bool ok = f && fprintf(f, "%d\n", (int) getpid()) > 0;
+        ok = f && fclose(f) == 0 && ok && rename(tmp, held) == 0;
+        if (!ok) {
+                log_warning("%s: IMPASTO_WORKER_TEST_HOLD: cannot write %s: %m, not holding", name, held);
+                return true;
+        }
+        printf("%s: held until %s exists (IMPASTO_WORKER_TEST_HOLD)\n", name, release);
+        fflush(stdout);
+        for (int i = 0; i < 12000 && access(release, F_OK) < 0; i++)
+                nanosleep(&(struct timespec) { 0, 50000000 }, NULL);
+        return true;
+}
+
 /* ---- the result manifest --------------------------------------------------------------- */
 
 static json_t *files_json(const char *dir) {
@@ -208,7 +236,7 @@ static int run_one(const char *name, const char *capture, const char *copy, cons
                             name, imp_build_kind());
         printf("%s: %s -> %s\n", name, capture, copy);
         fflush(stdout);
-        if (r == 0 && (r = imp_process_capture(capture, partial, &o, err)) == 0 &&
+        if (r == 0 && (r = imp_process_capture(capture, partial, &o, err)) == 0 && test_hold(name, copy) &&
             (r = write_result(&ri, partial, err)) == 0)
                 r = worker_publish(partial, copy, err);
         imp_job_unlock(lock, lock_fd);

@@ -818,6 +818,42 @@ static inline __attribute__((always_inline)) void gray_u8_plane(
 
 #define NO_BYTES(...) false
 
+/* Byte-lane classification settings, from the type's integer thresholds. */
+struct u8_lim {
+        uint8_t minc, weak_all, sat, sat_on;
+};
+
+static struct u8_lim u8_limits(int16_t minc, int16_t sat) {
+        return (struct u8_lim) { (uint8_t) (minc > 255 ? 255 : minc), minc > 255,
+                                 (uint8_t) (sat < 0 ? 0 : sat > 255 ? 255 : sat), sat <= 255 };
+}
+
+/* Every Gray plane of axis ax over one block, in byte lanes: g8[0] takes planes 0–7, g8[1]
+ * planes 8–15; wk8, cm8, g8 start at 0, 255, 0; hi8 is raised by every sample. */
+static inline __attribute__((always_inline)) void gray_u8_planes(
+                const struct imp_image *const *im, const struct axis_plan *ax, int y, int x0, int n,
+                const uint8_t *restrict td8, const uint8_t *restrict tg8, const uint8_t *restrict alw8,
+                const uint8_t *restrict tgok, struct u8_lim lim, uint8_t (*restrict g8)[IBLK],
+                uint8_t *restrict wk8, uint8_t *restrict cm8, uint8_t *restrict hi8) {
+        for (int k = 0; k < ax->nbits; k++) {
+                const uint8_t *pr = (const uint8_t *) imp_image_row(im[ax->p[k]], y) + x0;
+                const uint8_t *qr = (const uint8_t *) imp_image_row(im[ax->q[k]], y) + x0;
+                if (y + 1 < im[0]->height) {
+                        /* The next row of this plane's frames: the thread decodes it next
+                         * (rows come in chunks), and 40 streams of a row each are more than
+                         * the hardware prefetchers follow. */
+                        const char *pn = (const char *) imp_image_row(im[ax->p[k]], y + 1) + x0;
+                        const char *qn = (const char *) imp_image_row(im[ax->q[k]], y + 1) + x0;
+                        for (int x = 0; x < n; x += 64) {
+                                __builtin_prefetch(pn + x);
+                                __builtin_prefetch(qn + x);
+                        }
+                }
+                gray_u8_plane(pr, qr, n, td8, tg8, alw8, tgok, lim.minc, lim.weak_all, lim.sat, lim.sat_on,
+                              g8[k >= 8], wk8, cm8, hi8);
+        }
+}
+
 static __attribute__((noinline, CLONES)) bool gray_u8_axis(
                 const struct imp_image *const *im, const struct axis_plan *ax, int y, int x0, int n,
                 const int16_t *td, const int16_t *tg, const int16_t *alw, int16_t minc, int16_t sat,
@@ -833,25 +869,7 @@ static __attribute__((noinline, CLONES)) bool gray_u8_axis(
                 g8[0][x] = g8[1][x] = wk8[x] = 0;
                 cm8[x] = 255;
         }
-        const uint8_t minc8 = (uint8_t) (minc > 255 ? 255 : minc), weak_all = minc > 255;
-        const uint8_t sat8 = (uint8_t) (sat < 0 ? 0 : sat > 255 ? 255 : sat), sat_on = sat <= 255;
-        for (int k = 0; k < ax->nbits; k++) {
-                const uint8_t *pr = (const uint8_t *) imp_image_row(im[ax->p[k]], y) + x0;
-                const uint8_t *qr = (const uint8_t *) imp_image_row(im[ax->q[k]], y) + x0;
-                if (y + 1 < im[0]->height) {
-                        /* The next row of this plane's frames: the thread decodes it next
-                         * (rows come in chunks), and 40 streams of a row each are more than
-                         * the hardware prefetchers follow. */
-                        const char *pn = (const char *) imp_image_row(im[ax->p[k]], y + 1) + x0;
-                        const char *qn = (const char *) imp_image_row(im[ax->q[k]], y + 1) + x0;
-                        for (int x = 0; x < n; x += 64) {
-                                __builtin_prefetch(pn + x);
-                                __builtin_prefetch(qn + x);
-                        }
-                }
-                gray_u8_plane(pr, qr, n, td8, tg8, alw8, tgok, minc8, weak_all, sat8, sat_on,
-                              g8[k >= 8], wk8, cm8, hi8);
-        }
+        gray_u8_planes(im, ax, y, x0, n, td8, tg8, alw8, tgok, u8_limits(minc, sat), g8, wk8, cm8, hi8);
         const int low = ax->nbits > 8 ? ax->nbits - 8 : 0;      /* bits in g8[1] */
         SIMD
         for (int x = 0; x < n; x++) {
@@ -865,6 +883,134 @@ static __attribute__((noinline, CLONES)) bool gray_u8_axis(
 
 DEFINE_GRAY_INT(gray_int_u8, uint8_t, int16_t, uint16_t, INT16_MAX, gray_u8_axis)
 DEFINE_GRAY_INT(gray_int_u16, uint16_t, int32_t, uint32_t, (1 << 20), NO_BYTES)   /* ≫ any W + B − p */
+
+/* ---- u8 frames with white, black and every Gray plane's inverse (the procam captures, the
+ * simulator's plans): the whole block in byte lanes. L_max / L_min are byte maxima, and the
+ * thresholds go from the float L_d, L_g (same formulas, same values as gray_int_u8_thr)
+ * straight to bytes: ⌊min(L_d, 255)⌋ = min(⌊L_d⌋, 255), and with c = ⌈min(L_g, 256)⌉,
+ * min(c, 255) = min(⌈L_g⌉, 255) and c ≤ 255 ⇔ ⌈L_g⌉ ≤ 255 (L_d, L_g ≥ 0, finite).
+ * Bit-identical to gray_int_u8 with gray_u8_axis (test-sl-decode, bench-decode --checksum),
+ * without its 16-bit round trips. */
+static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void u8_thresholds(
+                int n, const uint8_t *restrict mx, const uint8_t *restrict mn, float k1, float k2,
+                float b, uint8_t always, float *restrict ld, float *restrict lg, uint8_t *restrict td8,
+                uint8_t *restrict tg8, uint8_t *restrict tgok, uint8_t *restrict alw8) {
+        /* in 32-bit lanes first: float → byte conversions in one loop stay scalar in gcc 12 */
+        int32_t ti[IBLK], gi[IBLK], ai[IBLK];
+        SIMD
+        for (int x = 0; x < n; x++) {
+                float lmax = mx[x], lmin = mn[x];
+                float d = MAXF(k1 * (lmax - lmin), 0.0f);
+                float e = MAXF(k2 * (lmin - b * lmax), 0.0f);
+                ld[x] = d;
+                lg[x] = e;
+                float dc = MINF(d, 255.0f);
+                int32_t s = (int32_t) dc;
+                ti[x] = s - ((float) s > dc);
+                float ec = MINF(e, 256.0f);     /* ⌈·⌉ = 256 exactly when L_g > 255 */
+                int32_t t = (int32_t) ec;
+                gi[x] = t + ((float) t < ec);
+                ai[x] = (d > e) | always;
+        }
+        SIMD
+        for (int x = 0; x < n; x++) {
+                td8[x] = (uint8_t) ti[x];
+                tg8[x] = (uint8_t) (gi[x] > 255 ? 255 : gi[x]);
+                tgok[x] = gi[x] <= 255;
+                alw8[x] = (uint8_t) ai[x];
+        }
+}
+
+/* Axis a's block result into the combine step's rows: the binary code (Gray → binary on the
+ * 16-bit code, g ^ g>>1 ^ g>>2 …), the weak-bit count and the smallest contrast. This loop
+ * and u8_thresholds are functions of their own: inlined into the block loop, gcc 12 leaves
+ * them scalar (≈ 100 instructions a pixel under callgrind). */
+static __attribute__((noinline, CLONES)) void u8_axis_out(
+                int n, int nbits, const uint8_t *restrict g0, const uint8_t *restrict g1,
+                const uint8_t *restrict wk8, const uint8_t *restrict cm8, uint32_t *restrict code,
+                uint32_t *restrict weak, float *restrict cmin) {
+        uint16_t g[IBLK];
+        if (nbits > 8) {
+                const int low = nbits - 8;      /* bits in g1 */
+                SIMD
+                for (int x = 0; x < n; x++)
+                        g[x] = (uint16_t) ((g0[x] << low) | g1[x]);
+        } else {
+                SIMD
+                for (int x = 0; x < n; x++)
+                        g[x] = g0[x];
+        }
+        SIMD
+        for (int x = 0; x < n; x++) {
+                uint16_t v = g[x];
+                v ^= v >> 1;
+                v ^= v >> 2;
+                v ^= v >> 4;
+                v ^= v >> 8;
+                code[x] = v;
+                weak[x] = wk8[x];
+                cmin[x] = cm8[x];
+        }
+}
+
+static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void gray_u8_row(
+                const struct ctx *c, int y, float **R, int w) {
+        const struct plan *pl = c->pl;
+        const struct imp_image *const *im = c->in->images;
+        const struct u8_lim lim = u8_limits((int16_t) int_ceil_clamp((float) c->p->min_bit_contrast, 0, INT16_MAX),
+                                            (int16_t) int_ceil_clamp(c->sat, -INT16_MAX, INT16_MAX));
+        const float b = c->b, k1 = 1.0f / (1.0f - b), k2 = 2.0f / (1.0f - b * b);
+        const uint8_t always = c->p->robust ? 0 : 1;
+        for (int x0 = 0; x0 < w; x0 += IBLK) {
+                const int n = IMP_MIN(IBLK, w - x0);
+                uint8_t mx[IBLK], mn[IBLK], td8[IBLK], tg8[IBLK], tgok[IBLK], alw8[IBLK], hi8[IBLK];
+                uint8_t g8[2][IBLK], wk8[IBLK], cm8[IBLK];
+                const uint8_t *wr = (const uint8_t *) imp_image_row(im[pl->white], y) + x0;
+                const uint8_t *br = (const uint8_t *) imp_image_row(im[pl->black], y) + x0;
+                const uint8_t *p0 = (const uint8_t *) imp_image_row(im[pl->dg[0]], y) + x0;
+                SIMD
+                for (int x = 0; x < n; x++) {
+                        mx[x] = mn[x] = p0[x];
+                        hi8[x] = wr[x];         /* the black frame never counted here */
+                }
+                for (int i = 1; i < pl->ndg; i++) {
+                        const uint8_t *pi = (const uint8_t *) imp_image_row(im[pl->dg[i]], y) + x0;
+                        SIMD
+                        for (int x = 0; x < n; x++) {
+                                mx[x] = mx[x] > pi[x] ? mx[x] : pi[x];
+                                mn[x] = mn[x] < pi[x] ? mn[x] : pi[x];
+                        }
+                }
+                u8_thresholds(n, mx, mn, k1, k2, b, always, R[R_LD] + x0, R[R_LG] + x0, td8, tg8, tgok, alw8);
+                for (int a = 0; a < 2; a++) {
+                        const struct axis_plan *ax = &pl->ax[a];
+                        if (!ax->nbits)
+                                continue;
+                        SIMD
+                        for (int x = 0; x < n; x++) {
+                                g8[0][x] = g8[1][x] = wk8[x] = 0;
+                                cm8[x] = 255;
+                        }
+                        gray_u8_planes(im, ax, y, x0, n, td8, tg8, alw8, tgok, lim, g8, wk8, cm8, hi8);
+                        u8_axis_out(n, ax->nbits, g8[0], g8[1], wk8, cm8,
+                                    (uint32_t *) R[R_CODE0 + a] + x0, (uint32_t *) R[R_WEAK0 + a] + x0,
+                                    R[R_CMIN0 + a] + x0);
+                }
+                float *restrict hr = R[R_HI] + x0, *restrict wf = R[R_WHITE] + x0, *restrict bf = R[R_BLACK] + x0;
+                SIMD
+                for (int x = 0; x < n; x++) {
+                        hr[x] = hi8[x];
+                        wf[x] = wr[x];
+                        bf[x] = br[x];
+                }
+        }
+}
+
+/* Whether gray_u8_row applies: u8 frames (the integer path) with white, black and inverses. */
+static bool u8_row_applies(const struct plan *pl) {
+        return pl->white >= 0 && pl->black >= 0 && (!pl->ax[0].nbits || pl->ax[0].inverse) &&
+               (!pl->ax[1].nbits || pl->ax[1].inverse);
+}
 
 __attribute__((optimize("no-trapping-math"), CLONES))
 static void combine_gray_row(const struct ctx *c, int y, float **R, int w, size_t counts[8]) {
@@ -1264,7 +1410,9 @@ static void gray_row_saturation(const struct ctx *c, int y, float **R, int w, si
 static void decode_row(const struct ctx *c, int y, float **R, size_t counts[8]) {
         const struct plan *pl = c->pl;
         const int w = pl->width;
-        if (c->int_path == IMP_PIX_U8)
+        if (c->int_path == IMP_PIX_U8 && u8_row_applies(pl))
+                gray_u8_row(c, y, R, w);
+        else if (c->int_path == IMP_PIX_U8)
                 gray_int_u8(c, y, R, w);
         else if (c->int_path == IMP_PIX_U16)
                 gray_int_u16(c, y, R, w);
@@ -1389,6 +1537,17 @@ static void raise_phase_sigma(struct imp_sl_result *res) {
 
 int imp_sl_decode(const struct imp_sl_frames *in, const struct imp_sl_params *p,
                   struct imp_sl_result **ret, struct imp_error *err) {
+        if (!ret)
+                return imp_error_set(err, -EINVAL, "structured light: no result pointer");
+        struct imp_sl_result *res = NULL;
+        int r = imp_sl_decode_reuse(in, p, &res, err);
+        if (r == 0)
+                *ret = res;
+        return r;
+}
+
+int imp_sl_decode_reuse(const struct imp_sl_frames *in, const struct imp_sl_params *p,
+                        struct imp_sl_result **ret, struct imp_error *err) {
         if (!p || !ret)
                 return imp_error_set(err, -EINVAL, "structured light: no parameters");
         if (!(p->black_level >= 0 && p->black_level < 1))
@@ -1408,11 +1567,15 @@ int imp_sl_decode(const struct imp_sl_frames *in, const struct imp_sl_params *p,
         if (r < 0)
                 return r;
 
-        _cleanup_(imp_sl_result_freep) struct imp_sl_result *res = NULL;
-        r = result_new(pl->width, pl->height, &res);
-        if (r < 0)
-                return imp_error_set(err, r, "structured light: out of memory for %dx%d maps",
-                                     pl->width, pl->height);
+        _cleanup_(imp_sl_result_freep) struct imp_sl_result *fresh = NULL;
+        struct imp_sl_result *res = *ret;
+        if (!res || res->width != pl->width || res->height != pl->height) {
+                r = result_new(pl->width, pl->height, &fresh);
+                if (r < 0)
+                        return imp_error_set(err, r, "structured light: out of memory for %dx%d maps",
+                                             pl->width, pl->height);
+                res = fresh;
+        }
 
         int nthreads = 1;
 #ifdef _OPENMP
@@ -1432,6 +1595,7 @@ int imp_sl_decode(const struct imp_sl_frames *in, const struct imp_sl_params *p,
         if (pl->ndg > 0 && pl->type == IMP_PIX_U8 && pl->ax[0].nbits <= 16 && pl->ax[1].nbits <= 16)
                 c.int_path = IMP_PIX_U8;
         double st[4] = { 0 };
+        const bool any_phase = pl->ax[0].nphase > 0 || pl->ax[1].nphase > 0;
         decode_pass(&c, nthreads, scratch, wpad, st);
 
         /* The phase against the Gray code: on a pixel decoded without a weak bit, the true
@@ -1460,7 +1624,11 @@ int imp_sl_decode(const struct imp_sl_frames *in, const struct imp_sl_params *p,
                 c.rejected = reject;
                 decode_pass(&c, nthreads, scratch, wpad, NULL);
         }
-        raise_phase_sigma(res);
-        *ret = TAKE_PTR(res);
+        if (any_phase)          /* else no pixel is IMP_SL_SUBPIXEL_*: nothing to raise */
+                raise_phase_sigma(res);
+        if (fresh) {
+                imp_sl_result_free(*ret);
+                *ret = TAKE_PTR(fresh);
+        }
         return 0;
 }

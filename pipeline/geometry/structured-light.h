@@ -131,6 +131,13 @@ struct imp_sl_result {
  * bit planes or phase steps, N < 3, mismatched images), -ENOMEM. */
 int imp_sl_decode(const struct imp_sl_frames *in, const struct imp_sl_params *p,
                   struct imp_sl_result **ret, struct imp_error *err);
+/* As imp_sl_decode, into *ret when it is a result of the frames' size (from an earlier
+ * decode): every map and count is written anew, so a caller decoding view after view saves
+ * allocating and faulting in 30 bytes a pixel each time (page faults and the kernel's
+ * zeroing of the fresh pages). Otherwise (NULL, or another size) *ret is freed and replaced by a
+ * new result. On error *ret is left as it was (its maps' contents unspecified). */
+int imp_sl_decode_reuse(const struct imp_sl_frames *in, const struct imp_sl_params *p,
+                        struct imp_sl_result **ret, struct imp_error *err);
 void imp_sl_result_free(struct imp_sl_result *r);
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_sl_result *, imp_sl_result_free);
 

@@ -47,9 +47,13 @@ slurm_start "$tmp/slurm" || { echo "FAIL the one-node Slurm did not come up"; ex
 echo "ok   Slurm up: $(sinfo -h -N -o '%N %c CPUs %t')"
 
 # ---- submit, kill task 1 mid-run --------------------------------------------------------------
-# Each stage of every task waits 1.5 s (a test-only knob of impasto-worker), so that the kill
-# lands mid-run on a loaded machine.
-export IMPASTO_WORKER_TEST_STAGE_DELAY_S=1.5
+# Every task, once processed and before its last step (result manifest, publishing the copy),
+# writes $hold/<copy name>.held with its pid and waits for $hold/release (a test-only knob of
+# impasto-worker): task 1 (copy tile-2) is killed while it certainly runs, then the others
+# are released.
+hold=$tmp/hold
+mkdir -p "$hold"
+export IMPASTO_WORKER_TEST_HOLD=$hold
 "$imp" jobs submit --slurm --shared "$tmp/shared" --cpus 1 --mem 256M --max-running 2 --name tiles \
   "$tmp"/sets/tile-* >"$tmp/submit.out" 2>&1
 rc=$?
@@ -60,11 +64,13 @@ batch=$(tail -1 "$tmp/submit.out")
 check "the array and the finish step are in Slurm's queue" \
   bash -c "[ \$(squeue -h -r -t all -o %i | wc -l) -eq $((n_sets + 1)) ]"
 
-task1_mid_run() { local n; n=$(grep -c '^task 1: ' "$batch/logs/task-1.out" 2>/dev/null); [ "${n:-0}" -ge 3 ]; }
-slurm_wait_for "task 1 mid-run" 90 task1_mid_run || { squeue -t all; exit 1; }
-pid=$(python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["pid"])' "$batch/tasks/1.json")
-kill -9 "$pid"
-echo "ok   killed task 1 (impasto-worker pid $pid) after: $(grep '^task 1: ' "$batch/logs/task-1.out" | tail -1)"
+slurm_wait_for "task 1 held before its last step" 180 test -s "$hold/tile-2.held" || { squeue -t all; cat "$batch"/logs/*.out; exit 1; }
+pid=$(cat "$hold/tile-2.held")
+check "task 1's state file names the held worker" \
+  [ "$(python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["pid"])' "$batch/tasks/1.json")" = "$pid" ]
+check "task 1 (impasto-worker pid $pid) is running when killed" kill -9 "$pid"
+echo "ok   killed task 1 after: $(grep '^task 1: ' "$batch/logs/task-1.out" | tail -1)"
+touch "$hold/release"
 batch_idle() { ! squeue -h -t pending,running,completing,configuring -n "impasto-tile-$(basename "$batch"),impasto-finish-$(basename "$batch")" | grep -q .; }
 slurm_wait_for "the batch to stop" 120 batch_idle || { squeue -t all; exit 1; }
 "$imp" jobs list --slurm "$batch" --json >"$tmp/status1.json"
@@ -80,7 +86,7 @@ check "the killed task's partial copy is kept apart" [ -d "$copies/tile-2.partia
 check "no batch result after a failed task" [ ! -e "$batch/result.json" ]
 
 # ---- retry ---------------------------------------------------------------------------------------
-unset IMPASTO_WORKER_TEST_STAGE_DELAY_S
+unset IMPASTO_WORKER_TEST_HOLD
 "$imp" jobs retry --slurm "$batch" >"$tmp/retry.out" 2>&1
 rc=$?
 cat "$tmp/retry.out"
@@ -118,8 +124,10 @@ if [ -x "$bin/daemon/impastod" ]; then
   st_dir=$tmp/state
   mkdir -p "$st_dir/jobs" "$st_dir/outputs"
   sed -e "s|calibration = \"rig.json\"|calibration = \"$tmp/sets/tile-1/rig.json\"|" "$src/config/rigs/sim.cfg" >"$tmp/rig.cfg"
-  # the worker held 3 s per stage through a wrapper (it execs: the pid stays the worker's)
-  printf '#!/bin/sh\nIMPASTO_WORKER_TEST_STAGE_DELAY_S=3 exec "%s" "$@"\n' "$worker" >"$tmp/slow-worker"
+  # the worker held before its last step through a wrapper (it execs: the pid stays the worker's)
+  dhold=$tmp/hold-daemon
+  mkdir -p "$dhold"
+  printf '#!/bin/sh\nIMPASTO_WORKER_TEST_HOLD="%s" exec "%s" "$@"\n' "$dhold" "$worker" >"$tmp/slow-worker"
   chmod +x "$tmp/slow-worker"
   printf 'scheduler = "slurm";\nslurm = { shared_dir = "%s"; cpus_per_task = 1; mem = "256M"; max_running = 2; worker = "%s"; };\n' \
     "$tmp/shared" "$tmp/slow-worker" >"$tmp/scheduler.conf"
@@ -134,16 +142,12 @@ if [ -x "$bin/daemon/impastod" ]; then
   done
   mv "$tmp/d1.json" "$st_dir/jobs/d1.json"; mv "$tmp/d2.json" "$st_dir/jobs/d2.json"
   dslurm() { python3 -c 'import json,sys; print(json.load(open(sys.argv[1])).get("slurm",{}).get(sys.argv[2],""))' "$st_dir/jobs/d2.json" "$1" 2>/dev/null; }
-  d_mid_run() {
-    local b t n
-    b=$(dslurm batch) t=$(dslurm task); [ -n "$b" ] && [ -n "$t" ] || return 1
-    n=$(grep -c "^task $t: " "$b/logs/task-$t.out" 2>/dev/null); [ "${n:-0}" -ge 3 ]
-  }
-  slurm_wait_for "the daemon's job d2 mid-run" 90 d_mid_run || { cat "$tmp/impastod.log"; squeue -t all; exit 1; }
+  d_held() { [ -s "$dhold/tile-2.held" ] && [ -n "$(dslurm batch)" ] && [ -n "$(dslurm task)" ]; }
+  slurm_wait_for "the daemon's job d2 held before its last step" 180 d_held || { cat "$tmp/impastod.log"; squeue -t all; exit 1; }
   b=$(dslurm batch) t=$(dslurm task)
   echo "daemon job d2 is task $t of $b: $(cat "$b/tasks/$t.json" | tr -d '\n '); log: $(tr '\n' '|' <"$b/logs/task-$t.out")"
-  check "the daemon's job d2 is still running when killed" \
-    kill -9 "$(python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["pid"])' "$b/tasks/$t.json")"
+  check "the daemon's job d2 is running when killed" kill -9 "$(cat "$dhold/tile-2.held")"
+  touch "$dhold/release"
   both_done() { [ "$("$imp" jobs --socket "$tmp/control.sock" 2>/dev/null | grep -c ' done ')" -eq 2 ]; }
   slurm_wait_for "both daemon jobs done" 150 both_done
   "$imp" jobs --socket "$tmp/control.sock"

@@ -15,12 +15,15 @@ worker=$bin/cli/impasto-worker
   --out "$tmp/set" --seed 4 --quiet --threads 2 >"$tmp/render.log" 2>&1 || { cat "$tmp/render.log"; echo "FAIL render"; exit 1; }
 "$worker" --capture "$tmp/set" --copy "$tmp/ref" >"$tmp/ref.log" 2>&1 || { cat "$tmp/ref.log"; echo "FAIL reference"; exit 1; }
 
-# killed mid-run
-IMPASTO_WORKER_TEST_STAGE_DELAY_S=2 "$worker" --capture "$tmp/set" --copy "$tmp/out/copy" >"$tmp/killed.log" 2>&1 &
+# killed mid-run: held before its last step (test-only IMPASTO_WORKER_TEST_HOLD), so that the
+# kill lands while it runs whatever the load
+mkdir -p "$tmp/hold"
+IMPASTO_WORKER_TEST_HOLD=$tmp/hold "$worker" --capture "$tmp/set" --copy "$tmp/out/copy" >"$tmp/killed.log" 2>&1 &
 pid=$!
-for _ in $(seq 300); do [ "$(grep -c '^job: ' "$tmp/killed.log")" -ge 3 ] && break; sleep 0.1; done
-kill -9 "$pid"; wait "$pid" 2>/dev/null
-check "the kill came mid-run" [ "$(grep -c '^job: ' "$tmp/killed.log")" -ge 3 ]
+for _ in $(seq $((900 * ${IMPASTO_TIMEOUT_SCALE:-1}))); do [ -s "$tmp/hold/copy.held" ] && break; sleep 0.1; done
+check "the held marker names the worker" [ "$(cat "$tmp/hold/copy.held" 2>/dev/null)" = "$pid" ]
+check "the kill came mid-run (the worker was alive)" kill -9 "$pid"
+wait "$pid" 2>/dev/null
 check "a killed run publishes no copy" [ ! -e "$tmp/out/copy" ]
 check "a killed run leaves its work in COPY.partial" [ -d "$tmp/out/copy.partial" ]
 touch "$tmp/out/copy.partial/stale-marker"
