@@ -189,8 +189,11 @@ static int tile_run(int argc, char **argv) {
         }
         struct rusage ru;
         getrusage(RUSAGE_SELF, &ru);
-        printf("tile: %s → %s, %d threads, held-out validation %s\n", capture, out, threads,
-               holdout > 0 ? "on" : "off");
+        /* libgomp reads the wait policy when it loads: spinning threads cost CPU time on a
+         * loaded machine, so the figures say which policy they were taken with */
+        const char *wait = getenv("OMP_WAIT_POLICY");
+        printf("tile: %s → %s, %d threads, held-out validation %s, OMP_WAIT_POLICY %s\n", capture, out, threads,
+               holdout > 0 ? "on" : "off", wait && *wait ? wait : "unset (spin, then sleep)");
         printf("  stages (copy.json seconds, wall):\n");
         print_stages(out);
         printf("  between progress reports (wall / CPU of all threads):\n");

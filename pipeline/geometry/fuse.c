@@ -6,6 +6,9 @@
 #include <stdbool.h>
 #include <stdlib.h>
 #include <string.h>
+#ifdef _OPENMP
+#include <omp.h>
+#endif
 #include "fuse.h"
 #include "macro.h"
 #include "quality.h"
@@ -24,43 +27,8 @@ struct system {
         const uint8_t *in;            /* unknown (mask) */
         const uint8_t *rx, *ry;       /* a gradient row is centred on this texel */
         const double *w;              /* position weight; 0 off the mask */
-        double *tx, *ty;              /* scratch: row values */
+        double *tx, *ty;              /* the rows' right-hand sides (2p g) */
 };
-
-/* out = A v over the mask (A = W + DxᵀDx + DyᵀDy); out is 0 off the mask. */
-static void apply(const struct system *s, const double *v, double *out) {
-        int nx = s->nx, ny = s->ny;
-        #pragma omp parallel for schedule(static)
-        for (int j = 0; j < ny; j++)
-                for (int i = 0; i < nx; i++) {
-                        size_t t = (size_t) j * nx + i;
-                        s->tx[t] = s->rx[t] ? v[t + 1] - v[t - 1] : 0;
-                        s->ty[t] = s->ry[t] ? v[t + nx] - v[t - nx] : 0;
-                }
-        #pragma omp parallel for schedule(static)
-        for (int j = 0; j < ny; j++)
-                for (int i = 0; i < nx; i++) {
-                        size_t t = (size_t) j * nx + i;
-                        if (!s->in[t]) {
-                                out[t] = 0;
-                                continue;
-                        }
-                        double a = s->w[t] * v[t];
-                        if (i > 0) a += s->tx[t - 1];
-                        if (i + 1 < nx) a -= s->tx[t + 1];
-                        if (j > 0) a += s->ty[t - nx];
-                        if (j + 1 < ny) a -= s->ty[t + nx];
-                        out[t] = a;
-                }
-}
-
-static double dot(const double *a, const double *b, size_t n) {
-        double s = 0;
-        #pragma omp parallel for schedule(static) reduction(+ : s)
-        for (size_t i = 0; i < n; i++)
-                s += a[i] * b[i];
-        return s;
-}
 
 /* Slope the normal asks for, or false when it gives none. */
 static bool slope(const float *n, double min_nz, double *gx, double *gy) {
@@ -228,41 +196,125 @@ static void setup_rows(int nx, int ny, double pitch_mm, const float *height_mm, 
                 }
 }
 
-/* Jacobi-preconditioned CG from z (b: right-hand side, prec: inverse diagonal). */
-static void solve_cg(const struct system *sys, const double *b, const double *prec, double *z, double *buf,
-                     const struct imp_fuse_params *p, struct imp_fuse_stats *st) {
-        size_t n = (size_t) sys->nx * sys->ny;
-        double *r = buf, *d = buf + n, *q = buf + 2 * n, *s = buf + 3 * n;
-        apply(sys, z, q);
-        for (size_t t = 0; t < n; t++) {
+/* (A v)_t for an unknown t (A = W + DxᵀDx + DyᵀDy), the rows' differences taken straight
+ * from v (no row scratch, so a thread needs no other thread's row values). */
+static inline double apply_at(const struct system *s, const double *v, size_t t, int i, int j) {
+        int nx = s->nx;
+        double a = s->w[t] * v[t];
+        if (i > 0 && s->rx[t - 1]) a += v[t] - v[t - 2];
+        if (i + 1 < s->nx && s->rx[t + 1]) a -= v[t + 2] - v[t];
+        if (j > 0 && s->ry[t - nx]) a += v[t] - v[t - 2 * (size_t) nx];
+        if (j + 1 < s->ny && s->ry[t + nx]) a -= v[t + 2 * (size_t) nx] - v[t];
+        return a;
+}
+
+/* out = A v over [t0, t1) (0 off the mask); returns Σ v·out over the range. */
+static double apply_range(const struct system *s, const double *v, double *out, size_t t0, size_t t1) {
+        int i = (int) (t0 % s->nx), j = (int) (t0 / s->nx);
+        double dot = 0;
+        for (size_t t = t0; t < t1; t++) {
+                out[t] = s->in[t] ? apply_at(s, v, t, i, j) : 0;
+                dot += v[t] * out[t];
+                if (++i == s->nx)
+                        i = 0, j++;
+        }
+        return dot;
+}
+
+#define CG_PAD 8   /* doubles between two threads' partial sums (a cache line) */
+
+/* Sum of the threads' partial sums k, in thread order (the same value in every thread). */
+static double sum_parts(const double *part, int nthr, int k) {
+        double s = 0;
+        for (int u = 0; u < nthr; u++)
+                s += part[u * CG_PAD + k];
+        return s;
+}
+
+struct cg {
+        const struct system *sys;
+        const double *b, *prec;
+        double *z, *r, *d, *q, *s;
+        double *part;                 /* CG_PAD doubles per thread: the partial sums */
+        const struct imp_fuse_params *p;
+        int iterations;
+        double bn, rn;
+};
+
+/* One thread's share of the solve. Every thread runs the same iteration, its contiguous
+ * range of texels fixed; the dot products are per-thread partial sums added in thread
+ * order, so every thread takes the same decisions and the result does not depend on
+ * timing. Three barriers per iteration: after q = A d (its dot), after the z, r, s update
+ * (its two dots), after the new direction d (the next A d reads neighbours). */
+static void cg_thread(struct cg *c, int tid, int nthr) {
+        size_t n = (size_t) c->sys->nx * c->sys->ny, q0 = n / nthr, rem = n % nthr;
+        size_t t0 = tid * q0 + ((size_t) tid < rem ? (size_t) tid : rem), t1 = t0 + q0 + ((size_t) tid < rem);
+        double *z = c->z, *r = c->r, *d = c->d, *q = c->q, *s = c->s, *part = c->part + tid * CG_PAD;
+        const double *b = c->b, *prec = c->prec;
+        apply_range(c->sys, z, q, t0, t1);
+        part[0] = part[1] = part[2] = 0;
+        for (size_t t = t0; t < t1; t++) {
                 r[t] = b[t] - q[t];
                 s[t] = prec[t] * r[t];
                 d[t] = s[t];
+                part[0] += b[t] * b[t], part[1] += r[t] * s[t], part[2] += r[t] * r[t];
         }
-        double bn = sqrt(dot(b, b, n)), rs = dot(r, s, n), rn = sqrt(dot(r, r, n));
+        #pragma omp barrier
+        double bn = sqrt(sum_parts(c->part, nthr, 0)), rs = sum_parts(c->part, nthr, 1);
+        double rn = sqrt(sum_parts(c->part, nthr, 2));
         int it = 0;
-        while (it < p->max_iter && bn > 0 && rn > p->tol * bn) {
-                apply(sys, d, q);
-                double dq = dot(d, q, n);
+        while (it < c->p->max_iter && bn > 0 && rn > c->p->tol * bn) {
+                part[3] = apply_range(c->sys, d, q, t0, t1);
+                #pragma omp barrier
+                double dq = sum_parts(c->part, nthr, 3);
                 if (!(dq > 0))
                         break;
                 double alpha = rs / dq;
-                #pragma omp parallel for schedule(static)
-                for (size_t t = 0; t < n; t++) {
+                part[4] = part[5] = 0;
+                for (size_t t = t0; t < t1; t++) {
                         z[t] += alpha * d[t];
                         r[t] -= alpha * q[t];
                         s[t] = prec[t] * r[t];
+                        part[4] += r[t] * s[t], part[5] += r[t] * r[t];
                 }
-                double rs2 = dot(r, s, n), beta = rs2 / rs;
+                #pragma omp barrier
+                double rs2 = sum_parts(c->part, nthr, 4), beta = rs2 / rs;
                 rs = rs2;
-                #pragma omp parallel for schedule(static)
-                for (size_t t = 0; t < n; t++)
+                rn = sqrt(sum_parts(c->part, nthr, 5));
+                for (size_t t = t0; t < t1; t++)
                         d[t] = s[t] + beta * d[t];
-                rn = sqrt(dot(r, r, n));
+                #pragma omp barrier
                 it++;
         }
-        st->iterations = it;
-        st->residual_rel = bn > 0 ? rn / bn : 0;
+        if (tid == 0)
+                c->iterations = it, c->bn = bn, c->rn = rn;
+}
+
+/* Jacobi-preconditioned CG from z (b: right-hand side, prec: inverse diagonal), the whole
+ * solve one parallel region (a fork and join per vector operation spent most of the
+ * stage's CPU time spin-waiting on a loaded machine). */
+static int solve_cg(const struct system *sys, const double *b, const double *prec, double *z, double *buf,
+                    const struct imp_fuse_params *p, struct imp_fuse_stats *st) {
+        size_t n = (size_t) sys->nx * sys->ny;
+        int maxthr = 1;
+#ifdef _OPENMP
+        maxthr = omp_get_max_threads();
+#endif
+        _cleanup_free_ double *part = calloc((size_t) maxthr * CG_PAD, sizeof *part);
+        if (!part)
+                return -ENOMEM;
+        struct cg c = { sys, b, prec, z, buf, buf + n, buf + 2 * n, buf + 3 * n, part, p, 0, 0, 0 };
+        #pragma omp parallel
+        {
+                int tid = 0, nthr = 1;
+#ifdef _OPENMP
+                tid = omp_get_thread_num(), nthr = omp_get_num_threads();
+#endif
+                cg_thread(&c, tid, nthr);
+        }
+        st->iterations = c.iterations;
+        st->residual_rel = c.bn > 0 ? c.rn / c.bn : 0;
+        return 0;
 }
 
 #define FILL_SWEEPS_MAX 64
@@ -365,7 +417,9 @@ int imp_fuse_heights(int nx, int ny, double pitch_mm, float *height_mm, const fl
                         prec[t] = dg > 0 ? 1 / dg : 0;   /* 0: a filled texel in no row keeps z0 */
                 }
         st.agree_deg_before = agreement_deg(&sys, z, normal, pitch_mm);
-        solve_cg(&sys, b, prec, z, buf + 2 * n, p, &st);
+        int rc = solve_cg(&sys, b, prec, z, buf + 2 * n, p, &st);
+        if (rc < 0)
+                return rc;
         st.agree_deg_after = agreement_deg(&sys, z, normal, pitch_mm);
         if (tex && tex->sigma_mm) {
                 int r = fill_sigma(nx, ny, pitch_mm, normal, sigma_mm, mask, in, p, tex, &st);
