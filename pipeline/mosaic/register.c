@@ -19,7 +19,7 @@
 
 void imp_mosaic_options_default(struct imp_mosaic_options *o) {
         *o = (struct imp_mosaic_options) {
-                .search_sigma = 4, .sample_step = 1, .huber_k = 1.5, .min_overlap_mm = 1, .out_tile_px = 512,
+                .search_sigma = 4, .sample_step = 2, .huber_k = 1.5, .min_overlap_mm = 1, .out_tile_px = 512,
                 .cache_bytes = (size_t) 1 << 30, .box_cell_px = 20, .box_delta_frac = 0.3, .box_noise_k = 6,
                 .box_ref_percentile = 5,
         };
