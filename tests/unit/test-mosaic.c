@@ -34,7 +34,6 @@ static void run_mosaic(const char *dir, const char *out, bool prior_only, double
         struct imp_mosaic_options o;
         imp_mosaic_options_default(&o);
         o.out_tile_px = 256;
-        o.sample_step = 2;              /* the synthetic relief registers as well on every 2nd texel, 4× faster */
         if (huber_k > 0)
                 o.huber_k = huber_k;
         o.prior_only = prior_only;
