@@ -44,14 +44,14 @@ static double smooth(double x) {
         return x * x * (3 - 2 * x);
 }
 
-/* Where the bilinear sample of tile t at painting (x, y) misses (a neighbour off the mask,
- * or within half a texel outside the grid), the nearest texel on the mask: its weights b and
- * indices k (b[0] = 1), its height in *ret_h. A copy's mask ends a texel or two early at its
- * field's edge and around holes; without this such a point only one copy has would be left
- * uncovered. */
-static bool nearest(const struct imp_mosaic_tile *t, const struct imp_copy *c, double x, double y, double ij[2],
-                    size_t k[4], double b[4], double *ret_h) {
-        if (!imp_mosaic_painting_to_tile(t, x, y, ij))
+/* Where the bilinear sample of tile t at its fractional texel ij misses (a neighbour off the
+ * mask, or within half a texel outside the grid), the nearest texel on the mask: its weights
+ * b and indices k (b[0] = 1), its height in *ret_h. A copy's mask ends a texel or two early at
+ * its field's edge and around holes; without this such a point only one copy has would be
+ * left uncovered. */
+static bool nearest(const struct imp_mosaic_tile *t, const struct imp_copy *c, double ij[2], size_t k[4], double b[4],
+                    double *ret_h) {
+        if (!(ij[0] > -0.5 && ij[1] > -0.5 && ij[0] < t->nx - 0.5 && ij[1] < t->ny - 0.5))
                 return false;
         long i = lround(ij[0]), j = lround(ij[1]);
         if (i < 0 || j < 0 || i >= t->nx || j >= t->ny)
@@ -72,7 +72,7 @@ static bool nearest(const struct imp_mosaic_tile *t, const struct imp_copy *c, d
 /* Tile k's contribution at painting (x, y). */
 static void contribute(const struct imp_mosaic_tile *t, const struct imp_copy *c, double x, double y, double feather,
                        struct acc *a) {
-        double ij[2], h, b[4], fallback = 1;
+        double ij[2] = { NAN, NAN }, h, b[4], fallback = 1;
         size_t k[4], near;
         if (mosaic_height(t, c, x, y, &h, ij)) {
                 int i = IMP_MIN((int) ij[0], t->nx - 2), j = IMP_MIN((int) ij[1], t->ny - 2);
@@ -80,10 +80,9 @@ static void contribute(const struct imp_mosaic_tile *t, const struct imp_copy *c
                 k[0] = (size_t) j * t->nx + i, k[1] = k[0] + 1, k[2] = k[0] + t->nx, k[3] = k[2] + 1;
                 b[0] = (1 - fx) * (1 - fy), b[1] = fx * (1 - fy), b[2] = (1 - fx) * fy, b[3] = fx * fy;
                 near = k[(fx >= 0.5) + 2 * (fy >= 0.5)];
-        } else if (nearest(t, c, x, y, ij, k, b, &h)) {
+        } else if (nearest(t, c, ij, k, b, &h))      /* ij: from mosaic_height (NAN if it had none) */
                 near = k[0], fallback = NEAREST_WEIGHT;
-                ij[0] = IMP_CLAMP(ij[0], 0.0, t->nx - 1.0), ij[1] = IMP_CLAMP(ij[1], 0.0, t->ny - 1.0);
-        } else
+        else
                 return;
         double edge = fmin(fmin(ij[0], t->nx - 1 - ij[0]), fmin(ij[1], t->ny - 1 - ij[1])) * t->pitch_mm;
         double sg = 0, nx = 0, ny = 0;
