@@ -44,23 +44,51 @@ static double smooth(double x) {
         return x * x * (3 - 2 * x);
 }
 
+/* Where the bilinear sample of tile t at its fractional texel ij misses (a neighbour off the
+ * mask, or within half a texel outside the grid), the nearest texel on the mask: its weights
+ * b and indices k (b[0] = 1), its height in *ret_h. A copy's mask ends a texel or two early at
+ * its field's edge and around holes; without this such a point only one copy has would be
+ * left uncovered. */
+static bool nearest(const struct imp_mosaic_tile *t, const struct imp_copy *c, double ij[2], size_t k[4], double b[4],
+                    double *ret_h) {
+        if (!(ij[0] > -0.5 && ij[1] > -0.5 && ij[0] < t->nx - 0.5 && ij[1] < t->ny - 0.5))
+                return false;
+        long i = lround(ij[0]), j = lround(ij[1]);
+        if (i < 0 || j < 0 || i >= t->nx || j >= t->ny)
+                return false;
+        size_t q = (size_t) j * t->nx + (size_t) i;
+        if (!c->mask[q])
+                return false;
+        ij[0] = (double) i, ij[1] = (double) j;
+        *ret_h = mosaic_painting_z(t, ij[0], ij[1], c->height[q]);
+        k[0] = k[1] = k[2] = k[3] = q;
+        b[0] = 1, b[1] = b[2] = b[3] = 0;
+        return true;
+}
+
+/* Weight of a nearest-texel sample against a bilinear one: used only where no copy has more. */
+#define NEAREST_WEIGHT 1e-6
+
 /* Tile k's contribution at painting (x, y). */
 static void contribute(const struct imp_mosaic_tile *t, const struct imp_copy *c, double x, double y, double feather,
                        struct acc *a) {
-        double ij[2], h;
-        if (!mosaic_height(t, c, x, y, &h, ij))
+        double ij[2] = { NAN, NAN }, h, b[4], fallback = 1;
+        size_t k[4], near;
+        if (mosaic_height(t, c, x, y, &h, ij)) {
+                int i = IMP_MIN((int) ij[0], t->nx - 2), j = IMP_MIN((int) ij[1], t->ny - 2);
+                double fx = ij[0] - i, fy = ij[1] - j;
+                k[0] = (size_t) j * t->nx + i, k[1] = k[0] + 1, k[2] = k[0] + t->nx, k[3] = k[2] + 1;
+                b[0] = (1 - fx) * (1 - fy), b[1] = fx * (1 - fy), b[2] = (1 - fx) * fy, b[3] = fx * fy;
+                near = k[(fx >= 0.5) + 2 * (fy >= 0.5)];
+        } else if (nearest(t, c, ij, k, b, &h))      /* ij: from mosaic_height (NAN if it had none) */
+                near = k[0], fallback = NEAREST_WEIGHT;
+        else
                 return;
-        int i = IMP_MIN((int) ij[0], t->nx - 2), j = IMP_MIN((int) ij[1], t->ny - 2);
-        double fx = ij[0] - i, fy = ij[1] - j;
-        size_t k[4] = { (size_t) j * t->nx + i, (size_t) j * t->nx + i + 1, (size_t) (j + 1) * t->nx + i,
-                        (size_t) (j + 1) * t->nx + i + 1 };
-        double b[4] = { (1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy };
-        size_t near = k[(fx >= 0.5) + 2 * (fy >= 0.5)];
         double edge = fmin(fmin(ij[0], t->nx - 1 - ij[0]), fmin(ij[1], t->ny - 1 - ij[1])) * t->pitch_mm;
         double sg = 0, nx = 0, ny = 0;
         for (int q = 0; q < 4; q++)
                 sg += b[q] * c->sigma[k[q]], nx += b[q] * c->normal_x[k[q]], ny += b[q] * c->normal_y[k[q]];
-        double w = fmax(smooth(edge / feather), 1e-4) / (sg * sg + 1e-6);
+        double w = fallback * fmax(smooth(edge / feather), 1e-4) / (sg * sg + 1e-6);
         if (c->flags[near] & POOR_FLAGS)
                 w *= 0.1;
         double phi = t->pose[2] + atan2(t->c2w[4], t->c2w[0]), cp = cos(phi), sp = sin(phi);

@@ -30,6 +30,9 @@ void mosaic_cache_done(struct mosaic_cache *c);
  * it), painting z (world z + dz). ret_ij: the fractional texel. false outside or off the mask. */
 bool mosaic_height(const struct imp_mosaic_tile *t, const struct imp_copy *c, double x, double y, double *ret_h,
                    double ret_ij[2]);
+/* Painting z of tile t's height h (copy frame) at its texel (fi, fj): the canvas-to-world z
+ * plus the tile's offset. */
+double mosaic_painting_z(const struct imp_mosaic_tile *t, double fi, double fj, double h);
 /* The same averaged over (2r+1)² points one texel apart; false when any is missing. */
 bool mosaic_height_box(const struct imp_mosaic_tile *t, const struct imp_copy *c, double x, double y, int r,
                        double *ret_h);

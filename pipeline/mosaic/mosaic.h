@@ -61,7 +61,7 @@ void imp_painting_update_bboxes(struct imp_painting *p);
 struct imp_mosaic_options {
         bool prior_only;              /* stage priors only: no registration, no adjustment */
         double search_sigma;          /* coarse search ± this many σ of the relative pose; 4 */
-        int sample_step;              /* texel stride of the registration samples; 2 */
+        int sample_step;              /* texel stride of the registration samples; 1 */
         double huber_k;               /* Huber threshold in robust σ (1.4826·MAD); 1.5 */
         double min_overlap_mm;        /* pairs overlapping less (either axis) are skipped; 1 */
         int out_tile_px;              /* side of an output tile in texels; 512 */

@@ -38,10 +38,14 @@ bool mosaic_height(const struct imp_mosaic_tile *t, const struct imp_copy *c, do
                 return false;
         double h = (1 - fy) * ((1 - fx) * c->height[k] + fx * c->height[k + 1]) +
                    fy * ((1 - fx) * c->height[k + t->nx] + fx * c->height[k + t->nx + 1]);
-        const double *M = t->c2w;
-        double u = ij[0] * t->pitch_mm, v = ij[1] * t->pitch_mm;
-        *ret_h = M[8] * u + M[9] * v + M[10] * h + M[11] + t->pose[3];
+        *ret_h = mosaic_painting_z(t, ij[0], ij[1], h);
         return true;
+}
+
+double mosaic_painting_z(const struct imp_mosaic_tile *t, double fi, double fj, double h) {
+        const double *M = t->c2w;
+        double u = fi * t->pitch_mm, v = fj * t->pitch_mm;
+        return M[8] * u + M[9] * v + M[10] * h + M[11] + t->pose[3];
 }
 
 bool mosaic_height_box(const struct imp_mosaic_tile *t, const struct imp_copy *c, double x, double y, int r,
