@@ -42,6 +42,7 @@ struct follow {
         unsigned long long last_seq, dropped;
         long long frames, frames_total, faults;
         long long tile, tiles;          /* a painting's: the tile being captured, of tiles (0: none) */
+        char stage[200];                /* a painting's stage operation under way ("" when none) */
         double eta_s, t0, rate_t, rate_frames, rate, last_plain;
         char state[32];
         bool done, drawn;
@@ -91,6 +92,19 @@ static void clear_bar(struct follow *f) {
         }
 }
 
+/* A painting's stage move or homing: one line when it starts (the bar or the progress lines
+ * stand still meanwhile, and a move can take a minute). */
+static void follow_stage(struct follow *f, const char *stage) {
+        if (!strcmp(stage, f->stage))
+                return;
+        snprintf(f->stage, sizeof f->stage, "%s", stage);
+        if (!stage[0] || f->json || f->quiet)
+                return;
+        clear_bar(f);
+        printf("session %s: %s\n", f->session, stage);
+        fflush(stdout);
+}
+
 static void on_event(void *userdata, const struct imp_proto_message *m) {
         struct follow *f = userdata;
         imp_client_count_gap(&f->last_seq, &f->dropped, m->seq);
@@ -114,6 +128,7 @@ static void on_event(void *userdata, const struct imp_proto_message *m) {
                 f->tile = imp_client_int(json_object_get(e, "painting"), "tile");
                 f->tiles = imp_client_int(json_object_get(e, "painting"), "tiles");
                 snprintf(f->state, sizeof f->state, "%s", imp_client_str(e, "state"));
+                follow_stage(f, imp_client_str(json_object_get(e, "painting"), "stage"));
                 double t = now_s();
                 if (f->rate_t == 0) {
                         f->rate_t = t;

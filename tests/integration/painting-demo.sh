@@ -23,6 +23,11 @@ if grep -q "port in use" "$tmp/demo.txt" && [ $rc -ne 0 ]; then
   echo "skip: the GigE Vision port is held by another process"; exit 77
 fi
 check "the demo finished (exit 0)" test $rc -eq 0
+if [ -z "$mode" ]; then
+  # scan --follow says when the stage moves (the frame count stands still meanwhile)
+  check "scan --follow named the stage's moves" \
+    bash -c "grep -q '^session [^ ]*: homing' '$tmp/demo.txt' && grep -q '^session [^ ]*: moving to tile 5 (col' '$tmp/demo.txt'"
+fi
 check "it printed the figures table" \
   bash -c "grep -q '^mosaic  *registered  *stage prior  *target' '$tmp/demo.txt' && \
            grep -q '^registration rms' '$tmp/demo.txt' && grep -q '^canvas covered' '$tmp/demo.txt' && \
