@@ -116,10 +116,8 @@ static void check_coverage(const char *out) {
         json_decref(j);
 }
 
-/* A defect in one tile's overlap: 40 × 50 texels (35 % of its overlap with the next tile)
- * replaced by the relief 0.3 mm away (a ghost: structured light decoded to the wrong
- * stripe), which pulls a least-squares shift towards it. */
-static void corrupt_tile(const char *dir) {
+/* Reads tile 0's copy, lets edit() change one channel (index c) and writes it back. */
+static void edit_tile0(const char *dir, const char *channel, void (*edit)(struct imp_image *img, int c)) {
         char path[700];
         snprintf(path, sizeof path, "%s/copies/0000/heightfield.exr", dir);
         struct imp_image *img = NULL;
@@ -129,39 +127,41 @@ static void corrupt_tile(const char *dir) {
         CHECK_MSG(r == 0, "%s", err.msg);
         if (r < 0)
                 return;
-        int c = imp_image_channel_index(names, "height");     /* EXR keeps channels sorted by name */
+        int c = imp_image_channel_index(names, channel);     /* EXR keeps channels sorted by name */
         CHECK_GE(c, 0);
-        for (int j = 40; j < 90 && c >= 0; j++)
-                for (int i = 190; i < 230; i++)
-                        imp_image_f32(img, i, j)[c] = imp_image_f32(img, i + 6, j)[c];
+        if (c >= 0)
+                edit(img, c);
         CHECK_OK(imp_exr_write(path, img, (const char *const *) names, false, &err));
         imp_strv_free(names);
         imp_image_free(img);
+}
+
+/* A defect in one tile's overlap: 40 × 50 texels (35 % of its overlap with the next tile)
+ * replaced by the relief 0.3 mm away (a ghost: structured light decoded to the wrong
+ * stripe), which pulls a least-squares shift towards it. */
+static void ghost_heights(struct imp_image *img, int c) {
+        for (int j = 40; j < 90; j++)
+                for (int i = 190; i < 230; i++)
+                        imp_image_f32(img, i, j)[c] = imp_image_f32(img, i + 6, j)[c];
+}
+
+static void corrupt_tile(const char *dir) {
+        edit_tile0(dir, "height", ghost_heights);
 }
 
 /* Holes in a copy's mask where no other tile sees the painting: a checkerboard over 50 × 50
  * texels of tile 0 (away from its overlaps) leaves no bilinear sample whole, but half the
  * points have their nearest texel on the mask; those must still be covered. */
 #define HOLE_PX 50
-static void hole_tile(const char *dir) {
-        char path[700];
-        snprintf(path, sizeof path, "%s/copies/0000/heightfield.exr", dir);
-        struct imp_image *img = NULL;
-        char **names = NULL;
-        struct imp_error err = { 0 };
-        int r = imp_exr_read(path, &img, &names, &err);
-        CHECK_MSG(r == 0, "%s", err.msg);
-        if (r < 0)
-                return;
-        int c = imp_image_channel_index(names, "mask");
-        CHECK_GE(c, 0);
-        for (int j = 10; j < 10 + HOLE_PX && c >= 0; j++)
+static void checker_mask(struct imp_image *img, int c) {
+        for (int j = 10; j < 10 + HOLE_PX; j++)
                 for (int i = 10; i < 10 + HOLE_PX; i++)
                         if ((i + j) & 1)
                                 imp_image_f32(img, i, j)[c] = 0;
-        CHECK_OK(imp_exr_write(path, img, (const char *const *) names, false, &err));
-        imp_strv_free(names);
-        imp_image_free(img);
+}
+
+static void hole_tile(const char *dir) {
+        edit_tile0(dir, "mask", checker_mask);
 }
 
 /* Bad input is refused with the file and the field. */

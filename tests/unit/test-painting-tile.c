@@ -17,18 +17,6 @@
 #define FIELD_W_MM 40.0               /* config/scenes/painting-small.cfg: 200 × 150 px at 0.2 mm */
 #define FIELD_H_MM 30.0
 
-static int sh(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
-static int sh(const char *fmt, ...) {
-        char cmd[8192];
-        va_list ap;
-        va_start(ap, fmt);
-        vsnprintf(cmd, sizeof cmd, fmt, ap);
-        va_end(ap);
-        fprintf(stderr, "$ %s\n", cmd);
-        int st = system(cmd);
-        return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
-}
-
 static json_t *load_copy(const char *dir) {
         char path[1024];
         snprintf(path, sizeof path, "%s/copy.json", dir);
@@ -63,7 +51,7 @@ static int worker(const char *tmp, const char *copy, const char *args) {
         fprintf(f, "{\"id\":\"j\",\"capture\":\"../scan/tiles/0001\",\"copy\":\"../%s\",\"state\":\"queued\","
                    "\"worker_args\":\"%s\"}\n", copy, args);
         fclose(f);
-        return sh("%s %s > /dev/null", WORKER, path);
+        return test_sh("%s %s > /dev/null", WORKER, path);
 }
 
 int main(void) {
@@ -72,7 +60,7 @@ int main(void) {
                 TEST_SKIP("%s or %s not built", IMPASTO, WORKER);
         char tmp[] = "/tmp/impasto-test-painting-tile.XXXXXX";
         CHECK(mkdtemp(tmp) != NULL);
-        CHECK_INT_EQ(sh("%s sim render --scene %s/config/scenes/painting-small.cfg --plan %s/config/plans/painting-small.cfg "
+        CHECK_INT_EQ(test_sh("%s sim render --scene %s/config/scenes/painting-small.cfg --plan %s/config/plans/painting-small.cfg "
                         "--out %s/scan --quiet > /dev/null", IMPASTO, IMPASTO_SOURCE_DIR, IMPASTO_SOURCE_DIR, tmp), 0);
         char dir[1024];
 
@@ -97,7 +85,7 @@ int main(void) {
         CHECK_NEAR(num(t, "pitch_mm", NULL, NULL), 0.204, 1e-9);
 
         /* --frame-search: the ridge's cliff is taken for a frame and the tile cropped. */
-        CHECK_INT_EQ(sh("%s process %s/scan/tiles/0001 --out %s/framed --quiet --no-btf --frame-search > /dev/null", IMPASTO,
+        CHECK_INT_EQ(test_sh("%s process %s/scan/tiles/0001 --out %s/framed --quiet --no-btf --frame-search > /dev/null", IMPASTO,
                         tmp, tmp), 0);
         snprintf(dir, sizeof dir, "%s/framed", tmp);
         _cleanup_json_ json_t *framed = load_copy(dir);
@@ -108,7 +96,7 @@ int main(void) {
         CHECK(json_is_true(json_object_get(tile_of(framed), "frame_search")));
 
         /* --pitch wins, and says so. */
-        CHECK_INT_EQ(sh("%s process %s/scan/tiles/0001 --out %s/pitched --quiet --no-btf --pitch 0.25 > /dev/null", IMPASTO,
+        CHECK_INT_EQ(test_sh("%s process %s/scan/tiles/0001 --out %s/pitched --quiet --no-btf --pitch 0.25 > /dev/null", IMPASTO,
                         tmp, tmp), 0);
         snprintf(dir, sizeof dir, "%s/pitched", tmp);
         _cleanup_json_ json_t *pitched = load_copy(dir);
@@ -124,6 +112,6 @@ int main(void) {
         CHECK(json_is_true(json_object_get(tile_of(wframed), "frame_search")));
         CHECK(worker(tmp, "wbad", "--no-frame-search=1") != 0);
 
-        sh("rm -rf %s", tmp);
+        test_sh("rm -rf %s", tmp);
         return TEST_DONE();
 }

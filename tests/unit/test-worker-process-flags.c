@@ -17,19 +17,6 @@
 #define IMPASTO IMPASTO_BINARY_DIR "/cli/impasto"
 #define WORKER IMPASTO_BINARY_DIR "/cli/impasto-worker"
 
-/* Formats a shell command, echoes it and runs it: its exit code, -1 if it did not exit. */
-static int sh(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
-static int sh(const char *fmt, ...) {
-        char cmd[8192];
-        va_list ap;
-        va_start(ap, fmt);
-        vsnprintf(cmd, sizeof cmd, fmt, ap);
-        va_end(ap);
-        fprintf(stderr, "$ %s\n", cmd);
-        int st = system(cmd);
-        return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
-}
-
 static json_t *load(const char *path) {
         struct imp_error err = {};
         json_t *j = NULL;
@@ -51,20 +38,20 @@ int main(void) {
         char tmp[] = "/tmp/impasto-test-flags.XXXXXX";
         CHECK(mkdtemp(tmp) != NULL);
         char path[1024];
-        CHECK_INT_EQ(sh("%s sim render --scene %s/tests/data/worker-tiny.cfg --plan %s/tests/data/worker-tiny-plan.cfg "
+        CHECK_INT_EQ(test_sh("%s sim render --scene %s/tests/data/worker-tiny.cfg --plan %s/tests/data/worker-tiny-plan.cfg "
                         "--out %s/capture --quiet --threads 2", IMPASTO, IMPASTO_SOURCE_DIR, IMPASTO_SOURCE_DIR, tmp), 0);
 
         /* Bad values are usage errors, before the set is opened. */
         const char *bad[] = { "--threads -1", "--threads x", "--btf-iterations -1", "--btf-robust-passes -2",
                               "--btf-robust-passes 1001" };
         for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
-                int rc = sh("%s process %s/no-such-set --out %s/bad --quiet %s 2>/dev/null", IMPASTO, tmp, tmp, bad[i]);
+                int rc = test_sh("%s process %s/no-such-set --out %s/bad --quiet %s 2>/dev/null", IMPASTO, tmp, tmp, bad[i]);
                 CHECK_MSG(rc == 2, "%s: exit %d, expected 2 (usage)", bad[i], rc);
         }
 
         /* The defaults, then every cost knob at once. */
-        CHECK_INT_EQ(sh("%s process %s/capture --out %s/default --quiet", IMPASTO, tmp, tmp), 0);
-        CHECK_INT_EQ(sh("%s process %s/capture --out %s/knobs --quiet --threads 1 --gray-only --btf-iterations 3 "
+        CHECK_INT_EQ(test_sh("%s process %s/capture --out %s/default --quiet", IMPASTO, tmp, tmp), 0);
+        CHECK_INT_EQ(test_sh("%s process %s/capture --out %s/knobs --quiet --threads 1 --gray-only --btf-iterations 3 "
                         "--btf-robust-passes 0 --no-shadow-test --cell 10", IMPASTO, tmp, tmp), 0);
         snprintf(path, sizeof path, "%s/default/copy.json", tmp);
         _cleanup_json_ json_t *def = load(path);
@@ -92,7 +79,7 @@ int main(void) {
                            "\"worker_args\":\"--no-btf\"}\n");
                 fclose(f);
         }
-        CHECK_INT_EQ(sh("%s %s", WORKER, path), 0);
+        CHECK_INT_EQ(test_sh("%s %s", WORKER, path), 0);
         _cleanup_json_ json_t *job = load(path);
         CHECK(job != NULL);
         if (job) {
@@ -101,6 +88,6 @@ int main(void) {
         }
         fprintf(stderr, "this build: %s\n", imp_build_kind());
 
-        sh("rm -rf %s", tmp);
+        test_sh("rm -rf %s", tmp);
         return TEST_DONE();
 }

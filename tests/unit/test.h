@@ -3,9 +3,11 @@
 #pragma once
 #include <inttypes.h>
 #include <math.h>
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/wait.h>
 
 static int test_failures_ __attribute__((unused));
 static int test_checks_ __attribute__((unused));
@@ -72,4 +74,17 @@ static inline double test_urand(uint64_t *s) {
 static inline double test_nrand(uint64_t *s) {
         double u = test_urand(s), v = test_urand(s);
         return sqrt(-2 * log(u)) * cos(2 * M_PI * v);
+}
+
+/* Formats a shell command, echoes it and runs it: its exit code, -1 if it did not exit. */
+static int test_sh(const char *fmt, ...) __attribute__((format(printf, 1, 2), unused));
+static int test_sh(const char *fmt, ...) {
+        char cmd[8192];
+        va_list ap;
+        va_start(ap, fmt);
+        vsnprintf(cmd, sizeof cmd, fmt, ap);
+        va_end(ap);
+        fprintf(stderr, "$ %s\n", cmd);
+        int st = system(cmd);
+        return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
 }
