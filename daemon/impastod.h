@@ -157,6 +157,9 @@ struct session {
         char damaged[512];              /* non-empty: session.json was unreadable (why); the
                                            session is rebuilt from its set's manifest and plan
                                            on resume, which writes session.json anew */
+        char rebuilt[2048];             /* non-empty: what a resume rebuilt and why (session.json
+                                           or a painting's painting.json was damaged), kept in
+                                           session.json and shown by session.show */
         struct imp_rig rig;             /* from the set's rig.json once open */
         bool have_rig;
         struct imp_plan *plan;

@@ -7,7 +7,9 @@
  * next tile is captured. A stage fault pauses the session with a message naming the tile and
  * the remedy; resuming clears the fault, homes the stage when its position is not known, and
  * continues at the first frame not captured (after SIGKILL too: each tile set is crash-safe). */
+#include <dirent.h>
 #include <math.h>
+#include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
 #include "impastod.h"
@@ -21,10 +23,13 @@ static void tile_dir(const struct session *s, size_t k, char *buf, size_t size) 
         snprintf(buf, size, "%.3900s/tiles/%04zu", s->dir, k);
 }
 
+/* painting.json or tiles/ (painting.json may be the damaged part), and no set.json. */
 bool painting_session_dir(const char *dir) {
-        char p[PATH_MAX + 32];
+        char p[PATH_MAX + 32], t[PATH_MAX + 32];
+        struct stat st;
         snprintf(p, sizeof p, "%.4000s/painting.json", dir);
-        if (access(p, F_OK) < 0)
+        snprintf(t, sizeof t, "%.4000s/tiles", dir);
+        if (access(p, F_OK) < 0 && !(lstat(t, &st) == 0 && S_ISDIR(st.st_mode)))
                 return false;
         snprintf(p, sizeof p, "%.4000s/set.json", dir);
         return access(p, F_OK) < 0;
@@ -180,6 +185,26 @@ static int check_tile_records(const struct session *s, size_t k, char *msg, size
         return 0;
 }
 
+static bool access_tile(const struct session *s, size_t k) {
+        char dir[PATH_MAX];
+        tile_dir(s, k, dir, sizeof dir);
+        return access(dir, F_OK) == 0;
+}
+
+/* Tile k's set, when there is one, must be a directory of the session: the daemon writes
+ * there, and a symbolic link would send its frames (and repairs) elsewhere. */
+static int check_tile_dir(const struct session *s, size_t k, char *msg, size_t size) {
+        char dir[PATH_MAX];
+        struct stat st;
+        tile_dir(s, k, dir, sizeof dir);
+        if (lstat(dir, &st) < 0 || S_ISDIR(st.st_mode))
+                return 0;
+        snprintf(msg, size, "%s: %s, not the tile's capture set (a directory of the session): the session is left as "
+                 "it is; put tile %zu's set itself there (or remove it to capture the tile again), then resume", dir,
+                 S_ISLNK(st.st_mode) ? "a symbolic link" : "not a directory", k);
+        return -ENOTDIR;
+}
+
 /* Opens tile k's set (made when missing, repaired after a crash) as s->cs. */
 static int open_tile(struct session *s, size_t k, char *msg, size_t size) {
         char dir[PATH_MAX];
@@ -188,6 +213,8 @@ static int open_tile(struct session *s, size_t k, char *msg, size_t size) {
         int r;
         char set[PATH_MAX + 16];
         snprintf(set, sizeof set, "%.4000s/set.json", dir);
+        if ((r = check_tile_dir(s, k, msg, size)) < 0)
+                return r;
         if (access(dir, F_OK) == 0 && access(set, F_OK) < 0) {
                 /* no set.json: a create cut short (by a SIGKILL), no frame in it; kept aside */
                 char aside[PATH_MAX + 64];
@@ -360,12 +387,82 @@ void painting_finish(struct session *s) {
                 log_error("session %s: %s", s->id, e.msg);
 }
 
+/* A tile painting.json marks captured: its set must hold the tile's frames. Read only (the
+ * set is not repaired: a damage there is not a crash's, and nothing is written to it again). */
+static int check_done_tile(const struct session *s, size_t k, char *msg, size_t size) {
+        char dir[PATH_MAX];
+        tile_dir(s, k, dir, sizeof dir);
+        int r = check_tile_dir(s, k, msg, size);
+        if (r < 0)
+                return r;
+        struct imp_error e = { 0 };
+        _cleanup_(imp_captureset_closep) struct imp_captureset *cs = NULL;
+        if (access(dir, F_OK) < 0)
+                snprintf(e.msg, sizeof e.msg, "%.400s: missing", dir), r = -ENOENT;
+        else if ((r = imp_captureset_open(dir, &cs, &e)) >= 0 && imp_captureset_count(cs) != s->tile_frames)
+                snprintf(e.msg, sizeof e.msg, "%.400s: %zu of the tile's %zu frames", dir, imp_captureset_count(cs),
+                         s->tile_frames), r = -EBADMSG;
+        if (r < 0)
+                snprintf(msg, size, "%.400s; but %.300s/painting.json marks tile %zu captured: its frames are not all "
+                         "there; the session is left as it is: restore the tile's set (or mark the tile not done in "
+                         "painting.json and remove the set to capture it again), then resume", e.msg, s->dir, k);
+        return r;
+}
+
+/* No tile set beyond the plan's tiles (tiles/NNNN, NNNN ≥ the tile count), and none after
+ * first_open, the first tile not captured (capture continues there: a later set means a set
+ * before it went missing or was cut short). Reads only. */
+static int check_tile_layout(const struct session *s, size_t first_open, char *msg, size_t size) {
+        size_t n = imp_tile_plan_count(s->tiles);
+        char tdir[PATH_MAX + 16];
+        snprintf(tdir, sizeof tdir, "%.4000s/tiles", s->dir);
+        DIR *d = opendir(tdir);
+        if (!d)
+                return 0;
+        struct dirent *de;
+        int r = 0;
+        while (r == 0 && (de = readdir(d))) {
+                size_t len = strlen(de->d_name);
+                if (len == 0 || len > 9 || strspn(de->d_name, "0123456789") != len)
+                        continue;       /* ".", "NNNN.interrupted-N" and the like */
+                size_t k = (size_t) strtoul(de->d_name, NULL, 10);
+                if (k >= n)
+                        snprintf(msg, size, "%.300s/%.12s: a tile set beyond the plan's %zu tiles (0..%zu): not this "
+                                 "painting's; the session is left as it is: move it away, then resume", tdir,
+                                 de->d_name, n, n - 1), r = -EBADMSG;
+                else if (k > first_open)
+                        snprintf(msg, size, "%.300s/%.12s: tile %zu's set is there, but tile %zu before it is not complete "
+                                 "(its set missing or cut short): capture would continue at tile %zu; the session is "
+                                 "left as it is: restore the missing set (or move %.300s/%.12s away), then resume", tdir,
+                                 de->d_name, k, first_open, first_open, tdir, de->d_name), r = -EBADMSG;
+        }
+        closedir(d);
+        return r;
+}
+
+/* painting.json unreadable or damaged: kept aside and made anew from the plan; the loop in
+ * painting_reopen marks the tiles whose set is complete done again, with their read-back. */
+static int rebuild_painting_json(struct session *s, const struct imp_error *why, struct imp_proto_error *perr) {
+        char aside[PATH_MAX + 64];
+        struct imp_error e = { 0 };
+        int r = tile_session_rebuild(s->dir, s->tiles, s->d->rigcfg->stage.sigma_mm, s->d->rigcfg->stage.sigma_deg,
+                                     aside, sizeof aside, &s->painting, &e);
+        if (r < 0)
+                return imp_proto_error_set(perr, IMP_PROTO_E_IO, -r, NULL, "%s (rebuilding it after: %s)", e.msg,
+                                           why->msg);
+        snprintf(s->rebuilt, sizeof s->rebuilt, "painting.json rebuilt from the plan and the tile sets: it was "
+                 "damaged (%.500s); kept as %.300s", why->msg, aside);
+        log_warning("session %s: %s", s->id, s->rebuilt);
+        return 0;
+}
+
 /* After a pause, a restart or a SIGKILL (plan and rig loaded): tiles whose set is complete
  * are done (and queued, once), the first other one is opened; capture continues at its
- * first frame not stored. */
+ * first frame not stored. painting.json damaged: rebuilt; a tile set missing, cut short,
+ * out of range or a symbolic link: an error naming it, nothing changed. */
 int painting_reopen(struct session *s, struct imp_proto_error *perr) {
         struct imp_error e = { 0 };
-        char msg[1024] = "";
+        char msg[2048] = "";
         int r;
         if (!imp_plan_tiles(s->plan))
                 return imp_proto_error_set(perr, IMP_PROTO_E_INVALID_PLAN, EINVAL, NULL,
@@ -374,9 +471,22 @@ int painting_reopen(struct session *s, struct imp_proto_error *perr) {
         close_tile(s);
         set_tiles(s);
         if (!s->painting && (r = tile_session_open(s->dir, s->tiles, s->d->rigcfg->stage.sigma_mm,
-                                                   s->d->rigcfg->stage.sigma_deg, &s->painting, &e)) < 0)
-                return imp_proto_error_set(perr, IMP_PROTO_E_IO, -r, NULL, "%s", e.msg);
+                                                   s->d->rigcfg->stage.sigma_deg, &s->painting, &e)) < 0) {
+                if (r != -EBADMSG)
+                        return imp_proto_error_set(perr, IMP_PROTO_E_IO, -r, NULL, "%s", e.msg);
+                if ((r = rebuild_painting_json(s, &e, perr)) < 0)
+                        return r;
+        }
         size_t n = imp_tile_plan_count(s->tiles), k = tile_session_next(s->painting);
+        size_t first_missing = k;
+        while (first_missing < n && check_tile_dir(s, first_missing, msg, sizeof msg) == 0 &&
+               access_tile(s, first_missing))
+                first_missing++;
+        for (size_t j = 0; j < k && j < n; j++)
+                if ((r = check_done_tile(s, j, msg, sizeof msg)) < 0)
+                        return imp_proto_error_set(perr, IMP_PROTO_E_IO, -r, NULL, "%s", msg);
+        if ((r = check_tile_layout(s, first_missing, msg, sizeof msg)) < 0)
+                return imp_proto_error_set(perr, IMP_PROTO_E_IO, -r, NULL, "%s", msg);
         for (; k < n; k++) {
                 char dir[PATH_MAX];
                 tile_dir(s, k, dir, sizeof dir);
@@ -392,6 +502,10 @@ int painting_reopen(struct session *s, struct imp_proto_error *perr) {
                 close_tile(s);
                 if ((r = tile_done(s, k, rb, &e)) < 0)
                         return imp_proto_error_set(perr, IMP_PROTO_E_IO, -r, NULL, "%s", e.msg);
+        }
+        if ((r = check_tile_layout(s, k, msg, sizeof msg)) < 0) {
+                close_tile(s);
+                return imp_proto_error_set(perr, IMP_PROTO_E_IO, -r, NULL, "%s", msg);
         }
         for (size_t j = 0; j < k && j < n; j++)
                 queue_tile(s, j);       /* a kill between "done" and the queue: queued now */

@@ -998,8 +998,13 @@ int session_resume(struct session *s, struct imp_proto_error *perr) {
                 return r;
         }
         if (s->damaged[0]) {
-                log_notice("session %s: rebuilt from its capture set's manifest and plan (%zu of %zu frames); "
-                           "session.json was: %s", s->id, s->n_frames, s->frames_total, s->damaged);
+                char also[sizeof s->rebuilt];
+                snprintf(also, sizeof also, "%s", s->rebuilt);  /* a painting.json rebuilt by the reopen */
+                snprintf(s->rebuilt, sizeof s->rebuilt, "session.json rebuilt from %s (%zu of %zu frames): it was "
+                         "damaged (%.500s)%s%.1300s", s->tiles ? "the painting's tile sets and plan" :
+                         "its capture set's manifest and plan", s->n_frames, s->frames_total, s->damaged,
+                         also[0] ? "; " : "", also);
+                log_notice("session %s: %s", s->id, s->rebuilt);
                 s->damaged[0] = 0;
                 save(s);
         }
@@ -1047,10 +1052,13 @@ void session_shutdown(struct session *s) {
         s->cs = NULL;
 }
 
-/* A session whose session.json was unreadable says so: {"damaged": why}. */
+/* A session whose session.json was unreadable says so: {"damaged": why}; once a resume
+ * rebuilt it (or a painting's painting.json): {"rebuilt": what and why}. */
 static json_t *with_damage(json_t *j, const struct session *s) {
         if (j && s->damaged[0])
                 json_object_set_new(j, "damaged", json_string(s->damaged));
+        if (j && s->rebuilt[0])
+                json_object_set_new(j, "rebuilt", json_string(s->rebuilt));
         return j;
 }
 

@@ -28,12 +28,12 @@ int store_init(const char *state_dir, struct imp_error *err) {
 int store_session_save(const struct session *s, struct imp_error *err) {
         char p[PATH_MAX + 16];
         snprintf(p, sizeof p, "%s/session.json", s->dir);
-        _cleanup_json_ json_t *j = json_pack("{s:s, s:s, s:s, s:s, s:s, s:s?, s:I, s:O}",
+        _cleanup_json_ json_t *j = json_pack("{s:s, s:s, s:s, s:s, s:s, s:s?, s:I, s:O, s:s?}",
                                               "session", s->id, "name", s->name, "plan", s->plan_path,
                                               "state", session_state_name(s->state), "started", s->started,
                                               "ended", s->ended[0] ? s->ended : NULL,
                                               "frames_total", (json_int_t) s->frames_total,
-                                              "faults", s->faults);
+                                              "faults", s->faults, "rebuilt", s->rebuilt[0] ? s->rebuilt : NULL);
         if (!j)
                 return imp_error_set(err, -ENOMEM, "out of memory");
         return imp_json_save_atomic(p, j, err);
@@ -55,15 +55,17 @@ static size_t count_manifest_lines(const char *dir) {
         return n;
 }
 
-/* A painting's session directory: the frames of its tile sets (tiles/NNNN, in order). */
+/* A painting's session directory: the frames of its tile sets (tiles/NNNN, in order; a
+ * symbolic link is not a tile set and is not followed). */
 static size_t count_frames(const char *dir) {
         if (!painting_session_dir(dir))
                 return count_manifest_lines(dir);
         size_t n = 0;
-        for (size_t k = 0; k < 100000; k++) {
+        for (size_t k = 0; k < IMP_TILES_MAX; k++) {
                 char p[PATH_MAX + 32];
+                struct stat st;
                 snprintf(p, sizeof p, "%.4000s/tiles/%04zu", dir, k);
-                if (access(p, F_OK) < 0)
+                if (lstat(p, &st) < 0 || !S_ISDIR(st.st_mode))
                         break;
                 n += count_manifest_lines(p);
         }
@@ -91,14 +93,15 @@ static int load_session_json(struct session *s, struct imp_error *e) {
         int r = imp_json_load(p, &j, e);
         if (r < 0)
                 return r;
-        const char *name = "", *plan = "", *state = "", *started = "", *ended = NULL;
+        const char *name = "", *plan = "", *state = "", *started = "", *ended = NULL, *rebuilt = NULL;
         long long total = 0;
         if (imp_json_get_string(j, "name", false, &name, p, e) < 0 ||
             imp_json_get_string(j, "plan", false, &plan, p, e) < 0 ||
             imp_json_get_string(j, "state", true, &state, p, e) < 0 ||
             imp_json_get_string(j, "started", false, &started, p, e) < 0 ||
             imp_json_get_string(j, "ended", false, &ended, p, e) < 0 ||
-            imp_json_get_int(j, "frames_total", false, &total, p, e) < 0)
+            imp_json_get_int(j, "frames_total", false, &total, p, e) < 0 ||
+            imp_json_get_string(j, "rebuilt", false, &rebuilt, p, e) < 0)
                 return -EBADMSG;
         int st = session_state_from_name(state);
         if (st < 0 || total < 0)
@@ -107,6 +110,7 @@ static int load_session_json(struct session *s, struct imp_error *e) {
         snprintf(s->plan_path, sizeof s->plan_path, "%s", plan);
         snprintf(s->started, sizeof s->started, "%s", started);
         snprintf(s->ended, sizeof s->ended, "%s", ended ? ended : "");
+        snprintf(s->rebuilt, sizeof s->rebuilt, "%.2000s", rebuilt ? rebuilt : "");
         s->frames_total = (size_t) total;
         s->state = (enum session_state) st;
         json_t *f = json_object_get(j, "faults");
@@ -114,21 +118,49 @@ static int load_session_json(struct session *s, struct imp_error *e) {
         return 0;
 }
 
-/* A session whose session.json is damaged or missing does not vanish while its set is on
- * disk: it is listed as paused and damaged, never resumed by itself; session.resume rebuilds
- * it from the set's manifest and plan.cfg (reopen) and saves a new session.json. */
+/* A painting's session listed as damaged: where it stands (read only: plan.cfg against
+ * rig.json, the tile sets' manifests), e.g. "34 of 60 frames: tile 3 of 6 at its frame 4 of
+ * 10"; empty when plan.cfg or rig.json cannot be read (the resume then says why). */
+static void painting_where(struct session *s, size_t n_frames, char *buf, size_t size) {
+        char p[PATH_MAX + 32];
+        struct imp_rig rig = { 0 };
+        struct imp_error e = { 0 };
+        _cleanup_(imp_plan_freep) struct imp_plan *plan = NULL;
+        buf[0] = 0;
+        snprintf(p, sizeof p, "%.4000s/rig.json", s->dir);
+        if (imp_rig_load(p, &rig, &e) < 0)
+                return;
+        snprintf(p, sizeof p, "%.4000s/plan.cfg", s->dir);
+        if (imp_plan_load(p, &rig, &plan, &e) == 0 && imp_plan_tiles(plan) && imp_plan_count(plan) > 0) {
+                size_t per = imp_plan_count(plan), n = imp_tile_plan_count(imp_plan_tiles(plan));
+                s->frames_total = n * per;
+                size_t k = IMP_MIN(n_frames / per, n - 1);
+                snprintf(buf, size, "%zu of %zu frames: tile %zu of %zu at its frame %zu of %zu", n_frames,
+                         s->frames_total, k, n, n_frames - k * per, per);
+        }
+        imp_rig_free(&rig);
+}
+
+/* A session whose session.json is damaged or missing does not vanish while its set (or its
+ * painting directory: painting.json, tiles/NNNN) is on disk: it is listed as paused and
+ * damaged, never resumed by itself; session.resume rebuilds it from the set's manifest and
+ * plan.cfg, or from the painting's tile sets (reopen), and saves a new session.json. */
 static int load_damaged(struct session *s, const struct imp_error *why) {
-        char p[2 * PATH_MAX];
+        char p[2 * PATH_MAX], where[200] = "";
+        bool painting = painting_session_dir(s->dir);
         snprintf(p, sizeof p, "%s/set.json", s->dir);
-        if (access(p, F_OK) < 0)
+        if (!painting && access(p, F_OK) < 0)
                 return -ENOENT;         /* not a capture set either: nothing to recover */
-        snprintf(s->damaged, sizeof s->damaged, "%.500s", why->msg[0] ? why->msg : "session.json is unreadable");
+        if (painting)
+                painting_where(s, count_frames(s->dir), where, sizeof where);
+        snprintf(s->damaged, sizeof s->damaged, "%.400s%s%.100s", why->msg[0] ? why->msg : "session.json is unreadable",
+                 where[0] ? "; " : "", where);
         snprintf(s->name, sizeof s->name, "%.64s", s->id);
         snprintf(s->plan_path, sizeof s->plan_path, "%.4000s/plan.cfg", s->dir);
         s->state = SESSION_PAUSED;
         s->faults = json_array();
-        log_warning("session %s: %s: listed as damaged; `impasto scan resume %s` rebuilds it from the "
-                    "capture set's manifest and plan", s->id, s->damaged, s->id);
+        log_warning("session %s: %s: listed as damaged; `impasto scan resume %s` rebuilds it from the %s", s->id,
+                    s->damaged, s->id, painting ? "painting's tile sets and plan" : "capture set's manifest and plan");
         return 0;
 }
 

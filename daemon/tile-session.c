@@ -1,5 +1,6 @@
 /* Whole-painting sessions: moving the gantry tile by tile and the painting's progress
  * (tile-session.h). */
+#include <errno.h>
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
@@ -95,22 +96,50 @@ static int check_same(const json_t *j, const struct imp_tile_plan *tp, const cha
         return 0;
 }
 
+static int make_new(const char *dir, const struct imp_tile_plan *tp, double stage_sigma_mm, double stage_sigma_deg,
+                    json_t **ret, struct imp_error *err) {
+        json_t *j = imp_tile_plan_painting_json(tp, stage_sigma_mm, stage_sigma_deg);
+        if (!j)
+                return imp_error_set(err, -ENOMEM, "%s/painting.json: out of memory", dir);
+        int r = save(dir, j, err);
+        if (r < 0) {
+                json_decref(j);
+                return r;
+        }
+        *ret = j;
+        return 0;
+}
+
+int tile_session_rebuild(const char *dir, const struct imp_tile_plan *tp, double stage_sigma_mm,
+                         double stage_sigma_deg, char *ret_aside, size_t aside_size, json_t **ret,
+                         struct imp_error *err) {
+        char path[4096];
+        if (snprintf(path, sizeof path, "%s/painting.json", dir) >= (int) sizeof path)
+                return imp_error_set(err, -ENAMETOOLONG, "%s: path too long", dir);
+        for (int n = 1;; n++) {
+                if (n > 1000)
+                        return imp_error_set(err, -EEXIST, "%s: no free name to keep it aside", path);
+                snprintf(ret_aside, aside_size, "%s.damaged-%d", path, n);
+                if (access(ret_aside, F_OK) < 0 && errno == ENOENT)
+                        break;
+        }
+        /* link + unlink, not rename: a name taken meanwhile is never overwritten */
+        if (link(path, ret_aside) < 0 || unlink(path) < 0)
+                return imp_error_set(err, -errno, "%s: keeping it aside as %s: %s", path, ret_aside, strerror(errno));
+        return make_new(dir, tp, stage_sigma_mm, stage_sigma_deg, ret, err);
+}
+
 int tile_session_open(const char *dir, const struct imp_tile_plan *tp, double stage_sigma_mm, double stage_sigma_deg,
                       json_t **ret, struct imp_error *err) {
         char path[4096];
         if (snprintf(path, sizeof path, "%s/painting.json", dir) >= (int) sizeof path)
                 return imp_error_set(err, -ENAMETOOLONG, "%s: path too long", dir);
         json_t *j = NULL;
-        int r = imp_json_load(path, &j, err);
+        int r = imp_painting_json_load(path, &j, err);
         if (r == -ENOENT) {
                 imp_error_clear(err);
-                j = imp_tile_plan_painting_json(tp, stage_sigma_mm, stage_sigma_deg);
-                if (!j)
-                        return imp_error_set(err, -ENOMEM, "%s: out of memory", path);
-                if ((r = save(dir, j, err)) < 0) {
-                        json_decref(j);
+                if ((r = make_new(dir, tp, stage_sigma_mm, stage_sigma_deg, &j, err)) < 0)
                         return r;
-                }
         } else if (r < 0) {
                 return r;
         } else if ((r = check_same(j, tp, path, err)) < 0) {

@@ -28,11 +28,18 @@ int tile_session_move(struct imp_stage *stage, const struct imp_tile *t, unsigne
 int tile_session_move_start(struct imp_stage *stage, const struct imp_tile *t, char *msg, size_t size);
 int tile_session_move_poll(struct imp_stage *stage, const struct imp_tile *t, uint64_t deadline_us,
                            unsigned settle_timeout_ms, double ret_readback_mm[3], char *msg, size_t size);
-/* DIR/painting.json: loaded when it exists (and then checked against the plan: same tile
- * count and targets), otherwise made from the plan. Tiles carry "done": true once captured.
- * Caller owns *ret (json_decref). */
+/* DIR/painting.json: loaded when it exists (imp_painting_json_load: -EBADMSG naming the
+ * file and field when it is damaged; then checked against the plan: same tile count and
+ * targets, -EINVAL when another plan's), otherwise made from the plan. Tiles carry "done":
+ * true once captured. Caller owns *ret (json_decref). */
 int tile_session_open(const char *dir, const struct imp_tile_plan *tp, double stage_sigma_mm, double stage_sigma_deg,
                       json_t **ret, struct imp_error *err);
+/* DIR/painting.json found damaged (tile_session_open's -EBADMSG): moved aside to
+ * painting.json.damaged-N (ret_aside, never overwritten) and made anew from the plan, as
+ * tile_session_open makes it (no tile done yet). Caller owns *ret. */
+int tile_session_rebuild(const char *dir, const struct imp_tile_plan *tp, double stage_sigma_mm,
+                         double stage_sigma_deg, char *ret_aside, size_t aside_size, json_t **ret,
+                         struct imp_error *err);
 /* Tile k's read-back position and whether it is captured, saved atomically at once. */
 int tile_session_record(const char *dir, json_t *painting, size_t k, const double readback_mm[3], bool done,
                         struct imp_error *err);

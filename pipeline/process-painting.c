@@ -10,6 +10,7 @@
 #include "json-util.h"
 #include "plan.h"
 #include "process-painting.h"
+#include "tiles.h"
 #include "macro.h"
 
 /* The camera's footprint on the rig's canvas plane (world z = 0, rig.json's convention)
@@ -37,7 +38,7 @@ static int load_painting_json(const char *dir, char *path, size_t size, json_t *
                 return 0;
         if (access(path, F_OK) < 0)
                 return 0;
-        return imp_json_load(path, ret, err);
+        return imp_painting_json_load(path, ret, err);     /* bounded, every field checked */
 }
 
 /* The entry of painting.json whose "capture" is tiles/BASENAME(dir): its index, or -1. */

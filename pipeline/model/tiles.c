@@ -1,10 +1,15 @@
 /* Tile plans (tiles.h): even spacing with at least the asked overlap, serpentine order,
  * per-tile stage targets and height offsets. Pure arithmetic, no I/O but the conf group. */
+#include <errno.h>
+#include <fcntl.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+#include "json-util.h"
 #include "tiles.h"
 
 struct imp_tile_plan {
@@ -22,14 +27,15 @@ void imp_tile_options_default(struct imp_tile_options *ret) {
 static int check_options(const struct imp_tile_options *o, struct imp_error *err) {
         static const char axis[2] = { 'x', 'y' };
         for (int a = 0; a < 2; a++) {
-                if (!(isfinite(o->extent_mm[a]) && o->extent_mm[a] > 0))
-                        return imp_error_set(err, -EINVAL, "tiles: extent_mm %c: expected a number > 0, got %g",
-                                             axis[a], o->extent_mm[a]);
-                if (!(isfinite(o->fov_mm[a]) && o->fov_mm[a] > 0))
-                        return imp_error_set(err, -EINVAL, "tiles: fov_mm %c: expected a number > 0, got %g",
-                                             axis[a], o->fov_mm[a]);
-                if (!isfinite(o->origin_mm[a]))
-                        return imp_error_set(err, -EINVAL, "tiles: origin_mm %c: expected a finite number", axis[a]);
+                if (!(o->extent_mm[a] > 0 && o->extent_mm[a] <= IMP_PAINTING_MAX_MM))
+                        return imp_error_set(err, -EINVAL, "tiles: extent_mm %c: expected a number in (0, %g] mm, got %g",
+                                             axis[a], IMP_PAINTING_MAX_MM, o->extent_mm[a]);
+                if (!(o->fov_mm[a] > 0 && o->fov_mm[a] <= IMP_PAINTING_MAX_MM))
+                        return imp_error_set(err, -EINVAL, "tiles: fov_mm %c: expected a number in (0, %g] mm, got %g",
+                                             axis[a], IMP_PAINTING_MAX_MM, o->fov_mm[a]);
+                if (!(fabs(o->origin_mm[a]) <= 1e6))
+                        return imp_error_set(err, -EINVAL, "tiles: origin_mm %c: expected a finite number within "
+                                             "±1e6 mm, got %g", axis[a], o->origin_mm[a]);
         }
         if (!(o->overlap >= 0 && o->overlap <= IMP_TILES_MAX_OVERLAP))
                 return imp_error_set(err, -EINVAL, "tiles: overlap: expected 0..%g (a fraction of the field), got %g",
@@ -349,4 +355,182 @@ int imp_painting_json_set_readback(json_t *painting, size_t k, const double read
                 return -ERANGE;
         json_t *a = json_pack("[f,f,f]", readback_mm[0], readback_mm[1], readback_mm[2]);
         return a && json_object_set_new(t, "readback_mm", a) == 0 ? 0 : -ENOMEM;
+}
+
+/* ---- painting.json read by others: bounded, checked -------------------------------------- */
+
+/* A path of painting.json that must not leave the painting's directory: no ".." component. */
+static int check_rel_path(const json_t *o, const char *key, const char *what, struct imp_error *err) {
+        const char *v = NULL;
+        int r = imp_json_get_string(o, key, false, &v, what, err);
+        if (r < 0 || !v)
+                return r < 0 ? -EBADMSG : 0;
+        if (strlen(v) >= 4000)          /* "" is no path: a synthetic tile without a capture */
+                return imp_error_set(err, -EBADMSG, "%s%s: expected a path of at most 3999 bytes, got %zu", what,
+                                     key, strlen(v));
+        for (const char *c = v; *c;) {
+                size_t n = strcspn(c, "/");
+                if (n == 2 && c[0] == '.' && c[1] == '.')
+                        return imp_error_set(err, -EBADMSG, "%s%s: \"%s\" leaves the painting's directory "
+                                             "(a \"..\" component): expected a path inside it", what, key, v);
+                c += n;
+                c += *c == '/';
+        }
+        return 0;
+}
+
+/* A finite array of n numbers (optional unless required). */
+static int check_finite(const json_t *o, const char *key, bool required, int n, const char *what,
+                        struct imp_error *err) {
+        double v[3];
+        if (imp_json_get_doubles(o, key, required, n, v, what, err) < 0)
+                return -EBADMSG;
+        if (!json_object_get(o, key))
+                return 0;
+        for (int i = 0; i < n; i++)
+                if (!isfinite(v[i]) || fabs(v[i]) > 1e9)
+                        return imp_error_set(err, -EBADMSG, "%s%s[%d]: expected a finite number of mm, got %g", what,
+                                             key, i, v[i]);
+        return 0;
+}
+
+/* An integer in [lo, hi] (optional: *ret unchanged when absent). */
+static int check_int(const json_t *o, const char *key, long long lo, long long hi, long long *ret, const char *what,
+                     struct imp_error *err) {
+        long long v = *ret;
+        if (imp_json_get_int(o, key, false, &v, what, err) < 0)
+                return -EBADMSG;
+        if (v < lo || v > hi)
+                return imp_error_set(err, -EBADMSG, "%s%s: expected %lld..%lld, got %lld", what, key, lo, hi, v);
+        *ret = v;
+        return 0;
+}
+
+static int check_painting_tile(const json_t *t, size_t k, size_t n, long long cols, long long rows, uint8_t *seen,
+                               const char *what, struct imp_error *err) {
+        char w[4200];
+        snprintf(w, sizeof w, "%.4000s: tiles[%zu].", what, k);
+        if (!json_is_object(t))
+                return imp_error_set(err, -EBADMSG, "%s: tiles[%zu]: expected an object, got %s", what, k,
+                                     imp_json_type_name(t));
+        long long idx = (long long) k, col = 0, row = 0;
+        int r;
+        if ((r = check_int(t, "index", 0, (long long) n - 1, &idx, w, err)) < 0 ||
+            (r = check_int(t, "col", 0, cols - 1, &col, w, err)) < 0 ||
+            (r = check_int(t, "row", 0, rows - 1, &row, w, err)) < 0 ||
+            (r = check_finite(t, "center_mm", true, 2, w, err)) < 0 ||
+            (r = check_finite(t, "readback_mm", true, 3, w, err)) < 0 ||
+            (r = check_finite(t, "commanded_mm", false, 3, w, err)) < 0 ||
+            (r = check_rel_path(t, "capture", w, err)) < 0 || (r = check_rel_path(t, "copy", w, err)) < 0)
+                return r;
+        if (seen[idx]++)
+                return imp_error_set(err, -EBADMSG, "%sindex: %lld: another tile has it already", w, idx);
+        json_t *done = json_object_get(t, "done");
+        if (done && !json_is_boolean(done))
+                return imp_error_set(err, -EBADMSG, "%sdone: expected a boolean, got %s", w, imp_json_type_name(done));
+        return 0;
+}
+
+static int check_sizes(const json_t *j, const char *key, bool required, const char *what, struct imp_error *err) {
+        double v[2];
+        if (imp_json_get_doubles(j, key, required, 2, v, what, err) < 0)
+                return -EBADMSG;
+        for (int a = 0; a < 2 && json_object_get(j, key); a++)
+                if (!(v[a] > 0 && v[a] <= IMP_PAINTING_MAX_MM))
+                        return imp_error_set(err, -EBADMSG, "%s: %s[%d]: expected a size in (0, %g] mm, got %g", what,
+                                             key, a, IMP_PAINTING_MAX_MM, v[a]);
+        return 0;
+}
+
+/* One optional number in [lo, hi] (lo excluded when open_lo). */
+static int check_number(const json_t *j, const char *key, double lo, bool open_lo, double hi, const char *what,
+                        struct imp_error *err) {
+        double v = lo;
+        if (imp_json_get_double(j, key, false, &v, what, err) < 0)
+                return -EBADMSG;
+        if (json_object_get(j, key) && !(v >= lo && v <= hi && !(open_lo && v == lo)))
+                return imp_error_set(err, -EBADMSG, "%s: %s: expected a number in %c%g, %g], got %g", what, key,
+                                     open_lo ? '(' : '[', lo, hi, v);
+        return 0;
+}
+
+static int check_painting_header(const json_t *j, const char *what, long long *cols, long long *rows,
+                                 struct imp_error *err) {
+        const char *fmt = NULL;
+        long long version = 1;
+        char w[4200];           /* "PATH: " for the helpers that put the key right after it */
+        snprintf(w, sizeof w, "%.4000s: ", what);
+        if (!json_is_object(j))
+                return imp_error_set(err, -EBADMSG, "%s: expected an object, got %s", what, imp_json_type_name(j));
+        if (imp_json_get_string(j, "format", true, &fmt, what, err) < 0)
+                return -EBADMSG;
+        if (strcmp(fmt, "impasto-painting"))
+                return imp_error_set(err, -EBADMSG, "%s: format: expected \"impasto-painting\", got \"%.100s\"", what,
+                                     fmt);
+        int r;
+        if ((r = check_int(j, "version", 1, 1, &version, w, err)) < 0 ||
+            (r = check_sizes(j, "extent_mm", true, what, err)) < 0 || (r = check_sizes(j, "fov_mm", true, what, err)) < 0 ||
+            (r = check_finite(j, "origin_mm", true, 2, w, err)) < 0 ||
+            (r = check_number(j, "overlap", 0, false, 0.999, what, err)) < 0 ||
+            (r = check_number(j, "stage_sigma_mm", 0, false, 1e3, what, err)) < 0 ||
+            (r = check_number(j, "stage_sigma_deg", 0, false, 180, what, err)) < 0 ||
+            (r = check_number(j, "stage_sigma_z_mm", 0, false, 1e3, what, err)) < 0 ||
+            (r = check_number(j, "pitch_mm", 0, true, 1000, what, err)) < 0 ||
+            (r = check_int(j, "cols", 1, IMP_TILES_MAX, cols, w, err)) < 0 ||
+            (r = check_int(j, "rows", 1, IMP_TILES_MAX, rows, w, err)) < 0)
+                return r;
+        return 0;
+}
+
+int imp_painting_json_check(const json_t *j, const char *what, struct imp_error *err) {
+        long long cols = IMP_TILES_MAX, rows = IMP_TILES_MAX;
+        int r = check_painting_header(j, what, &cols, &rows, err);
+        if (r < 0)
+                return r;
+        const json_t *tiles = json_object_get(j, "tiles");
+        size_t n = json_array_size(tiles);
+        if (!json_is_array(tiles) || n == 0 || n > IMP_TILES_MAX)
+                return imp_error_set(err, -EBADMSG, "%s: tiles: expected an array of 1..%d tiles, got %s%s%zu", what,
+                                     IMP_TILES_MAX, tiles ? imp_json_type_name(tiles) : "nothing",
+                                     json_is_array(tiles) ? " of " : "", json_is_array(tiles) ? n : 0);
+        if ((json_object_get(j, "cols") || json_object_get(j, "rows")) && (unsigned long long) cols * rows < n)
+                return imp_error_set(err, -EBADMSG, "%s: tiles: %zu tiles, more than cols × rows = %lld × %lld", what,
+                                     n, cols, rows);
+        uint8_t *seen = calloc(n, 1);
+        if (!seen)
+                return imp_error_set(err, -ENOMEM, "%s: out of memory", what);
+        for (size_t k = 0; k < n && r >= 0; k++)
+                r = check_painting_tile(json_array_get(tiles, k), k, n, cols, rows, seen, what, err);
+        free(seen);
+        return r;
+}
+
+int imp_painting_json_load(const char *path, json_t **ret, struct imp_error *err) {
+        *ret = NULL;
+        /* O_NONBLOCK: a FIFO put in its place must not hang the reader */
+        int fd = open(path, O_RDONLY | O_CLOEXEC | O_NONBLOCK);
+        if (fd < 0) {
+                int r = -errno;
+                return imp_error_set(err, r, "%s: %s", path, strerror(-r));
+        }
+        struct stat st = { 0 };
+        if (fstat(fd, &st) < 0 || !S_ISREG(st.st_mode) || st.st_size > (off_t) IMP_PAINTING_JSON_MAX_BYTES) {
+                bool reg = S_ISREG(st.st_mode);
+                close(fd);
+                return imp_error_set(err, -EBADMSG, "%s: expected a regular file of at most %u MiB (a painting of "
+                                     "at most %d tiles), got %s%lld bytes", path, IMP_PAINTING_JSON_MAX_BYTES >> 20,
+                                     IMP_TILES_MAX, reg ? "" : "a special file, ", reg ? (long long) st.st_size : 0LL);
+        }
+        json_error_t je;
+        json_t *j = json_loadfd(fd, JSON_REJECT_DUPLICATES, &je);
+        close(fd);
+        if (!j)
+                return imp_error_set(err, -EBADMSG, "%s:%d:%d: %s", path, je.line, je.column, je.text);
+        int r = imp_painting_json_check(j, path, err);
+        if (r < 0) {
+                json_decref(j);
+                return r;
+        }
+        *ret = j;
+        return 0;
 }

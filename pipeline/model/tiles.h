@@ -133,5 +133,20 @@ int imp_tile_plan_estimate(const struct imp_tile_plan *p, const struct imp_tile_
  * commanded stage target, read-back (the target until set), capture "tiles/NNNN" and copy
  * "copies/NNNN". NULL when out of memory. */
 json_t *imp_tile_plan_painting_json(const struct imp_tile_plan *p, double stage_sigma_mm, double stage_sigma_deg);
+/* painting.json as read by anyone but its writer (the daemon's resume, `impasto process`,
+ * `impasto mosaic`): at most IMP_PAINTING_JSON_MAX_BYTES, then imp_painting_json_check().
+ * -EBADMSG with err naming the file and field for anything damaged or out of range; other
+ * negative errnos for I/O (-ENOENT when absent). Caller owns *ret. */
+#define IMP_PAINTING_JSON_MAX_BYTES (64u << 20)        /* 100 000 tiles take ~40 MiB */
+#define IMP_PAINTING_MAX_MM 1e5                         /* extent and field: 100 m, anything above is a typo */
+int imp_painting_json_load(const char *path, json_t **ret, struct imp_error *err);
+/* The header (format "impasto-painting", version 1 when given, extent_mm and fov_mm in
+ * (0, IMP_PAINTING_MAX_MM], finite origin_mm, overlap in [0, 1), stage σ finite ≥ 0, pitch_mm
+ * in (0, 1000] when given, cols and rows ≥ 1 when given) and every tile (1..IMP_TILES_MAX
+ * of them): index 0..n−1 and unique, col < cols and row < rows, finite center_mm, readback_mm
+ * (and commanded_mm when given), capture and copy strings that do not leave the painting's
+ * directory (no ".." component; an absolute path is the writer's choice: the Slurm finish
+ * writes them). what names the document in messages. */
+int imp_painting_json_check(const json_t *j, const char *what, struct imp_error *err);
 /* Sets tile k's read-back position. -ERANGE for a tile it does not hold. */
 int imp_painting_json_set_readback(json_t *painting, size_t k, const double readback_mm[3]);

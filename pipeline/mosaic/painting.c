@@ -9,6 +9,7 @@
 #include "json-util.h"
 #include "macro.h"
 #include "mosaic.h"
+#include "tiles.h"
 
 void imp_painting_done(struct imp_painting *p) {
         if (!p)
@@ -189,7 +190,7 @@ int imp_painting_load(const char *dir, struct imp_painting *p, struct imp_error 
         char path[4200];
         snprintf(path, sizeof path, "%s/painting.json", dir);
         _cleanup_json_ json_t *j = NULL;
-        int r = imp_json_load(path, &j, err);
+        int r = imp_painting_json_load(path, &j, err);     /* bounded, checked: tiles.h */
         if (r < 0 || (r = load_header(p, j, path, err)) < 0)
                 return r;
         json_t *arr = json_object_get(j, "tiles");

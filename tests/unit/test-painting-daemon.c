@@ -451,6 +451,141 @@ static void test_kills(struct ctx *x, const char *ref, unsigned n_kills) {
         stop(x, &c);
 }
 
+/* Reads events off c until n frames were stored in all, then SIGKILLs impastod. */
+static void kill_at_frame(struct ctx *x, struct tclient *c, unsigned n) {
+        uint64_t end = h_deadline_ms(120000);
+        while (c->n_frames < n && !c->n_done && h_now_ms() < end) {
+                struct imp_proto_message m = { 0 };
+                if (tc_read(c, 4000, &m) == 0)
+                        imp_proto_message_done(&m);
+        }
+        CHECK_MSG(c->n_frames >= n && !c->n_done, "the scan did not reach frame %u (%u frames)", n, c->n_frames);
+        h_kill(&x->h, SIGKILL);
+        tc_close(c);
+}
+
+/* session.resume after a SIGKILL: the camera emulator may still hold the killed daemon's
+ * control channel for a while (a device error): tried again until it lets go. */
+static void resume_after_kill(struct tclient *c, const char *id) {
+        uint64_t end = h_deadline_ms(30000);
+        char msg[1024] = "";
+        enum imp_proto_errcode code;
+        while ((code = tc_err(c, "session.resume", h_arg("session", id), msg, sizeof msg)) == IMP_PROTO_E_DEVICE &&
+               h_now_ms() < end)
+                usleep(300000);
+        CHECK_MSG(code == IMP_PROTO_E_NONE, "session.resume: %s", msg);
+}
+
+/* A listed damaged session: paused, "damaged" naming session.json's fault and where the
+ * painting stands (tile k of N), its frames counted from the tile sets. */
+static void check_listed_damaged(struct tclient *c, const char *id, const char *why, unsigned tile) {
+        json_t *r = tc_ok(c, "session.show", h_arg("session", id));
+        const char *st = json_string_value(json_object_get(r, "state"));
+        const char *dmg = json_string_value(json_object_get(r, "damaged"));
+        size_t frames = (size_t) json_integer_value(json_object_get(r, "frames"));
+        CHECK_STR_EQ(st ? st : "", "paused");
+        CHECK_MSG(dmg && strstr(dmg, why), "damaged: %s, want %s", dmg ? dmg : "(none)", why);
+        char want[100];
+        snprintf(want, sizeof want, "frames: tile %u of %u at its frame %zu of %u", tile, N_TILES,
+                 frames - tile * FRAMES_PER_TILE, FRAMES_PER_TILE);
+        CHECK_MSG(dmg && strstr(dmg, want), "damaged: %s, want %s", dmg ? dmg : "(none)", want);
+        CHECK_MSG(frames >= tile * FRAMES_PER_TILE + 1 && frames < (tile + 1) * FRAMES_PER_TILE,
+                  "%zu frames listed, want some of tile %u", frames, tile);
+        CHECK_INT_EQ(json_integer_value(json_object_get(r, "steps")), N_TILES * FRAMES_PER_TILE);
+        json_decref(r);
+}
+
+/* A painting session whose session.json is damaged (then missing) after a SIGKILL, and whose
+ * painting.json is damaged too: listed paused at the right tile, rebuilt on resume from the
+ * painting's tile sets (session.show says what was rebuilt and why; the damaged painting.json
+ * kept aside byte for byte), and the final capture equals the uninterrupted one. */
+static void test_damaged(struct ctx *x, const char *ref) {
+        struct tclient c;
+        start(x, &c);
+        char id[128], sdir[1024], p[1200], q[1300];
+        tc_start_session(&c, x->plan, "damaged", id, sdir);
+        session_dir(&c, id, sdir, sizeof sdir);
+        kill_at_frame(x, &c, 2 * FRAMES_PER_TILE + 4);
+        snprintf(p, sizeof p, "%s/session.json", sdir);
+        h_write(p, "{\"session\": \"trunc");
+        snprintf(q, sizeof q, "%s/painting.json", sdir);
+        static const char bad_painting[] = "{\"format\": \"impasto-painting\", \"tiles\": 7}\n";
+        h_write(q, bad_painting);
+        start(x, &c);
+        check_listed_damaged(&c, id, "session.json", 2);
+        resume_after_kill(&c, id);
+        json_t *r = tc_ok(&c, "session.show", h_arg("session", id));
+        const char *rb = json_string_value(json_object_get(r, "rebuilt"));
+        CHECK_MSG(rb && strstr(rb, "session.json rebuilt from the painting's tile sets and plan") &&
+                  strstr(rb, "painting.json rebuilt from the plan and the tile sets") &&
+                  strstr(rb, "painting.json: extent_mm: missing") && strstr(rb, "painting.json.damaged-1"),
+                  "rebuilt: %s", rb ? rb : "(none)");
+        CHECK(!json_object_get(r, "damaged"));
+        json_decref(r);
+        snprintf(q, sizeof q, "%s/painting.json.damaged-1", sdir);
+        char kept[200] = "";
+        FILE *f = fopen(q, "re");
+        size_t kept_n = f ? fread(kept, 1, sizeof kept - 1, f) : 0;
+        if (f)
+                fclose(f);
+        CHECK_MSG(kept_n == strlen(bad_painting) && !memcmp(kept, bad_painting, kept_n), "%s: %s", q, kept);
+
+        /* again, session.json gone altogether, in tile 4 */
+        kill_at_frame(x, &c, 2 * FRAMES_PER_TILE + 1);  /* frames of this run: 2 more tiles */
+        CHECK(unlink(p) == 0);
+        start(x, &c);
+        check_listed_damaged(&c, id, "session.json: No such file or directory", 4);
+        resume_after_kill(&c, id);
+        r = tc_ok(&c, "session.show", h_arg("session", id));
+        rb = json_string_value(json_object_get(r, "rebuilt"));
+        CHECK_MSG(rb && strstr(rb, "session.json rebuilt from the painting's tile sets and plan") &&
+                  strstr(rb, "No such file"), "rebuilt: %s", rb ? rb : "(none)");
+        json_decref(r);
+        CHECK_STR_EQ(follow(x, &c, NULL, NULL, 0, NULL), "completed");
+        check_painting(sdir);
+        check_same_capture(ref, sdir);
+        stop(x, &c);
+}
+
+/* Copies of a finished session with session.json removed and one more damage each: resuming
+ * it fails with a message naming the tile set and what is wrong, changes nothing on disk
+ * (tree and contents hashed before and after), and the daemon goes on answering. */
+static void test_damaged_tiles(struct ctx *x, const char *ref) {
+        static const char *const cases[][3] = {
+                /* name, shell command in the copy, the message */
+                { "t-symlink", "mv tiles/0003 ../../../outside-0003 && ln -s \"$(realpath ../../../outside-0003)\" tiles/0003",
+                  "tiles/0003: a symbolic link, not the tile's capture set" },
+                { "t-missing", "rm -r tiles/0002", "tiles/0002: missing; but" },
+                { "t-range", "cp -a tiles/0005 tiles/0006", "tiles/0006: a tile set beyond the plan's 6 tiles" },
+                { "t-cut", "truncate -s -7 tiles/0001/manifest.jsonl", "tiles/0001/manifest.jsonl:10: the last line" },
+                { "t-gap", "sed -i 's/\"done\": true/\"done\": false/' painting.json && rm -r tiles/0001",
+                  "'s set is there, but tile 1 before it is not complete" },
+        };
+        char sessions[400];
+        snprintf(sessions, sizeof sessions, "%s/sessions", x->h.state);
+        for (size_t i = 0; i < ARRAY_SIZE(cases); i++)
+                CHECK_INT_EQ(test_sh("cd %s && cp -a %s %s && cd %s && rm session.json && %s", sessions, ref, cases[i][0],
+                                     cases[i][0], cases[i][1]), 0);
+        CHECK_INT_EQ(test_sh("cd %s && find t-* ../../outside-0003 -print0 | sort -z | xargs -0 stat -c '%%n %%s %%Y %%F' > ../before "
+                             "&& find t-* ../../outside-0003 -type f -print0 | sort -z | xargs -0 md5sum >> ../before", sessions), 0);
+        struct tclient c;
+        start(x, &c);
+        for (size_t i = 0; i < ARRAY_SIZE(cases); i++) {
+                char msg[2048] = "";
+                CHECK_INT_EQ(tc_err(&c, "session.resume", h_arg("session", cases[i][0]), msg, sizeof msg),
+                             IMP_PROTO_E_IO);
+                CHECK_MSG(strstr(msg, cases[i][2]), "%s: %s, want %s", cases[i][0], msg, cases[i][2]);
+                json_t *r = tc_ok(&c, "session.show", h_arg("session", cases[i][0]));
+                CHECK_STR_EQ(json_string_value(json_object_get(r, "state")), "paused");
+                json_decref(r);
+        }
+        json_decref(tc_ok(&c, "status", NULL));
+        stop(x, &c);
+        CHECK_INT_EQ(test_sh("cd %s && find t-* ../../outside-0003 -print0 | sort -z | xargs -0 stat -c '%%n %%s %%Y %%F' > ../after "
+                             "&& find t-* ../../outside-0003 -type f -print0 | sort -z | xargs -0 md5sum >> ../after && "
+                             "cmp ../before ../after && rm -rf t-* ../../outside-0003", sessions), 0);
+}
+
 /* plan.estimate of the painting plan: the whole painting's figures, the very object the
  * offline `plan estimate` prints (imp_plan_painting_estimate_json on the same rig, plan and
  * tile bytes, the stage's feed), the options taken, and a painting the store cannot hold
@@ -538,6 +673,10 @@ int main(int argc, char **argv) {
                         test_estimate(&x);
                 test_no_stage(&x);
                 test_faults(&x, ref);
+                if (!x.modbus) {
+                        test_damaged(&x, ref);
+                        test_damaged_tiles(&x, ref);
+                }
         }
         if (!x.modbus)
                 test_kills(&x, ref, kills);

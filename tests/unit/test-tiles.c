@@ -1,7 +1,11 @@
 /* Tile plans (pipeline/model/tiles.h): counts and spacing with the asked overlap, coverage
  * of the whole area, serpentine order, stage targets and height offsets, the plan-file
  * group and its errors. Tolerances: 1e-9 mm for arithmetic that is exact up to rounding. */
+#include <fcntl.h>
 #include <math.h>
+#include <sys/stat.h>
+#include <unistd.h>
+#include "json-util.h"
 #include "tiles.h"
 #include "unit/test.h"
 
@@ -232,7 +236,7 @@ static void test_bad_options(void) {
         struct imp_error err = {};
         struct imp_tile_plan *p = NULL;
         CHECK_ERR(imp_tile_plan_new(&o, &p, &err), -EINVAL);
-        CHECK_STR_CONTAINS(err.msg, "fov_mm y: expected a number > 0, got 0");
+        CHECK_STR_CONTAINS(err.msg, "fov_mm y: expected a number in (0, 100000] mm, got 0");
         o.fov_mm[1] = 40;
         o.overlap = 0.95;
         CHECK_ERR(imp_tile_plan_new(&o, &p, &err), -EINVAL);
@@ -242,7 +246,7 @@ static void test_bad_options(void) {
         CHECK_ERR(imp_tile_plan_new(&o, &p, &err), -EINVAL);
         CHECK_STR_CONTAINS(err.msg, "corner_z_mm[2]");
         o.corner_z_mm[2] = 0;
-        o.extent_mm[0] = 1e6;
+        o.extent_mm[0] = 1e5;
         o.fov_mm[0] = 0.01;
         CHECK_ERR(imp_tile_plan_new(&o, &p, &err), -E2BIG);
         CHECK(p == NULL);
@@ -294,6 +298,121 @@ static void test_conf(void) {
         }
 }
 
+/* Hostile painting groups of a plan file: each refused with a message naming
+ * the file, line and field, none laid out (a huge extent used to give stage targets of 5e299
+ * mm; 10^7 tiles must be refused before anything is allocated for them). */
+static void test_hostile_groups(void) {
+        static const char *const bad[][2] = {
+                { "painting = { extent_mm = [-300.0, 200.0]; fov_mm = [60.0, 40.0]; };", "painting: tiles: extent_mm x: expected a number in (0, 100000] mm, got -300" },
+                { "painting = { extent_mm = [1e300, 1e300]; fov_mm = [1e300, 1e300]; };", "extent_mm x: expected a number in (0, 100000] mm, got 1e+300" },
+                { "painting = { extent_mm = [300.0, 200.0]; fov_mm = [0.0, 40.0]; };", "fov_mm x: expected a number in (0, 100000] mm, got 0" },
+                { "painting = { extent_mm = [300.0, 200.0]; fov_mm = [60.0, 40.0]; overlap = 1.0; };", "painting.overlap" },
+                { "painting = { extent_mm = [300.0, 200.0]; fov_mm = [60.0, 40.0]; origin_mm = [1e300, 0.0]; };", "origin_mm x: expected a finite number within" },
+                { "painting = { extent_mm = [100000.0, 100000.0]; fov_mm = [0.01, 0.01]; };", "more than 100000" },
+                { "painting = { extent_mm = [300.0]; fov_mm = [60.0, 40.0]; };", "painting.extent_mm" },
+                { "painting = { extent_mm = \"big\"; fov_mm = [60.0, 40.0]; };", "painting.extent_mm" },
+        };
+        for (size_t i = 0; i < ARRAY_SIZE(bad); i++) {
+                _cleanup_(imp_conf_freep) struct imp_conf *b = NULL;
+                struct imp_error err = {};
+                CHECK_OK(imp_conf_load_string(bad[i][0], "plan.cfg", &b, &err));
+                if (!b)
+                        continue;
+                config_setting_t *g = config_setting_get_member(imp_conf_root(b), "painting");
+                struct imp_tile_plan *q = NULL;
+                int r = imp_tile_plan_from_conf(b, g, &q, &err);
+                CHECK_MSG(r < 0, "%s: accepted", bad[i][0]);
+                CHECK_MSG(strstr(err.msg, bad[i][1]) && strstr(err.msg, "plan.cfg:"), "%s: %s", bad[i][0], err.msg);
+                CHECK(q == NULL);
+                imp_tile_plan_free(q);
+        }
+}
+
+#define GOOD_PAINTING \
+        "{\"format\": \"impasto-painting\", \"version\": 1, \"extent_mm\": [100, 54], \"fov_mm\": [40, 30], " \
+        "\"overlap\": 0.2, \"origin_mm\": [20, 20], \"stage_sigma_mm\": 0.02, \"cols\": 2, \"rows\": 1, \"tiles\": [" \
+        "{\"index\": 0, \"col\": 0, \"row\": 0, \"center_mm\": [20, 15], \"commanded_mm\": [40, 35, 10], " \
+        "\"readback_mm\": [40, 35, 10], \"capture\": \"tiles/0000\", \"copy\": \"copies/0000\", \"done\": true}, " \
+        "{\"index\": 1, \"col\": 1, \"row\": 0, \"center_mm\": [60, 15], \"readback_mm\": [80, 35, 10], " \
+        "\"capture\": \"/abs/tiles/0001\", \"copy\": \"copies/0001\"}]}"
+
+/* painting.json as `impasto process`, `impasto mosaic` and impastod's resume read it: a good
+ * one passes; each damage is refused (-EBADMSG) naming the file and the field. */
+static void test_painting_json(void) {
+        struct imp_error err = {};
+        json_error_t je;
+        _cleanup_json_ json_t *good = json_loads(GOOD_PAINTING, 0, &je);
+        CHECK_MSG(good, "%s", je.text);
+        if (!good)
+                return;
+        CHECK_OK(imp_painting_json_check(good, "P", &err));
+        static const char *const bad[][3] = {
+                /* path in tiles[1] or the header, key, its new JSON value, expected message */
+                { "1", "capture", "\"../../etc\"" }, { "1", "copy", "\"copies/../../../x\"" },
+                { "1", "copy", "\"..\"" }, { "0", "index", "7" }, { "1", "index", "0" },
+                { "1", "col", "2" }, { "0", "row", "-1" }, { "0", "center_mm", "[1e300, 0]" },
+                { "0", "readback_mm", "[1, 2]" }, { "0", "done", "\"yes\"" }, { "0", "copy", "17" },
+                { "H", "format", "\"other\"" }, { "H", "version", "2" }, { "H", "extent_mm", "[1e9, 5]" },
+                { "H", "fov_mm", "[0, 5]" }, { "H", "overlap", "1.0" }, { "H", "stage_sigma_mm", "-1" },
+                { "H", "pitch_mm", "0" }, { "H", "tiles", "[]" }, { "H", "tiles", "{}" }, { "H", "cols", "0" },
+                { "H", "rows", "1.5" },
+        };
+        static const char *const want[] = {
+                "P: tiles[1].capture: \"../../etc\" leaves the painting's directory",
+                "P: tiles[1].copy: \"copies/../../../x\" leaves", "P: tiles[1].copy: \"..\" leaves",
+                "P: tiles[0].index: expected 0..1, got 7", "P: tiles[1].index: 0: another tile has it already",
+                "P: tiles[1].col: expected 0..1, got 2", "P: tiles[0].row: expected 0..0, got -1",
+                "P: tiles[0].center_mm[0]: expected a finite number", "P: tiles[0].readback_mm: expected 3 numbers",
+                "P: tiles[0].done: expected a boolean", "P: tiles[0].copy: expected a string",
+                "P: format: expected \"impasto-painting\"", "P: version: expected 1..1, got 2",
+                "P: extent_mm[0]: expected a size in (0, 100000] mm", "P: fov_mm[0]: expected a size",
+                "P: overlap: expected a number in [0, 0.999]", "P: stage_sigma_mm: expected a number in [0",
+                "P: pitch_mm: expected a number in (0, 1000]", "P: tiles: expected an array of 1..100000 tiles",
+                "P: tiles: expected an array", "P: cols: expected 1..100000, got 0", "P: rows: expected an integer",
+        };
+        for (size_t i = 0; i < ARRAY_SIZE(bad); i++) {
+                _cleanup_json_ json_t *j = json_deep_copy(good);
+                json_t *v = json_loads(bad[i][2], JSON_DECODE_ANY, &je);
+                json_t *o = bad[i][0][0] == 'H' ? j : json_array_get(json_object_get(j, "tiles"), (size_t) atoi(bad[i][0]));
+                json_object_set_new(o, bad[i][1], v);
+                err.msg[0] = 0;
+                CHECK_INT_EQ(imp_painting_json_check(j, "P", &err), -EBADMSG);
+                CHECK_MSG(strstr(err.msg, want[i]), "%s = %s: got \"%s\", want \"%s\"", bad[i][1], bad[i][2], err.msg,
+                          want[i]);
+        }
+}
+
+/* imp_painting_json_load: bounded in size (a 65 MiB file is refused without being parsed),
+ * a FIFO refused without blocking, unparsable JSON named with line and column. */
+static void test_painting_json_load(void) {
+        char dir[] = "/tmp/test-tiles-XXXXXX", path[100];
+        CHECK(mkdtemp(dir));
+        struct imp_error err = {};
+        json_t *j = NULL;
+        snprintf(path, sizeof path, "%s/painting.json", dir);
+        int fd = open(path, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+        CHECK(fd >= 0 && write(fd, GOOD_PAINTING, strlen(GOOD_PAINTING)) == (ssize_t) strlen(GOOD_PAINTING));
+        CHECK_OK(imp_painting_json_load(path, &j, &err));
+        CHECK_INT_EQ(json_array_size(json_object_get(j, "tiles")), 2);
+        json_decref(j);
+        j = NULL;
+        CHECK(ftruncate(fd, 10) == 0);
+        CHECK_INT_EQ(imp_painting_json_load(path, &j, &err), -EBADMSG);
+        CHECK_STR_CONTAINS(err.msg, "/painting.json:1:");
+        CHECK(ftruncate(fd, (off_t) IMP_PAINTING_JSON_MAX_BYTES + 1) == 0);    /* sparse: zeros */
+        CHECK_INT_EQ(imp_painting_json_load(path, &j, &err), -EBADMSG);
+        CHECK_STR_CONTAINS(err.msg, "expected a regular file of at most 64 MiB");
+        CHECK_STR_CONTAINS(err.msg, "got 67108865 bytes");
+        close(fd);
+        CHECK(unlink(path) == 0 && mkfifo(path, 0600) == 0);
+        CHECK_INT_EQ(imp_painting_json_load(path, &j, &err), -EBADMSG);
+        CHECK_STR_CONTAINS(err.msg, "a special file");
+        CHECK(j == NULL);
+        CHECK_INT_EQ(imp_painting_json_load("/nonexistent/painting.json", &j, &err), -ENOENT);
+        unlink(path);
+        rmdir(dir);
+}
+
 /* Capture and processing overlap: the wall time is the capture plus the last tile's
  * processing when a worker keeps up, and grows with the processing when it does not. */
 static void test_estimate(void) {
@@ -337,6 +456,9 @@ int main(void) {
         test_targets();
         test_bad_options();
         test_conf();
+        test_hostile_groups();
+        test_painting_json();
+        test_painting_json_load();
         test_estimate();
         return TEST_DONE();
 }
