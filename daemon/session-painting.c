@@ -199,7 +199,7 @@ static int check_tile_dir(const struct session *s, size_t k, char *msg, size_t s
         tile_dir(s, k, dir, sizeof dir);
         if (lstat(dir, &st) < 0 || S_ISDIR(st.st_mode))
                 return 0;
-        snprintf(msg, size, "%s: %s, not the tile's capture set (a directory of the session): the session is left as "
+        snprintf(msg, size, "%.400s: %s, not the tile's capture set (a directory of the session): the session is left as "
                  "it is; put tile %zu's set itself there (or remove it to capture the tile again), then resume", dir,
                  S_ISLNK(st.st_mode) ? "a symbolic link" : "not a directory", k);
         return -ENOTDIR;
