@@ -141,12 +141,13 @@ json_t *imp_tile_plan_painting_json(const struct imp_tile_plan *p, double stage_
 #define IMP_PAINTING_MAX_MM 1e5                         /* extent and field: 100 m, anything above is a typo */
 int imp_painting_json_load(const char *path, json_t **ret, struct imp_error *err);
 /* The header (format "impasto-painting", version 1 when given, extent_mm and fov_mm in
- * (0, IMP_PAINTING_MAX_MM], finite origin_mm, overlap in [0, 1), stage σ finite ≥ 0, pitch_mm
- * in (0, 1000] when given, cols and rows ≥ 1 when given) and every tile (1..IMP_TILES_MAX
- * of them): index 0..n−1 and unique, col < cols and row < rows, finite center_mm, readback_mm
- * (and commanded_mm when given), capture and copy strings that do not leave the painting's
- * directory (no ".." component; an absolute path is the writer's choice: the Slurm finish
- * writes them). what names the document in messages. */
+ * (0, IMP_PAINTING_MAX_MM], finite origin_mm, overlap in [0, 1), stage σ finite ≥ 0,
+ * pitch_mm in [0.001, 1000] when given (a copy grid of 1 µm at the finest), cols and rows ≥ 1
+ * when given) and every tile (1..IMP_TILES_MAX of them): index 0..n−1 and unique, col < cols
+ * and row < rows, finite center_mm, readback_mm (and commanded_mm when given), capture and
+ * copy strings that do not leave the painting's directory (no ".." component; an absolute
+ * path is the writer's choice: the Slurm finish writes them). Unknown keys are ignored.
+ * what names the document in messages. */
 int imp_painting_json_check(const json_t *j, const char *what, struct imp_error *err);
 /* Sets tile k's read-back position. -ERANGE for a tile it does not hold. */
 int imp_painting_json_set_readback(json_t *painting, size_t k, const double readback_mm[3]);

@@ -367,7 +367,7 @@ static void test_painting_json(void) {
                 "P: format: expected \"impasto-painting\"", "P: version: expected 1..1, got 2",
                 "P: extent_mm[0]: expected a size in (0, 100000] mm", "P: fov_mm[0]: expected a size",
                 "P: overlap: expected a number in [0, 0.999]", "P: stage_sigma_mm: expected a number in [0",
-                "P: pitch_mm: expected a number in (0, 1000]", "P: tiles: expected an array of 1..100000 tiles",
+                "P: pitch_mm: expected a number in [0.001, 1000]", "P: tiles: expected an array of 1..100000 tiles",
                 "P: tiles: expected an array", "P: cols: expected 1..100000, got 0", "P: rows: expected an integer",
         };
         for (size_t i = 0; i < ARRAY_SIZE(bad); i++) {
