@@ -475,7 +475,7 @@ static int check_painting_header(const json_t *j, const char *what, long long *c
             (r = check_number(j, "stage_sigma_mm", 0, false, 1e3, what, err)) < 0 ||
             (r = check_number(j, "stage_sigma_deg", 0, false, 180, what, err)) < 0 ||
             (r = check_number(j, "stage_sigma_z_mm", 0, false, 1e3, what, err)) < 0 ||
-            (r = check_number(j, "pitch_mm", 0, true, 1000, what, err)) < 0 ||
+            (r = check_number(j, "pitch_mm", 1e-3, false, 1000, what, err)) < 0 ||
             (r = check_int(j, "cols", 1, IMP_TILES_MAX, cols, w, err)) < 0 ||
             (r = check_int(j, "rows", 1, IMP_TILES_MAX, rows, w, err)) < 0)
                 return r;
@@ -505,7 +505,7 @@ int imp_painting_json_check(const json_t *j, const char *what, struct imp_error 
         return r;
 }
 
-int imp_painting_json_load(const char *path, json_t **ret, struct imp_error *err) {
+int imp_painting_json_read(const char *path, json_t **ret, struct imp_error *err) {
         *ret = NULL;
         /* O_NONBLOCK: a FIFO put in its place must not hang the reader */
         int fd = open(path, O_RDONLY | O_CLOEXEC | O_NONBLOCK);
@@ -526,11 +526,16 @@ int imp_painting_json_load(const char *path, json_t **ret, struct imp_error *err
         close(fd);
         if (!j)
                 return imp_error_set(err, -EBADMSG, "%s:%d:%d: %s", path, je.line, je.column, je.text);
-        int r = imp_painting_json_check(j, path, err);
-        if (r < 0) {
-                json_decref(j);
-                return r;
-        }
         *ret = j;
         return 0;
+}
+
+int imp_painting_json_load(const char *path, json_t **ret, struct imp_error *err) {
+        json_t *j = NULL;
+        int r = imp_painting_json_read(path, &j, err);
+        if (r >= 0 && (r = imp_painting_json_check(j, path, err)) < 0)
+                json_decref(j);
+        else if (r >= 0)
+                *ret = j;
+        return r;
 }

@@ -140,6 +140,9 @@ json_t *imp_tile_plan_painting_json(const struct imp_tile_plan *p, double stage_
 #define IMP_PAINTING_JSON_MAX_BYTES (64u << 20)        /* 100 000 tiles take ~40 MiB */
 #define IMP_PAINTING_MAX_MM 1e5                         /* extent and field: 100 m, anything above is a typo */
 int imp_painting_json_load(const char *path, json_t **ret, struct imp_error *err);
+/* The bounded read alone (size, regular file, JSON: -EBADMSG), for a reader that checks its
+ * own fields first and then calls imp_painting_json_check(). */
+int imp_painting_json_read(const char *path, json_t **ret, struct imp_error *err);
 /* The header (format "impasto-painting", version 1 when given, extent_mm and fov_mm in
  * (0, IMP_PAINTING_MAX_MM], finite origin_mm, overlap in [0, 1), stage σ finite ≥ 0,
  * pitch_mm in [0.001, 1000] when given (a copy grid of 1 µm at the finest), cols and rows ≥ 1

@@ -190,8 +190,8 @@ int imp_painting_load(const char *dir, struct imp_painting *p, struct imp_error 
         char path[4200];
         snprintf(path, sizeof path, "%s/painting.json", dir);
         _cleanup_json_ json_t *j = NULL;
-        int r = imp_painting_json_load(path, &j, err);     /* bounded, checked: tiles.h */
-        if (r < 0 || (r = load_header(p, j, path, err)) < 0)
+        int r = imp_painting_json_read(path, &j, err);     /* bounded; every field checked: tiles.h */
+        if (r < 0 || (r = load_header(p, j, path, err)) < 0 || (r = imp_painting_json_check(j, path, err)) < 0)
                 return r;
         json_t *arr = json_object_get(j, "tiles");
         if (!json_is_array(arr) || json_array_size(arr) == 0)

@@ -493,6 +493,18 @@ static void check_listed_damaged(struct tclient *c, const char *id, const char *
                   "%zu frames listed, want some of tile %u", frames, tile);
         CHECK_INT_EQ(json_integer_value(json_object_get(r, "steps")), N_TILES * FRAMES_PER_TILE);
         json_decref(r);
+        /* status: the operator's attention list names it, with where it stands */
+        r = tc_ok(c, "status", NULL);
+        bool listed = false;
+        size_t i;
+        json_t *a;
+        json_array_foreach(json_object_get(r, "attention"), i, a) {
+                const char *kind = json_string_value(json_object_get(a, "kind"));
+                const char *m = json_string_value(json_object_get(a, "message"));
+                listed |= kind && !strcmp(kind, "session_damaged") && m && strstr(m, id) && strstr(m, want);
+        }
+        CHECK_MSG(listed, "status's attention list does not name the damaged session at %s", want);
+        json_decref(r);
 }
 
 /* A painting session whose session.json is damaged (then missing) after a SIGKILL, and whose
