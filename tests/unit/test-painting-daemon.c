@@ -498,7 +498,7 @@ static void check_listed_damaged(struct tclient *c, const char *id, const char *
         bool listed = false;
         size_t i;
         json_t *a;
-        json_array_foreach(json_object_get(r, "attention"), i, a) {
+        json_array_foreach(json_object_get(json_object_get(r, "attention"), "items"), i, a) {
                 const char *kind = json_string_value(json_object_get(a, "kind"));
                 const char *m = json_string_value(json_object_get(a, "message"));
                 listed |= kind && !strcmp(kind, "session_damaged") && m && strstr(m, id) && strstr(m, want);
