@@ -505,9 +505,29 @@ int imp_painting_json_check(const json_t *j, const char *what, struct imp_error 
         return r;
 }
 
-int imp_painting_json_read(const char *path, json_t **ret, struct imp_error *err) {
-        *ret = NULL;
-        /* O_NONBLOCK: a FIFO put in its place must not hang the reader */
+/* JSON values in text (the commas, colons and opening brackets outside strings, plus one):
+ * what the parse will allocate, counted before it. */
+static size_t count_values(const char *t, size_t n) {
+        size_t v = 1;
+        bool in_str = false;
+        for (size_t i = 0; i < n; i++) {
+                char c = t[i];
+                if (in_str) {
+                        if (c == '\\')
+                                i++;
+                        else if (c == '"')
+                                in_str = false;
+                } else if (c == '"')
+                        in_str = true;
+                else if (c == ',' || c == ':' || c == '[' || c == '{')
+                        v++;
+        }
+        return v;
+}
+
+/* The whole regular file, at most IMP_PAINTING_JSON_MAX_BYTES; O_NONBLOCK: a FIFO put in its
+ * place must not hang the reader. */
+static int read_bounded(const char *path, char **ret, size_t *ret_size, struct imp_error *err) {
         int fd = open(path, O_RDONLY | O_CLOEXEC | O_NONBLOCK);
         if (fd < 0) {
                 int r = -errno;
@@ -521,9 +541,39 @@ int imp_painting_json_read(const char *path, json_t **ret, struct imp_error *err
                                      "at most %d tiles), got %s%lld bytes", path, IMP_PAINTING_JSON_MAX_BYTES >> 20,
                                      IMP_TILES_MAX, reg ? "" : "a special file, ", reg ? (long long) st.st_size : 0LL);
         }
-        json_error_t je;
-        json_t *j = json_loadfd(fd, JSON_REJECT_DUPLICATES, &je);
+        char *buf = malloc((size_t) st.st_size + 1);
+        size_t n = 0;
+        ssize_t k = 1;
+        while (buf && n < (size_t) st.st_size && (k = read(fd, buf + n, (size_t) st.st_size - n)) > 0)
+                n += (size_t) k;
+        int r = !buf ? -ENOMEM : k < 0 ? -errno : 0;
         close(fd);
+        if (r < 0) {
+                free(buf);
+                return imp_error_set(err, r, "%s: %s", path, strerror(-r));
+        }
+        *ret = buf;
+        *ret_size = n;  /* a file that shrank meanwhile: what was there */
+        return 0;
+}
+
+int imp_painting_json_read(const char *path, json_t **ret, struct imp_error *err) {
+        *ret = NULL;
+        char *text = NULL;
+        size_t n = 0;
+        int r = read_bounded(path, &text, &n, err);
+        if (r < 0)
+                return r;
+        size_t values = count_values(text, n);
+        if (values > IMP_PAINTING_JSON_MAX_VALUES) {
+                free(text);
+                return imp_error_set(err, -EBADMSG, "%s: %zu JSON values, expected at most %u (a painting of at most "
+                                     "%d tiles has ~32 a tile): not parsed", path, values, IMP_PAINTING_JSON_MAX_VALUES,
+                                     IMP_TILES_MAX);
+        }
+        json_error_t je;
+        json_t *j = json_loadb(text, n, JSON_REJECT_DUPLICATES, &je);
+        free(text);
         if (!j)
                 return imp_error_set(err, -EBADMSG, "%s:%d:%d: %s", path, je.line, je.column, je.text);
         *ret = j;

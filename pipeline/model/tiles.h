@@ -135,9 +135,12 @@ int imp_tile_plan_estimate(const struct imp_tile_plan *p, const struct imp_tile_
 json_t *imp_tile_plan_painting_json(const struct imp_tile_plan *p, double stage_sigma_mm, double stage_sigma_deg);
 /* painting.json as read by anyone but its writer (the daemon's resume, `impasto process`,
  * `impasto mosaic`): at most IMP_PAINTING_JSON_MAX_BYTES, then imp_painting_json_check().
- * -EBADMSG with err naming the file and field for anything damaged or out of range; other
+ * Its JSON values are counted before the parse: at most IMP_PAINTING_JSON_MAX_VALUES (what
+ * the parse allocates stays near 220 MB whatever the document). -EBADMSG with err naming the
+ * file and field for anything damaged or out of range; other
  * negative errnos for I/O (-ENOENT when absent). Caller owns *ret. */
 #define IMP_PAINTING_JSON_MAX_BYTES (64u << 20)        /* 100 000 tiles take ~40 MiB */
+#define IMP_PAINTING_JSON_MAX_VALUES (40u * IMP_TILES_MAX)   /* JSON values (~32 a tile): ~55 B each parsed */
 #define IMP_PAINTING_MAX_MM 1e5                         /* extent and field: 100 m, anything above is a typo */
 int imp_painting_json_load(const char *path, json_t **ret, struct imp_error *err);
 /* The bounded read alone (size, regular file, JSON: -EBADMSG), for a reader that checks its

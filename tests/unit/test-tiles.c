@@ -410,7 +410,43 @@ static void test_painting_json_load(void) {
         CHECK(j == NULL);
         CHECK_INT_EQ(imp_painting_json_load("/nonexistent/painting.json", &j, &err), -ENOENT);
         unlink(path);
+
+        /* 4.2 million values in 8.4 MB: refused before the parse (it would take ~250 MB) */
+        fd = open(path, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+        const char *head = "{\"format\": \"impasto-painting\", \"x\": [0";
+        CHECK(fd >= 0 && write(fd, head, strlen(head)) == (ssize_t) strlen(head));
+        static char zeros[2 * 100000];
+        for (size_t i = 0; i < sizeof zeros; i += 2)
+                zeros[i] = ',', zeros[i + 1] = '0';
+        for (int k = 0; k < 42 && fd >= 0; k++)
+                CHECK(write(fd, zeros, sizeof zeros) == (ssize_t) sizeof zeros);
+        CHECK(fd >= 0 && write(fd, "]}", 2) == 2);
+        if (fd >= 0)
+                close(fd);
+        CHECK_INT_EQ(imp_painting_json_load(path, &j, &err), -EBADMSG);
+        CHECK_STR_CONTAINS(err.msg, "4200006 JSON values, expected at most 4000000");
+        unlink(path);
         rmdir(dir);
+
+        /* the daemon's own painting.json (indented, every tile done) of IMP_TILES_MAX tiles fits
+         * both bounds: measured per tile on 3 × 2 tiles */
+        _cleanup_(imp_tile_plan_freep) struct imp_tile_plan *p = make(100, 54, 40, 30, 0.2, IMP_TILE_ORDER_ROWS);
+        _cleanup_json_ json_t *pj = p ? imp_tile_plan_painting_json(p, 0.05, 0.05) : NULL;
+        size_t n = imp_tile_plan_count(p), k;
+        json_t *t;
+        json_array_foreach(json_object_get(pj, "tiles"), k, t)
+                json_object_set_new(t, "done", json_true());
+        _cleanup_free_ char *text = pj ? json_dumps(pj, JSON_INDENT(2) | JSON_REAL_PRECISION(17)) : NULL;
+        size_t values = 1;
+        for (const char *c = text; c && *c; c++)
+                values += *c == ',' || *c == ':' || *c == '[' || *c == '{';
+        CHECK(text && n == 6);
+        if (text && n == 6) {
+                double bytes_per_tile = (double) strlen(text) / (double) n, values_per_tile = (double) values / (double) n;
+                fprintf(stderr, "painting.json: %.0f bytes and %.1f values a tile\n", bytes_per_tile, values_per_tile);
+                CHECK(bytes_per_tile * IMP_TILES_MAX < IMP_PAINTING_JSON_MAX_BYTES);
+                CHECK(values_per_tile * IMP_TILES_MAX < IMP_PAINTING_JSON_MAX_VALUES);
+        }
 }
 
 /* Capture and processing overlap: the wall time is the capture plus the last tile's
