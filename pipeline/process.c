@@ -174,7 +174,6 @@ static int merge_stack(const struct imp_captureset *cs, const struct stack *s,
         struct imp_hdr_options opt;
         imp_hdr_options_default(&opt);
         opt.demosaic = true;
-        opt.no_variance = true;       /* both callers keep the values and flags only */
         r = imp_hdr_merge(ex, s->n, sensor, &opt, ret);
         if (r < 0)
                 imp_error_set(err, r, "%s: HDR merge of frame %zu failed: %s",

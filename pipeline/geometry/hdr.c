@@ -334,16 +334,14 @@ static int merge_fast(const struct hdr_ctx *cx, struct imp_image *v, struct imp_
         #pragma omp parallel for schedule(static) reduction(+:n_sat,n_dark)
         for (int y = 0; y < h; y++) {
                 const uint16_t *raw[HDR_MAX_STACK];
-                float var_span[HDR_SPAN];          /* var NULL: the variance not kept */
                 const float *flat_row = flat ? imp_image_row(flat, y) : NULL;
-                float *pv = imp_image_row(v, y);
+                float *pv = imp_image_row(v, y), *pvar = imp_image_row(var, y);
                 uint8_t *pf = imp_image_row(fl, y);
                 for (size_t j0 = 0; j0 < ns; j0 += HDR_SPAN) {
                         size_t m = ns - j0 < HDR_SPAN ? ns - j0 : HDR_SPAN;
-                        float *pvar = var ? (float *) imp_image_row(var, y) + j0 : var_span;
                         for (size_t i = 0; i < cx->n; i++)
                                 raw[i] = (const uint16_t *) imp_image_row(cx->e[i].frame, y) + j0;
-                        merge_span(&fx, raw, flat_row ? flat_row + j0 : NULL, m, pv + j0, pvar, pf + j0);
+                        merge_span(&fx, raw, flat_row ? flat_row + j0 : NULL, m, pv + j0, pvar + j0, pf + j0);
                         for (size_t j = j0; j < j0 + m; j++) {
                                 n_sat += pf[j] == IMP_HDR_SATURATED;
                                 n_dark += pf[j] == IMP_HDR_DARK;
@@ -407,11 +405,9 @@ int imp_hdr_merge(const struct imp_hdr_exposure *stack, size_t n, const struct i
         }
 
         int w = f0->width, h = f0->height, C = f0->channels, r;
-        /* without a variance wanted, the table path writes it to a row scratch */
-        bool hold_var = !opt->no_variance || opt->dark || bayer;
         _cleanup_image_ struct imp_image *v = NULL, *var = NULL, *fl = NULL;
         if ((r = imp_image_new(w, h, C, IMP_PIX_F32, &v)) < 0 ||
-            (hold_var && (r = imp_image_new(w, h, C, IMP_PIX_F32, &var)) < 0) ||
+            (r = imp_image_new(w, h, C, IMP_PIX_F32, &var)) < 0 ||
             (r = imp_image_new(w, h, C, IMP_PIX_U8, &fl)) < 0)
                 return r;
         size_t n_sat = 0, n_dark = 0;
@@ -444,10 +440,6 @@ int imp_hdr_merge(const struct imp_hdr_exposure *stack, size_t n, const struct i
                 v = TAKE_PTR(v3);
                 var = TAKE_PTR(var3);
                 fl = TAKE_PTR(fl3);
-        }
-        if (opt->no_variance) {
-                imp_image_free(var);
-                var = NULL;
         }
         *ret = (struct imp_hdr_result) {
                 .value = TAKE_PTR(v), .variance = TAKE_PTR(var), .flags = TAKE_PTR(fl),

@@ -57,10 +57,6 @@ struct imp_hdr_options {
         /* Bayer input (sensor->bayer with 1-channel frames): demosaic the merged values
          * (bilinear, RGGB) into 3 channels. false keeps the mosaic (1 channel). */
         bool demosaic;
-        /* The caller does not want the variance: imp_hdr_result.variance is NULL, and
-         * (without a dark frame or a demosaic) it is never held in memory. Values and
-         * flags are the same as with it. Default false. */
-        bool no_variance;
 };
 
 /* Fills the defaults above (all fields). */
@@ -68,7 +64,7 @@ void imp_hdr_options_default(struct imp_hdr_options *opt);
 
 struct imp_hdr_result {
         struct imp_image *value;         /* f32, C channels: V, radiance units */
-        struct imp_image *variance;      /* f32, C channels: var(V); NULL with no_variance */
+        struct imp_image *variance;      /* f32, C channels: var(V) */
         struct imp_image *flags;         /* u8, C channels: IMP_HDR_* bits */
         size_t n_saturated, n_dark;      /* samples (pixel × channel) flagged */
 };

@@ -5,7 +5,6 @@
  * field, Bayer demosaic, argument errors. */
 #include <math.h>
 #include <stdint.h>
-#include <string.h>
 #include "hdr.h"
 #include "unit/test.h"
 
@@ -219,53 +218,8 @@ static void test_errors(void) {
         imp_image_free(g);
 }
 
-/* no_variance: no variance image, values and flags bit for bit those of the full merge
- * (table path, with a saturated and a dark block); with a dark frame too. */
-static void test_no_variance(void) {
-        int w = 300, h = 40;   /* rows longer than one merge span */
-        struct imp_image *f[3], *dark;
-        struct imp_hdr_exposure st[3];
-        CHECK_OK(imp_image_new(w, h, 1, IMP_PIX_U16, &dark));
-        for (int k = 0; k < 3; k++) {
-                CHECK_OK(imp_image_new(w, h, 1, IMP_PIX_U16, &f[k]));
-                st[k] = (struct imp_hdr_exposure) { .frame = f[k], .exposure_us = EXPOSURES_US[k] };
-        }
-        for (int y = 0; y < h; y++)
-                for (int x = 0; x < w; x++) {
-                        double V = y < 4 ? 1000.0 : y < 8 ? 0.0 : 0.05 * exp(0.02 * x + 0.05 * y);
-                        *imp_image_u16(dark, x, y) = (uint16_t) (60 + (x + y) % 9);
-                        for (int k = 0; k < 3; k++)
-                                *imp_image_u16(f[k], x, y) = draw_dn(&SENSOR, V, EXPOSURES_US[k], 0, 1, SENSOR.black_level_dn);
-                }
-        for (int with_dark = 0; with_dark < 2; with_dark++) {
-                struct imp_hdr_options o;
-                imp_hdr_options_default(&o);
-                o.dark = with_dark ? dark : NULL;
-                struct imp_hdr_result full = {}, part = {};
-                CHECK_OK(imp_hdr_merge(st, 3, &SENSOR, &o, &full));
-                o.no_variance = true;
-                CHECK_OK(imp_hdr_merge(st, 3, &SENSOR, &o, &part));
-                CHECK(full.variance != NULL);
-                CHECK(part.variance == NULL);
-                CHECK_GE(full.n_saturated, 4 * w);
-                CHECK_GE(full.n_dark, 2 * w);     /* V = 0 rows: read noise lifts a few above the limit */
-                CHECK_INT_EQ(part.n_saturated, full.n_saturated);
-                CHECK_INT_EQ(part.n_dark, full.n_dark);
-                for (int y = 0; y < h; y++) {
-                        CHECK(memcmp(imp_image_row(part.value, y), imp_image_row(full.value, y), w * sizeof(float)) == 0);
-                        CHECK(memcmp(imp_image_row(part.flags, y), imp_image_row(full.flags, y), w) == 0);
-                }
-                imp_hdr_result_done(&full);
-                imp_hdr_result_done(&part);
-        }
-        for (int k = 0; k < 3; k++)
-                imp_image_free(f[k]);
-        imp_image_free(dark);
-}
-
 int main(void) {
         test_unbiased_and_variance();
-        test_no_variance();
         test_dark_flat_gain();
         test_bayer();
         test_errors();
