@@ -465,26 +465,37 @@ static double lanczos(double x, int a) {
         return a * sin(M_PI * x) * sin(M_PI * x / a) / (M_PI * M_PI * x * x);
 }
 
-/* lanczos_sample of a mono frame from the band, (bx, by) the window's corner in the box:
- * the same sums in the same order as from the frame, the mask read as the NaN it left. */
-static bool lanczos_band(const struct pn_band *b, int light, int bx, int by, int n, float sat, const double *wx,
-                         const double *wy, float ret[3]) {
-        double acc = 0;
+/* lanczos_sample of every light at once from the band, (bx, by) the window's corner in
+ * the box, into acc[l] and ok[l] (its value and result): each light's sums in the same
+ * order as from the frame, so the same values, the mask read as the NaN it left; the
+ * lights side by side in vector lanes (one light's sums are a chain of dependent
+ * additions, L chains at once are not). */
+__attribute__((optimize("no-trapping-math")))   /* gcc 12 vectorises float compares only so */
+static void lanczos_band_all(const struct pn_band *b, int bx, int by, int n, float sat, const double *wx,
+                             const double *wy, double *acc, uint8_t *ok) {
+        const int L = b->L;
+        double row[IMP_BTF_MAX_SAMPLES];
+        for (int l = 0; l < L; l++)
+                acc[l] = 0, ok[l] = 1;
         for (int dy = 0; dy < n; dy++) {
-                const float *q = b->v + ((size_t) (by + dy) * b->cols + bx) * b->L + light;
-                double row = 0;
-                bool ok = true;
+                const float *q = b->v + ((size_t) (by + dy) * b->cols + bx) * L;
+                for (int l = 0; l < L; l++)
+                        row[l] = 0;
                 for (int dx = 0; dx < n; dx++) {
-                        float v = q[(size_t) dx * b->L];
-                        ok &= v < sat && v > -INFINITY;
-                        row += wx[dx] * v;
+                        const float *p = q + (size_t) dx * L;
+                        const double w = wx[dx];
+#pragma omp simd
+                        for (int l = 0; l < L; l++) {
+                                float v = p[l];
+                                ok[l] &= (uint8_t) ((v < sat) & (v > -INFINITY));
+                                row[l] += w * v;
+                        }
                 }
-                if (!ok)
-                        return false;
-                acc += wy[dy] * row;
+                const double w = wy[dy];
+#pragma omp simd
+                for (int l = 0; l < L; l++)
+                        acc[l] += w * row[l];
         }
-        ret[0] = ret[1] = ret[2] = (float) acc;
-        return true;
 }
 
 /* Lanczos value of frame f with the window's corner at (x0, y0) into ret[3]; false when
@@ -498,9 +509,6 @@ static bool lanczos_sample(const struct resample *rs, int light, int x0, int y0,
         const int n = 2 * rs->a;
         /* v < sat and v > −∞ hold for every finite, unsaturated sample and fail on NaN */
         const float sat = rs->sat > 0 ? (float) rs->sat : INFINITY;
-        const struct pn_band *b = rs->band;
-        if (b && x0 >= b->x0 && y0 >= b->y0 && x0 + n <= b->x0 + b->cols && y0 + n <= b->y0 + b->rows)
-                return lanczos_band(b, light, x0 - b->x0, y0 - b->y0, n, sat, wx, wy, ret);
         if (x0 < 0 || y0 < 0 || x0 + n > f->width || y0 + n > f->height)
                 return false;
         double acc[3] = { 0, 0, 0 };
@@ -574,6 +582,14 @@ static int resample_texel(const struct resample *rs, int u, int v, struct imp_bt
         }
         for (int k = 0; k < 2 * rs->a; k++)
                 wx[k] /= sx, wy[k] /= sy;
+        /* the window inside the band: every light's value at once */
+        const struct pn_band *b = rs->band;
+        const int nw = 2 * rs->a;
+        bool all = b && x0 >= b->x0 && y0 >= b->y0 && x0 + nw <= b->x0 + b->cols && y0 + nw <= b->y0 + b->rows;
+        double acc[IMP_BTF_MAX_SAMPLES];
+        uint8_t ok[IMP_BTF_MAX_SAMPLES];
+        if (all)
+                lanczos_band_all(b, x0 - b->x0, y0 - b->y0, nw, rs->sat > 0 ? (float) rs->sat : INFINITY, wx, wy, acc, ok);
         int done = 0, j = 0;
         for (int s = 0; s < n && j < rs->cap->n_lights; s++) {
                 for (; j < rs->cap->n_lights; j++) {
@@ -593,7 +609,9 @@ static int resample_texel(const struct resample *rs, int u, int v, struct imp_bt
                 if (j == rs->cap->n_lights)
                         break;
                 float val[3];
-                if (lanczos_sample(rs, j, x0, y0, wx, wy, val)) {
+                if (all && ok[j])
+                        val[0] = val[1] = val[2] = (float) acc[j];
+                if (all ? ok[j] : lanczos_sample(rs, j, x0, y0, wx, wy, val)) {
                         const double *col = rs->cap->lights[j].colour;
                         bool white = col[0] == 0 && col[1] == 0 && col[2] == 0;
                         for (int c = 0; c < 3; c++)
