@@ -318,8 +318,30 @@ static void job_refresh(struct daemon *d, struct job *j) {
 
 static int job_exited(sd_event_source *src, const siginfo_t *si, void *userdata);
 
+/* Our environment with OMP_WAIT_POLICY=passive added, NULL when it is set (or without
+ * memory): the children are pipeline runs (workers, calibration) on a machine they share,
+ * where libgomp's default of spinning at every join before sleeping burnt most of a stage's
+ * CPU time (docs/processing-speed.md). libgomp reads it when it loads, so it must come from
+ * the parent; the array is built here because the child may only exec. */
+extern char **environ;
+static char **child_environ(void) {
+        if (getenv("OMP_WAIT_POLICY"))
+                return NULL;
+        size_t n = 0;
+        while (environ[n])
+                n++;
+        char **e = malloc((n + 2) * sizeof *e);
+        if (!e)
+                return NULL;
+        memcpy(e, environ, n * sizeof *e);
+        e[n] = (char *) "OMP_WAIT_POLICY=passive";
+        e[n + 1] = NULL;
+        return e;
+}
+
 int daemon_spawn(struct daemon *d, const char *const *argv, int fd_out, int fd_err, sd_event_child_handler_t cb,
                  void *userdata, pid_t *ret_pid, sd_event_source **ret_source) {
+        _cleanup_free_ char **env = child_environ();
         pid_t pid = fork();
         if (pid < 0)
                 return negative_errno();
@@ -329,7 +351,7 @@ int daemon_spawn(struct daemon *d, const char *const *argv, int fd_out, int fd_e
                 sigprocmask(SIG_SETMASK, &all, NULL);
                 if ((fd_out >= 0 && dup2(fd_out, STDOUT_FILENO) < 0) || (fd_err >= 0 && dup2(fd_err, STDERR_FILENO) < 0))
                         _exit(127);
-                execv(argv[0], (char *const *) argv);
+                execve(argv[0], (char *const *) argv, env ? env : environ);
                 dprintf(STDERR_FILENO, "exec %s: %s\n", argv[0], strerror(errno));
                 _exit(127);
         }

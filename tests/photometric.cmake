@@ -7,3 +7,5 @@ impasto_test(test-photometric-stability LABELS stability LIBS impasto_pipeline)
 impasto_test(test-photometric-honest LABELS unit stability LIBS impasto_pipeline)
 # σ_n and flags of normals one texel cannot represent (pipeline/appearance/normal-trust.h).
 impasto_test(test-normal-trust LABELS unit stability LIBS impasto_pipeline)
+# The Lanczos re-read from frames interleaved by light equals the re-read from the frames.
+impasto_test(test-photometric-reread LIBS impasto_pipeline)

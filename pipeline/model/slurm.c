@@ -182,6 +182,7 @@ static int write_script(const struct imp_batch *b, const char *name, const char 
                          "#!/bin/sh\n"
                          "# impasto batch %s (docs/scale-out.md), written by impasto; submitted with sbatch.\n"
                          "export OMP_NUM_THREADS=\"${SLURM_CPUS_PER_TASK:-1}\"\n"
+                         "export OMP_WAIT_POLICY=\"${OMP_WAIT_POLICY:-passive}\"\n"
                          "exec '%s' --batch '%s' %s\n", b->id, worker, b->dir, mode);
         if (n < 0 || (size_t) n >= sizeof text)
                 return imp_error_set(err, -ENAMETOOLONG, "%s: paths too long", path);

@@ -228,7 +228,9 @@ int main(void) {
          * all it printed is in the job's log. */
         char dying[512];
         snprintf(dying, sizeof dying, "%s/dying-worker.sh", h.dir);
-        h_write(dying, "#!/bin/sh\necho \"opening $1\"\necho 'worker: out of luck on this tile' >&2\nexit 1\n");
+        h_write(dying, "#!/bin/sh\necho \"opening $1 with OMP_WAIT_POLICY=${OMP_WAIT_POLICY-unset}\"\n"
+                       "echo 'worker: out of luck on this tile' >&2\nexit 1\n");
+        unsetenv("OMP_WAIT_POLICY");            /* the daemon's: its workers get passive */
         CHECK_MSG(chmod(dying, 0755) == 0, "chmod %s: %s", dying, strerror(errno));
         h_start(&h, (const char *const[]) { "--worker-cmd", dying, "--job-attempts", "2",
                                             "--min-free-bytes", "0", NULL });
@@ -262,6 +264,8 @@ int main(void) {
                 /* both attempts, standard output and error */
                 CHECK_MSG(len > 0 && strstr(text, "attempt 1") && strstr(text, "attempt 2") && strstr(text, "opening /"),
                           "the job's log: %s", text ? text : "(unread)");
+                CHECK_MSG(len > 0 && strstr(text, "with OMP_WAIT_POLICY=passive\n"), "the job's log: %s",
+                          text ? text : "(unread)");
                 free(text);
         }
         json_decref(r);
