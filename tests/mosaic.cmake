@@ -5,3 +5,5 @@ impasto_test(test-mosaic-cli LIBS impasto_mosaic TIMEOUT 300)
 add_dependencies(test-mosaic-cli impasto)
 # The simulator's conventions: the painting truth's sample grid; registration on normals when heights are noisy.
 impasto_test(test-mosaic-truth LIBS impasto_mosaic TIMEOUT 300)
+# Pairs registered on heights, not on a normal map smaller than the heights (rendered copies').
+impasto_test(test-mosaic-normals LIBS impasto_mosaic TIMEOUT 300)

@@ -70,7 +70,11 @@ struct imp_mosaic_options {
                                          one output tile needs) */
         int box_cell_px;              /* relief box cell; 20 (divides out_tile_px or not) */
         double box_delta_frac, box_noise_k, box_ref_percentile;   /* as imp_boxes_options */
+        unsigned reg_channels;        /* what pairs are registered on: IMP_MOSAIC_REG_*; heights
+                                         (the copies' photometric normals are ~2·10⁻⁴ too small
+                                         about the field centre: docs/mosaic.md) */
 };
+enum { IMP_MOSAIC_REG_HEIGHT = 1 << 0, IMP_MOSAIC_REG_NORMALS = 1 << 1 };
 void imp_mosaic_options_default(struct imp_mosaic_options *o);
 
 struct imp_mosaic_pair {
@@ -156,6 +160,9 @@ struct imp_mosaic_synth {
         unsigned seed;
         bool truth_exr;
         bool brdf;                    /* write rho_d/rho_s/lobe (else the copy is not loadable) */
+        double normal_scale;          /* s: a tile's normal at w is the relief's at (1 + s)·w (w
+                                         from the field centre), as a copy whose normal map is
+                                         too small by s; 0 */
 };
 void imp_mosaic_synth_default(struct imp_mosaic_synth *s);
 double imp_mosaic_synth_height(const struct imp_mosaic_synth *s, double x_mm, double y_mm);

@@ -1,6 +1,6 @@
 /* Pairwise registration of overlapping tiles (mosaic.h): a coarse search over whole-texel
- * shifts, then robust Gauss-Newton on the residuals of the heights and the normals
- * (Lucas-Kanade with Huber weights, sub-texel by bilinear interpolation) for the shift,
+ * shifts, then robust Gauss-Newton on the residuals of the heights (and the normals when
+ * asked: reg_channels) (Lucas-Kanade with Huber weights, sub-texel by bilinear interpolation) for the shift,
  * rotation and height offset of the second tile relative to the first, with its
  * information matrix (the nuisances, a height tilt and the normals' offsets, marginalised). The weights are Huber's
  * for the first iteration (convex), then Tukey's
@@ -21,7 +21,7 @@ void imp_mosaic_options_default(struct imp_mosaic_options *o) {
         *o = (struct imp_mosaic_options) {
                 .search_sigma = 4, .sample_step = 2, .huber_k = 1.5, .min_overlap_mm = 1, .out_tile_px = 512,
                 .cache_bytes = (size_t) 1 << 30, .box_cell_px = 20, .box_delta_frac = 0.3, .box_noise_k = 6,
-                .box_ref_percentile = 5,
+                .box_ref_percentile = 5, .reg_channels = IMP_MOSAIC_REG_HEIGHT,
         };
 }
 
@@ -99,8 +99,16 @@ int mosaic_pairs(const struct imp_painting *p, double min_mm, unsigned (**ret)[2
  * photometric normals (~2° noise) see the fine relief (painting-small: registration 38 →
  * 34 µm, the same scene without stage errors 22 → 18 µm; synthetic tiles 0.56 → 0.17 µm).
  * The albedo is left out: it pulled the shift on both (synthetic 0.17 → 6 µm; alone, 55 µm
- * on painting-small). */
+ * on painting-small). The normals are left out by default: a rendered copy's photometric
+ * normal map is smaller than its heights and the stage by ~2·10⁻⁴ (y) about the field
+ * centre, which every pair then reads as its tiles standing too close (300 × 200 mm:
+ * vertical pairs 7.4 µm short with them, 3.9 µm on heights alone; registration 16.8 →
+ * 11.1 µm; docs/mosaic.md). */
 enum { CH_H, CH_NX, CH_NY, NCH };
+
+static bool channel_on(unsigned reg_channels, int ch) {
+        return reg_channels & (ch == CH_H ? IMP_MOSAIC_REG_HEIGHT : IMP_MOSAIC_REG_NORMALS);
+}
 /* The unknowns of a pair: the pose difference, then nuisances: a tilt of the height residual
  * (x, y) and an offset of each normal channel (two tiles' copies stand on the canvas planes
  * their own data fit, a few µm apart over an overlap, which tilts their normals a little). */
@@ -126,6 +134,7 @@ static bool channels(const struct imp_mosaic_tile *t, const struct imp_copy *c, 
 /* Samples of a pair: painting points in the overlap and tile a's channels there; r and w
  * scratch (NCH per sample). */
 struct samples {
+        unsigned channels;            /* IMP_MOSAIC_REG_*: the channels that count */
         size_t n;
         double *x, *y, *fa, *r, *w;
 };
@@ -206,7 +215,10 @@ static void coarse(const struct imp_mosaic_tile *tb, const struct imp_copy *cb, 
                                 continue;
                         double cost = 0, med[NCH];
                         for (int ch = 0; ch < NCH; ch++)
-                                cost += log(fmax(robust_sigma(r + ch, n, NCH, tmp, &med[ch]), ch_floor[ch]));
+                                if (channel_on(s->channels, ch))
+                                        cost += log(fmax(robust_sigma(r + ch, n, NCH, tmp, &med[ch]), ch_floor[ch]));
+                                else
+                                        med[ch] = 0;
                         if (cost < best) {
                                 best = cost, memcpy(q, t, sizeof t);
                                 q[3] = -med[CH_H];
@@ -256,6 +268,8 @@ static size_t residuals(const struct imp_mosaic_tile *tb, const struct imp_copy 
                         continue;
                 double ex = s->x[i] - c[0], ey = s->y[i] - c[1];
                 for (int ch = 0; ch < NCH; ch++) {
+                        if (!channel_on(s->channels, ch))
+                                continue;
                         double gx = (fx1[ch] - fx0[ch]) / (2 * e), gy = (fy1[ch] - fy0[ch]) / (2 * e);
                         double row[NQ] = { -gx, -gy, gx * ey - gy * ex };
                         if (ch == CH_H)
@@ -357,7 +371,7 @@ static int refine(const struct imp_mosaic_tile *tb, const struct imp_copy *cb, s
         double s2 = 0, sw = 0;
         for (size_t i = 0; i < s->n; i++)
                 for (int ch = 0; ch < NCH; ch++)
-                        if (isfinite(s->r[i * NCH + ch])) {
+                        if (channel_on(s->channels, ch) && isfinite(s->r[i * NCH + ch])) {
                                 double a = fabs(s->r[i * NCH + ch]) / scale[ch], w = weight(a, o->huber_k, true);
                                 s2 += w * a * a, sw += w;
                         }
@@ -386,7 +400,7 @@ static int register_pair(struct imp_painting *p, const struct imp_mosaic_options
         if (!mosaic_overlap(ta, tb, (R + 2) * tb->pitch_mm, ov))
                 return snprintf(pr->why, sizeof pr->why, "overlap narrower than the search range"), 0;
         pr->c_mm[0] = 0.5 * (ov[0] + ov[2]), pr->c_mm[1] = 0.5 * (ov[1] + ov[3]);
-        struct samples s = { 0 };
+        struct samples s = { .channels = o->reg_channels ? o->reg_channels : IMP_MOSAIC_REG_HEIGHT };
         int r = collect(ta, ca, ov, o->sample_step * ta->pitch_mm, &s);
         if (r == 0 && s.n < 100)
                 snprintf(pr->why, sizeof pr->why, "%zu samples on both masks", s.n);

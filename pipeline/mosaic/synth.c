@@ -69,6 +69,18 @@ static int axis_centres(double extent, double fov, double overlap, double *c) {
         return n;
 }
 
+/* The relief's gradient in the tile's frame at tile point (wx, wy) (central differences of
+ * one texel, as the grid's). */
+static void scaled_gradient(const struct imp_mosaic_synth *s, const double pose[4], double wx, double wy, double *gx,
+                            double *gy) {
+        double c = cos(pose[2]), sn = sin(pose[2]), h[4], d = s->pitch_mm;
+        for (int k = 0; k < 4; k++) {
+                double x = wx + (k == 0 ? d : k == 1 ? -d : 0), y = wy + (k == 2 ? d : k == 3 ? -d : 0);
+                h[k] = (float) imp_mosaic_synth_height(s, pose[0] + c * x - sn * y, pose[1] + sn * x + c * y);
+        }
+        *gx = (h[0] - h[1]) / (2 * d), *gy = (h[2] - h[3]) / (2 * d);
+}
+
 /* One tile's copy: pose (x, y, θ, dz) true; texel (i, j) of a grid centred on the field. */
 static int write_tile(const struct imp_mosaic_synth *s, const double pose[4], const char *dir, uint64_t *rng,
                       struct imp_error *err) {
@@ -100,6 +112,8 @@ static int write_tile(const struct imp_mosaic_synth *s, const double pose[4], co
                         /* the gradient in the tile's own frame: the normal is stored in it */
                         double gx = (hg[q + 1] - hg[q - 1]) / (2 * s->pitch_mm);
                         double gy = (hg[q + gx_n] - hg[q - gx_n]) / (2 * s->pitch_mm);
+                        if (s->normal_scale != 0)
+                                scaled_gradient(s, pose, (1 + s->normal_scale) * wx, (1 + s->normal_scale) * wy, &gx, &gy);
                         double nrm = sqrt(1 + gx * gx + gy * gy);
                         o.nx_[k] = (float) (-gx / nrm), o.ny_[k] = (float) (-gy / nrm);
                         o.sigma[k] = (float) (1e-3 * fmax(s->noise_um, 0.1));

@@ -4,8 +4,8 @@
  *     truth/truth.json; read as W samples over the extent (I·extent/W) the truth slid by up
  *     to a pitch towards the far corner (0.16 mm at 80 mm of a 100 mm painting);
  *  2. registration when the tiles' heights are noisy but their normals are not (a rendered
- *     painting's copies: heights ~10 µm off, correlated, photometric normals ~2°): the
- *     normals must carry the shift. */
+ *     painting's copies: heights ~10 µm off, correlated, photometric normals ~2°): asked to
+ *     use them (reg_channels), the normals must carry the shift. */
 #include <errno.h>
 #include <math.h>
 #include <stdio.h>
@@ -101,6 +101,7 @@ static double noisy_heights_registration(const char *tmp) {
         CHECK_INT_EQ(p.n_tiles, 4);
         struct imp_mosaic_options o;
         imp_mosaic_options_default(&o);
+        o.reg_channels = IMP_MOSAIC_REG_HEIGHT | IMP_MOSAIC_REG_NORMALS;   /* heights alone: the default */
         struct imp_mosaic_pair *pairs = NULL;
         size_t n = 0;
         struct imp_mosaic_adjust_stats st;
