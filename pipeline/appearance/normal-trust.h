@@ -21,7 +21,7 @@
  *     normal and the mean of its 4-neighbours'). Relief at and beyond the texel's
  *     wavelength is blended by the footprint and aliases into the copy as a weak trace that
  *     may vanish at the texel itself: on a painting tile at 1 camera pixel per texel
- *     (0.2 mm bristle grooves of ±40°), 1.4 % of the unflagged normals were more than 10°
+ *     (0.2 mm bristle grooves of up to ±40°), 1.8 % of the unflagged normals were more than 10°
  *     off under σ_n of 1–2° with rules 1 and 2 alone, with their copy's 4-neighbour angles
  *     only 2–12°. fine_k 1 was calibrated there (docs/copy-quality.md).
  *
