@@ -9,7 +9,7 @@
 
 #define NT_DEG (180.0 / M_PI)
 #define NT_EDGE_SIGMA_MAX 90.0f       /* a neighbour's σ passed on at most (180: unknown) */
-#define NT_FINE_K 1.0                 /* rule 3: σ per degree of the window's rms bend */
+#define NT_FINE_K 1.6                 /* rule 3: σ per degree of the window's rms bend */
 #define NT_FINE_RADIUS 2              /* rule 3: the window is (2R + 1)² texels */
 
 void imp_normal_trust_params_default(struct imp_normal_trust_params *ret) {

@@ -23,7 +23,7 @@
  *     may vanish at the texel itself: on a painting tile at 1 camera pixel per texel
  *     (0.2 mm bristle grooves of up to ±40°), 1.8 % of the unflagged normals were more than 10°
  *     off under σ_n of 1–2° with rules 1 and 2 alone, with their copy's 4-neighbour angles
- *     only 2–12°. fine_k 1 was calibrated there (docs/copy-quality.md).
+ *     only 2–12°. fine_k 1.6 was calibrated there, with the spec cone at 30° (docs/copy-quality.md).
  *
  * Texels whose σ_n then exceeds IMP_TEXEL_NORMAL_SIGMA_MAX_DEG get NORMAL_UNCERTAIN too.
  * Library code: no logging; errors are negative errno. */
@@ -34,7 +34,7 @@
 struct imp_normal_trust_params {
         double rough_k;               /* σ per degree of the largest neighbour angle (0.1) */
         bool edge;                    /* rule 2 on (true) */
-        double fine_k;                /* rule 3: σ per degree of the window's rms bend (1.0; 0 off) */
+        double fine_k;                /* rule 3: σ per degree of the window's rms bend (1.6; 0 off) */
         int fine_radius;              /* rule 3: window radius in texels (2: 5 × 5) */
 };
 void imp_normal_trust_params_default(struct imp_normal_trust_params *ret);
