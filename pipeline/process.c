@@ -1074,9 +1074,11 @@ static int normal_trust(const struct process_opts *o, struct geometry_out *g) {
         int r = imp_normal_trust(hf->nx, hf->ny, hf->mask, hf->nx_, hf->ny_, hf->sigma_n_deg, hf->texel_flags,
                                  &o->opt->normal_trust, &st);
         if (r >= 0)
-                json_object_set_new(g->stages, "normal_trust", json_pack("{s:f,s:b,s:I,s:I}",
+                json_object_set_new(g->stages, "normal_trust", json_pack("{s:f,s:b,s:f,s:I,s:I,s:I}",
                         "rough_k", o->opt->normal_trust.rough_k, "edge", o->opt->normal_trust.edge,
-                        "rough_flagged", (json_int_t) st.n_rough_flagged, "edge_flagged", (json_int_t) st.n_edge_flagged));
+                        "fine_k", o->opt->normal_trust.fine_k,
+                        "rough_flagged", (json_int_t) st.n_rough_flagged, "fine_flagged", (json_int_t) st.n_fine_flagged,
+                        "edge_flagged", (json_int_t) st.n_edge_flagged));
         return r;
 }
 

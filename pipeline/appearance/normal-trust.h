@@ -6,7 +6,7 @@
  * surface it describes may bend within it: where the relief changes direction within a
  * texel (a stroke's edge, a groove's wall), the one normal is a blend and its error grows
  * with the bend. The bend is seen in the copy itself, as the angle between a texel's
- * normal and its neighbours'. Two rules, both from per-texel evidence only:
+ * normal and its neighbours'. Three rules, all from the copy's own evidence:
  *
  *  1. roughness: σ_n grows in quadrature by rough_k × the largest angle between the
  *     texel's normal and a 4-neighbour's (on the demo the error's rms is ≈ 0.1× that
@@ -15,7 +15,15 @@
  *     is not vouched for (a flag other than frame_adjacent and fit_failed, σ_n above the
  *     limit after rule 1, or a hole in the mask) takes at least that neighbour's σ_n and the flag
  *     IMP_TEXEL_NORMAL_UNCERTAIN: such rims are where the relief or the shadows change
- *     within a texel (79 % of the demo's unflagged normals more than 10° off were there).
+ *     within a texel (79 % of the demo's unflagged normals more than 10° off were there);
+ *  3. relief finer than the texel: σ_n grows in quadrature by fine_k × the rms, over the
+ *     (2·fine_radius + 1)² window, of the bend at the grid's own scale (the angle between a
+ *     normal and the mean of its 4-neighbours'). Relief at and beyond the texel's
+ *     wavelength is blended by the footprint and aliases into the copy as a weak trace that
+ *     may vanish at the texel itself: on a painting tile at 1 camera pixel per texel
+ *     (0.2 mm bristle grooves of up to ±40°), 1.8 % of the unflagged normals were more than 10°
+ *     off under σ_n of 1–2° with rules 1 and 2 alone, with their copy's 4-neighbour angles
+ *     only 2–12°. fine_k 1.6 was calibrated there, with the spec cone at 30° (docs/copy-quality.md).
  *
  * Texels whose σ_n then exceeds IMP_TEXEL_NORMAL_SIGMA_MAX_DEG get NORMAL_UNCERTAIN too.
  * Library code: no logging; errors are negative errno. */
@@ -26,6 +34,8 @@
 struct imp_normal_trust_params {
         double rough_k;               /* σ per degree of the largest neighbour angle (0.1) */
         bool edge;                    /* rule 2 on (true) */
+        double fine_k;                /* rule 3: σ per degree of the window's rms bend (1.6; 0 off) */
+        int fine_radius;              /* rule 3: window radius in texels (2: 5 × 5) */
 };
 void imp_normal_trust_params_default(struct imp_normal_trust_params *ret);
 
@@ -33,7 +43,8 @@ struct imp_normal_trust_stats {
         long n_texels;                /* mask texels */
         long n_rough_flagged;         /* newly NORMAL_UNCERTAIN by rule 1 (σ_n was within the
                                          limit before) */
-        long n_edge_flagged;          /* newly NORMAL_UNCERTAIN by rule 2 (and not by rule 1) */
+        long n_fine_flagged;          /* newly NORMAL_UNCERTAIN by rule 3 (and not by rule 1) */
+        long n_edge_flagged;          /* newly NORMAL_UNCERTAIN by rule 2 (and not by rules 1, 3) */
 };
 
 /* nx·ny texels; mask ≠ 0 on the canvas; nx_, ny_ the unit normals' x, y in the canvas

@@ -15,7 +15,7 @@
 
 void imp_photometric_params_default(struct imp_photometric_params *ret) {
         *ret = (struct imp_photometric_params) {
-                .min_samples = 6, .spec_cone_deg = 40, .min_cos = 0.05, .max_cond = 100,
+                .min_samples = 6, .spec_cone_deg = 30, .min_cos = 0.05, .max_cond = 100,
                 .min_albedo = 0.01, .max_dev_deg = 25, .passes = 5, .huber_delta = 1.345,
                 .sigma_floor = 0.002, .tol_deg = 0.01, .geo_sigma_deg = 0, .lanczos = 3,
                 .shadow_trim_sigma = 0, .filled_trim_sigma = 3, .filled_passes = 10, .filled_max_dev_deg = 60,
@@ -254,11 +254,15 @@ static void residuals(struct pn_rows *R, const struct imp_photometric_params *p,
 static bool ambient_check(const struct pn_rows *R, const struct imp_photometric_params *p,
                           const struct pn_state *S, double s, bool all_lit, double *ret_c, double *ret_sc,
                           double *ret_shift_deg) {
-        double M[4][5] = {};
+        double M[4][5] = {}, yy = 0, sw = 0;
+        int cnt = 0;
         for (int i = 0; i < R->m; i++) {
                 /* all_lit: the samples near the mirror direction too (no cone) */
                 if (!takes_part(R, i, S->nc, all_lit ? 2.0 : S->cone, p->min_cos) || !(R->w[i] > 0))
                         continue;
+                yy += R->w[i] * R->y[i] * R->y[i];
+                sw += R->w[i];
+                cnt++;
                 double r[4] = { R->a[i][0], R->a[i][1], R->a[i][2], 1 };
                 for (int j = 0; j < 4; j++) {
                         for (int k = 0; k < 4; k++)
@@ -301,7 +305,21 @@ static bool ambient_check(const struct pn_rows *R, const struct imp_photometric_
         }
         gl = sqrt(gl);
         *ret_c = M[3][4] / M[3][3];
-        *ret_sc = s * sqrt(fmax(inv[3] / M[3][3], 0));   /* (M⁻¹)₃₃ = e₄ᵀ M⁻¹ e₄ */
+        /* c's σ from the 4-unknown fit's own residual scale (a t-test of c): the 3-unknown
+         * scale s is inflated by the very term under test. Never above s. Σw r² of the
+         * least-squares solution x = M⁻¹b is Σw y² − xᵀb, b the original right-hand side:
+         * recomputed from the rows below. */
+        double ss = yy, bx = 0;
+        for (int i = 0; i < R->m; i++) {
+                if (!takes_part(R, i, S->nc, all_lit ? 2.0 : S->cone, p->min_cos) || !(R->w[i] > 0))
+                        continue;
+                double f = g4[0] * R->a[i][0] + g4[1] * R->a[i][1] + g4[2] * R->a[i][2] + *ret_c;
+                bx += R->w[i] * R->y[i] * f;
+        }
+        ss -= bx;
+        double s4 = cnt > 4 && sw > 0 ? sqrt(fmax(0.0, ss) / sw * cnt / (cnt - 4)) : s;
+        s4 = fmin(s, fmax(p->sigma_floor, s4));
+        *ret_sc = s4 * sqrt(fmax(inv[3] / M[3][3], 0));   /* (M⁻¹)₃₃ = e₄ᵀ M⁻¹ e₄ */
         *ret_shift_deg = gl > 0 ? acos(fmax(-1.0, fmin(1.0, dot / gl))) / DEG : 90;
         return isfinite(*ret_c) && isfinite(*ret_sc);
 }
@@ -325,14 +343,19 @@ static void finish_texel(const struct pn_rows *R, const struct imp_photometric_p
         double sig_noise = s * sqrt(var_t) / gl / DEG * (nu > 2 ? sqrt(nu / (nu - 2)) : 1e3);
         double c = 0, sc = 0, shift = 0;
         uint16_t why = 0;
-        if (ambient_check(R, p, S, s, false, &c, &sc, &shift)) {
+        /* The check over the samples taking part has the power to see a term that matters
+         * (max_ambient_rel·|g|) only when its σ is below that / ambient_sigma. */
+        bool powered = ambient_check(R, p, S, s, false, &c, &sc, &shift) &&
+                       p->ambient_sigma * sc < p->max_ambient_rel * gl;
+        if (powered) {
                 if (fabs(c) > p->ambient_sigma * sc && fabs(c) > p->max_ambient_rel * gl)
                         why |= IMP_PN_AMBIENT;
         } else if (ambient_check(R, p, S, s, true, &c, &sc, &shift)) {
                 /* The samples taking part cannot tell an ambient term from the normal's z (all
-                 * lights at one elevation: it would tilt every normal towards the view unseen).
-                 * The lit samples near the mirror direction can; a specular lobe there gives
-                 * a negative term, so only added light counts. The shift is not the normal's. */
+                 * lights at one elevation, or the other ring only at the cone's edge: it would
+                 * tilt every normal towards the view unseen). The lit samples near the mirror
+                 * direction can; a specular lobe there gives a negative term, so only added
+                 * light counts. The shift is not the normal's. */
                 shift = 0;
                 if (c > p->ambient_sigma * sc && c > p->max_ambient_rel * gl)
                         why |= IMP_PN_AMBIENT;

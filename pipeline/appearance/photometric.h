@@ -49,7 +49,7 @@ uint16_t imp_photometric_texel_flags(uint16_t pn_flags);
 struct imp_photometric_params {
         int min_samples;              /* fewer usable samples → FEW_SAMPLES (6) */
         double spec_cone_deg;         /* leave out samples whose l is within this of the
-                                         mirror direction of v about the current normal (40) */
+                                         mirror direction of v about the current normal (30) */
         double min_cos;               /* leave out samples with n·l below this for the
                                          current normal: attached shadow (0.05) */
         double max_cond;              /* condition number of Σ w l lᵀ above this → ILL_COND (100) */

@@ -68,6 +68,7 @@ static void test_roof(void) {
         off = p;
         off.rough_k = 0;
         off.edge = false;
+        off.fine_k = 0;
         int fl_on, fl_off;
         int bad_on = roof(&p, &fl_on), bad_off = roof(&off, &fl_off);
         printf("roof: %d bad unflagged texels with the rules (%d flagged), %d without (%d flagged)\n", bad_on, fl_on,
@@ -75,7 +76,8 @@ static void test_roof(void) {
         CHECK_INT_EQ(bad_on, 0);
         CHECK_INT_EQ(bad_off, N);          /* the ridge's column: the check can fail */
         CHECK_INT_EQ(fl_off, 0);
-        CHECK_LE(fl_on, 4 * N);            /* the two columns either side of the ridge, their rims */
+        CHECK_LE(fl_on, 8 * N);            /* the two columns either side of the ridge, the
+                                              5-texel windows of rule 3 and their rims */
 }
 
 static void test_edge(void) {
@@ -113,6 +115,70 @@ static void test_edge(void) {
         CHECK_INT_EQ(fl[c] & IMP_TEXEL_PHOTOMETRIC_REJECTED, IMP_TEXEL_PHOTOMETRIC_REJECTED);
 }
 
+/* Grooves of period P texels along x whose normal tilts by ±amp° (the phase drifts along
+ * y); the copy's normal is the mean over a footprint fw texels wide (the pixel, the
+ * lens's blur and the resampling), the truth the texel centre's. Returns the unflagged
+ * texels beyond 3σ_n (bad3) and over 10° (bad10), and the flagged count. */
+static void grooves(const struct imp_normal_trust_params *p, double P, double amp, double fw, int *ret_bad3,
+                    int *ret_bad10, int *ret_flagged) {
+        static float nx[N * N], ny[N * N], sig[N * N];
+        static uint16_t fl[N * N];
+        static uint8_t mask[N * N];
+        static double truth[N * N];
+        const int S = 64;   /* sub-samples of a footprint */
+        for (int j = 0; j < N; j++)
+                for (int i = 0; i < N; i++) {
+                        int t = j * N + i;
+                        double ph = 2 * M_PI * j / 23.0, vx = 0, vz = 0;
+                        for (int k = 0; k < S; k++) {
+                                double x = i + fw * ((k + 0.5) / S - 0.5), a = amp * DEG * sin(2 * M_PI * x / P + ph);
+                                vx += sin(a) / S, vz += cos(a) / S;
+                        }
+                        mask[t] = 1;
+                        fl[t] = 0;
+                        sig[t] = 1.0f;
+                        set_normal(nx, ny, t, atan2(vx, vz) / DEG);
+                        truth[t] = sin(amp * DEG * sin(2 * M_PI * i / P + ph));
+                }
+        struct imp_normal_trust_stats st;
+        CHECK_OK(imp_normal_trust(N, N, mask, nx, ny, sig, fl, p, &st));
+        *ret_bad3 = *ret_bad10 = *ret_flagged = 0;
+        for (int t = 0; t < N * N; t++) {
+                double e = angle_deg(nx[t], truth[t]);
+                if (fl[t]) {
+                        ++*ret_flagged;
+                        continue;
+                }
+                *ret_bad3 += e > 3 * sig[t];
+                *ret_bad10 += e > 10;
+        }
+}
+
+static void test_grooves(void) {
+        struct imp_normal_trust_params p, off;
+        imp_normal_trust_params_default(&p);
+        off = p;
+        off.fine_k = 0;
+        int b3, b10, f, b3o, b10o, fo;
+        /* near the grid's Nyquist, seen through a 1.5-texel footprint: the copy shows an
+         * aliased trace of them (±9°), the truth bends by ±20° */
+        grooves(&p, 2.3, 20, 1.5, &b3, &b10, &f);
+        grooves(&off, 2.3, 20, 1.5, &b3o, &b10o, &fo);
+        printf("grooves of 2.3 texels, ±20°: %d beyond 3σ, %d over 10° unflagged, %d flagged with rule 3; "
+               "%d, %d, %d without\n", b3, b10, f, b3o, b10o, fo);
+        CHECK_INT_EQ(b10, 0);
+        CHECK_LE(b3, N * N / 100);
+        CHECK(b10o > N * N / 100);          /* without rule 3 the check can fail */
+        /* resolved relief: 10 texels per period, ±20°: rule 3 leaves most of it unflagged */
+        grooves(&p, 10, 20, 1.5, &b3, &b10, &f);
+        grooves(&off, 10, 20, 1.5, &b3o, &b10o, &fo);
+        printf("grooves of 10 texels, ±20°: %d beyond 3σ, %d over 10° unflagged, %d flagged with rule 3; "
+               "%d, %d, %d without\n", b3, b10, f, b3o, b10o, fo);
+        CHECK_INT_EQ(b10, 0);
+        CHECK_INT_EQ(b3, 0);
+        CHECK_LE(f, N * N / 4);
+}
+
 static void test_args(void) {
         float v = 0, s = 1;
         uint16_t f = 0;
@@ -132,6 +198,7 @@ static void test_args(void) {
 int main(void) {
         test_roof();
         test_edge();
+        test_grooves();
         test_args();
         return TEST_DONE();
 }
