@@ -147,7 +147,7 @@ static double q_cost(double a, double b, double sw, double sg, double sgg, doubl
 
 /* min Σ W (y − a − b g)², a, b ≥ 0: the unconstrained optimum when feasible, otherwise
  * the best of the KKT faces (a = 0, b = 0, both 0) — exact for this convex 2-D QP. */
-static double nnls2(double sw, double sg, double sgg, double sy, double sgy, double syy,
+static inline double nnls2(double sw, double sg, double sgg, double sy, double sgy, double syy,
                     double *ret_a, double *ret_b) {
         double det = sw * sgg - sg * sg;
         if (det > 1e-12 * sw * sgg && sgg > 0.0) {
@@ -226,6 +226,22 @@ CLONES static double lobe_logs(struct work *w, double cx, double cy) {
         return ldmax > 0.5f * LD_NONE ? ldmax : -HUGE_VAL;
 }
 
+/* The linear part of e from the lobe sums sg, sgg and Σ W y g per channel. */
+static void solve_linear(const struct work *w, double k, double ldmax, double sg, double sgg, const double sgy[3],
+                         struct eval *e) {
+        e->k = k;
+        e->ldmax = ldmax;
+        e->sw = w->sw;
+        e->sg = sg;
+        e->sgg = sgg;
+        e->cost = 0.0;
+        for (int c = 0; c < 3; c++) {
+                double cc = nnls2(w->sw, sg, sgg, w->sy[c], sgy[c], w->syy[c], &e->rd[c], &e->rs[c]);
+                e->cost += fmax(cc, 0.0);
+                e->rd_active[c] = e->rd[c] > 0.0;
+        }
+}
+
 /* Fills w->g for exponent k (the logs of lobe_logs() with their maximum ldmax) and
  * solves the linear part. */
 CLONES static void lobe_solve(struct work *w, double k, double ldmax, struct eval *e) {
@@ -250,18 +266,28 @@ CLONES static void lobe_solve(struct work *w, double k, double ldmax, struct eva
         } else {
                 memset(g, 0, n * sizeof *g);
         }
-        double sgy[3] = { sgy0, sgy1, sgy2 };
-        e->k = k;
-        e->ldmax = ldmax;
-        e->sw = w->sw;
-        e->sg = sg;
-        e->sgg = sgg;
-        e->cost = 0.0;
-        for (int c = 0; c < 3; c++) {
-                double cc = nnls2(w->sw, sg, sgg, w->sy[c], sgy[c], w->syy[c], &e->rd[c], &e->rs[c]);
-                e->cost += fmax(cc, 0.0);
-                e->rd_active[c] = e->rd[c] > 0.0;
+        solve_linear(w, k, ldmax, sg, sgg, (const double[3]) { sgy0, sgy1, sgy2 }, e);
+}
+
+/* e re-solved after a change of the weights, at the same lobe: w->g (that of e) is
+ * kept, only the sums are formed again (the same sums as lobe_solve(), without the exps). */
+CLONES static void lobe_resolve(const struct work *w, struct eval *e) {
+        int n = w->n;
+        double sg = 0, sgg = 0, sgy0 = 0, sgy1 = 0, sgy2 = 0;
+        const float *restrict g = w->g, *restrict W = w->W;
+        const float *restrict wy0 = w->Wy[0], *restrict wy1 = w->Wy[1], *restrict wy2 = w->Wy[2];
+        if (e->ldmax > -HUGE_VAL) {
+#pragma omp simd reduction(+ : sg, sgg, sgy0, sgy1, sgy2)
+                for (int i = 0; i < n; i++) {
+                        float gi = g[i], Wg = W[i] * gi;
+                        sg += Wg;
+                        sgg += Wg * gi;
+                        sgy0 += wy0[i] * gi;
+                        sgy1 += wy1[i] * gi;
+                        sgy2 += wy2[i] * gi;
+                }
         }
+        solve_linear(w, e->k, e->ldmax, sg, sgg, (const double[3]) { sgy0, sgy1, sgy2 }, e);
 }
 
 /* Fills w->d, w->ld, w->g for the lobe and solves the linear part. */
@@ -422,8 +448,8 @@ static void clamp_theta(bool cxy, const struct bounds *bd, double th[MAXP]) {
         th[np - 1] = IMP_CLAMP(th[np - 1], bd->lk_min, bd->lk_max);
 }
 
-/* Minimises the reduced cost from th (updated in place); e ends as the evaluation at th
- * with w's arrays matching it. Stopping rule: relative cost decrease < tol on an
+/* Minimises the reduced cost from th (updated in place); e must hold the evaluation at th
+ * with w's arrays matching it on entry, and does so on return. Stopping rule: relative cost decrease < tol on an
  * accepted step, no parameter moving more than STEP_MIN, λ > LAMBDA_MAX, or max_evals. */
 static void lm(struct work *w, bool cxy, const struct bounds *bd, double tol, int max_evals,
                double th[MAXP], struct eval *e) {
@@ -437,8 +463,6 @@ static void lm(struct work *w, bool cxy, const struct bounds *bd, double tol, in
         }
         lo[np - 1] = bd->lk_min;
         hi[np - 1] = bd->lk_max;
-        theta_to_lobe(cxy, th, &cx, &cy, &k);
-        evaluate(w, cx, cy, k, e);
         double cost = e->cost + prior_cost(cxy, bd, th);
         for (int evals = 1; evals < max_evals;) {
                 double H[MAXP][MAXP], b[MAXP];
@@ -590,24 +614,47 @@ static void huber_reweight(struct work *w, const double rd[3], const double rs[3
 
 /* ---- the texel -------------------------------------------------------------------- */
 
-static int load_work(struct work *w, const struct imp_btf_sample *s, int n) {
-        int m = 0;
-        for (int i = 0; i < n; i++) {
-                const struct imp_btf_sample *q = &s[i];
-                bool ok = q->e_cos > 0.0f && q->l[2] > 0.0f && isfinite(q->e_cos);
-                for (int c = 0; c < 3; c++)
-                        ok = ok && isfinite(q->v[c]) && isfinite(q->l[c]) && isfinite(q->value[c]);
-                if (!ok)
-                        continue;
-                w->ax[m] = q->v[0] * q->l[0];
-                w->ay[m] = q->v[1] * q->l[1];
-                w->az[m] = q->v[2] * q->l[2];
-                w->wl[m] = q->l[2] * q->l[2];
-                w->om[m] = 1.0f;
-                w->W[m] = w->wl[m];
-                for (int c = 0; c < 3; c++)
-                        w->y[c][m] = q->value[c] / q->e_cos;
-                m++;
+static inline int finite_bits(float x) {
+        return (float_to_bits(x) & 0x7f800000u) != 0x7f800000u;
+}
+
+/* Whether a sample can enter the fit (finite, lit from above with E cos θl > 0); written
+ * without loops or branches so that the callers' loops vectorise. */
+static inline int sample_ok(const struct imp_btf_sample *q) {
+        return isgreater(q->e_cos, 0.0f) & isgreater(q->l[2], 0.0f) & finite_bits(q->e_cos) &
+               finite_bits(q->v[0]) & finite_bits(q->v[1]) & finite_bits(q->v[2]) & finite_bits(q->l[0]) &
+               finite_bits(q->l[1]) & finite_bits(q->l[2]) & finite_bits(q->value[0]) &
+               finite_bits(q->value[1]) & finite_bits(q->value[2]);
+}
+
+static inline void load_sample(struct work *w, int m, const struct imp_btf_sample *q) {
+        w->ax[m] = q->v[0] * q->l[0];
+        w->ay[m] = q->v[1] * q->l[1];
+        w->az[m] = q->v[2] * q->l[2];
+        w->wl[m] = q->l[2] * q->l[2];
+        w->om[m] = 1.0f;
+        w->W[m] = w->wl[m];
+        w->y[0][m] = q->value[0] / q->e_cos;
+        w->y[1][m] = q->value[1] / q->e_cos;
+        w->y[2][m] = q->value[2] / q->e_cos;
+}
+
+/* The usable samples into w's arrays (structure of arrays). The common case, every
+ * sample usable, runs as vector loops without branches. */
+CLONES static int load_work(struct work *w, const struct imp_btf_sample *s, int n) {
+        int bad = 0, m = 0;
+#pragma omp simd reduction(+ : bad)
+        for (int i = 0; i < n; i++)
+                bad += !sample_ok(&s[i]);
+        if (!bad) {
+#pragma omp simd
+                for (int i = 0; i < n; i++)
+                        load_sample(w, i, &s[i]);
+                m = n;
+        } else {
+                for (int i = 0; i < n; i++)
+                        if (sample_ok(&s[i]))
+                                load_sample(w, m++, &s[i]);
         }
         w->n = m;
         set_weights(w);
@@ -701,7 +748,9 @@ static int fit_texel(const struct imp_btf_sample *samples, int n, const struct i
                 *ret = t;
                 return 0;
         }
-        lobe_solve(&w, best.k, ldmax, &e);
+        /* The start of LM, k = exp(log k) as LM will compute it: w's arrays then match. */
+        lobe_solve(&w, exp(log(best.k)), ldmax, &e);
+        e.cx = e.cy = -1.0;
         bool cxy = !cx_cy_separable(&w, p->cxy_tau);
         double th[MAXP];
         if (cxy) {
@@ -715,6 +764,7 @@ static int fit_texel(const struct imp_btf_sample *samples, int n, const struct i
         lm(&w, cxy, &bd, p->tol, p->max_iter, th, &e);
         for (int pass = 0; pass < p->robust_passes; pass++) {
                 huber_reweight(&w, e.rd, e.rs, p);
+                lobe_resolve(&w, &e);            /* same lobe, new weights */
                 lm(&w, cxy, &bd, p->tol, IMP_MAX(p->max_iter / 3, 2), th, &e);
         }
 
