@@ -6,6 +6,7 @@
 #include <errno.h>
 #include <float.h>
 #include <math.h>
+#include <stddef.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -30,11 +31,12 @@
 
 static const double k_grid[] = { 2, 5, 12, 30, 80, 200, 500 };
 
-/* The per-sample loops below are built twice, for AVX2 (8 float lanes) and the x86-64
- * baseline (SSE2, 4), and the CPU picks at load time (ifunc). Not FMA: contraction would
- * make the result depend on the machine. */
+/* The per-sample loops below are built three times, for AVX-512 (16 float lanes), AVX2
+ * (8) and the x86-64 baseline (SSE2, 4), and the CPU picks at load time (ifunc). Not FMA:
+ * contraction would make the result depend on the machine (GCC's avx512f target enables
+ * FMA, hence fp-contract=off for these functions). */
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define CLONES __attribute__((target_clones("avx2", "default")))
+#define CLONES __attribute__((target_clones("avx512f", "avx2", "default"), optimize("fp-contract=off")))
 #else
 #define CLONES
 #endif
@@ -569,20 +571,26 @@ static void robust_sums(struct work *w, const double rd[3], const double rs[3], 
 
 /* The k-th smallest of v[0..n) (0-based; v unchanged): the element whose rank — the
  * count of smaller elements, ties broken by position — is k. Branch-free counting
- * (n² compares in vector lanes) beats a quickselect's mispredicted branches at the
- * sample counts of a texel. */
+ * (n² compares) beats a quickselect's mispredicted branches at the sample counts of a
+ * texel. The ranks of RANK_LANES candidates are counted at once, one vector lane each,
+ * against every element in turn: no horizontal sum per candidate. */
+#define RANK_LANES 16
 CLONES static float kth_by_rank(const float *restrict v, int n, int k) {
-        for (int i = 0; i < n; i++) {
-                const float x = v[i];
-                int rank = 0;
-#pragma omp simd reduction(+ : rank)
-                for (int j = 0; j < i; j++)
-                        rank += v[j] <= x;
-#pragma omp simd reduction(+ : rank)
-                for (int j = i + 1; j < n; j++)
-                        rank += v[j] < x;
-                if (rank == k)
-                        return x;
+        for (int i0 = 0; i0 < n; i0 += RANK_LANES) {
+                float x[RANK_LANES];
+                int rank[RANK_LANES] = { 0 };
+                for (int l = 0; l < RANK_LANES; l++)
+                        x[l] = v[IMP_MIN(i0 + l, n - 1)];
+                for (int j = 0; j < n; j++) {
+                        const float vj = v[j];
+                        const int ji = j - i0;
+#pragma omp simd
+                        for (int l = 0; l < RANK_LANES; l++)    /* smaller, or equal and before */
+                                rank[l] += (vj < x[l]) | ((vj == x[l]) & (ji < l));
+                }
+                for (int l = 0; l < RANK_LANES && i0 + l < n; l++)
+                        if (rank[l] == k)
+                                return x[l];
         }
         return v[0];            /* not reached: the ranks are a permutation of 0..n−1 */
 }
@@ -618,43 +626,51 @@ static inline int finite_bits(float x) {
         return (float_to_bits(x) & 0x7f800000u) != 0x7f800000u;
 }
 
-/* Whether a sample can enter the fit (finite, lit from above with E cos θl > 0); written
- * without loops or branches so that the callers' loops vectorise. */
-static inline int sample_ok(const struct imp_btf_sample *q) {
-        return isgreater(q->e_cos, 0.0f) & isgreater(q->l[2], 0.0f) & finite_bits(q->e_cos) &
-               finite_bits(q->v[0]) & finite_bits(q->v[1]) & finite_bits(q->v[2]) & finite_bits(q->l[0]) &
-               finite_bits(q->l[1]) & finite_bits(q->l[2]) & finite_bits(q->value[0]) &
-               finite_bits(q->value[1]) & finite_bits(q->value[2]);
+/* A sample as SAMPLE_FLOATS consecutive floats (struct imp_btf_sample: v, l, e_cos,
+ * value), so that the loops below read it with a constant stride and vectorise. */
+#define SAMPLE_FLOATS 10
+_Static_assert(sizeof(struct imp_btf_sample) == SAMPLE_FLOATS * sizeof(float) &&
+              offsetof(struct imp_btf_sample, l) == 3 * sizeof(float) &&
+              offsetof(struct imp_btf_sample, e_cos) == 6 * sizeof(float) &&
+              offsetof(struct imp_btf_sample, value) == 7 * sizeof(float), "imp_btf_sample is 10 packed floats");
+
+/* Whether a sample can enter the fit (finite, lit from above with E cos θl > 0). */
+static inline int sample_ok(const float *q) {
+        int ok = isgreater(q[6], 0.0f) & isgreater(q[5], 0.0f);
+        for (int c = 0; c < SAMPLE_FLOATS; c++)
+                ok &= finite_bits(q[c]);
+        return ok;
 }
 
-static inline void load_sample(struct work *w, int m, const struct imp_btf_sample *q) {
-        w->ax[m] = q->v[0] * q->l[0];
-        w->ay[m] = q->v[1] * q->l[1];
-        w->az[m] = q->v[2] * q->l[2];
-        w->wl[m] = q->l[2] * q->l[2];
+static inline void load_sample(struct work *w, int m, const float *q) {
+        w->ax[m] = q[0] * q[3];
+        w->ay[m] = q[1] * q[4];
+        w->az[m] = q[2] * q[5];
+        w->wl[m] = q[5] * q[5];
         w->om[m] = 1.0f;
         w->W[m] = w->wl[m];
-        w->y[0][m] = q->value[0] / q->e_cos;
-        w->y[1][m] = q->value[1] / q->e_cos;
-        w->y[2][m] = q->value[2] / q->e_cos;
+        w->y[0][m] = q[7] / q[6];
+        w->y[1][m] = q[8] / q[6];
+        w->y[2][m] = q[9] / q[6];
 }
 
 /* The usable samples into w's arrays (structure of arrays). The common case, every
  * sample usable, runs as vector loops without branches. */
 CLONES static int load_work(struct work *w, const struct imp_btf_sample *s, int n) {
+        const float *f = n > 0 ? s[0].v : NULL;
         int bad = 0, m = 0;
 #pragma omp simd reduction(+ : bad)
         for (int i = 0; i < n; i++)
-                bad += !sample_ok(&s[i]);
+                bad += !sample_ok(f + SAMPLE_FLOATS * i);
         if (!bad) {
 #pragma omp simd
                 for (int i = 0; i < n; i++)
-                        load_sample(w, i, &s[i]);
+                        load_sample(w, i, f + SAMPLE_FLOATS * i);
                 m = n;
         } else {
                 for (int i = 0; i < n; i++)
-                        if (sample_ok(&s[i]))
-                                load_sample(w, m++, &s[i]);
+                        if (sample_ok(f + SAMPLE_FLOATS * i))
+                                load_sample(w, m++, f + SAMPLE_FLOATS * i);
         }
         w->n = m;
         set_weights(w);
