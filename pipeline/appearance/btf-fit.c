@@ -655,17 +655,42 @@ static inline void load_sample(struct work *w, int m, const float *q) {
 }
 
 /* The usable samples into w's arrays (structure of arrays). The common case, every
- * sample usable, runs as vector loops without branches. */
+ * sample usable: the fields are first copied apart into w's arrays (d, g, ld ← v;
+ * res, om, wl ← l; W ← E cos θl; y ← V), then checked and combined in vector loops. */
 CLONES static int load_work(struct work *w, const struct imp_btf_sample *s, int n) {
         const float *f = n > 0 ? s[0].v : NULL;
+        float *restrict v0 = w->d, *restrict v1 = w->g, *restrict v2 = w->ld;
+        float *restrict l0 = w->res, *restrict l1 = w->om, *restrict l2 = w->wl, *restrict ec = w->W;
+        float *restrict y0 = w->y[0], *restrict y1 = w->y[1], *restrict y2 = w->y[2];
+        float *restrict ax = w->ax, *restrict ay = w->ay, *restrict az = w->az;
+        for (int i = 0; i < n; i++) {
+                const float *q = f + SAMPLE_FLOATS * i;
+                v0[i] = q[0], v1[i] = q[1], v2[i] = q[2];
+                l0[i] = q[3], l1[i] = q[4], l2[i] = q[5];
+                ec[i] = q[6];
+                y0[i] = q[7], y1[i] = q[8], y2[i] = q[9];
+        }
         int bad = 0, m = 0;
 #pragma omp simd reduction(+ : bad)
         for (int i = 0; i < n; i++)
-                bad += !sample_ok(f + SAMPLE_FLOATS * i);
+                bad += !(isgreater(ec[i], 0.0f) & isgreater(l2[i], 0.0f) & finite_bits(ec[i]) &
+                         finite_bits(v0[i]) & finite_bits(v1[i]) & finite_bits(v2[i]) & finite_bits(l0[i]) &
+                         finite_bits(l1[i]) & finite_bits(l2[i]) & finite_bits(y0[i]) & finite_bits(y1[i]) &
+                         finite_bits(y2[i]));
         if (!bad) {
 #pragma omp simd
-                for (int i = 0; i < n; i++)
-                        load_sample(w, i, f + SAMPLE_FLOATS * i);
+                for (int i = 0; i < n; i++) {
+                        float e = ec[i], lz = l2[i];
+                        ax[i] = v0[i] * l0[i];
+                        ay[i] = v1[i] * l1[i];
+                        az[i] = v2[i] * lz;
+                        y0[i] = y0[i] / e;
+                        y1[i] = y1[i] / e;
+                        y2[i] = y2[i] / e;
+                        l2[i] = lz * lz;            /* wl */
+                        ec[i] = lz * lz;            /* W */
+                        l1[i] = 1.0f;               /* om */
+                }
                 m = n;
         } else {
                 for (int i = 0; i < n; i++)
