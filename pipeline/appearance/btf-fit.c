@@ -595,6 +595,12 @@ CLONES static float kth_by_rank(const float *restrict v, int n, int k) {
         return v[0];            /* not reached: the ranks are a permutation of 0..n−1 */
 }
 
+float imp_btf_kth_smallest(const float *v, int n, int k) {
+        if (!v || n < 1 || k < 0 || k >= n)
+                return NAN;
+        return kth_by_rank(v, n, k);
+}
+
 /* ω = min(1, thr/|r|) from the squared residuals, W = l_z² ω (both computed in every
  * lane, the select after: a conditional division would keep the loop scalar). */
 CLONES static void huber_weights(struct work *w, float thr, float thr2) {
