@@ -4,8 +4,8 @@
  * on a 256×256 heightfield, nearly flat (pitch 0.25 mm, ±0.2 mm) and rough like paint
  * (pitch 0.05 mm, ±1 mm: long shadow rays, many shadowed samples). Prints a table with
  * texels/s and peak RSS. --fit-only: (1) alone (for profiles). --checksum: an FNV-1a 64 of
- * every fitted texel of each fit-only case (one pass each): two builds fit bit-identically
- * when their lines are equal. --grid: (2) alone (extraction profiles, e.g. under callgrind
+ * every fitted texel of each fit-only case (one pass each) and of each grid: two builds
+ * fit (and extract) bit-identically when their lines are equal. --grid: (2) alone (extraction profiles, e.g. under callgrind
  * with --toggle-collect=imp_btf_fit_grid). */
 #include <stdio.h>
 #include <stdlib.h>
@@ -138,8 +138,17 @@ static void bench_grid(const struct imp_rig_light *L, bool rough) {
         double t0 = now_s(), c0 = cpu_s();
         int r = imp_btf_fit_grid(&hf, &cap, &sp, &fp, 64, tex, &st);
         double t = now_s() - t0, c = cpu_s() - c0;
-        printf("| extract + fit + fill, %-6s | %8d | %10.0f | %9.2f | %10.0f |  (r=%d, hidden %ld, shadowed samples %ld)\n",
-               rough ? "rough" : "flat", G * G, G * G / t, 1e6 * t / (G * G), G * G / c, r, st.n_hidden, st.n_shadowed);
+        if (checksum) {
+                uint64_t hs = 0xcbf29ce484222325ull;
+                for (int i = 0; i < G * G; i++)
+                        hs = fnv(hs, &tex[i], sizeof tex[i]);
+                printf("grid, %-6s (r=%d, samples %ld, shadowed %ld) %016llx\n", rough ? "rough" : "flat", r,
+                       st.n_samples, st.n_shadowed, (unsigned long long) hs);
+        } else {
+                printf("| extract + fit + fill, %-6s | %8d | %10.0f | %9.2f | %10.0f |  (r=%d, hidden %ld, shadowed samples %ld)\n",
+                       rough ? "rough" : "flat", G * G, G * G / t, 1e6 * t / (G * G), G * G / c, r, st.n_hidden,
+                       st.n_shadowed);
+        }
         for (int j = 0; j < NL; j++)
                 imp_image_free(frames[j]);
         free(h);
@@ -256,7 +265,7 @@ int main(int argc, char **argv) {
         threads = omp_get_max_threads();
 #endif
         checksum = argc > 1 && !strcmp(argv[1], "--checksum");
-        bool fit_only = checksum || (argc > 1 && !strcmp(argv[1], "--fit-only"));
+        bool fit_only = argc > 1 && !strcmp(argv[1], "--fit-only");
         if (!checksum)
                 printf("BTF fit, %d lights, %d threads\n\n", NL, threads);
         /* texels per CPU-second: what one free core does; the machine is shared */
@@ -275,6 +284,8 @@ int main(int argc, char **argv) {
                 return 0;
         bench_grid(L, false);
         bench_grid(L, true);
+        if (checksum)
+                return 0;
         printf("\npeak RSS: %.1f MB (of which the %d input frames 512×512 RGB f32: %.1f MB; fit-only "
                "sample arrays %.1f MB)\n", peak_rss_kb() / 1024.0, NL, NL * 512.0 * 512 * 12 / 1048576.0,
                (double) TEXELS * NL * sizeof(struct imp_btf_sample) / 1048576.0);

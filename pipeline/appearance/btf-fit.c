@@ -6,6 +6,7 @@
 #include <errno.h>
 #include <float.h>
 #include <math.h>
+#include <stddef.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -30,11 +31,12 @@
 
 static const double k_grid[] = { 2, 5, 12, 30, 80, 200, 500 };
 
-/* The per-sample loops below are built twice, for AVX2 (8 float lanes) and the x86-64
- * baseline (SSE2, 4), and the CPU picks at load time (ifunc). Not FMA: contraction would
- * make the result depend on the machine. */
+/* The per-sample loops below are built three times, for AVX-512 (16 float lanes), AVX2
+ * (8) and the x86-64 baseline (SSE2, 4), and the CPU picks at load time (ifunc). Not FMA:
+ * contraction would make the result depend on the machine (GCC's avx512f target enables
+ * FMA, hence fp-contract=off for these functions). */
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define CLONES __attribute__((target_clones("avx2", "default")))
+#define CLONES __attribute__((target_clones("avx512f", "avx2", "default"), optimize("fp-contract=off")))
 #else
 #define CLONES
 #endif
@@ -147,7 +149,7 @@ static double q_cost(double a, double b, double sw, double sg, double sgg, doubl
 
 /* min Σ W (y − a − b g)², a, b ≥ 0: the unconstrained optimum when feasible, otherwise
  * the best of the KKT faces (a = 0, b = 0, both 0) — exact for this convex 2-D QP. */
-static double nnls2(double sw, double sg, double sgg, double sy, double sgy, double syy,
+static inline double nnls2(double sw, double sg, double sgg, double sy, double sgy, double syy,
                     double *ret_a, double *ret_b) {
         double det = sw * sgg - sg * sg;
         if (det > 1e-12 * sw * sgg && sgg > 0.0) {
@@ -226,6 +228,22 @@ CLONES static double lobe_logs(struct work *w, double cx, double cy) {
         return ldmax > 0.5f * LD_NONE ? ldmax : -HUGE_VAL;
 }
 
+/* The linear part of e from the lobe sums sg, sgg and Σ W y g per channel. */
+static void solve_linear(const struct work *w, double k, double ldmax, double sg, double sgg, const double sgy[3],
+                         struct eval *e) {
+        e->k = k;
+        e->ldmax = ldmax;
+        e->sw = w->sw;
+        e->sg = sg;
+        e->sgg = sgg;
+        e->cost = 0.0;
+        for (int c = 0; c < 3; c++) {
+                double cc = nnls2(w->sw, sg, sgg, w->sy[c], sgy[c], w->syy[c], &e->rd[c], &e->rs[c]);
+                e->cost += fmax(cc, 0.0);
+                e->rd_active[c] = e->rd[c] > 0.0;
+        }
+}
+
 /* Fills w->g for exponent k (the logs of lobe_logs() with their maximum ldmax) and
  * solves the linear part. */
 CLONES static void lobe_solve(struct work *w, double k, double ldmax, struct eval *e) {
@@ -250,18 +268,28 @@ CLONES static void lobe_solve(struct work *w, double k, double ldmax, struct eva
         } else {
                 memset(g, 0, n * sizeof *g);
         }
-        double sgy[3] = { sgy0, sgy1, sgy2 };
-        e->k = k;
-        e->ldmax = ldmax;
-        e->sw = w->sw;
-        e->sg = sg;
-        e->sgg = sgg;
-        e->cost = 0.0;
-        for (int c = 0; c < 3; c++) {
-                double cc = nnls2(w->sw, sg, sgg, w->sy[c], sgy[c], w->syy[c], &e->rd[c], &e->rs[c]);
-                e->cost += fmax(cc, 0.0);
-                e->rd_active[c] = e->rd[c] > 0.0;
+        solve_linear(w, k, ldmax, sg, sgg, (const double[3]) { sgy0, sgy1, sgy2 }, e);
+}
+
+/* e re-solved after a change of the weights, at the same lobe: w->g (that of e) is
+ * kept, only the sums are formed again (the same sums as lobe_solve(), without the exps). */
+CLONES static void lobe_resolve(const struct work *w, struct eval *e) {
+        int n = w->n;
+        double sg = 0, sgg = 0, sgy0 = 0, sgy1 = 0, sgy2 = 0;
+        const float *restrict g = w->g, *restrict W = w->W;
+        const float *restrict wy0 = w->Wy[0], *restrict wy1 = w->Wy[1], *restrict wy2 = w->Wy[2];
+        if (e->ldmax > -HUGE_VAL) {
+#pragma omp simd reduction(+ : sg, sgg, sgy0, sgy1, sgy2)
+                for (int i = 0; i < n; i++) {
+                        float gi = g[i], Wg = W[i] * gi;
+                        sg += Wg;
+                        sgg += Wg * gi;
+                        sgy0 += wy0[i] * gi;
+                        sgy1 += wy1[i] * gi;
+                        sgy2 += wy2[i] * gi;
+                }
         }
+        solve_linear(w, e->k, e->ldmax, sg, sgg, (const double[3]) { sgy0, sgy1, sgy2 }, e);
 }
 
 /* Fills w->d, w->ld, w->g for the lobe and solves the linear part. */
@@ -422,8 +450,8 @@ static void clamp_theta(bool cxy, const struct bounds *bd, double th[MAXP]) {
         th[np - 1] = IMP_CLAMP(th[np - 1], bd->lk_min, bd->lk_max);
 }
 
-/* Minimises the reduced cost from th (updated in place); e ends as the evaluation at th
- * with w's arrays matching it. Stopping rule: relative cost decrease < tol on an
+/* Minimises the reduced cost from th (updated in place); e must hold the evaluation at th
+ * with w's arrays matching it on entry, and does so on return. Stopping rule: relative cost decrease < tol on an
  * accepted step, no parameter moving more than STEP_MIN, λ > LAMBDA_MAX, or max_evals. */
 static void lm(struct work *w, bool cxy, const struct bounds *bd, double tol, int max_evals,
                double th[MAXP], struct eval *e) {
@@ -437,8 +465,6 @@ static void lm(struct work *w, bool cxy, const struct bounds *bd, double tol, in
         }
         lo[np - 1] = bd->lk_min;
         hi[np - 1] = bd->lk_max;
-        theta_to_lobe(cxy, th, &cx, &cy, &k);
-        evaluate(w, cx, cy, k, e);
         double cost = e->cost + prior_cost(cxy, bd, th);
         for (int evals = 1; evals < max_evals;) {
                 double H[MAXP][MAXP], b[MAXP];
@@ -545,22 +571,34 @@ static void robust_sums(struct work *w, const double rd[3], const double rs[3], 
 
 /* The k-th smallest of v[0..n) (0-based; v unchanged): the element whose rank — the
  * count of smaller elements, ties broken by position — is k. Branch-free counting
- * (n² compares in vector lanes) beats a quickselect's mispredicted branches at the
- * sample counts of a texel. */
+ * (n² compares) beats a quickselect's mispredicted branches at the sample counts of a
+ * texel. The ranks of RANK_LANES candidates are counted at once, one vector lane each,
+ * against every element in turn: no horizontal sum per candidate. */
+#define RANK_LANES 16
 CLONES static float kth_by_rank(const float *restrict v, int n, int k) {
-        for (int i = 0; i < n; i++) {
-                const float x = v[i];
-                int rank = 0;
-#pragma omp simd reduction(+ : rank)
-                for (int j = 0; j < i; j++)
-                        rank += v[j] <= x;
-#pragma omp simd reduction(+ : rank)
-                for (int j = i + 1; j < n; j++)
-                        rank += v[j] < x;
-                if (rank == k)
-                        return x;
+        for (int i0 = 0; i0 < n; i0 += RANK_LANES) {
+                float x[RANK_LANES];
+                int rank[RANK_LANES] = { 0 };
+                for (int l = 0; l < RANK_LANES; l++)
+                        x[l] = v[IMP_MIN(i0 + l, n - 1)];
+                for (int j = 0; j < n; j++) {
+                        const float vj = v[j];
+                        const int ji = j - i0;
+#pragma omp simd
+                        for (int l = 0; l < RANK_LANES; l++)    /* smaller, or equal and before */
+                                rank[l] += (vj < x[l]) | ((vj == x[l]) & (ji < l));
+                }
+                for (int l = 0; l < RANK_LANES && i0 + l < n; l++)
+                        if (rank[l] == k)
+                                return x[l];
         }
         return v[0];            /* not reached: the ranks are a permutation of 0..n−1 */
+}
+
+float imp_btf_kth_smallest(const float *v, int n, int k) {
+        if (!v || n < 1 || k < 0 || k >= n)
+                return NAN;
+        return kth_by_rank(v, n, k);
 }
 
 /* ω = min(1, thr/|r|) from the squared residuals, W = l_z² ω (both computed in every
@@ -590,24 +628,80 @@ static void huber_reweight(struct work *w, const double rd[3], const double rs[3
 
 /* ---- the texel -------------------------------------------------------------------- */
 
-static int load_work(struct work *w, const struct imp_btf_sample *s, int n) {
-        int m = 0;
+static inline int finite_bits(float x) {
+        return (float_to_bits(x) & 0x7f800000u) != 0x7f800000u;
+}
+
+/* A sample as SAMPLE_FLOATS consecutive floats (struct imp_btf_sample: v, l, e_cos,
+ * value), so that the loops below read it with a constant stride and vectorise. */
+#define SAMPLE_FLOATS 10
+_Static_assert(sizeof(struct imp_btf_sample) == SAMPLE_FLOATS * sizeof(float) &&
+              offsetof(struct imp_btf_sample, l) == 3 * sizeof(float) &&
+              offsetof(struct imp_btf_sample, e_cos) == 6 * sizeof(float) &&
+              offsetof(struct imp_btf_sample, value) == 7 * sizeof(float), "imp_btf_sample is 10 packed floats");
+
+/* Whether a sample can enter the fit (finite, lit from above with E cos θl > 0). */
+static inline int sample_ok(const float *q) {
+        int ok = isgreater(q[6], 0.0f) & isgreater(q[5], 0.0f);
+        for (int c = 0; c < SAMPLE_FLOATS; c++)
+                ok &= finite_bits(q[c]);
+        return ok;
+}
+
+static inline void load_sample(struct work *w, int m, const float *q) {
+        w->ax[m] = q[0] * q[3];
+        w->ay[m] = q[1] * q[4];
+        w->az[m] = q[2] * q[5];
+        w->wl[m] = q[5] * q[5];
+        w->om[m] = 1.0f;
+        w->W[m] = w->wl[m];
+        w->y[0][m] = q[7] / q[6];
+        w->y[1][m] = q[8] / q[6];
+        w->y[2][m] = q[9] / q[6];
+}
+
+/* The usable samples into w's arrays (structure of arrays). The common case, every
+ * sample usable: the fields are first copied apart into w's arrays (d, g, ld ← v;
+ * res, om, wl ← l; W ← E cos θl; y ← V), then checked and combined in vector loops. */
+CLONES static int load_work(struct work *w, const struct imp_btf_sample *s, int n) {
+        const float *f = n > 0 ? s[0].v : NULL;
+        float *restrict v0 = w->d, *restrict v1 = w->g, *restrict v2 = w->ld;
+        float *restrict l0 = w->res, *restrict l1 = w->om, *restrict l2 = w->wl, *restrict ec = w->W;
+        float *restrict y0 = w->y[0], *restrict y1 = w->y[1], *restrict y2 = w->y[2];
+        float *restrict ax = w->ax, *restrict ay = w->ay, *restrict az = w->az;
         for (int i = 0; i < n; i++) {
-                const struct imp_btf_sample *q = &s[i];
-                bool ok = q->e_cos > 0.0f && q->l[2] > 0.0f && isfinite(q->e_cos);
-                for (int c = 0; c < 3; c++)
-                        ok = ok && isfinite(q->v[c]) && isfinite(q->l[c]) && isfinite(q->value[c]);
-                if (!ok)
-                        continue;
-                w->ax[m] = q->v[0] * q->l[0];
-                w->ay[m] = q->v[1] * q->l[1];
-                w->az[m] = q->v[2] * q->l[2];
-                w->wl[m] = q->l[2] * q->l[2];
-                w->om[m] = 1.0f;
-                w->W[m] = w->wl[m];
-                for (int c = 0; c < 3; c++)
-                        w->y[c][m] = q->value[c] / q->e_cos;
-                m++;
+                const float *q = f + SAMPLE_FLOATS * i;
+                v0[i] = q[0], v1[i] = q[1], v2[i] = q[2];
+                l0[i] = q[3], l1[i] = q[4], l2[i] = q[5];
+                ec[i] = q[6];
+                y0[i] = q[7], y1[i] = q[8], y2[i] = q[9];
+        }
+        int bad = 0, m = 0;
+#pragma omp simd reduction(+ : bad)
+        for (int i = 0; i < n; i++)
+                bad += !(isgreater(ec[i], 0.0f) & isgreater(l2[i], 0.0f) & finite_bits(ec[i]) &
+                         finite_bits(v0[i]) & finite_bits(v1[i]) & finite_bits(v2[i]) & finite_bits(l0[i]) &
+                         finite_bits(l1[i]) & finite_bits(l2[i]) & finite_bits(y0[i]) & finite_bits(y1[i]) &
+                         finite_bits(y2[i]));
+        if (!bad) {
+#pragma omp simd
+                for (int i = 0; i < n; i++) {
+                        float e = ec[i], lz = l2[i];
+                        ax[i] = v0[i] * l0[i];
+                        ay[i] = v1[i] * l1[i];
+                        az[i] = v2[i] * lz;
+                        y0[i] = y0[i] / e;
+                        y1[i] = y1[i] / e;
+                        y2[i] = y2[i] / e;
+                        l2[i] = lz * lz;            /* wl */
+                        ec[i] = lz * lz;            /* W */
+                        l1[i] = 1.0f;               /* om */
+                }
+                m = n;
+        } else {
+                for (int i = 0; i < n; i++)
+                        if (sample_ok(f + SAMPLE_FLOATS * i))
+                                load_sample(w, m++, f + SAMPLE_FLOATS * i);
         }
         w->n = m;
         set_weights(w);
@@ -701,7 +795,9 @@ static int fit_texel(const struct imp_btf_sample *samples, int n, const struct i
                 *ret = t;
                 return 0;
         }
-        lobe_solve(&w, best.k, ldmax, &e);
+        /* The start of LM, k = exp(log k) as LM will compute it: w's arrays then match. */
+        lobe_solve(&w, exp(log(best.k)), ldmax, &e);
+        e.cx = e.cy = -1.0;
         bool cxy = !cx_cy_separable(&w, p->cxy_tau);
         double th[MAXP];
         if (cxy) {
@@ -715,6 +811,7 @@ static int fit_texel(const struct imp_btf_sample *samples, int n, const struct i
         lm(&w, cxy, &bd, p->tol, p->max_iter, th, &e);
         for (int pass = 0; pass < p->robust_passes; pass++) {
                 huber_reweight(&w, e.rd, e.rs, p);
+                lobe_resolve(&w, &e);            /* same lobe, new weights */
                 lm(&w, cxy, &bd, p->tol, IMP_MAX(p->max_iter / 3, 2), th, &e);
         }
 

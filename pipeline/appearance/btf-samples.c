@@ -334,18 +334,33 @@ int imp_btf_valid_from_hdr(const struct imp_image *hdr_flags, struct imp_image *
 
 enum { PIX_OK, PIX_SATURATED, PIX_INVALID };
 
-/* Bilinear value at pixel position px (pixel centres at integers). */
-static int frame_sample(const struct imp_image *f, const struct imp_image *valid, double sat,
-                        const double px[2], float ret[3]) {
+/* The bilinear taps of pixel position px (pixel centres at integers): the same for every
+ * light of a texel, so formed once per texel. */
+struct taps {
+        int xs[2], ys[2];
+        double w[4];
+};
+
+static void bilinear_taps(int width, int height, const double px[2], struct taps *t) {
         int x0 = (int) floor(px[0]), y0 = (int) floor(px[1]);
         double a = px[0] - x0, b = px[1] - y0;
-        int x1 = IMP_MIN(x0 + 1, f->width - 1), y1 = IMP_MIN(y0 + 1, f->height - 1);
-        int xs[2] = { x0, x1 }, ys[2] = { y0, y1 };
-        double w[4] = { (1 - a) * (1 - b), a * (1 - b), (1 - a) * b, a * b };
+        t->xs[0] = x0;
+        t->xs[1] = IMP_MIN(x0 + 1, width - 1);
+        t->ys[0] = y0;
+        t->ys[1] = IMP_MIN(y0 + 1, height - 1);
+        t->w[0] = (1 - a) * (1 - b);
+        t->w[1] = a * (1 - b);
+        t->w[2] = (1 - a) * b;
+        t->w[3] = a * b;
+}
+
+/* Bilinear value of frame f at the taps t. */
+static int frame_sample(const struct imp_image *f, const struct imp_image *valid, double sat,
+                        const struct taps *t, float ret[3]) {
         double acc[3] = { 0, 0, 0 };
         int state = PIX_OK;
         for (int k = 0; k < 4; k++) {
-                int x = xs[k & 1], y = ys[k >> 1];
+                int x = t->xs[k & 1], y = t->ys[k >> 1];
                 const float *q = imp_image_f32(f, x, y);
                 for (int c = 0; c < 3; c++) {
                         double val = q[f->channels == 3 ? c : 0];
@@ -353,7 +368,7 @@ static int frame_sample(const struct imp_image *f, const struct imp_image *valid
                                 return PIX_INVALID;
                         if (sat > 0.0 && val >= sat)
                                 state = PIX_SATURATED;
-                        acc[c] += w[k] * val;
+                        acc[c] += t->w[k] * val;
                 }
                 if (valid) {
                         uint8_t fl = *imp_image_u8(valid, x, y);
@@ -437,6 +452,8 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
                 *ret_flags = IMP_BTF_HIDDEN;
                 return;
         }
+        struct taps tp;
+        bilinear_taps(cap->camera->width, cap->camera->height, px, &tp);
 
         for (int j = 0; j < cap->n_lights; j++) {
                 double wl[3], lloc[3], r = 0.0;
@@ -459,7 +476,7 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
                 }
                 float val[3];
                 int st = frame_sample(cap->frames[j], cap->valid ? cap->valid[j] : NULL,
-                                      p->saturation_value, px, val);
+                                      p->saturation_value, &tp, val);
                 if (st == PIX_SATURATED)
                         flags |= IMP_BTF_SATURATED;
                 if (st != PIX_OK)

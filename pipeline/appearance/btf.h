@@ -235,6 +235,11 @@ struct imp_btf_texel {
 int imp_btf_fit_texel(const struct imp_btf_sample *samples, int n, const struct imp_btf_fit_params *p,
                       struct imp_btf_texel *ret);
 
+/* The k-th smallest of v[0..n) (0-based; v unchanged): the selection behind the fit's
+ * robust scale (the median of the squared residuals), exported for its test. NaN when
+ * n < 1 or k is outside [0, n). */
+float imp_btf_kth_smallest(const float *v, int n, int k);
+
 /* Fill texels flagged FEW_SAMPLES or HIDDEN (not MASKED) with the mean of their valid
  * 8-neighbours, growing inwards pass by pass; filled texels get FILLED. Texels with no
  * valid texel in reach keep their values. Returns the number filled. */

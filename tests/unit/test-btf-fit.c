@@ -2,9 +2,12 @@
  * near-field dome (rings at 15°, 35°, 60°, radius 500 mm; camera 300 mm above the dome
  * centre; 1 % relative noise), the single-viewpoint Cx = Cy detection, and the tiled
  * driver end to end on rendered frames. Tolerances are stated where they are checked. */
+#include <math.h>
 #include <stdlib.h>
+#include <string.h>
 
 #include "btf.h"
+#include "numerics.h"
 #include "unit/btf-synth.h"
 #include "unit/test.h"
 
@@ -300,6 +303,72 @@ static void test_grid_fused_equals_tiles(void) {
                 imp_image_free(frames[j]);
 }
 
+/* The selection behind the robust scale counts ranks 16 candidates at a time, ties
+ * broken by position: against a quickselect on arrays of 1..130 values drawn from a few
+ * levels (many ties, blocks of 16 crossed), every k. Exact equality. */
+static void test_kth_smallest(void) {
+        enum { NMAX = 130 };
+        float v[NMAX], copy[NMAX];
+        uint64_t rng = 7;
+        int wrong = 0, checked = 0;
+        for (int n = 1; n <= NMAX; n++)
+                for (int levels = 1; levels <= 64; levels *= 4) {
+                        for (int i = 0; i < n; i++)
+                                v[i] = (float) (int) (levels * synth_uniform(&rng)) * 0.25f;
+                        for (int k = 0; k < n; k++) {
+                                memcpy(copy, v, n * sizeof *v);
+                                float want = imp_select_kth_float(copy, (size_t) n, (size_t) k);
+                                float got = imp_btf_kth_smallest(v, n, k);
+                                wrong += got != want;
+                                checked++;
+                        }
+                }
+        CHECK_INT_EQ(wrong, 0);
+        CHECK_INT_EQ(checked, 4 * NMAX * (NMAX + 1) / 2);
+        CHECK(isnan(imp_btf_kth_smallest(v, 5, 5)));
+        CHECK(isnan(imp_btf_kth_smallest(v, 0, 0)));
+}
+
+/* Samples that cannot enter the fit (a non-finite field, E cos θl ≤ 0, the light at or
+ * below the horizon) are dropped: interleaved with the usable ones they give the texel of
+ * the usable ones alone, byte for byte (the all-usable case takes the vector loading
+ * path, the other the compacting one). Per material, at 8 texel positions. */
+static void test_unusable_samples_dropped(void) {
+        enum { NS = 48 };
+        struct imp_btf_sample s[NS], mixed[2 * NS];
+        struct imp_btf_fit_params fp;
+        imp_btf_fit_params_default(&fp);
+        uint64_t rng = 11;
+        int differ = 0, fitted = 0;
+        for (int m = 0; m < 3; m++)
+                for (int pos = 0; pos < 8; pos++) {
+                        const double P[3] = { -100.0 + 25.0 * pos, 40.0 - 10.0 * pos, 0 }, up[3] = { 0, 0, 1 };
+                        int n = synth_samples(P, up, eye_top, lights, NS, &materials[m], NOISE_REL, &rng, s);
+                        int k = 0;
+                        for (int i = 0; i < n; i++) {
+                                mixed[k++] = s[i];
+                                struct imp_btf_sample bad = s[i];
+                                switch (i % 5) {
+                                case 0: bad.value[i % 3] = NAN; break;
+                                case 1: bad.e_cos = 0.0f; break;
+                                case 2: bad.l[2] = -0.1f; break;
+                                case 3: bad.v[i % 3] = INFINITY; break;
+                                default: bad.l[i % 2] = -INFINITY; break;
+                                }
+                                if (i % 2)
+                                        mixed[k++] = bad;
+                        }
+                        struct imp_btf_texel a, b;
+                        CHECK_OK(imp_btf_fit_texel(s, n, &fp, &a));
+                        CHECK_OK(imp_btf_fit_texel(mixed, k, &fp, &b));
+                        CHECK_INT_EQ(b.n_samples, n);
+                        differ += memcmp(&a, &b, sizeof a) != 0;
+                        fitted += !(a.flags & (IMP_BTF_MATTE | IMP_BTF_FEW_SAMPLES));
+                }
+        CHECK_INT_EQ(differ, 0);
+        CHECK_INT_GE(fitted, 8);      /* the lobe path ran, not only the matte one */
+}
+
 int main(void) {
         const double centre[3] = { 0, 0, 0 };
         CHECK_INT_EQ(synth_dome(lights, elev, 3, 16, 500.0, centre, 1.0, 0.0), 48);
@@ -307,5 +376,7 @@ int main(void) {
         test_single_viewpoint();
         test_grid_end_to_end();
         test_grid_fused_equals_tiles();
+        test_kth_smallest();
+        test_unusable_samples_dropped();
         return TEST_DONE();
 }
