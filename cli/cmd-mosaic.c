@@ -1,4 +1,4 @@
-/* `impasto mosaic PAINTING_DIR --out DIR [--prior-only] [--tile-px N] [--cache-mib N]`: one
+/* `impasto mosaic PAINTING_DIR --out DIR [--prior-only] [--register-on WHAT] [--tile-px N] [--cache-mib N]`: one
  * copy of a whole painting from its tiles' copies (docs/mosaic.md; pipeline/mosaic/mosaic.h).
  * Prints the registration (per pair: residual before and after, shift, 1σ), the adjustment's
  * change from the stage prior, the seam step and, when the painting has truth (simulator:
@@ -17,7 +17,8 @@
 #include "numparse.h"
 
 static void usage(FILE *f) {
-        fprintf(f, "usage: impasto mosaic PAINTING_DIR --out DIR [--prior-only] [--tile-px N] [--cache-mib N]\n");
+        fprintf(f, "usage: impasto mosaic PAINTING_DIR --out DIR [--prior-only] [--register-on heights|normals|both]\n"
+                   "                      [--tile-px N] [--cache-mib N]\n");
 }
 
 static void print_pairs(const struct imp_painting *p, const struct imp_mosaic_pair *pr, size_t n) {
@@ -100,6 +101,22 @@ fail:
         return r == -EBADMSG || r == -ENOENT || r == -ENODATA || r == -EMEDIUMTYPE ? IMP_EXIT_BAD_INPUT : IMP_EXIT_FAILURE;
 }
 
+/* --register-on: the channels pairs are registered on (docs/mosaic.md: heights by default;
+ * the normals help where the heights are noisy against them, e.g. 0.2 mm texels). */
+static int parse_channels(const char *s, unsigned *ret) {
+        static const struct { const char *name; unsigned ch; } names[] = {
+                { "heights", IMP_MOSAIC_REG_HEIGHT }, { "normals", IMP_MOSAIC_REG_NORMALS },
+                { "both", IMP_MOSAIC_REG_HEIGHT | IMP_MOSAIC_REG_NORMALS },
+        };
+        for (size_t i = 0; i < sizeof names / sizeof *names; i++)
+                if (strcmp(s, names[i].name) == 0) {
+                        *ret = names[i].ch;
+                        return 0;
+                }
+        log_error("--register-on: expected heights, normals or both, got \"%s\"", s);
+        return -EINVAL;
+}
+
 static int run(int argc, char **argv) {
         struct imp_mosaic_options o;
         imp_mosaic_options_default(&o);
@@ -107,7 +124,7 @@ static int run(int argc, char **argv) {
         static const struct option longopts[] = {
                 { "out", required_argument, NULL, 'o' }, { "prior-only", no_argument, NULL, 'p' },
                 { "tile-px", required_argument, NULL, 't' }, { "cache-mib", required_argument, NULL, 'c' },
-                { "help", no_argument, NULL, 'h' }, {}
+                { "register-on", required_argument, NULL, 'r' }, { "help", no_argument, NULL, 'h' }, {}
         };
         int c;
         long v;
@@ -115,6 +132,10 @@ static int run(int argc, char **argv) {
                 switch (c) {
                 case 'o': out = optarg; break;
                 case 'p': o.prior_only = true; break;
+                case 'r':
+                        if (parse_channels(optarg, &o.reg_channels) < 0)
+                                return IMP_EXIT_USAGE;
+                        break;
                 case 't':
                         if (imp_parse_int("--tile-px", optarg, 16, 8192, &o.out_tile_px) < 0)
                                 return IMP_EXIT_USAGE;
