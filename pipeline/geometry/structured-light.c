@@ -890,30 +890,64 @@ DEFINE_GRAY_INT(gray_int_u16, uint16_t, int32_t, uint32_t, (1 << 20), NO_BYTES) 
  * straight to bytes: ⌊min(L_d, 255)⌋ = min(⌊L_d⌋, 255), and with c = ⌈min(L_g, 256)⌉,
  * min(c, 255) = min(⌈L_g⌉, 255) and c ≤ 255 ⇔ ⌈L_g⌉ ≤ 255 (L_d, L_g ≥ 0, finite).
  * Bit-identical to gray_int_u8 with gray_u8_axis (test-sl-decode, bench-decode --checksum),
- * without its 16-bit round trips. */
-static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void u8_thresholds(
+ * without its 16-bit round trips.
+ * The thresholds are computed eight lanes at a time in GCC's generic vectors: written as a
+ * loop, gcc 12 jump-threads the MAXF/MINF selects into branches ("control flow in loop")
+ * and leaves it scalar, ≈ 30 instructions a pixel. The operations are those of the scalar
+ * formulas lane by lane (a > b ? a : b as a mask select, float → int by truncation, no FMA),
+ * so every value is the same; the SSE2 clone runs each as two 4-lane halves. */
+typedef float v8f __attribute__((vector_size(32)));
+typedef int32_t v8i __attribute__((vector_size(32)));
+typedef uint8_t v8b __attribute__((vector_size(8)));
+
+/* m ? a : b lane by lane, m a comparison's −1 / 0 (a macro: a 32-byte vector argument
+ * would change the ABI of the SSE2 clone) */
+#define SEL8(m, a, b) ((v8f) (((v8i) (a) & (m)) | ((v8i) (b) & ~(m))))
+
+static inline __attribute__((always_inline)) void thr8(
+                const uint8_t *mx, const uint8_t *mn, float k1, float k2, float b, uint8_t always,
+                float *ld, float *lg, int32_t *ti, int32_t *gi, int32_t *ai) {
+        v8b bx, bn;
+        memcpy(&bx, mx, sizeof bx);
+        memcpy(&bn, mn, sizeof bn);
+        const v8f lmax = __builtin_convertvector(bx, v8f), lmin = __builtin_convertvector(bn, v8f);
+        const v8f zero = { 0 }, c255 = zero + 255.0f, c256 = zero + 256.0f;
+        v8f d = (zero + k1) * (lmax - lmin), e = (zero + k2) * (lmin - (zero + b) * lmax);
+        d = SEL8(d > zero, d, zero);
+        e = SEL8(e > zero, e, zero);
+        memcpy(ld, &d, sizeof d);
+        memcpy(lg, &e, sizeof e);
+        const v8f dc = SEL8(d < c255, d, c255), ec = SEL8(e < c256, e, c256);
+        const v8i s = __builtin_convertvector(dc, v8i), t = __builtin_convertvector(ec, v8i);
+        /* comparisons give −1 where true: s − [s > dc], t + [t < ec] */
+        const v8i tiv = s + (__builtin_convertvector(s, v8f) > dc);
+        const v8i giv = t - (__builtin_convertvector(t, v8f) < ec);
+        const v8i aiv = ((d > e) & 1) | (int32_t) always;
+        memcpy(ti, &tiv, sizeof tiv);
+        memcpy(gi, &giv, sizeof giv);
+        memcpy(ai, &aiv, sizeof aiv);
+}
+
+static __attribute__((noinline, CLONES)) void u8_thresholds(
                 int n, const uint8_t *restrict mx, const uint8_t *restrict mn, float k1, float k2,
                 float b, uint8_t always, float *restrict ld, float *restrict lg, uint8_t *restrict td8,
                 uint8_t *restrict tg8, uint8_t *restrict tgok, uint8_t *restrict alw8) {
         /* in 32-bit lanes first: float → byte conversions in one loop stay scalar in gcc 12 */
-        int32_t ti[IBLK], gi[IBLK], ai[IBLK];
-        SIMD
-        for (int x = 0; x < n; x++) {
-                float lmax = mx[x], lmin = mn[x];
-                float d = MAXF(k1 * (lmax - lmin), 0.0f);
-                float e = MAXF(k2 * (lmin - b * lmax), 0.0f);
-                ld[x] = d;
-                lg[x] = e;
-                float dc = MINF(d, 255.0f);
-                int32_t s = (int32_t) dc;
-                ti[x] = s - ((float) s > dc);
-                float ec = MINF(e, 256.0f);     /* ⌈·⌉ = 256 exactly when L_g > 255 */
-                int32_t t = (int32_t) ec;
-                gi[x] = t + ((float) t < ec);
-                ai[x] = (d > e) | always;
+        int32_t ti[IBLK + 8], gi[IBLK + 8], ai[IBLK + 8];     /* + the tail's padding lanes */
+        int x = 0;
+        for (; x + 8 <= n; x += 8)
+                thr8(mx + x, mn + x, k1, k2, b, always, ld + x, lg + x, ti + x, gi + x, ai + x);
+        if (x < n) {            /* the tail through zero-padded lanes */
+                uint8_t px[8] = { 0 }, pn[8] = { 0 };
+                float pd[8], pg[8];
+                memcpy(px, mx + x, (size_t) (n - x));
+                memcpy(pn, mn + x, (size_t) (n - x));
+                thr8(px, pn, k1, k2, b, always, pd, pg, ti + x, gi + x, ai + x);
+                memcpy(ld + x, pd, (size_t) (n - x) * sizeof *pd);
+                memcpy(lg + x, pg, (size_t) (n - x) * sizeof *pg);
         }
         SIMD
-        for (int x = 0; x < n; x++) {
+        for (x = 0; x < n; x++) {
                 td8[x] = (uint8_t) ti[x];
                 tg8[x] = (uint8_t) (gi[x] > 255 ? 255 : gi[x]);
                 tgok[x] = gi[x] <= 255;
