@@ -1046,15 +1046,27 @@ static bool u8_row_applies(const struct plan *pl) {
                (!pl->ax[1].nbits || pl->ax[1].inverse);
 }
 
+/* The direct and global maps of a Gray-only row (modulation 0: no phase); not called with
+ * coords_only. */
+static void light_maps_row(struct imp_sl_result *res, size_t off, const float *restrict ld,
+                           const float *restrict lg, int w) {
+        float *restrict od = res->direct + off, *restrict og = res->global + off;
+        float *restrict om = res->modulation + off;
+        SIMD
+        for (int x = 0; x < w; x++) {
+                od[x] = isfinite(ld[x]) ? ld[x] : 0.0f;
+                og[x] = isfinite(lg[x]) ? lg[x] : 0.0f;
+                om[x] = 0.0f;
+        }
+}
+
 __attribute__((optimize("no-trapping-math"), CLONES))
 static void combine_gray_row(const struct ctx *c, int y, float **R, int w, size_t counts[8]) {
         const struct plan *pl = c->pl;
         const struct imp_sl_params *p = c->p;
         const size_t off = (size_t) y * w;
         float *restrict ox = c->res->proj_x + off, *restrict oy = c->res->proj_y + off;
-        float *restrict oc = c->res->confidence + off, *restrict od = c->res->direct + off;
-        float *restrict og = c->res->global + off, *restrict om = c->res->modulation + off;
-        float *restrict os = c->res->sigma_px + off;
+        float *restrict oc = c->res->confidence + off, *restrict os = c->res->sigma_px + off;
         uint16_t *restrict of = c->res->flags + off;
         const float *restrict wr = R[R_WHITE], *restrict br = R[R_BLACK], *restrict hi = R[R_HI];
         const float *restrict ld = R[R_LD], *restrict lg = R[R_LG];
@@ -1104,9 +1116,6 @@ static void combine_gray_row(const struct ctx *c, int y, float **R, int w, size_
                 float s1 = ok1 ? (wb1 ? WEAK_SIGMA : INV_SQRT12) * q1 : 0.0f;
                 os[x] = MAXF(s0, s1);
                 of[x] = (uint16_t) f;
-                od[x] = isfinite(ld[x]) ? ld[x] : 0.0f;
-                og[x] = isfinite(lg[x]) ? lg[x] : 0.0f;
-                om[x] = 0.0f;
                 nx += ok0;
                 ny += ok1;
                 nxy += ok0 & ok1;
@@ -1120,6 +1129,8 @@ static void combine_gray_row(const struct ctx *c, int y, float **R, int w, size_
         counts[3] += nsh;
         counts[4] += nsat;
         counts[5] += nwk;
+        if (c->res->direct)
+                light_maps_row(c->res, off, ld, lg, w);
 }
 
 /* The phase's disagreement with the Gray code on one row: Σ (u/q − (code + ½))² (q the
@@ -1417,9 +1428,11 @@ static void combine_phase_row(const struct ctx *c, int y, float **R, int w, bool
                 res->confidence[off + x] = nvalid ? conf : 0.0f;
                 res->sigma_px[off + x] = nvalid ? sigma : 0.0f;
                 res->flags[off + x] = (uint16_t) f;
-                res->direct[off + x] = isfinite(ld[x]) ? ld[x] : 0.0f;
-                res->global[off + x] = isfinite(lg[x]) ? lg[x] : 0.0f;
-                res->modulation[off + x] = isfinite(modv) ? modv : 0.0f;
+                if (res->direct) {
+                        res->direct[off + x] = isfinite(ld[x]) ? ld[x] : 0.0f;
+                        res->global[off + x] = isfinite(lg[x]) ? lg[x] : 0.0f;
+                        res->modulation[off + x] = isfinite(modv) ? modv : 0.0f;
+                }
                 counts[0] += !!(f & IMP_SL_VALID_X);
                 counts[1] += !!(f & IMP_SL_VALID_Y);
                 counts[2] += (f & (IMP_SL_VALID_X | IMP_SL_VALID_Y)) == (IMP_SL_VALID_X | IMP_SL_VALID_Y);
@@ -1473,16 +1486,17 @@ void imp_sl_result_free(struct imp_sl_result *r) {
         free(r);
 }
 
-static int result_new(int w, int h, struct imp_sl_result **ret) {
+static int result_new(int w, int h, bool coords_only, struct imp_sl_result **ret) {
         size_t n = (size_t) w * h;
+        const int nfloat = coords_only ? 4 : 7;
         _cleanup_free_ struct imp_sl_result *r = calloc(1, sizeof *r);
         if (!r)
                 return -ENOMEM;
-        /* 7 float maps + 1 u16 map; floats first keep alignment. The block is 30 bytes a
-         * pixel, written once: with 4 KiB pages, faulting it in costs about as much as the
-         * Gray decoding itself, so it asks for transparent huge pages (a hint; ignored
-         * where THP is off). */
-        size_t bytes = n * (7 * sizeof(float) + sizeof(uint16_t));
+        /* 7 float maps (4 with coords_only) + 1 u16 map; floats first keep alignment. The
+         * block is 30 bytes a pixel, written once: with 4 KiB pages, faulting it in costs
+         * about as much as the Gray decoding itself, so it asks for transparent huge pages
+         * (a hint; ignored where THP is off). */
+        size_t bytes = n * (nfloat * sizeof(float) + sizeof(uint16_t));
         char *blk;
         if (bytes >= RESULT_HUGE_BYTES) {
                 size_t round = (bytes + RESULT_HUGE_BYTES - 1) & ~(size_t) (RESULT_HUGE_BYTES - 1);
@@ -1498,11 +1512,13 @@ static int result_new(int w, int h, struct imp_sl_result **ret) {
         r->proj_x = fl;
         r->proj_y = fl + n;
         r->confidence = fl + 2 * n;
-        r->direct = fl + 3 * n;
-        r->global = fl + 4 * n;
-        r->modulation = fl + 5 * n;
-        r->sigma_px = fl + 6 * n;
-        r->flags = (uint16_t *) (fl + 7 * n);
+        r->sigma_px = fl + 3 * n;
+        if (!coords_only) {
+                r->direct = fl + 4 * n;
+                r->global = fl + 5 * n;
+                r->modulation = fl + 6 * n;
+        }
+        r->flags = (uint16_t *) (fl + nfloat * n);
         r->width = w;
         r->height = h;
         *ret = TAKE_PTR(r);
@@ -1603,8 +1619,9 @@ int imp_sl_decode_reuse(const struct imp_sl_frames *in, const struct imp_sl_para
 
         _cleanup_(imp_sl_result_freep) struct imp_sl_result *fresh = NULL;
         struct imp_sl_result *res = *ret;
-        if (!res || res->width != pl->width || res->height != pl->height) {
-                r = result_new(pl->width, pl->height, &fresh);
+        if (!res || res->width != pl->width || res->height != pl->height ||
+            !res->direct != p->coords_only) {
+                r = result_new(pl->width, pl->height, p->coords_only, &fresh);
                 if (r < 0)
                         return imp_error_set(err, r, "structured light: out of memory for %dx%d maps",
                                              pl->width, pl->height);
