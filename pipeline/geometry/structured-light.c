@@ -622,8 +622,10 @@ static inline float clamp01(float v) {
  * only concerns floating-point exception flags, which nothing here reads: every value is
  * the same. Helpers are macros, since functions built with other options are not inlined. */
 /* AVX2 doubles the lanes of the Gray and combine loops; chosen at load time by the CPU
- * (ifunc), baseline SSE2 otherwise. Not FMA: contraction would change L_d/L_g. */
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+ * (ifunc), baseline SSE2 otherwise. Not FMA: contraction would change L_d/L_g.
+ * IMPASTO_SL_NO_CLONES builds the baseline alone (test-sl-decode-sse2 runs the checks on
+ * it, as a CPU without AVX2 would). */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && !defined(IMPASTO_SL_NO_CLONES)
 #define CLONES target_clones("avx2", "default")
 #else
 #define CLONES
