@@ -600,6 +600,7 @@ int main(void) {
         /* Gray + 4-step phase, period 16 px: RMS ≤ 0.05 projector px (brief). The gamma of
          * 2.2 leaves a 3rd harmonic that 4 steps alias onto the fundamental: predicted
          * ≈ 0.017 px RMS; noise adds ≈ 0.003 px. */
+        test_u8_equals_float(&all, CW - 3);     /* the byte lanes' rows for the phase path */
         struct imp_sl_frames fall = { all.pat, (const struct imp_image *const *) all.img, all.n };
         check_coords_only(&fall, &p, "gray + phase, f32");
         r = decode(&all, &p);
