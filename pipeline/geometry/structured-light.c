@@ -957,182 +957,50 @@ static __attribute__((noinline, CLONES)) void u8_thresholds(
         }
 }
 
-/* The direct and global maps of a Gray-only row (modulation 0: no phase); not called with
- * coords_only. */
-static void light_maps_row(struct imp_sl_result *res, size_t off, const float *restrict ld,
-                           const float *restrict lg, int w) {
-        float *restrict od = res->direct + off, *restrict og = res->global + off;
-        float *restrict om = res->modulation + off;
-        SIMD
-        for (int x = 0; x < w; x++) {
-                od[x] = isfinite(ld[x]) ? ld[x] : 0.0f;
-                og[x] = isfinite(lg[x]) ? lg[x] : 0.0f;
-                om[x] = 0.0f;
-        }
-}
-
-/* The constants of the Gray-only combine step. */
-struct gray_k {
-        float thr, minc_d, b, sat, q0, q1;
-        uint32_t has_wb, robust, g0, g1, ext0, ext1, rej0, rej1;
-};
-
-static struct gray_k gray_constants(const struct ctx *c) {
-        const struct plan *pl = c->pl;
-        return (struct gray_k) {
-                .thr = (float) c->p->shadow_threshold, .minc_d = (float) c->p->min_direct,
-                .b = c->b, .sat = c->sat, .q0 = pl->ax[0].quantum, .q1 = pl->ax[1].quantum,
-                .has_wb = pl->white >= 0 && pl->black >= 0, .robust = c->p->robust,
-                .g0 = pl->ax[0].nbits > 0, .g1 = pl->ax[1].nbits > 0,
-                .ext0 = (uint32_t) pl->ax[0].ncodes, .ext1 = (uint32_t) pl->ax[1].ncodes,
-                .rej0 = c->rejected & 1, .rej1 = (c->rejected >> 1) & 1,
-        };
-}
-
-/* One pixel of a Gray-only row: coordinates, confidence and σ to *ox, *oy, *oc, *os;
- * returns the flags (the counts follow from them). Inlined into the row and block loops
- * (same options: a function built with others is not inlined). */
-static inline __attribute__((always_inline, optimize("no-trapping-math"))) uint32_t gray_px(
-                const struct gray_k *k, float wr, float br, float hi, float ld, uint32_t cd0,
-                uint32_t wk0, float cm0, uint32_t cd1, uint32_t wk1, float cm1, float *ox,
-                float *oy, float *oc, float *os) {
-        uint32_t shadow = (k->has_wb & !(wr - br > k->thr)) | (k->robust & !(ld >= k->minc_d));
-        float span = ld * (1 - k->b);                   /* = L_max − L_min */
-        uint32_t und0 = k->g0 & (wk0 > GRAY_WEAK_ALLOWED), und1 = k->g1 & (wk1 > GRAY_WEAK_ALLOWED);
-        uint32_t wb0 = k->g0 & (wk0 != 0) & !und0, wb1 = k->g1 & (wk1 != 0) & !und1;
-        uint32_t oor0 = k->g0 & (cd0 >= k->ext0), oor1 = k->g1 & (cd1 >= k->ext1);
-        uint32_t ok0 = k->g0 & ((shadow | und0 | oor0) ^ 1), ok1 = k->g1 & ((shadow | und1 | oor1) ^ 1);
-        /* span > 0 ? clamp01(cmin / span) : 0, without a branch (a conditional division
-         * blocks if-conversion): cmin ≥ 0, and cmin / ∞ is 0 (∞/∞ = NaN clamps to 0 too). */
-        float sd = span > 0 ? span : INFINITY;
-        float ca0 = (wb0 ? 0.5f : 1.0f) * CLAMP01(cm0 / sd);
-        float ca1 = (wb1 ? 0.5f : 1.0f) * CLAMP01(cm1 / sd);
-        float conf = 1.0f;
-        conf = ok0 ? MINF(conf, ca0) : conf;
-        conf = ok1 ? MINF(conf, ca1) : conf;
-        uint32_t f = (shadow ? IMP_SL_SHADOW : 0) | (hi >= k->sat ? IMP_SL_SATURATED : 0) |
-                     ((und0 | und1) ? IMP_SL_UNDECODABLE : 0) |
-                     ((wb0 | wb1) ? IMP_SL_WEAK_BIT : 0) |
-                     ((oor0 | oor1) ? IMP_SL_OUT_OF_RANGE : 0) |
-                     (ok0 ? IMP_SL_VALID_X : 0) | (ok1 ? IMP_SL_VALID_Y : 0) |
-                     ((ok0 & k->rej0) | (ok1 & k->rej1) ? IMP_SL_PHASE_REJECTED : 0);
-        *ox = ok0 ? ((float) (int32_t) cd0 + 0.5f) * k->q0 : IMP_SL_INVALID_COORD;
-        *oy = ok1 ? ((float) (int32_t) cd1 + 0.5f) * k->q1 : IMP_SL_INVALID_COORD;
-        *oc = ok0 | ok1 ? conf : 0.0f;
-        /* Gray centres: q/√12, √(1/12 + 1/4)·q with a weak bit (one code off). */
-        float s0 = ok0 ? (wb0 ? WEAK_SIGMA : INV_SQRT12) * k->q0 : 0.0f;
-        float s1 = ok1 ? (wb1 ? WEAK_SIGMA : INV_SQRT12) * k->q1 : 0.0f;
-        *os = MAXF(s0, s1);
-        return f;
-}
-
-/* A row's or block's counts (the flags' VALID_X, VALID_Y, both, SHADOW, SATURATED, WEAK_BIT). */
-static void add_counts(size_t counts[8], uint32_t nx, uint32_t ny, uint32_t nxy, uint32_t nsh,
-                       uint32_t nsat, uint32_t nwk) {
-        counts[0] += nx;
-        counts[1] += ny;
-        counts[2] += nxy;
-        counts[3] += nsh;
-        counts[4] += nsat;
-        counts[5] += nwk;
-}
-
-/* A row's or block's counters, summed over a vectorized loop, and their sums from the flags. */
-#define GRAY_COUNTERS uint32_t nx = 0, ny = 0, nxy = 0, nsh = 0, nsat = 0, nwk = 0
-#ifdef _OPENMP
-#define SIMD_GRAY_COUNTS _Pragma("omp simd reduction(+ : nx, ny, nxy, nsh, nsat, nwk)")
-#else
-#define SIMD_GRAY_COUNTS
-#endif
-#define GRAY_COUNT(f)                                                                          \
-        do {                                                                                   \
-                nx += ((f) & IMP_SL_VALID_X) != 0;                                             \
-                ny += ((f) & IMP_SL_VALID_Y) != 0;                                             \
-                nxy += ((f) & (IMP_SL_VALID_X | IMP_SL_VALID_Y)) == (IMP_SL_VALID_X | IMP_SL_VALID_Y); \
-                nsh += ((f) & IMP_SL_SHADOW) != 0;                                             \
-                nsat += ((f) & IMP_SL_SATURATED) != 0;                                         \
-                nwk += ((f) & IMP_SL_WEAK_BIT) != 0;                                           \
-        } while (0)
-
-/* A block's Gray planes of one axis in byte lanes (gray_u8_planes): the code's planes
- * 0–7 in g[0] and the rest in g[1] (low of them), weak-bit counts, smallest contrasts. */
-struct u8_axis {
-        uint8_t g[2][IBLK], wk[IBLK], cm[IBLK];
-        int low;
-};
-
-/* The combine step on one block of the byte-lane path, fused: the Gray code turned into
- * binary (g ^ g>>1 ^ g>>2 …) and every sample read from the block's bytes, so nothing
- * goes through the 32-bit scratch rows. The same gray_px as combine_gray_row's: the same
- * values. a0, a1: the axes' state (all zero for an axis without Gray code; unused). */
-static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void combine_u8_block(
-                const struct ctx *c, size_t off, int n, const uint8_t *restrict wr,
-                const uint8_t *restrict br, const uint8_t *restrict hi, const float *restrict ld,
-                const struct u8_axis *restrict a0, const struct u8_axis *restrict a1, size_t counts[8]) {
-        struct imp_sl_result *res = c->res;
-        float *restrict ox = res->proj_x + off, *restrict oy = res->proj_y + off;
-        float *restrict oc = res->confidence + off, *restrict os = res->sigma_px + off;
-        uint16_t *restrict of = res->flags + off;
-        const uint8_t *restrict g00 = a0->g[0], *restrict g01 = a0->g[1];
-        const uint8_t *restrict g10 = a1->g[0], *restrict g11 = a1->g[1];
-        const uint8_t *restrict wk0 = a0->wk, *restrict wk1 = a1->wk;
-        const uint8_t *restrict cm0 = a0->cm, *restrict cm1 = a1->cm;
-        const int low0 = a0->low, low1 = a1->low;
-        const struct gray_k k = gray_constants(c);
-        GRAY_COUNTERS;
-        SIMD_GRAY_COUNTS
-        for (int x = 0; x < n; x++) {
-                uint32_t v0 = ((uint32_t) g00[x] << low0) | g01[x];
-                uint32_t v1 = ((uint32_t) g10[x] << low1) | g11[x];
-                v0 ^= v0 >> 1;
-                v1 ^= v1 >> 1;
-                v0 ^= v0 >> 2;
-                v1 ^= v1 >> 2;
-                v0 ^= v0 >> 4;
-                v1 ^= v1 >> 4;
-                v0 ^= v0 >> 8;
-                v1 ^= v1 >> 8;
-                uint32_t f = gray_px(&k, wr[x], br[x], hi[x], ld[x], v0, wk0[x], cm0[x], v1, wk1[x],
-                                     cm1[x], &ox[x], &oy[x], &oc[x], &os[x]);
-                of[x] = (uint16_t) f;
-                GRAY_COUNT(f);
-        }
-        add_counts(counts, nx, ny, nxy, nsh, nsat, nwk);
-}
-
-/* Axis a's block result into the combine step's rows (for the phase path, which reads
- * them): the binary code, the weak-bit count and the smallest contrast. */
-static __attribute__((noinline, CLONES)) void u8_axis_rows(
-                const struct u8_axis *restrict s, int n, uint32_t *restrict code,
+/* Axis a's block result into the combine step's rows: the binary code (Gray → binary on the
+ * 16-bit code, g ^ g>>1 ^ g>>2 …), the weak-bit count and the smallest contrast. This loop
+ * and u8_thresholds are functions of their own: inlined into the block loop, gcc 12 leaves
+ * them scalar (≈ 100 instructions a pixel under callgrind). */
+static __attribute__((noinline, CLONES)) void u8_axis_out(
+                int n, int nbits, const uint8_t *restrict g0, const uint8_t *restrict g1,
+                const uint8_t *restrict wk8, const uint8_t *restrict cm8, uint32_t *restrict code,
                 uint32_t *restrict weak, float *restrict cmin) {
+        uint16_t g[IBLK];
+        if (nbits > 8) {
+                const int low = nbits - 8;      /* bits in g1 */
+                SIMD
+                for (int x = 0; x < n; x++)
+                        g[x] = (uint16_t) ((g0[x] << low) | g1[x]);
+        } else {
+                SIMD
+                for (int x = 0; x < n; x++)
+                        g[x] = g0[x];
+        }
         SIMD
         for (int x = 0; x < n; x++) {
-                uint32_t v = ((uint32_t) s->g[0][x] << s->low) | s->g[1][x];
+                uint16_t v = g[x];
                 v ^= v >> 1;
                 v ^= v >> 2;
                 v ^= v >> 4;
                 v ^= v >> 8;
                 code[x] = v;
-                weak[x] = s->wk[x];
-                cmin[x] = s->cm[x];
+                weak[x] = wk8[x];
+                cmin[x] = cm8[x];
         }
 }
 
-/* The byte-lane path on one row. fuse (no phase frames): the combine step too, per block
- * (combine_u8_block: flags, coordinates, confidence, σ, the light maps, counts); else the
- * rows the phase path reads. */
 static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void gray_u8_row(
-                const struct ctx *c, int y, float **R, int w, bool fuse, size_t counts[8]) {
+                const struct ctx *c, int y, float **R, int w) {
         const struct plan *pl = c->pl;
         const struct imp_image *const *im = c->in->images;
         const struct u8_lim lim = u8_limits((int16_t) int_ceil_clamp((float) c->p->min_bit_contrast, 0, INT16_MAX),
                                             (int16_t) int_ceil_clamp(c->sat, -INT16_MAX, INT16_MAX));
         const float b = c->b, k1 = 1.0f / (1.0f - b), k2 = 2.0f / (1.0f - b * b);
         const uint8_t always = c->p->robust ? 0 : 1;
-        struct u8_axis st[2];
         for (int x0 = 0; x0 < w; x0 += IBLK) {
                 const int n = IMP_MIN(IBLK, w - x0);
                 uint8_t mx[IBLK], mn[IBLK], td8[IBLK], tg8[IBLK], tgok[IBLK], alw8[IBLK], hi8[IBLK];
+                uint8_t g8[2][IBLK], wk8[IBLK], cm8[IBLK];
                 const uint8_t *wr = (const uint8_t *) imp_image_row(im[pl->white], y) + x0;
                 const uint8_t *br = (const uint8_t *) imp_image_row(im[pl->black], y) + x0;
                 const uint8_t *p0 = (const uint8_t *) imp_image_row(im[pl->dg[0]], y) + x0;
@@ -1149,30 +1017,20 @@ static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void gray
                                 mn[x] = mn[x] < pi[x] ? mn[x] : pi[x];
                         }
                 }
-                float *ld = R[R_LD] + x0, *lg = R[R_LG] + x0;
-                u8_thresholds(n, mx, mn, k1, k2, b, always, ld, lg, td8, tg8, tgok, alw8);
+                u8_thresholds(n, mx, mn, k1, k2, b, always, R[R_LD] + x0, R[R_LG] + x0, td8, tg8, tgok, alw8);
                 for (int a = 0; a < 2; a++) {
                         const struct axis_plan *ax = &pl->ax[a];
-                        struct u8_axis *sa = &st[a];
-                        sa->low = ax->nbits > 8 ? ax->nbits - 8 : 0;    /* bits in g[1] */
-                        SIMD
-                        for (int x = 0; x < n; x++) {
-                                sa->g[0][x] = sa->g[1][x] = sa->wk[x] = 0;
-                                sa->cm[x] = 255;
-                        }
                         if (!ax->nbits)
                                 continue;
-                        gray_u8_planes(im, ax, y, x0, n, td8, tg8, alw8, tgok, lim, sa->g, sa->wk, sa->cm, hi8);
-                        if (!fuse)
-                                u8_axis_rows(sa, n, (uint32_t *) R[R_CODE0 + a] + x0,
-                                             (uint32_t *) R[R_WEAK0 + a] + x0, R[R_CMIN0 + a] + x0);
-                }
-                if (fuse) {
-                        const size_t off = (size_t) y * w + x0;
-                        combine_u8_block(c, off, n, wr, br, hi8, ld, &st[0], &st[1], counts);
-                        if (c->res->direct)
-                                light_maps_row(c->res, off, ld, lg, n);
-                        continue;
+                        SIMD
+                        for (int x = 0; x < n; x++) {
+                                g8[0][x] = g8[1][x] = wk8[x] = 0;
+                                cm8[x] = 255;
+                        }
+                        gray_u8_planes(im, ax, y, x0, n, td8, tg8, alw8, tgok, lim, g8, wk8, cm8, hi8);
+                        u8_axis_out(n, ax->nbits, g8[0], g8[1], wk8, cm8,
+                                    (uint32_t *) R[R_CODE0 + a] + x0, (uint32_t *) R[R_WEAK0 + a] + x0,
+                                    R[R_CMIN0 + a] + x0);
                 }
                 float *restrict hr = R[R_HI] + x0, *restrict wf = R[R_WHITE] + x0, *restrict bf = R[R_BLACK] + x0;
                 SIMD
@@ -1190,8 +1048,24 @@ static bool u8_row_applies(const struct plan *pl) {
                (!pl->ax[1].nbits || pl->ax[1].inverse);
 }
 
+/* The direct and global maps of a Gray-only row (modulation 0: no phase); not called with
+ * coords_only. */
+static void light_maps_row(struct imp_sl_result *res, size_t off, const float *restrict ld,
+                           const float *restrict lg, int w) {
+        float *restrict od = res->direct + off, *restrict og = res->global + off;
+        float *restrict om = res->modulation + off;
+        SIMD
+        for (int x = 0; x < w; x++) {
+                od[x] = isfinite(ld[x]) ? ld[x] : 0.0f;
+                og[x] = isfinite(lg[x]) ? lg[x] : 0.0f;
+                om[x] = 0.0f;
+        }
+}
+
 __attribute__((optimize("no-trapping-math"), CLONES))
 static void combine_gray_row(const struct ctx *c, int y, float **R, int w, size_t counts[8]) {
+        const struct plan *pl = c->pl;
+        const struct imp_sl_params *p = c->p;
         const size_t off = (size_t) y * w;
         float *restrict ox = c->res->proj_x + off, *restrict oy = c->res->proj_y + off;
         float *restrict oc = c->res->confidence + off, *restrict os = c->res->sigma_px + off;
@@ -1203,16 +1077,60 @@ static void combine_gray_row(const struct ctx *c, int y, float **R, int w, size_
         const uint32_t *restrict cd1 = (const uint32_t *) R[R_CODE1];
         const uint32_t *restrict wk0 = (const uint32_t *) R[R_WEAK0];
         const uint32_t *restrict wk1 = (const uint32_t *) R[R_WEAK1];
-        const struct gray_k k = gray_constants(c);
-        GRAY_COUNTERS;
-        SIMD_GRAY_COUNTS
+        const float thr = (float) p->shadow_threshold, minc_d = (float) p->min_direct;
+        const float b = c->b, sat = c->sat;
+        const uint32_t has_wb = pl->white >= 0 && pl->black >= 0, robust = p->robust;
+        const uint32_t g0 = pl->ax[0].nbits > 0, g1 = pl->ax[1].nbits > 0;
+        const uint32_t ext0 = (uint32_t) pl->ax[0].ncodes, ext1 = (uint32_t) pl->ax[1].ncodes;
+        const float q0 = pl->ax[0].quantum, q1 = pl->ax[1].quantum;
+        const uint32_t rej0 = c->rejected & 1, rej1 = (c->rejected >> 1) & 1;
+        uint32_t nx = 0, ny = 0, nxy = 0, nsh = 0, nsat = 0, nwk = 0;
+#ifdef _OPENMP
+#pragma omp simd reduction(+ : nx, ny, nxy, nsh, nsat, nwk)
+#endif
         for (int x = 0; x < w; x++) {
-                uint32_t f = gray_px(&k, wr[x], br[x], hi[x], ld[x], cd0[x], wk0[x], cm0[x], cd1[x],
-                                     wk1[x], cm1[x], &ox[x], &oy[x], &oc[x], &os[x]);
+                uint32_t shadow = (has_wb & !(wr[x] - br[x] > thr)) | (robust & !(ld[x] >= minc_d));
+                float span = ld[x] * (1 - b);                   /* = L_max − L_min */
+                uint32_t und0 = g0 & (wk0[x] > GRAY_WEAK_ALLOWED), und1 = g1 & (wk1[x] > GRAY_WEAK_ALLOWED);
+                uint32_t wb0 = g0 & (wk0[x] != 0) & !und0, wb1 = g1 & (wk1[x] != 0) & !und1;
+                uint32_t oor0 = g0 & (cd0[x] >= ext0), oor1 = g1 & (cd1[x] >= ext1);
+                uint32_t ok0 = g0 & ((shadow | und0 | oor0) ^ 1), ok1 = g1 & ((shadow | und1 | oor1) ^ 1);
+                /* span > 0 ? clamp01(cmin / span) : 0, without a branch (a conditional
+                 * division blocks if-conversion): cmin ≥ 0, and cmin / ∞ is 0 (∞/∞ = NaN
+                 * clamps to 0 too). */
+                float sd = span > 0 ? span : INFINITY;
+                float ca0 = (wb0 ? 0.5f : 1.0f) * CLAMP01(cm0[x] / sd);
+                float ca1 = (wb1 ? 0.5f : 1.0f) * CLAMP01(cm1[x] / sd);
+                float conf = 1.0f;
+                conf = ok0 ? MINF(conf, ca0) : conf;
+                conf = ok1 ? MINF(conf, ca1) : conf;
+                uint32_t f = (shadow ? IMP_SL_SHADOW : 0) | (hi[x] >= sat ? IMP_SL_SATURATED : 0) |
+                             ((und0 | und1) ? IMP_SL_UNDECODABLE : 0) |
+                             ((wb0 | wb1) ? IMP_SL_WEAK_BIT : 0) |
+                             ((oor0 | oor1) ? IMP_SL_OUT_OF_RANGE : 0) |
+                             (ok0 ? IMP_SL_VALID_X : 0) | (ok1 ? IMP_SL_VALID_Y : 0) |
+                             ((ok0 & rej0) | (ok1 & rej1) ? IMP_SL_PHASE_REJECTED : 0);
+                ox[x] = ok0 ? ((float) (int32_t) cd0[x] + 0.5f) * q0 : IMP_SL_INVALID_COORD;
+                oy[x] = ok1 ? ((float) (int32_t) cd1[x] + 0.5f) * q1 : IMP_SL_INVALID_COORD;
+                oc[x] = ok0 | ok1 ? conf : 0.0f;
+                /* Gray centres: q/√12, √(1/12 + 1/4)·q with a weak bit (one code off). */
+                float s0 = ok0 ? (wb0 ? WEAK_SIGMA : INV_SQRT12) * q0 : 0.0f;
+                float s1 = ok1 ? (wb1 ? WEAK_SIGMA : INV_SQRT12) * q1 : 0.0f;
+                os[x] = MAXF(s0, s1);
                 of[x] = (uint16_t) f;
-                GRAY_COUNT(f);
+                nx += ok0;
+                ny += ok1;
+                nxy += ok0 & ok1;
+                nsh += shadow;
+                nsat += hi[x] >= sat;
+                nwk += wb0 | wb1;
         }
-        add_counts(counts, nx, ny, nxy, nsh, nsat, nwk);
+        counts[0] += nx;
+        counts[1] += ny;
+        counts[2] += nxy;
+        counts[3] += nsh;
+        counts[4] += nsat;
+        counts[5] += nwk;
         if (c->res->direct)
                 light_maps_row(c->res, off, ld, lg, w);
 }
@@ -1541,10 +1459,8 @@ static void gray_row_saturation(const struct ctx *c, int y, float **R, int w, si
 static void decode_row(const struct ctx *c, int y, float **R, size_t counts[8]) {
         const struct plan *pl = c->pl;
         const int w = pl->width;
-        const bool gray_only = !pl->ax[0].nphase && !pl->ax[1].nphase;
-        bool fused = false;
         if (c->int_path == IMP_PIX_U8 && u8_row_applies(pl))
-                gray_u8_row(c, y, R, w, fused = gray_only, counts);
+                gray_u8_row(c, y, R, w);
         else if (c->int_path == IMP_PIX_U8)
                 gray_int_u8(c, y, R, w);
         else if (c->int_path == IMP_PIX_U16)
@@ -1552,9 +1468,8 @@ static void decode_row(const struct ctx *c, int y, float **R, size_t counts[8]) 
         else
                 float_gray_row(c, y, R, w);
         bool have_satm = saturation_row(c, y, R, w);
-        if (gray_only) {
-                if (!fused)
-                        combine_gray_row(c, y, R, w, counts);
+        if (!pl->ax[0].nphase && !pl->ax[1].nphase) {
+                combine_gray_row(c, y, R, w, counts);
                 if (have_satm)
                         gray_row_saturation(c, y, R, w, counts);
                 return;
