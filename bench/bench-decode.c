@@ -1,8 +1,8 @@
 /* Structured-light decoding throughput: the 5 real procam captures (1280×1024, 42 frames
  * each) decoded by impasto (1 thread and all threads) and by OpenCV's GrayCodePattern
  * (shadow mask + getProjPixel per pixel, as its users call it), frames already in memory.
- * The methods alternate within each repetition (the order flips every repetition) so that
- * a loaded machine slows both alike; prints medians and ranges of wall time, the thread
+ * The methods alternate within each repetition (the order changes every repetition) so that
+ * a loaded machine slows them alike; prints medians and ranges of wall time, the thread
  * CPU time of the single-threaded runs (both decoders then run on the calling thread; CPU
  * time excludes the time other processes take), per-repetition speed ratios and peak RSS.
  * Each repetition also times the bandwidth limit on the same thread (every frame read once,
@@ -267,8 +267,10 @@ struct timings {
         double rss_imp;
 };
 
-/* The repetitions: the four methods in an order that flips every repetition, then the two
- * bandwidth limits. p: 1 thread, all threads, 1 thread coords_only. */
+/* The repetitions: the four methods, then the two bandwidth limits. OpenCV comes last in
+ * even repetitions (after coords_only) and first in odd ones (before the 1-thread decode):
+ * a run next to OpenCV's came out slower, so the two 1-thread impasto runs take turns. p: 1
+ * thread, all threads, 1 thread coords_only. */
 static int run_all(const struct imp_sl_params *p, int repeats, bool only_imp, struct timings *T) {
         size_t n = (size_t) img[0][0]->width * img[0][0]->height;
         int32_t *cx = malloc(n * sizeof *cx), *cy = malloc(n * sizeof *cy);
@@ -276,7 +278,7 @@ static int run_all(const struct imp_sl_params *p, int repeats, bool only_imp, st
         int rc = !cx || !cy || !cv || warm_up(p) < 0;
         for (int rep = 0; rep < repeats && !rc; rep++) {
                 for (int step = 0; step < 4 && !rc; step++) {
-                        int which = rep % 2 ? 3 - step : step;      /* flip the order */
+                        int which = rep % 2 ? (step + 3) % 4 : step;
                         double t;
                         if (which == 0)
                                 t = T->t1[rep] = run_impasto(&p[0], &kept[0], &T->valid_imp, &T->u1[rep]);
