@@ -527,11 +527,19 @@ static void test_u8_equals_float(const struct set *g, int cw) {
                                     !memcmp(ru->flags, rf->flags, np * sizeof(uint16_t)) &&
                                     ru->n_valid_xy == rf->n_valid_xy && ru->n_weak == rf->n_weak &&
                                     ru->n_saturated == rf->n_saturated;
-                        size_t nsat = 0, nweak = 0;
+                        size_t nsat = 0, nweak = 0, nvx = 0, nvy = 0, nxy = 0, nsh = 0;
                         for (size_t i = 0; i < np; i++) {
                                 nsat += !!(ru->flags[i] & IMP_SL_SATURATED);
                                 nweak += !!(ru->flags[i] & IMP_SL_WEAK_BIT);
+                                nvx += !!(ru->flags[i] & IMP_SL_VALID_X);
+                                nvy += !!(ru->flags[i] & IMP_SL_VALID_Y);
+                                nxy += (ru->flags[i] & IMP_SL_VALID_X) && (ru->flags[i] & IMP_SL_VALID_Y);
+                                nsh += !!(ru->flags[i] & IMP_SL_SHADOW);
                         }
+                        /* the counts are the flags' (nothing counted past a row's end) */
+                        CHECK_MSG(ru->n_valid_x == nvx && ru->n_valid_y == nvy && ru->n_valid_xy == nxy &&
+                                  ru->n_shadow == nsh && ru->n_saturated == nsat && ru->n_weak == nweak,
+                                  "width %d: counts = flags (valid %zu vs %zu)", cw, ru->n_valid_xy, nxy);
                         CHECK_MSG(same, "u8 path = float path (width %d, inverses %d, robust %d): "
                                   "valid %zu vs %zu", cw, inv, robust, ru->n_valid_xy, rf->n_valid_xy);
                         check_coords_only(&fu, &p, inv ? "u8 with inverses" : "u8 without inverses");
