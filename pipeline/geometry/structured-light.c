@@ -1062,127 +1062,77 @@ static void light_maps_row(struct imp_sl_result *res, size_t off, const float *r
         }
 }
 
-/* The constants of the Gray-only combine step, as lanes where they enter lane operations. */
-struct gray_k {
-        v8f thr, minc_d, omb, sat, q0, q1, s0w, s0n, s1w, s1n;
-        v8i has_wb, robust, g0, g1, ext0, ext1, rej0, rej1;
-};
-
-/* The rows of a Gray-only row's combine step (inputs) and the maps it writes, at pixel x. */
-struct gray_io {
-        const float *wr, *br, *hi, *ld, *cm0, *cm1;
-        const uint32_t *cd0, *cd1, *wk0, *wk1;
-        float *ox, *oy, *oc, *os;
-};
-
-#define LOAD8(T, p) ({ T v_; memcpy(&v_, (p), sizeof v_); v_; })
-#define SELI(m, a, b) (((a) & (m)) | ((b) & ~(m)))
-
-/* Eight pixels of the combine step, in lanes (masks −1 / 0): the scalar rules of
- * combine_gray_row before, operation by operation, so every value is the same (a > b ? a :
- * b as a select, the division and products as they were). Maps to o (8 lanes), flags to
- * *fl; the caller stores or drops the lanes past the row's end. */
-static inline __attribute__((always_inline)) void gray_combine8(const struct gray_k *k,
-                                                                const struct gray_io *io, int x,
-                                                                float *o, v8i *fl) {
-        const v8f zero = { 0 }, one = zero + 1.0f, inf = zero + INFINITY;
-        const v8f wr = LOAD8(v8f, io->wr + x), br = LOAD8(v8f, io->br + x), hi = LOAD8(v8f, io->hi + x);
-        const v8f ld = LOAD8(v8f, io->ld + x), cm0 = LOAD8(v8f, io->cm0 + x), cm1 = LOAD8(v8f, io->cm1 + x);
-        const v8i cd0 = LOAD8(v8i, io->cd0 + x), cd1 = LOAD8(v8i, io->cd1 + x);
-        const v8i wk0 = LOAD8(v8i, io->wk0 + x), wk1 = LOAD8(v8i, io->wk1 + x);
-        const v8i shadow = (k->has_wb & ~(wr - br > k->thr)) | (k->robust & ~(ld >= k->minc_d));
-        const v8f span = ld * k->omb;
-        const v8i und0 = k->g0 & (wk0 > GRAY_WEAK_ALLOWED), und1 = k->g1 & (wk1 > GRAY_WEAK_ALLOWED);
-        const v8i wb0 = k->g0 & (wk0 != 0) & ~und0, wb1 = k->g1 & (wk1 != 0) & ~und1;
-        const v8i oor0 = k->g0 & (cd0 >= k->ext0), oor1 = k->g1 & (cd1 >= k->ext1);
-        const v8i ok0 = k->g0 & ~(shadow | und0 | oor0), ok1 = k->g1 & ~(shadow | und1 | oor1);
-        const v8f sd = SEL8(span > zero, span, inf);
-        v8f t0 = cm0 / sd, t1 = cm1 / sd;
-        t0 = SEL8(t0 > zero, t0, zero);
-        t1 = SEL8(t1 > zero, t1, zero);
-        t0 = SEL8(t0 < one, t0, one);
-        t1 = SEL8(t1 < one, t1, one);
-        const v8f ca0 = SEL8(wb0, zero + 0.5f, one) * t0, ca1 = SEL8(wb1, zero + 0.5f, one) * t1;
-        v8f conf = one;
-        conf = SEL8(ok0, SEL8(conf < ca0, conf, ca0), conf);
-        conf = SEL8(ok1, SEL8(conf < ca1, conf, ca1), conf);
-        *fl = (shadow & IMP_SL_SHADOW) | ((hi >= k->sat) & IMP_SL_SATURATED) |
-              ((und0 | und1) & IMP_SL_UNDECODABLE) | ((wb0 | wb1) & IMP_SL_WEAK_BIT) |
-              ((oor0 | oor1) & IMP_SL_OUT_OF_RANGE) | (ok0 & IMP_SL_VALID_X) | (ok1 & IMP_SL_VALID_Y) |
-              (((ok0 & k->rej0) | (ok1 & k->rej1)) & IMP_SL_PHASE_REJECTED);
-        const v8f half = zero + 0.5f, bad = zero + IMP_SL_INVALID_COORD;
-        const v8f ox = SEL8(ok0, (__builtin_convertvector(cd0, v8f) + half) * k->q0, bad);
-        const v8f oy = SEL8(ok1, (__builtin_convertvector(cd1, v8f) + half) * k->q1, bad);
-        const v8f oc = SEL8(ok0 | ok1, conf, zero);
-        const v8f s0 = SEL8(ok0, SEL8(wb0, k->s0w, k->s0n), zero);
-        const v8f s1 = SEL8(ok1, SEL8(wb1, k->s1w, k->s1n), zero);
-        const v8f os = SEL8(s0 > s1, s0, s1);
-        memcpy(o, &ox, sizeof ox);
-        memcpy(o + 8, &oy, sizeof oy);
-        memcpy(o + 16, &oc, sizeof oc);
-        memcpy(o + 24, &os, sizeof os);
-}
-
-static void gray_k_init(const struct ctx *c, struct gray_k *k) {
-        const struct plan *pl = c->pl;
-        const v8f z = { 0 };
-        const v8i iz = { 0 };
-        const float q0 = pl->ax[0].quantum, q1 = pl->ax[1].quantum;
-        *k = (struct gray_k) {
-                .thr = z + (float) c->p->shadow_threshold, .minc_d = z + (float) c->p->min_direct,
-                .omb = z + (1 - c->b), .sat = z + c->sat, .q0 = z + q0, .q1 = z + q1,
-                /* Gray centres: q/√12, √(1/12 + 1/4)·q with a weak bit (one code off). */
-                .s0w = z + WEAK_SIGMA * q0, .s0n = z + INV_SQRT12 * q0,
-                .s1w = z + WEAK_SIGMA * q1, .s1n = z + INV_SQRT12 * q1,
-                .has_wb = iz - (int32_t) (pl->white >= 0 && pl->black >= 0),
-                .robust = iz - (int32_t) c->p->robust,
-                .g0 = iz - (int32_t) (pl->ax[0].nbits > 0), .g1 = iz - (int32_t) (pl->ax[1].nbits > 0),
-                .ext0 = iz + pl->ax[0].ncodes, .ext1 = iz + pl->ax[1].ncodes,
-                .rej0 = iz - (int32_t) (c->rejected & 1), .rej1 = iz - (int32_t) ((c->rejected >> 1) & 1),
-        };
-}
-
-/* Flags, coordinates, confidence and σ of a Gray-only row, eight pixels at a time in
- * GCC's generic vectors (as a loop gcc 12 vectorized it, but at 33 instructions a pixel);
- * the rows are padded (wpad), so the last group reads past w and stores only its pixels. */
 __attribute__((optimize("no-trapping-math"), CLONES))
 static void combine_gray_row(const struct ctx *c, int y, float **R, int w, size_t counts[8]) {
+        const struct plan *pl = c->pl;
+        const struct imp_sl_params *p = c->p;
         const size_t off = (size_t) y * w;
-        struct imp_sl_result *res = c->res;
-        const struct gray_io io = {
-                .wr = R[R_WHITE], .br = R[R_BLACK], .hi = R[R_HI], .ld = R[R_LD],
-                .cm0 = R[R_CMIN0], .cm1 = R[R_CMIN1],
-                .cd0 = (const uint32_t *) R[R_CODE0], .cd1 = (const uint32_t *) R[R_CODE1],
-                .wk0 = (const uint32_t *) R[R_WEAK0], .wk1 = (const uint32_t *) R[R_WEAK1],
-        };
-        struct gray_k k;
-        gray_k_init(c, &k);
-        const v8i lane = { 0, 1, 2, 3, 4, 5, 6, 7 };
-        v8i cnt[6] = { { 0 } };
-        for (int x = 0; x < w; x += 8) {
-                float o[32];
-                v8i f;
-                gray_combine8(&k, &io, x, o, &f);
-                const int m = IMP_MIN(8, w - x);
-                f &= (lane < m);        /* the lanes past the row's end count nothing */
-                memcpy(res->proj_x + off + x, o, (size_t) m * sizeof(float));
-                memcpy(res->proj_y + off + x, o + 8, (size_t) m * sizeof(float));
-                memcpy(res->confidence + off + x, o + 16, (size_t) m * sizeof(float));
-                memcpy(res->sigma_px + off + x, o + 24, (size_t) m * sizeof(float));
-                for (int i = 0; i < m; i++)
-                        res->flags[off + x + i] = (uint16_t) f[i];
-                cnt[0] += f & 1;
-                cnt[1] += (f >> 1) & 1;
-                cnt[2] += f & (f >> 1) & 1;
-                cnt[3] += (f >> 2) & 1;
-                cnt[4] += (f >> 3) & 1;
-                cnt[5] += (f >> 4) & 1;
+        float *restrict ox = c->res->proj_x + off, *restrict oy = c->res->proj_y + off;
+        float *restrict oc = c->res->confidence + off, *restrict os = c->res->sigma_px + off;
+        uint16_t *restrict of = c->res->flags + off;
+        const float *restrict wr = R[R_WHITE], *restrict br = R[R_BLACK], *restrict hi = R[R_HI];
+        const float *restrict ld = R[R_LD], *restrict lg = R[R_LG];
+        const float *restrict cm0 = R[R_CMIN0], *restrict cm1 = R[R_CMIN1];
+        const uint32_t *restrict cd0 = (const uint32_t *) R[R_CODE0];
+        const uint32_t *restrict cd1 = (const uint32_t *) R[R_CODE1];
+        const uint32_t *restrict wk0 = (const uint32_t *) R[R_WEAK0];
+        const uint32_t *restrict wk1 = (const uint32_t *) R[R_WEAK1];
+        const float thr = (float) p->shadow_threshold, minc_d = (float) p->min_direct;
+        const float b = c->b, sat = c->sat;
+        const uint32_t has_wb = pl->white >= 0 && pl->black >= 0, robust = p->robust;
+        const uint32_t g0 = pl->ax[0].nbits > 0, g1 = pl->ax[1].nbits > 0;
+        const uint32_t ext0 = (uint32_t) pl->ax[0].ncodes, ext1 = (uint32_t) pl->ax[1].ncodes;
+        const float q0 = pl->ax[0].quantum, q1 = pl->ax[1].quantum;
+        const uint32_t rej0 = c->rejected & 1, rej1 = (c->rejected >> 1) & 1;
+        uint32_t nx = 0, ny = 0, nxy = 0, nsh = 0, nsat = 0, nwk = 0;
+#ifdef _OPENMP
+#pragma omp simd reduction(+ : nx, ny, nxy, nsh, nsat, nwk)
+#endif
+        for (int x = 0; x < w; x++) {
+                uint32_t shadow = (has_wb & !(wr[x] - br[x] > thr)) | (robust & !(ld[x] >= minc_d));
+                float span = ld[x] * (1 - b);                   /* = L_max − L_min */
+                uint32_t und0 = g0 & (wk0[x] > GRAY_WEAK_ALLOWED), und1 = g1 & (wk1[x] > GRAY_WEAK_ALLOWED);
+                uint32_t wb0 = g0 & (wk0[x] != 0) & !und0, wb1 = g1 & (wk1[x] != 0) & !und1;
+                uint32_t oor0 = g0 & (cd0[x] >= ext0), oor1 = g1 & (cd1[x] >= ext1);
+                uint32_t ok0 = g0 & ((shadow | und0 | oor0) ^ 1), ok1 = g1 & ((shadow | und1 | oor1) ^ 1);
+                /* span > 0 ? clamp01(cmin / span) : 0, without a branch (a conditional
+                 * division blocks if-conversion): cmin ≥ 0, and cmin / ∞ is 0 (∞/∞ = NaN
+                 * clamps to 0 too). */
+                float sd = span > 0 ? span : INFINITY;
+                float ca0 = (wb0 ? 0.5f : 1.0f) * CLAMP01(cm0[x] / sd);
+                float ca1 = (wb1 ? 0.5f : 1.0f) * CLAMP01(cm1[x] / sd);
+                float conf = 1.0f;
+                conf = ok0 ? MINF(conf, ca0) : conf;
+                conf = ok1 ? MINF(conf, ca1) : conf;
+                uint32_t f = (shadow ? IMP_SL_SHADOW : 0) | (hi[x] >= sat ? IMP_SL_SATURATED : 0) |
+                             ((und0 | und1) ? IMP_SL_UNDECODABLE : 0) |
+                             ((wb0 | wb1) ? IMP_SL_WEAK_BIT : 0) |
+                             ((oor0 | oor1) ? IMP_SL_OUT_OF_RANGE : 0) |
+                             (ok0 ? IMP_SL_VALID_X : 0) | (ok1 ? IMP_SL_VALID_Y : 0) |
+                             ((ok0 & rej0) | (ok1 & rej1) ? IMP_SL_PHASE_REJECTED : 0);
+                ox[x] = ok0 ? ((float) (int32_t) cd0[x] + 0.5f) * q0 : IMP_SL_INVALID_COORD;
+                oy[x] = ok1 ? ((float) (int32_t) cd1[x] + 0.5f) * q1 : IMP_SL_INVALID_COORD;
+                oc[x] = ok0 | ok1 ? conf : 0.0f;
+                /* Gray centres: q/√12, √(1/12 + 1/4)·q with a weak bit (one code off). */
+                float s0 = ok0 ? (wb0 ? WEAK_SIGMA : INV_SQRT12) * q0 : 0.0f;
+                float s1 = ok1 ? (wb1 ? WEAK_SIGMA : INV_SQRT12) * q1 : 0.0f;
+                os[x] = MAXF(s0, s1);
+                of[x] = (uint16_t) f;
+                nx += ok0;
+                ny += ok1;
+                nxy += ok0 & ok1;
+                nsh += shadow;
+                nsat += hi[x] >= sat;
+                nwk += wb0 | wb1;
         }
-        for (int j = 0; j < 6; j++)
-                for (int i = 0; i < 8; i++)
-                        counts[j] += (size_t) cnt[j][i];
-        if (res->direct)
-                light_maps_row(res, off, R[R_LD], R[R_LG], w);
+        counts[0] += nx;
+        counts[1] += ny;
+        counts[2] += nxy;
+        counts[3] += nsh;
+        counts[4] += nsat;
+        counts[5] += nwk;
+        if (c->res->direct)
+                light_maps_row(c->res, off, ld, lg, w);
 }
 
 /* The phase's disagreement with the Gray code on one row: Σ (u/q − (code + ½))² (q the
