@@ -1,18 +1,22 @@
 /* Structured-light decoding throughput: the 5 real procam captures (1280×1024, 42 frames
  * each) decoded by impasto (1 thread and all threads) and by OpenCV's GrayCodePattern
  * (shadow mask + getProjPixel per pixel, as its users call it), frames already in memory.
- * The methods alternate within each repetition (the order flips every repetition) so that
- * a loaded machine slows both alike; prints medians and ranges of wall time, the thread
+ * The methods alternate within each repetition (the order changes every repetition) so that
+ * a loaded machine slows them alike; prints medians and ranges of wall time, the thread
  * CPU time of the single-threaded runs (both decoders then run on the calling thread; CPU
  * time excludes the time other processes take), per-repetition speed ratios and peak RSS.
  * Each repetition also times the bandwidth limit on the same thread (every frame read once,
  * a result-sized block written once) and prints the decode's share of it. Output maps are
  * allocated before the timed runs on every side (OpenCV's three maps, impasto's result
  * through imp_sl_decode_reuse, the limit's block): the same job, without page faults.
+ * impasto runs twice on one thread: every map, and coords_only (coordinates, flags,
+ * confidence, σ: what triangulation reads, and more than OpenCV's users get), each against
+ * the limit for the bytes it writes (30 and 18 bytes a pixel).
  * Usage: bench-decode [repeats] [data dir] [--impasto-only | --checksum]; without a data dir
  * the captures are looked for under $IMPASTO_SHARED_DIR (else the build's shared directory).
  * --checksum prints an FNV-1a 64 of every result map of each capture (1 and all threads)
- * and exits: two builds decode bit-identically when their lines are equal. */
+ * and exits: two builds decode bit-identically when their lines are equal. Then one line a
+ * capture for coords_only: the hash of its maps and counts, equal to the full decode's. */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -54,7 +58,7 @@ static void stats(const double *v, int n, double *med, double *lo, double *hi) {
 
 static struct imp_image *img[NCAP][NFRAMES];
 static struct imp_pattern *seq;
-static struct imp_sl_result *kept[2];  /* impasto's maps, 1 thread and all threads, reused */
+static struct imp_sl_result *kept[3];  /* impasto's maps: 1 thread, all threads, coords only */
 
 /* All captures once into *r (imp_sl_decode_reuse: the maps are allocated once, before the
  * timed runs, as OpenCV's three output maps are); *ret_cpu: thread CPU time. Returns wall
@@ -82,6 +86,43 @@ static uint64_t fnv(uint64_t h, const void *p, size_t n) {
         for (size_t i = 0; i < n; i++)
                 h = (h ^ b[i]) * 0x100000001b3ull;
         return h;
+}
+
+/* FNV-1a of the maps that coords_only keeps, and of the counts. */
+static uint64_t coords_hash(const struct imp_sl_result *r) {
+        size_t n = (size_t) r->width * r->height;
+        uint64_t h = 0xcbf29ce484222325ull;
+        const float *maps[] = { r->proj_x, r->proj_y, r->confidence, r->sigma_px };
+        for (size_t m = 0; m < sizeof maps / sizeof *maps; m++)
+                h = fnv(h, maps[m], n * sizeof(float));
+        h = fnv(h, r->flags, n * sizeof(uint16_t));
+        size_t cnt[] = { r->n_valid_x, r->n_valid_y, r->n_valid_xy, r->n_shadow, r->n_saturated,
+                         r->n_weak, r->n_disagree };
+        return fnv(h, cnt, sizeof cnt);
+}
+
+/* One line a capture: coords_only's hash next to the full decode's over the same maps. */
+static int print_coords_checksums(const struct imp_sl_params *p1) {
+        struct imp_sl_params pc = *p1;
+        pc.coords_only = true;
+        int rc = 0;
+        for (int c = 0; c < NCAP && !rc; c++) {
+                struct imp_sl_frames fr = { seq, (const struct imp_image *const *) img[c], NFRAMES };
+                struct imp_sl_result *rf = NULL, *ro = NULL;
+                struct imp_error err = { 0 };
+                if (imp_sl_decode(&fr, p1, &rf, &err) < 0 || imp_sl_decode(&fr, &pc, &ro, &err) < 0) {
+                        fprintf(stderr, "%s\n", err.msg);
+                        rc = 1;
+                } else {
+                        uint64_t hf = coords_hash(rf), ho = coords_hash(ro);
+                        printf("capture %d, coordinates only: %016llx (%s the full decode's)\n", c,
+                               (unsigned long long) ho, ho == hf && !ro->direct ? "same as" : "NOT");
+                        rc = ho != hf || ro->direct;
+                }
+                imp_sl_result_free(rf);
+                imp_sl_result_free(ro);
+        }
+        return rc;
 }
 
 /* One line per capture and thread count: the hash of every map and of the counts. The 1-thread
@@ -116,23 +157,25 @@ static int print_checksums(const struct imp_sl_params *p1, const struct imp_sl_p
                                 imp_sl_result_free(r);
                 }
         imp_sl_result_free(reused);
-        return 0;
+        return print_coords_checksums(p1);
 }
 
 /* The memory-bandwidth limit of a decode: one read pass over every frame of each capture
- * (the bytes the decoder must read) and one write pass over a result-sized block (7 float
- * maps + 1 u16 map, as imp_sl_decode_reuse fills them), same thread. The block is allocated
- * once, as the decoder's reused result is (2 MiB aligned, THP hint). */
-static double run_bandwidth(double *ret_cpu, size_t *ret_bytes) {
+ * (the bytes the decoder must read) and one write pass over a result-sized block (nfloat
+ * float maps + 1 u16 map, as imp_sl_decode_reuse fills them: 7, or 4 with coords_only), same
+ * thread. The block is allocated once, as the decoder's reused result is (2 MiB aligned, THP
+ * hint). */
+static double run_bandwidth(int nfloat, double *ret_cpu, size_t *ret_bytes) {
         static char *blk;
-        size_t out = (size_t) img[0][0]->width * img[0][0]->height * (7 * sizeof(float) + 2);
-        if (!blk) {
-                size_t round = (out + (2u << 20) - 1) & ~(size_t) ((2u << 20) - 1);
+        size_t out = (size_t) img[0][0]->width * img[0][0]->height * (nfloat * sizeof(float) + 2);
+        if (!blk) {     /* sized for 7 maps, the largest */
+                size_t all = (size_t) img[0][0]->width * img[0][0]->height * (7 * sizeof(float) + 2);
+                size_t round = (all + (2u << 20) - 1) & ~(size_t) ((2u << 20) - 1);
                 blk = aligned_alloc(2u << 20, round);
                 if (!blk)
                         return -1;
                 (void) madvise(blk, round, MADV_HUGEPAGE);
-                memset(blk, 1, out);
+                memset(blk, 1, all);
         }
         double t0 = clock_s(CLOCK_MONOTONIC), c0 = clock_s(CLOCK_THREAD_CPUTIME_ID);
         size_t bytes = 0;
@@ -181,14 +224,15 @@ static double run_opencv(int32_t *cx, int32_t *cy, uint8_t *cv, size_t *ret_vali
         return clock_s(CLOCK_MONOTONIC) - t0;
 }
 
-/* The result maps of both impasto runs and the limit's block allocated (and faulted in)
- * before the timed runs, as OpenCV's maps are. */
-static int warm_up(const struct imp_sl_params *p1, const struct imp_sl_params *pn, struct imp_sl_result **r1,
-                   struct imp_sl_result **rn) {
+/* The result maps of the impasto runs (p[i] into kept[i]) and the limit's block allocated
+ * (and faulted in) before the timed runs, as OpenCV's maps are. */
+static int warm_up(const struct imp_sl_params *p) {
         size_t valid, bytes;
         double cpu;
-        return run_impasto(p1, r1, &valid, &cpu) < 0 || run_impasto(pn, rn, &valid, &cpu) < 0 ||
-               run_bandwidth(&cpu, &bytes) < 0 ? -1 : 0;
+        for (int i = 0; i < 3; i++)
+                if (run_impasto(&p[i], &kept[i], &valid, &cpu) < 0)
+                        return -1;
+        return run_bandwidth(7, &cpu, &bytes) < 0 ? -1 : 0;
 }
 
 /* The real captures, every frame of every capture, into img[][]. */
@@ -207,11 +251,114 @@ static int load_images(const char *dir) {
 }
 
 static void free_images(void) {
-        imp_sl_result_free(kept[0]);
-        imp_sl_result_free(kept[1]);
+        for (int i = 0; i < 3; i++)
+                imp_sl_result_free(kept[i]);
         for (int c = 0; c < NCAP; c++)
                 for (int i = 0; i < NFRAMES; i++)
                         imp_image_free(img[c][i]);
+}
+
+/* Per-repetition times (wall t*, thread CPU u*) of the methods, the limits, and ratios. */
+struct timings {
+        double t1[MAX_REPS], tn[MAX_REPS], to[MAX_REPS], tc[MAX_REPS];
+        double u1[MAX_REPS], uo[MAX_REPS], uc[MAX_REPS], un;
+        double ub[MAX_REPS], ubo[MAX_REPS];
+        size_t valid_imp, valid_cv, bw_bytes, bwo_bytes;
+        double rss_imp;
+};
+
+/* The repetitions: the four methods, then the two bandwidth limits. OpenCV comes last in
+ * even repetitions (after coords_only) and first in odd ones (before the 1-thread decode):
+ * a run next to OpenCV's came out slower, so the two 1-thread impasto runs take turns. p: 1
+ * thread, all threads, 1 thread coords_only. */
+static int run_all(const struct imp_sl_params *p, int repeats, bool only_imp, struct timings *T) {
+        size_t n = (size_t) img[0][0]->width * img[0][0]->height;
+        int32_t *cx = malloc(n * sizeof *cx), *cy = malloc(n * sizeof *cy);
+        uint8_t *cv = malloc(n);
+        int rc = !cx || !cy || !cv || warm_up(p) < 0;
+        for (int rep = 0; rep < repeats && !rc; rep++) {
+                for (int step = 0; step < 4 && !rc; step++) {
+                        int which = rep % 2 ? (step + 3) % 4 : step;
+                        double t;
+                        if (which == 0)
+                                t = T->t1[rep] = run_impasto(&p[0], &kept[0], &T->valid_imp, &T->u1[rep]);
+                        else if (which == 1)
+                                t = T->tn[rep] = run_impasto(&p[1], &kept[1], &T->valid_imp, &T->un);
+                        else if (which == 2)
+                                t = T->to[rep] = run_impasto(&p[2], &kept[2], &T->valid_imp, &T->uo[rep]);
+                        else if (!only_imp)
+                                t = T->tc[rep] = run_opencv(cx, cy, cv, &T->valid_cv, &T->uc[rep]);
+                        else
+                                t = T->tc[rep] = T->uc[rep] = 1;
+                        rc = t < 0;
+                        if (which < 3)
+                                T->rss_imp = peak_rss_mib();
+                }
+                (void) run_bandwidth(7, &T->ub[rep], &T->bw_bytes);
+                (void) run_bandwidth(4, &T->ubo[rep], &T->bwo_bytes);
+        }
+        free(cx);
+        free(cy);
+        free(cv);
+        return rc;
+}
+
+/* Median [min – max] over the repetitions of f(i) = num[i] / den[i] (scaled). */
+static void ratio_stats(const double *num, const double *den, int n, double scale, double *m,
+                        double *lo, double *hi) {
+        double r[MAX_REPS];
+        for (int i = 0; i < n; i++)
+                r[i] = scale * num[i] / den[i];
+        stats(r, n, m, lo, hi);
+}
+
+static void print_results(const struct timings *T, int repeats, bool only_imp, int max_threads) {
+        int w = img[0][0]->width, h = img[0][0]->height;
+        double mpix = (double) w * h * NCAP / 1e6, m, lo, hi;
+        printf("structured-light decode, %d captures × %dx%d × %d frames (u8), %d repetitions, "
+               "methods alternating; median [min – max]\n", NCAP, w, h, NFRAMES, repeats);
+        stats(T->t1, repeats, &m, &lo, &hi);
+        printf("  impasto, 1 thread  wall %7.3f s [%.3f – %.3f]  %6.1f Mpix/s  (%zu pixels decoded)\n",
+               m, lo, hi, mpix / m, T->valid_imp);
+        stats(T->u1, repeats, &m, &lo, &hi);
+        printf("                      CPU %7.3f s [%.3f – %.3f]  %6.1f Mpix/s\n", m, lo, hi, mpix / m);
+        stats(T->uo, repeats, &m, &lo, &hi);
+        printf("  impasto, 1 thread, coords_only  CPU %7.3f s [%.3f – %.3f]  %6.1f Mpix/s\n", m, lo,
+               hi, mpix / m);
+        stats(T->tn, repeats, &m, &lo, &hi);
+        printf("  impasto, %d threads wall %7.3f s [%.3f – %.3f]  %6.1f Mpix/s\n", max_threads, m,
+               lo, hi, mpix / m);
+        if (!only_imp) {
+                stats(T->tc, repeats, &m, &lo, &hi);
+                printf("  OpenCV getProjPixel wall %7.3f s [%.3f – %.3f]  %6.1f Mpix/s  (%zu pixels decoded)\n",
+                       m, lo, hi, mpix / m, T->valid_cv);
+                stats(T->uc, repeats, &m, &lo, &hi);
+                printf("                      CPU %7.3f s [%.3f – %.3f]  %6.1f Mpix/s\n", m, lo, hi,
+                       mpix / m);
+                ratio_stats(T->tc, T->t1, repeats, 1, &m, &lo, &hi);
+                printf("  speed ratio OpenCV/impasto per repetition: 1 thread wall %.1fx [%.1f – %.1f]",
+                       m, lo, hi);
+                ratio_stats(T->uc, T->u1, repeats, 1, &m, &lo, &hi);
+                printf(", CPU %.1fx [%.1f – %.1f]", m, lo, hi);
+                ratio_stats(T->uc, T->uo, repeats, 1, &m, &lo, &hi);
+                printf(", coords_only CPU %.1fx [%.1f – %.1f]", m, lo, hi);
+                ratio_stats(T->tc, T->tn, repeats, 1, &m, &lo, &hi);
+                printf("; %d threads wall %.1fx [%.1f – %.1f]\n", max_threads, m, lo, hi);
+        }
+        stats(T->ub, repeats, &m, &lo, &hi);
+        printf("  bandwidth limit (read every frame once, write the result maps once, 1 thread): "
+               "CPU %.3f s [%.3f – %.3f], %.1f GB/s, %.1f Mpix/s\n", m, lo, hi, T->bw_bytes / m / 1e9,
+               mpix / m);
+        ratio_stats(T->ub, T->u1, repeats, 100, &m, &lo, &hi);
+        printf("  impasto 1 thread at %.0f %% [%.0f – %.0f] of that limit (CPU time ratio per repetition)\n",
+               m, lo, hi);
+        stats(T->ubo, repeats, &m, &lo, &hi);
+        printf("  coords_only limit (its 18 B/px written): CPU %.3f s [%.3f – %.3f], %.1f GB/s; ", m,
+               lo, hi, T->bwo_bytes / m / 1e9);
+        ratio_stats(T->ubo, T->uo, repeats, 100, &m, &lo, &hi);
+        printf("coords_only at %.0f %% [%.0f – %.0f] of it\n", m, lo, hi);
+        printf("  peak RSS: %.1f MiB after impasto, %.1f MiB at the end (frames: %.1f MiB)\n",
+               T->rss_imp, peak_rss_mib(), (double) w * h * NFRAMES * NCAP / (1 << 20));
 }
 
 int main(int argc, char **argv) {
@@ -229,106 +376,34 @@ int main(int argc, char **argv) {
         repeats = repeats < 1 ? 1 : repeats > MAX_REPS ? MAX_REPS : repeats;
         if (load_images(dir) < 0)
                 return 1;
-        int w = img[0][0]->width, h = img[0][0]->height;
-        double mpix = (double) w * h * NCAP / 1e6;
         fprintf(stderr, "loaded %d captures of %d frames, %dx%d; peak RSS %.1f MiB\n", NCAP,
-                NFRAMES, w, h, peak_rss_mib());
+                NFRAMES, img[0][0]->width, img[0][0]->height, peak_rss_mib());
 
         int nseq = 0;
         if (imp_sl_sequence(1024, 768, 0, NULL, 0, &seq, &nseq) < 0 || nseq != NFRAMES)
                 return 1;
-        struct imp_sl_params p1, pn;
-        imp_sl_params_default(&p1, IMP_PIX_U8);
-        p1.proj_width = 1024;
-        p1.proj_height = 768;
-        p1.threads = 1;
-        pn = p1;
+        struct imp_sl_params p[3];      /* 1 thread, all threads, 1 thread coords_only */
+        imp_sl_params_default(&p[0], IMP_PIX_U8);
+        p[0].proj_width = 1024;
+        p[0].proj_height = 768;
+        p[0].threads = 1;
+        p[1] = p[2] = p[0];
         int max_threads = 1;
 #ifdef _OPENMP
         max_threads = omp_get_max_threads();
 #endif
-        pn.threads = max_threads;
+        p[1].threads = max_threads;
+        p[2].coords_only = true;
+        int rc;
         if (checksum) {
-                int rc = print_checksums(&p1, &pn);
-                free(seq);
-                free_images();
-                return rc;
+                rc = print_checksums(&p[0], &p[1]);
+        } else {
+                static struct timings T;
+                rc = run_all(p, repeats, only_imp, &T);
+                if (!rc)
+                        print_results(&T, repeats, only_imp, max_threads);
         }
-
-        size_t n = (size_t) w * h, valid_imp = 0, valid_cv = 0;
-        int32_t *cx = malloc(n * sizeof *cx), *cy = malloc(n * sizeof *cy);
-        uint8_t *cv = malloc(n);
-        if (!cx || !cy || !cv)
-                return 1;
-        double t1[MAX_REPS], tn[MAX_REPS], tc[MAX_REPS], u1[MAX_REPS], uc[MAX_REPS], un;
-        double r1[MAX_REPS], rn[MAX_REPS], ru[MAX_REPS], ub[MAX_REPS], fb[MAX_REPS];
-        size_t bw_bytes = 0;
-        double rss_imp = 0;
-        if (warm_up(&p1, &pn, &kept[0], &kept[1]) < 0)
-                return 1;
-        for (int rep = 0; rep < repeats; rep++) {
-                for (int step = 0; step < 3; step++) {
-                        int which = rep % 2 ? 2 - step : step;      /* flip the order */
-                        double t;
-                        if (which == 0)
-                                t = t1[rep] = run_impasto(&p1, &kept[0], &valid_imp, &u1[rep]);
-                        else if (which == 1)
-                                t = tn[rep] = run_impasto(&pn, &kept[1], &valid_imp, &un);
-                        else if (!only_imp)
-                                t = tc[rep] = run_opencv(cx, cy, cv, &valid_cv, &uc[rep]);
-                        else
-                                t = tc[rep] = uc[rep] = 1;
-                        if (t < 0)
-                                return 1;
-                        if (which < 2)
-                                rss_imp = peak_rss_mib();
-                }
-                (void) run_bandwidth(&ub[rep], &bw_bytes);
-                fb[rep] = ub[rep] / u1[rep];
-                r1[rep] = tc[rep] / t1[rep];
-                rn[rep] = tc[rep] / tn[rep];
-                ru[rep] = uc[rep] / u1[rep];
-        }
-
-        double m, lo, hi;
-        printf("structured-light decode, %d captures × %dx%d × %d frames (u8), %d repetitions, "
-               "methods alternating; median [min – max]\n", NCAP, w, h, NFRAMES, repeats);
-        stats(t1, repeats, &m, &lo, &hi);
-        printf("  impasto, 1 thread  wall %7.3f s [%.3f – %.3f]  %6.1f Mpix/s  (%zu pixels decoded)\n",
-               m, lo, hi, mpix / m, valid_imp);
-        stats(u1, repeats, &m, &lo, &hi);
-        printf("                      CPU %7.3f s [%.3f – %.3f]  %6.1f Mpix/s\n", m, lo, hi, mpix / m);
-        stats(tn, repeats, &m, &lo, &hi);
-        printf("  impasto, %d threads wall %7.3f s [%.3f – %.3f]  %6.1f Mpix/s\n", max_threads, m,
-               lo, hi, mpix / m);
-        if (!only_imp) {
-                stats(tc, repeats, &m, &lo, &hi);
-                printf("  OpenCV getProjPixel wall %7.3f s [%.3f – %.3f]  %6.1f Mpix/s  (%zu pixels decoded)\n",
-                       m, lo, hi, mpix / m, valid_cv);
-                stats(uc, repeats, &m, &lo, &hi);
-                printf("                      CPU %7.3f s [%.3f – %.3f]  %6.1f Mpix/s\n", m, lo, hi,
-                       mpix / m);
-                stats(r1, repeats, &m, &lo, &hi);
-                printf("  speed ratio OpenCV/impasto per repetition: 1 thread wall %.1fx [%.1f – %.1f]",
-                       m, lo, hi);
-                stats(ru, repeats, &m, &lo, &hi);
-                printf(", CPU %.1fx [%.1f – %.1f]", m, lo, hi);
-                stats(rn, repeats, &m, &lo, &hi);
-                printf("; %d threads wall %.1fx [%.1f – %.1f]\n", max_threads, m, lo, hi);
-        }
-        stats(ub, repeats, &m, &lo, &hi);
-        printf("  bandwidth limit (read every frame once, write the result maps once, 1 thread): "
-               "CPU %.3f s [%.3f – %.3f], %.1f GB/s, %.1f Mpix/s\n", m, lo, hi, bw_bytes / m / 1e9,
-               mpix / m);
-        stats(fb, repeats, &m, &lo, &hi);
-        printf("  impasto 1 thread at %.0f %% [%.0f – %.0f] of that limit (CPU time ratio per repetition)\n",
-               100 * m, 100 * lo, 100 * hi);
-        printf("  peak RSS: %.1f MiB after impasto, %.1f MiB at the end (frames: %.1f MiB)\n",
-               rss_imp, peak_rss_mib(), (double) n * NFRAMES * NCAP / (1 << 20));
-        free(cx);
-        free(cy);
-        free(cv);
         free(seq);
         free_images();
-        return 0;
+        return rc;
 }

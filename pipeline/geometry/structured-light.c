@@ -622,8 +622,10 @@ static inline float clamp01(float v) {
  * only concerns floating-point exception flags, which nothing here reads: every value is
  * the same. Helpers are macros, since functions built with other options are not inlined. */
 /* AVX2 doubles the lanes of the Gray and combine loops; chosen at load time by the CPU
- * (ifunc), baseline SSE2 otherwise. Not FMA: contraction would change L_d/L_g. */
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+ * (ifunc), baseline SSE2 otherwise. Not FMA: contraction would change L_d/L_g.
+ * IMPASTO_SL_NO_CLONES builds the baseline alone (test-sl-decode-sse2 runs the checks on
+ * it, as a CPU without AVX2 would). */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && !defined(IMPASTO_SL_NO_CLONES)
 #define CLONES target_clones("avx2", "default")
 #else
 #define CLONES
@@ -890,30 +892,64 @@ DEFINE_GRAY_INT(gray_int_u16, uint16_t, int32_t, uint32_t, (1 << 20), NO_BYTES) 
  * straight to bytes: ⌊min(L_d, 255)⌋ = min(⌊L_d⌋, 255), and with c = ⌈min(L_g, 256)⌉,
  * min(c, 255) = min(⌈L_g⌉, 255) and c ≤ 255 ⇔ ⌈L_g⌉ ≤ 255 (L_d, L_g ≥ 0, finite).
  * Bit-identical to gray_int_u8 with gray_u8_axis (test-sl-decode, bench-decode --checksum),
- * without its 16-bit round trips. */
-static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void u8_thresholds(
+ * without its 16-bit round trips.
+ * The thresholds are computed eight lanes at a time in GCC's generic vectors: written as a
+ * loop, gcc 12 jump-threads the MAXF/MINF selects into branches ("control flow in loop")
+ * and leaves it scalar, ≈ 30 instructions a pixel. The operations are those of the scalar
+ * formulas lane by lane (a > b ? a : b as a mask select, float → int by truncation, no FMA),
+ * so every value is the same; the SSE2 clone runs each as two 4-lane halves. */
+typedef float v8f __attribute__((vector_size(32)));
+typedef int32_t v8i __attribute__((vector_size(32)));
+typedef uint8_t v8b __attribute__((vector_size(8)));
+
+/* m ? a : b lane by lane, m a comparison's −1 / 0 (a macro: a 32-byte vector argument
+ * would change the ABI of the SSE2 clone) */
+#define SEL8(m, a, b) ((v8f) (((v8i) (a) & (m)) | ((v8i) (b) & ~(m))))
+
+static inline __attribute__((always_inline)) void thr8(
+                const uint8_t *mx, const uint8_t *mn, float k1, float k2, float b, uint8_t always,
+                float *ld, float *lg, int32_t *ti, int32_t *gi, int32_t *ai) {
+        v8b bx, bn;
+        memcpy(&bx, mx, sizeof bx);
+        memcpy(&bn, mn, sizeof bn);
+        const v8f lmax = __builtin_convertvector(bx, v8f), lmin = __builtin_convertvector(bn, v8f);
+        const v8f zero = { 0 }, c255 = zero + 255.0f, c256 = zero + 256.0f;
+        v8f d = (zero + k1) * (lmax - lmin), e = (zero + k2) * (lmin - (zero + b) * lmax);
+        d = SEL8(d > zero, d, zero);
+        e = SEL8(e > zero, e, zero);
+        memcpy(ld, &d, sizeof d);
+        memcpy(lg, &e, sizeof e);
+        const v8f dc = SEL8(d < c255, d, c255), ec = SEL8(e < c256, e, c256);
+        const v8i s = __builtin_convertvector(dc, v8i), t = __builtin_convertvector(ec, v8i);
+        /* comparisons give −1 where true: s − [s > dc], t + [t < ec] */
+        const v8i tiv = s + (__builtin_convertvector(s, v8f) > dc);
+        const v8i giv = t - (__builtin_convertvector(t, v8f) < ec);
+        const v8i aiv = ((d > e) & 1) | (int32_t) always;
+        memcpy(ti, &tiv, sizeof tiv);
+        memcpy(gi, &giv, sizeof giv);
+        memcpy(ai, &aiv, sizeof aiv);
+}
+
+static __attribute__((noinline, CLONES)) void u8_thresholds(
                 int n, const uint8_t *restrict mx, const uint8_t *restrict mn, float k1, float k2,
                 float b, uint8_t always, float *restrict ld, float *restrict lg, uint8_t *restrict td8,
                 uint8_t *restrict tg8, uint8_t *restrict tgok, uint8_t *restrict alw8) {
         /* in 32-bit lanes first: float → byte conversions in one loop stay scalar in gcc 12 */
-        int32_t ti[IBLK], gi[IBLK], ai[IBLK];
-        SIMD
-        for (int x = 0; x < n; x++) {
-                float lmax = mx[x], lmin = mn[x];
-                float d = MAXF(k1 * (lmax - lmin), 0.0f);
-                float e = MAXF(k2 * (lmin - b * lmax), 0.0f);
-                ld[x] = d;
-                lg[x] = e;
-                float dc = MINF(d, 255.0f);
-                int32_t s = (int32_t) dc;
-                ti[x] = s - ((float) s > dc);
-                float ec = MINF(e, 256.0f);     /* ⌈·⌉ = 256 exactly when L_g > 255 */
-                int32_t t = (int32_t) ec;
-                gi[x] = t + ((float) t < ec);
-                ai[x] = (d > e) | always;
+        int32_t ti[IBLK + 8], gi[IBLK + 8], ai[IBLK + 8];     /* + the tail's padding lanes */
+        int x = 0;
+        for (; x + 8 <= n; x += 8)
+                thr8(mx + x, mn + x, k1, k2, b, always, ld + x, lg + x, ti + x, gi + x, ai + x);
+        if (x < n) {            /* the tail through zero-padded lanes */
+                uint8_t px[8] = { 0 }, pn[8] = { 0 };
+                float pd[8], pg[8];
+                memcpy(px, mx + x, (size_t) (n - x));
+                memcpy(pn, mn + x, (size_t) (n - x));
+                thr8(px, pn, k1, k2, b, always, pd, pg, ti + x, gi + x, ai + x);
+                memcpy(ld + x, pd, (size_t) (n - x) * sizeof *pd);
+                memcpy(lg + x, pg, (size_t) (n - x) * sizeof *pg);
         }
         SIMD
-        for (int x = 0; x < n; x++) {
+        for (x = 0; x < n; x++) {
                 td8[x] = (uint8_t) ti[x];
                 tg8[x] = (uint8_t) (gi[x] > 255 ? 255 : gi[x]);
                 tgok[x] = gi[x] <= 255;
@@ -1012,15 +1048,27 @@ static bool u8_row_applies(const struct plan *pl) {
                (!pl->ax[1].nbits || pl->ax[1].inverse);
 }
 
+/* The direct and global maps of a Gray-only row (modulation 0: no phase); not called with
+ * coords_only. */
+static void light_maps_row(struct imp_sl_result *res, size_t off, const float *restrict ld,
+                           const float *restrict lg, int w) {
+        float *restrict od = res->direct + off, *restrict og = res->global + off;
+        float *restrict om = res->modulation + off;
+        SIMD
+        for (int x = 0; x < w; x++) {
+                od[x] = isfinite(ld[x]) ? ld[x] : 0.0f;
+                og[x] = isfinite(lg[x]) ? lg[x] : 0.0f;
+                om[x] = 0.0f;
+        }
+}
+
 __attribute__((optimize("no-trapping-math"), CLONES))
 static void combine_gray_row(const struct ctx *c, int y, float **R, int w, size_t counts[8]) {
         const struct plan *pl = c->pl;
         const struct imp_sl_params *p = c->p;
         const size_t off = (size_t) y * w;
         float *restrict ox = c->res->proj_x + off, *restrict oy = c->res->proj_y + off;
-        float *restrict oc = c->res->confidence + off, *restrict od = c->res->direct + off;
-        float *restrict og = c->res->global + off, *restrict om = c->res->modulation + off;
-        float *restrict os = c->res->sigma_px + off;
+        float *restrict oc = c->res->confidence + off, *restrict os = c->res->sigma_px + off;
         uint16_t *restrict of = c->res->flags + off;
         const float *restrict wr = R[R_WHITE], *restrict br = R[R_BLACK], *restrict hi = R[R_HI];
         const float *restrict ld = R[R_LD], *restrict lg = R[R_LG];
@@ -1070,9 +1118,6 @@ static void combine_gray_row(const struct ctx *c, int y, float **R, int w, size_
                 float s1 = ok1 ? (wb1 ? WEAK_SIGMA : INV_SQRT12) * q1 : 0.0f;
                 os[x] = MAXF(s0, s1);
                 of[x] = (uint16_t) f;
-                od[x] = isfinite(ld[x]) ? ld[x] : 0.0f;
-                og[x] = isfinite(lg[x]) ? lg[x] : 0.0f;
-                om[x] = 0.0f;
                 nx += ok0;
                 ny += ok1;
                 nxy += ok0 & ok1;
@@ -1086,6 +1131,8 @@ static void combine_gray_row(const struct ctx *c, int y, float **R, int w, size_
         counts[3] += nsh;
         counts[4] += nsat;
         counts[5] += nwk;
+        if (c->res->direct)
+                light_maps_row(c->res, off, ld, lg, w);
 }
 
 /* The phase's disagreement with the Gray code on one row: Σ (u/q − (code + ½))² (q the
@@ -1383,9 +1430,11 @@ static void combine_phase_row(const struct ctx *c, int y, float **R, int w, bool
                 res->confidence[off + x] = nvalid ? conf : 0.0f;
                 res->sigma_px[off + x] = nvalid ? sigma : 0.0f;
                 res->flags[off + x] = (uint16_t) f;
-                res->direct[off + x] = isfinite(ld[x]) ? ld[x] : 0.0f;
-                res->global[off + x] = isfinite(lg[x]) ? lg[x] : 0.0f;
-                res->modulation[off + x] = isfinite(modv) ? modv : 0.0f;
+                if (res->direct) {
+                        res->direct[off + x] = isfinite(ld[x]) ? ld[x] : 0.0f;
+                        res->global[off + x] = isfinite(lg[x]) ? lg[x] : 0.0f;
+                        res->modulation[off + x] = isfinite(modv) ? modv : 0.0f;
+                }
                 counts[0] += !!(f & IMP_SL_VALID_X);
                 counts[1] += !!(f & IMP_SL_VALID_Y);
                 counts[2] += (f & (IMP_SL_VALID_X | IMP_SL_VALID_Y)) == (IMP_SL_VALID_X | IMP_SL_VALID_Y);
@@ -1439,16 +1488,17 @@ void imp_sl_result_free(struct imp_sl_result *r) {
         free(r);
 }
 
-static int result_new(int w, int h, struct imp_sl_result **ret) {
+static int result_new(int w, int h, bool coords_only, struct imp_sl_result **ret) {
         size_t n = (size_t) w * h;
+        const int nfloat = coords_only ? 4 : 7;
         _cleanup_free_ struct imp_sl_result *r = calloc(1, sizeof *r);
         if (!r)
                 return -ENOMEM;
-        /* 7 float maps + 1 u16 map; floats first keep alignment. The block is 30 bytes a
-         * pixel, written once: with 4 KiB pages, faulting it in costs about as much as the
-         * Gray decoding itself, so it asks for transparent huge pages (a hint; ignored
-         * where THP is off). */
-        size_t bytes = n * (7 * sizeof(float) + sizeof(uint16_t));
+        /* 7 float maps (4 with coords_only) + 1 u16 map; floats first keep alignment. The
+         * block is 30 bytes a pixel, written once: with 4 KiB pages, faulting it in costs
+         * about as much as the Gray decoding itself, so it asks for transparent huge pages
+         * (a hint; ignored where THP is off). */
+        size_t bytes = n * (nfloat * sizeof(float) + sizeof(uint16_t));
         char *blk;
         if (bytes >= RESULT_HUGE_BYTES) {
                 size_t round = (bytes + RESULT_HUGE_BYTES - 1) & ~(size_t) (RESULT_HUGE_BYTES - 1);
@@ -1464,11 +1514,13 @@ static int result_new(int w, int h, struct imp_sl_result **ret) {
         r->proj_x = fl;
         r->proj_y = fl + n;
         r->confidence = fl + 2 * n;
-        r->direct = fl + 3 * n;
-        r->global = fl + 4 * n;
-        r->modulation = fl + 5 * n;
-        r->sigma_px = fl + 6 * n;
-        r->flags = (uint16_t *) (fl + 7 * n);
+        r->sigma_px = fl + 3 * n;
+        if (!coords_only) {
+                r->direct = fl + 4 * n;
+                r->global = fl + 5 * n;
+                r->modulation = fl + 6 * n;
+        }
+        r->flags = (uint16_t *) (fl + nfloat * n);
         r->width = w;
         r->height = h;
         *ret = TAKE_PTR(r);
@@ -1569,8 +1621,9 @@ int imp_sl_decode_reuse(const struct imp_sl_frames *in, const struct imp_sl_para
 
         _cleanup_(imp_sl_result_freep) struct imp_sl_result *fresh = NULL;
         struct imp_sl_result *res = *ret;
-        if (!res || res->width != pl->width || res->height != pl->height) {
-                r = result_new(pl->width, pl->height, &fresh);
+        if (!res || res->width != pl->width || res->height != pl->height ||
+            !res->direct != p->coords_only) {
+                r = result_new(pl->width, pl->height, p->coords_only, &fresh);
                 if (r < 0)
                         return imp_error_set(err, r, "structured light: out of memory for %dx%d maps",
                                              pl->width, pl->height);

@@ -76,6 +76,12 @@ struct imp_sl_params {
                                          its Gray code more than the code's quantisation
                                          falls back to the Gray centre; true: keep it */
         bool robust;                  /* Xu & Aliaga classification; false: sign only */
+        bool coords_only;             /* true: the result has no direct, global and
+                                         modulation maps (NULL; 12 of its 30 bytes a pixel
+                                         neither allocated nor written), for callers that
+                                         read only coordinates, flags, confidence and σ
+                                         (triangulation). Every other map and count is
+                                         the same as without it. Default false */
         int threads;                  /* OpenMP threads; 0: OpenMP default */
 };
 
@@ -105,7 +111,8 @@ struct imp_sl_result {
                                          where the axis is not valid */
         float *confidence;            /* 0..1; 0 where neither axis is valid */
         uint16_t *flags;              /* IMP_SL_* */
-        float *direct, *global;       /* L_d, L_g estimates (input units, ≥ 0) */
+        float *direct, *global;       /* L_d, L_g estimates (input units, ≥ 0); NULL
+                                         with coords_only, as is modulation */
         float *modulation;            /* phase amplitude B (min over axes), 0 without phase */
         /* 1σ of the decoded projector coordinate, projector px, the larger over the valid
          * axes (0 where none is valid): what the decoder knows of its own error. A Gray
@@ -132,10 +139,10 @@ struct imp_sl_result {
 int imp_sl_decode(const struct imp_sl_frames *in, const struct imp_sl_params *p,
                   struct imp_sl_result **ret, struct imp_error *err);
 /* As imp_sl_decode, into *ret when it is a result of the frames' size (from an earlier
- * decode): every map and count is written anew, so a caller decoding view after view saves
- * allocating and faulting in 30 bytes a pixel each time (page faults and the kernel's
- * zeroing of the fresh pages). Otherwise (NULL, or another size) *ret is freed and replaced by a
- * new result. On error *ret is left as it was (its maps' contents unspecified). */
+ * decode with the same coords_only): every map and count is written anew, so a caller
+ * decoding view after view saves allocating and faulting in 30 bytes a pixel each time (page
+ * faults and the kernel's zeroing of the fresh pages). Otherwise (NULL, another size, or maps
+ * that coords_only adds or drops) *ret is freed and replaced by a new result. On error *ret is left as it was (its maps' contents unspecified). */
 int imp_sl_decode_reuse(const struct imp_sl_frames *in, const struct imp_sl_params *p,
                         struct imp_sl_result **ret, struct imp_error *err);
 void imp_sl_result_free(struct imp_sl_result *r);

@@ -431,18 +431,60 @@ static void test_errors(struct set *s) {
         CHECK(r == sentinel);
 }
 
+/* coords_only: no direct, global or modulation map, and every other map and count as the
+ * full decode's; imp_sl_decode_reuse turns a full result into a coords_only one and back. */
+static void check_coords_only(const struct imp_sl_frames *fr, const struct imp_sl_params *p,
+                              const char *what) {
+        struct imp_sl_params pc = *p;
+        pc.coords_only = true;
+        struct imp_sl_result *rf = NULL, *ro = NULL, *rr = NULL;
+        struct imp_error err = {};
+        CHECK_OK(imp_sl_decode(fr, p, &rf, &err));
+        CHECK_OK(imp_sl_decode(fr, &pc, &ro, &err));
+        CHECK_OK(imp_sl_decode(fr, p, &rr, &err));
+        if (!rf || !ro || !rr)
+                return;
+        size_t np = (size_t) rf->width * rf->height;
+        CHECK_MSG(ro->proj_x && !ro->direct && !ro->global && !ro->modulation,
+                  "%s: coords_only has no direct/global/modulation maps", what);
+        bool same = !memcmp(ro->proj_x, rf->proj_x, np * sizeof(float)) &&
+                    !memcmp(ro->proj_y, rf->proj_y, np * sizeof(float)) &&
+                    !memcmp(ro->confidence, rf->confidence, np * sizeof(float)) &&
+                    !memcmp(ro->sigma_px, rf->sigma_px, np * sizeof(float)) &&
+                    !memcmp(ro->flags, rf->flags, np * sizeof(uint16_t)) &&
+                    ro->n_valid_x == rf->n_valid_x && ro->n_valid_y == rf->n_valid_y &&
+                    ro->n_valid_xy == rf->n_valid_xy && ro->n_shadow == rf->n_shadow &&
+                    ro->n_saturated == rf->n_saturated && ro->n_weak == rf->n_weak &&
+                    ro->n_disagree == rf->n_disagree &&
+                    !memcmp(ro->phase_err_px, rf->phase_err_px, sizeof ro->phase_err_px);
+        CHECK_MSG(same, "%s: coords_only maps and counts = the full decode's", what);
+        /* the full result reused for coords_only, then for the full decode again */
+        CHECK_OK(imp_sl_decode_reuse(fr, &pc, &rr, &err));
+        CHECK_MSG(!rr->direct && !memcmp(rr->proj_x, rf->proj_x, np * sizeof(float)),
+                  "%s: full result reused for coords_only", what);
+        CHECK_OK(imp_sl_decode_reuse(fr, p, &rr, &err));
+        CHECK_MSG(rr->direct && !memcmp(rr->direct, rf->direct, np * sizeof(float)) &&
+                  !memcmp(rr->global, rf->global, np * sizeof(float)) &&
+                  !memcmp(rr->modulation, rf->modulation, np * sizeof(float)),
+                  "%s: coords_only result reused for the full decode", what);
+        imp_sl_result_free(rf);
+        imp_sl_result_free(ro);
+        imp_sl_result_free(rr);
+}
+
 /* The integer paths (u8 frames: byte lanes with inverses, 16-bit lanes without) against
  * the float path on the same integer samples: every map byte for byte. Frames scaled so
  * that the brightest pixels clip at 255 (saturation and hi rules), with and without
- * inverses, robust and sign-only, and thresholds that are not integers. */
-static void test_u8_equals_float(const struct set *g) {
+ * inverses, robust and sign-only, and thresholds that are not integers. cw: the frames'
+ * width, their first cw columns (not a multiple of 8: the vector loops' tails). */
+static void test_u8_equals_float(const struct set *g, int cw) {
         int n = g->n;
         struct imp_image **u8 = calloc(n, sizeof *u8), **f32 = calloc(n, sizeof *f32);
         for (int i = 0; i < n; i++) {
-                CHECK_OK(imp_image_new(CW, CH, 1, IMP_PIX_U8, &u8[i]));
-                CHECK_OK(imp_image_new(CW, CH, 1, IMP_PIX_F32, &f32[i]));
+                CHECK_OK(imp_image_new(cw, CH, 1, IMP_PIX_U8, &u8[i]));
+                CHECK_OK(imp_image_new(cw, CH, 1, IMP_PIX_F32, &f32[i]));
                 for (int y = 0; y < CH; y++)
-                        for (int x = 0; x < CW; x++) {
+                        for (int x = 0; x < cw; x++) {
                                 double v = rint(300.0 * *imp_image_f32(g->img[i], x, y));
                                 v = v < 0 ? 0 : v > 255 ? 255 : v;
                                 *imp_image_u8(u8[i], x, y) = (uint8_t) v;
@@ -475,7 +517,7 @@ static void test_u8_equals_float(const struct set *g) {
                         CHECK_OK(imp_sl_decode(&ff, &p, &rf, &err));
                         if (!ru || !rf)
                                 continue;
-                        size_t np = (size_t) CW * CH;
+                        size_t np = (size_t) cw * CH;
                         bool same = !memcmp(ru->proj_x, rf->proj_x, np * sizeof(float)) &&
                                     !memcmp(ru->proj_y, rf->proj_y, np * sizeof(float)) &&
                                     !memcmp(ru->confidence, rf->confidence, np * sizeof(float)) &&
@@ -485,13 +527,22 @@ static void test_u8_equals_float(const struct set *g) {
                                     !memcmp(ru->flags, rf->flags, np * sizeof(uint16_t)) &&
                                     ru->n_valid_xy == rf->n_valid_xy && ru->n_weak == rf->n_weak &&
                                     ru->n_saturated == rf->n_saturated;
-                        size_t nsat = 0, nweak = 0;
+                        size_t nsat = 0, nweak = 0, nvx = 0, nvy = 0, nxy = 0, nsh = 0;
                         for (size_t i = 0; i < np; i++) {
                                 nsat += !!(ru->flags[i] & IMP_SL_SATURATED);
                                 nweak += !!(ru->flags[i] & IMP_SL_WEAK_BIT);
+                                nvx += !!(ru->flags[i] & IMP_SL_VALID_X);
+                                nvy += !!(ru->flags[i] & IMP_SL_VALID_Y);
+                                nxy += (ru->flags[i] & IMP_SL_VALID_X) && (ru->flags[i] & IMP_SL_VALID_Y);
+                                nsh += !!(ru->flags[i] & IMP_SL_SHADOW);
                         }
-                        CHECK_MSG(same, "u8 path = float path (inverses %d, robust %d): valid %zu vs %zu",
-                                  inv, robust, ru->n_valid_xy, rf->n_valid_xy);
+                        /* the counts are the flags' (nothing counted past a row's end) */
+                        CHECK_MSG(ru->n_valid_x == nvx && ru->n_valid_y == nvy && ru->n_valid_xy == nxy &&
+                                  ru->n_shadow == nsh && ru->n_saturated == nsat && ru->n_weak == nweak,
+                                  "width %d: counts = flags (valid %zu vs %zu)", cw, ru->n_valid_xy, nxy);
+                        CHECK_MSG(same, "u8 path = float path (width %d, inverses %d, robust %d): "
+                                  "valid %zu vs %zu", cw, inv, robust, ru->n_valid_xy, rf->n_valid_xy);
+                        check_coords_only(&fu, &p, inv ? "u8 with inverses" : "u8 without inverses");
                         CHECK(nsat > 0 && nweak > 0);    /* the clipped and weak rules ran */
                         imp_sl_result_free(ru);
                         imp_sl_result_free(rf);
@@ -533,7 +584,8 @@ int main(void) {
                 imp_sl_result_free(r);
         }
         p.robust = true;
-        test_u8_equals_float(&gray);
+        test_u8_equals_float(&gray, CW);
+        test_u8_equals_float(&gray, CW - 3);
 
         /* Without inverses: p̄ = white + black − p. */
         struct imp_pattern pat_ni[64];
@@ -556,6 +608,9 @@ int main(void) {
         /* Gray + 4-step phase, period 16 px: RMS ≤ 0.05 projector px (brief). The gamma of
          * 2.2 leaves a 3rd harmonic that 4 steps alias onto the fundamental: predicted
          * ≈ 0.017 px RMS; noise adds ≈ 0.003 px. */
+        test_u8_equals_float(&all, CW - 3);     /* the byte lanes' rows for the phase path */
+        struct imp_sl_frames fall = { all.pat, (const struct imp_image *const *) all.img, all.n };
+        check_coords_only(&fall, &p, "gray + phase, f32");
         r = decode(&all, &p);
         if (r) {
                 check_phase(r, "gray + phase 4×16", 0.05, 95.0);
