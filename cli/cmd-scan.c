@@ -336,6 +336,11 @@ static void human_show(const json_t *r) {
         printf("step     %lld of %lld\nframes   %lld\n", imp_client_int(r, "step"), imp_client_int(r, "steps"),
                imp_client_int(r, "frames"));
         imp_client_print_painting(json_object_get(r, "painting"));
+        /* a session whose session.json was damaged, and what a resume rebuilt (docs/painting.md) */
+        if (*imp_client_str(r, "damaged"))
+                printf("damaged  %s\n", imp_client_str(r, "damaged"));
+        if (*imp_client_str(r, "rebuilt"))
+                printf("rebuilt  %s\n", imp_client_str(r, "rebuilt"));
         const json_t *faults = json_object_get(r, "faults"), *e;
         size_t i;
         json_array_foreach(faults, i, e)

@@ -47,7 +47,7 @@ if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WI
   impasto_test(test-painting-daemon LABELS integration fault LIBS impasto_proto impasto_pipeline impasto_emu
                TIMEOUT 300)
   target_include_directories(test-painting-daemon PRIVATE ${PROJECT_SOURCE_DIR}/sim/emu)
-  add_dependencies(test-painting-daemon impastod)
+  add_dependencies(test-painting-daemon impastod impasto)
   set_tests_properties(test-painting-daemon PROPERTIES RESOURCE_LOCK gvcp)
   # The same session on the Modbus stage driver and emulator (ports 15933, 15934).
   add_test(NAME test-painting-daemon-modbus COMMAND test-painting-daemon modbus)

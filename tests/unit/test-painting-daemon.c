@@ -534,6 +534,9 @@ static void test_damaged(struct ctx *x, const char *ref) {
                   "rebuilt: %s", rb ? rb : "(none)");
         CHECK(!json_object_get(r, "damaged"));
         json_decref(r);
+        /* the operator's `impasto scan show` says it too */
+        CHECK_INT_EQ(test_sh("%s/cli/impasto scan show %s --socket %s | grep -q '^rebuilt  session.json rebuilt from the painting'",
+                             IMPASTO_BINARY_DIR, id, x->h.socket), 0);
         snprintf(q, sizeof q, "%s/painting.json.damaged-1", sdir);
         char kept[200] = "";
         FILE *f = fopen(q, "re");
