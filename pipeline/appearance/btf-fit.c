@@ -34,9 +34,9 @@ static const double k_grid[] = { 2, 5, 12, 30, 80, 200, 500 };
 /* The per-sample loops below are built three times, for AVX-512 (16 float lanes), AVX2
  * (8) and the x86-64 baseline (SSE2, 4), and the CPU picks at load time (ifunc). Not FMA:
  * contraction would make the result depend on the machine (GCC's avx512f target enables
- * FMA, hence fp-contract=off for these functions). */
+ * FMA, hence -ffp-contract=off for this file: pipeline/CMakeLists.txt). */
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define CLONES __attribute__((target_clones("avx512f", "avx2", "default"), optimize("fp-contract=off")))
+#define CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
 #else
 #define CLONES
 #endif
