@@ -23,9 +23,9 @@ fi
 
 failures=0 serve_pid="" daemon_pid=""
 tmp=$(mktemp -d "${TMPDIR:-/tmp}/impasto-install.XXXXXX") || exit 2
-cleanup() {
+cleanup() {    # KEEP_TMP=1 keeps the folder of a passing run too (to compare with a failing one)
   for p in $daemon_pid $serve_pid; do kill -TERM "$p" 2>/dev/null; wait "$p" 2>/dev/null; done
-  if [ $failures -eq 0 ]; then rm -rf "$tmp"; else echo "kept $tmp"; fi
+  if [ $failures -eq 0 ] && [ -z "${KEEP_TMP:-}" ]; then rm -rf "$tmp"; else echo "kept $tmp"; fi
 }
 trap cleanup EXIT
 trap 'exit 143' TERM INT

@@ -11,10 +11,13 @@
 cli=$root$prefix/bin/impasto
 plans=$root$(sed -n 's/^ *plan_dirs *= *\[ *"\([^"]*\)".*/\1/p' "$root$conf")
 nsock=$tmp/night.sock
-wait_for() {    # wait_for SECONDS COMMAND...: until COMMAND succeeds
-  n=$(($1 * 10)); shift
-  while [ $n -gt 0 ]; do "$@" 2>/dev/null && return 0; n=$((n - 1)); sleep 0.1; done
-  return 1
+wait_for() {    # wait_for SECONDS COMMAND...: until COMMAND succeeds, SECONDS of wall clock
+  _wf_end=$(($(date +%s) + $1)); shift    # (not a count of tries: each try may take long)
+  while :; do
+    "$@" 2>/dev/null && return 0
+    [ "$(date +%s)" -lt "$_wf_end" ] || return 1
+    sleep 0.1
+  done
 }
 status_json() { "$cli" status --socket "$nsock" --json >"$tmp/st.json" 2>/dev/null; }
 jq_py() {       # jq_py FILE EXPR: a python expression over the JSON in FILE as j

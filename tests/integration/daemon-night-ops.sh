@@ -19,10 +19,13 @@ build=$1 src=$2 port=$3
 lib_init night-ops
 chmod 755 "$tmp"
 
-wait_for() {    # wait_for SECONDS COMMAND...: until COMMAND succeeds
-  local n=$(($1 * 10)); shift
-  while [ $n -gt 0 ]; do "$@" 2>/dev/null && return 0; n=$((n - 1)); sleep 0.1; done
-  return 1
+wait_for() {    # wait_for SECONDS COMMAND...: until COMMAND succeeds, SECONDS of wall clock
+  local _wf_end=$(($(date +%s) + $1)); shift    # (not a count of tries: each try may take long)
+  while :; do
+    "$@" 2>/dev/null && return 0
+    [ "$(date +%s)" -lt "$_wf_end" ] || return 1
+    sleep 0.1
+  done
 }
 st() { "$imp" "$@" --socket "$sock"; }
 
