@@ -130,11 +130,22 @@ static int role_as(const struct harness *h, uid_t uid, const gid_t *groups, size
 }
 
 /* ms for a status call on c */
-static uint64_t status_ms(struct tclient *c) {
+static uint64_t status_once_ms(struct tclient *c) {
         uint64_t t0 = h_now_ms();
         json_t *r = tc_ok(c, "status", NULL);
         json_decref(r);
         return h_now_ms() - t0;
+}
+
+/* The quickest of up to 3 `status` round trips (stopping at the first within PROMPT_MS): a loop
+ * stalled by a client is slow every time, a loaded host (CI beside other work) only once. */
+static uint64_t status_ms(struct tclient *c) {
+        uint64_t best = UINT64_MAX;
+        for (int i = 0; i < 3 && best > PROMPT_MS; i++) {
+                uint64_t ms = status_once_ms(c);
+                best = ms < best ? ms : best;
+        }
+        return best;
 }
 
 /* ---- roles -------------------------------------------------------------------------------- */
