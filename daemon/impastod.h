@@ -110,6 +110,7 @@ int rigcfg_open_devices(struct rigcfg *rc, const struct imp_rig *rig, struct imp
 void rigcfg_safe_state(struct rigcfg *rc);
 void rigcfg_close_devices(struct rigcfg *rc);
 struct dev_camera *rigcfg_camera(struct rigcfg *rc, const char *name);
+void rigcfg_drop_camera(struct dev_camera *cam);
 json_t *rigcfg_devices_json(struct rigcfg *rc);
 /* `devices` off the event loop: rigcfg_open_devices() in a thread on the rig config, while the
  * loop does not touch the devices (the rig must be free: no active session, and session.start,

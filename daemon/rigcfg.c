@@ -176,6 +176,17 @@ void rigcfg_free(struct rigcfg *rc) {
         free(rc);
 }
 
+/* Stops and closes a camera, to be opened afresh by rigcfg_open_devices(); what was applied to
+ * it (exposure, gain) is forgotten with it. */
+void rigcfg_drop_camera(struct dev_camera *cam) {
+        if (cam->cam && cam->started)
+                (void) imp_camera_stop(cam->cam);
+        imp_camera_close(cam->cam);
+        cam->cam = NULL;
+        cam->started = false;
+        cam->applied_valid = false;
+}
+
 struct dev_camera *rigcfg_camera(struct rigcfg *rc, const char *name) {
         for (int i = 0; i < rc->n_cameras; i++)
                 if (!strcmp(rc->cameras[i].name, name))
@@ -363,12 +374,7 @@ static void check_open_devices(struct rigcfg *rc) {
                 int r = cam->cam ? imp_camera_get_info(cam->cam, &info) : 0;
                 if (r >= 0)
                         continue;
-                if (cam->started)
-                        (void) imp_camera_stop(cam->cam);
-                imp_camera_close(cam->cam);
-                cam->cam = NULL;
-                cam->started = false;
-                cam->applied_valid = false;
+                rigcfg_drop_camera(cam);
                 cam->state = DEV_ABSENT;
                 snprintf(cam->detail, sizeof cam->detail, "stopped answering (%s)", strerror(-r));
         }

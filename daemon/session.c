@@ -238,12 +238,7 @@ static void stream_stop(struct session *s) {
         if (r < 0) {
                 log_warning("session %s: camera %s: back to triggers: %s (%s); reopening it", s->id, cam->name,
                             strerror(-r), imp_camera_last_error(cam->cam));
-                if (cam->started)
-                        (void) imp_camera_stop(cam->cam);
-                imp_camera_close(cam->cam);
-                cam->cam = NULL;
-                cam->started = false;
-                cam->applied_valid = false;
+                rigcfg_drop_camera(cam);
                 (void) rigcfg_open_devices(s->d->rigcfg, &s->rig, NULL);
         }
 }
@@ -327,21 +322,20 @@ static void step_failed(struct session *s, const char *device, int r, const char
                  device ? device : s->dir, what, strerror(-r));
         release_rig(s);
         s->phase = 0;
+        /* A camera that stopped answering is closed, to be opened afresh by the next attempt or
+         * by the resume: also one the driver gave up on (-ENODEV: it released the stream; every
+         * later trigger would then be -ENOTCONN, for ever, without a reopen), and one whose
+         * frames stopped coming (-ETIMEDOUT: its handle may stream to nowhere, e.g. after a
+         * controller change; a resume on the same handle timed out again, every time). */
+        struct dev_camera *cam = device ? rigcfg_camera(s->d->rigcfg, device) : NULL;
+        bool drop = cam && cam->cam && (r == -ETIMEDOUT || r == -EIO || r == -ENODEV || r == -ENOTCONN);
+        if (drop)
+                rigcfg_drop_camera(cam);
         if (++s->attempt < (int) s->d->retries) {
                 log_warning("session %s: frame %zu: %s (attempt %d of %u), retrying", s->id, s->n_captured, msg,
                             s->attempt, s->d->retries);
-                /* A camera that stopped answering is reopened on the next attempt: also one
-                 * the driver gave up on (-ENODEV: it released the stream; every later trigger
-                 * would then be -ENOTCONN, for ever, without a reopen). */
-                struct dev_camera *cam = device ? rigcfg_camera(s->d->rigcfg, device) : NULL;
-                if (cam && (r == -ETIMEDOUT || r == -EIO || r == -ENODEV || r == -ENOTCONN)) {
-                        if (cam->started)
-                                (void) imp_camera_stop(cam->cam);
-                        imp_camera_close(cam->cam);
-                        cam->cam = NULL;
-                        cam->started = false;
+                if (drop)
                         (void) rigcfg_open_devices(s->d->rigcfg, &s->rig, NULL);
-                }
                 (void) schedule(s, RETRY_DELAY_US * (uint64_t) s->attempt);
                 return;
         }

@@ -204,6 +204,13 @@ static int cam_start(void *state, const struct imp_camera_acq *acq) {
                 return -EBUSY;
         if (c->gone)
                 return -ENODEV;         /* reopen it once it is back */
+        /* A controller that died (SIGKILL, power loss) leaves the camera acquiring, and it may
+         * stream to the dead controller's port: Aravis' fake camera, once its heartbeat expires and
+         * we take control, streams to the stream destination it read when it started, before
+         * create_stream writes ours, and never re-reads it while acquiring. Stopping first makes
+         * the start below read our destination. Its error is the next call's to report. */
+        arv_camera_stop_acquisition(c->cam, &err);
+        g_clear_error(&err);
         arv_camera_set_acquisition_mode(c->cam, ARV_ACQUISITION_MODE_CONTINUOUS, &err);
         if ((r = take_error(c, &err)) < 0)
                 return r;
