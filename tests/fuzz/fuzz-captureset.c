@@ -52,7 +52,8 @@ static void exercise(const char *dir, const char *frames_dir) {
         const struct imp_rig *rig = imp_captureset_rig(cs);
         for (size_t i = 0; i < imp_captureset_count(cs); i++) {
                 const struct imp_frame_record *rec = imp_captureset_record(cs, i);
-                FUZZ_CHECK(rec && rec->seq == (long long) i, "record %zu has seq %lld", i, rec ? rec->seq : -1);
+                /* seq is the plan's position, not the line's: a re-captured step repeats one */
+                FUZZ_CHECK(rec && rec->seq >= 0, "record %zu has seq %lld", i, rec ? rec->seq : -1);
                 struct imp_image *img = NULL;
                 err = (struct imp_error) {};
                 r = imp_captureset_load_frame(cs, i, &img, &err);
