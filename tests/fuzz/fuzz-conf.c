@@ -9,6 +9,7 @@
 #include "fuzz.h"
 #include "plan.h"
 #include "rig.h"
+#include "tiles.h"
 #ifdef FUZZ_WITH_DAEMON
 #include "impastod.h"
 #include "night.h"
@@ -86,6 +87,9 @@ static void fuzz_plan(const char *text) {
         }
         struct imp_plan *p = NULL;
         int r = imp_plan_load_string(text, "plan.cfg", &rig, &p, &err);
+        if (getenv("FUZZ_VERBOSE"))
+                fprintf(stderr, "plan: %d %s; %zu frames%s\n", r, err.msg, r < 0 ? 0 : imp_plan_count(p),
+                        r < 0 || !imp_plan_tiles(p) ? "" : ", tiles");
         if (r < 0) {
                 FUZZ_CHECK(err.msg[0], "plan refused (%d) without a message", r);
                 return;
@@ -100,6 +104,18 @@ static void fuzz_plan(const char *text) {
                 FUZZ_CHECK(isfinite(f->gain_db), "frame %zu: gain %g dB", i, f->gain_db);
                 FUZZ_CHECK(f->light == -1 || (f->light >= 0 && f->light < 2), "frame %zu: light %d", i, f->light);
                 FUZZ_CHECK(!strcmp(f->camera, "cam0"), "frame %zu: camera %s", i, f->camera);
+        }
+        if (imp_plan_tiles(p)) {
+                /* what plan.estimate answers a client for a painting: finite figures */
+                struct imp_plan_painting_opts o = { .speed_mm_s = IMP_PLAN_STAGE_SPEED_MM_S,
+                                                    .settle_s = IMP_PLAN_SETTLE_S, .process_s = -1, .workers = 1 };
+                json_t *est = imp_plan_painting_estimate_json(p, &rig, 1e6, &o);
+                const char *key;
+                json_t *v;
+                json_object_foreach(est, key, v)
+                        FUZZ_CHECK(!json_is_real(v) || isfinite(json_real_value(v)), "estimate: %s is %g", key,
+                                   json_real_value(v));
+                json_decref(est);
         }
         imp_plan_free(p);
 }
