@@ -313,8 +313,11 @@ static int exr_read_chunks(exr_context_t ctxt, const char *path, const exr_attr_
         }
         if (started)
                 exr_decoding_destroy(ctxt, &dec);
+        /* -EBADMSG whatever the code: OpenEXR 3.1 says EXR_ERR_OUT_OF_MEMORY for a corrupt ZIP
+         * chunk ("Unable to decompress image data 178 -> 192"), and a chunk's buffers are
+         * bounded by the data window, checked against IMP_IMAGE_MAX_BYTES before this */
         if (rv != EXR_ERR_SUCCESS)
-                return imp_error_set(err, exr_errno(rv), "%s: truncated or corrupt OpenEXR data "
+                return imp_error_set(err, -EBADMSG, "%s: truncated or corrupt OpenEXR data "
                                      "at line %d: %s", path, y, exr_detail(rv));
         return 0;
 }

@@ -170,7 +170,7 @@ static int load_flags(const char *dir, struct imp_copy *c, struct imp_error *err
 int imp_copy_load(const char *dir, struct imp_copy *c, struct imp_error *err) {
         memset(c, 0, sizeof *c);
         int r;
-        if ((r = load_grid(dir, c, err)) < 0 || (r = load_boxes(dir, c, err)) < 0 || (r = alloc_maps(c, err)) < 0)
+        if ((r = load_grid(dir, c, err)) < 0 || (r = load_boxes(dir, c, err)) < 0)
                 return r;
         static const char *const HF[] = { "height", "nx", "ny", "sigma", "mask" }, *const RGB[] = { "R", "G", "B" },
                                  *const LOBE[] = { "cx", "cy", "cz", "k" };
@@ -180,7 +180,8 @@ int imp_copy_load(const char *dir, struct imp_copy *c, struct imp_error *err) {
             (r = read_exr(dir, "rho_d.exr", RGB, 3, c->nx, c->ny, &rd, cd, err)) < 0 ||
             (r = read_exr(dir, "rho_s.exr", RGB, 3, c->nx, c->ny, &rs, cs, err)) < 0 ||
             (r = read_exr(dir, "lobe.exr", LOBE, 4, c->nx, c->ny, &lo, cl, err)) < 0 ||
-            (r = load_flags(dir, c, err)) < 0)
+            /* only now: the maps are copy.json's size, so a damaged nx, ny costs no memory */
+            (r = alloc_maps(c, err)) < 0 || (r = load_flags(dir, c, err)) < 0)
                 return r;
         float plane = (float) c->plane_mm;
         for (int j = 0; j < c->ny; j++)

@@ -1021,6 +1021,20 @@ int imp_captureset_load_frame(const struct imp_captureset *cs, size_t i, struct 
         if (img->type != IMP_PIX_U16)
                 return imp_error_set(err, -EBADMSG, "%s: expected a 16-bit frame, got %s", path,
                                      imp_pixel_type_name(img->type));
+        /* the stages index frames with the camera's model size: a frame of another size
+         * (or rig.json's model.width/height changed) would be read out of bounds */
+        const struct imp_rig_camera *cam = NULL;
+        for (int c = 0; c < cs->rig.n_cameras; c++)
+                if (!strcmp(cs->rig.cameras[c].name, rec->camera))
+                        cam = &cs->rig.cameras[c];
+        if (!cam)
+                return imp_error_set(err, -EBADMSG, "%s: camera: " MANIFEST ":%zu names camera \"%s\", which "
+                                     "rig.json does not have", path, i + 1, rec->camera);
+        if (img->width != cam->model.width || img->height != cam->model.height)
+                return imp_error_set(err, -EBADMSG, "%s: the frame is %d × %d pixels, rig.json says camera %s "
+                                     "(model.width, model.height) is %d × %d: the frame or rig.json is damaged",
+                                     path, img->width, img->height, cam->name, cam->model.width,
+                                     cam->model.height);
         *ret = TAKE_PTR(img);
         return 0;
 }
