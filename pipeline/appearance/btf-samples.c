@@ -284,6 +284,8 @@ static bool march(const struct imp_btf_heightfield *hf, const struct imp_btf_sam
                 double h;
                 (void) height_at_texel(hf, fu, fv, &h);
                 if (z < h - bias) {
+                        if (!ret_t_mm)   /* no hit point asked (the extractor's tests): no bisection */
+                                return true;
                         /* Bisection between the last point above and the first below. */
                         double lo = (k - 1) * step, hi = t;
                         for (int i = 0; i < p->march_refine; i++) {
@@ -293,8 +295,7 @@ static bool march(const struct imp_btf_heightfield *hf, const struct imp_btf_sam
                                 else
                                         lo = m;
                         }
-                        if (ret_t_mm)
-                                *ret_t_mm = hi;
+                        *ret_t_mm = hi;
                         return true;
                 }
                 k++;
