@@ -657,23 +657,31 @@ static bool band_box(const struct imp_btf_extractor *x, int v0, int rows, int ma
         return true;
 }
 
+/* Fills b's values and states from the frames, row by row in blocks of BAND_FILL_COLS
+ * pixels: a block's L lights (BAND_FILL_COLS · L · 5 bytes) stay in L1 while every light's
+ * row is copied into them. */
+#define BAND_FILL_COLS 64
 static void band_fill(const struct imp_btf_capture *cap, double sat, struct imp_btf_band *b) {
-#pragma omp parallel for schedule(static)
+        const size_t L = b->L;
+#pragma omp parallel for schedule(static) collapse(2)
         for (int y = 0; y < b->rows; y++)
-                for (int l = 0; l < b->L; l++) {
-                        const float *src = imp_image_f32(cap->frames[l], b->x0, b->y0 + y);
-                        const struct imp_image *m = cap->valid ? cap->valid[l] : NULL;
-                        const uint8_t *bad = m ? imp_image_u8(m, b->x0, b->y0 + y) : NULL;
-                        float *dst = b->v + (size_t) y * b->cols * b->L + l;
-                        uint8_t *sdst = b->st + (size_t) y * b->cols * b->L + l;
-                        for (int x = 0; x < b->cols; x++) {
-                                double val = src[x];
-                                uint8_t fl = bad ? bad[x] : 0, s = 0;
-                                s |= isfinite(val) ? 0 : TAP_NONFINITE;
-                                s |= (sat > 0.0 && val >= sat) || (fl & IMP_BTF_PIX_SATURATED) ? TAP_SATURATED : 0;
-                                s |= fl ? TAP_MASKED : 0;
-                                dst[(size_t) x * b->L] = fl ? NAN : src[x];
-                                sdst[(size_t) x * b->L] = s;
+                for (int c0 = 0; c0 < b->cols; c0 += BAND_FILL_COLS) {
+                        int nc = IMP_MIN(BAND_FILL_COLS, b->cols - c0);
+                        float *dst = b->v + ((size_t) y * b->cols + c0) * L;
+                        uint8_t *sdst = b->st + ((size_t) y * b->cols + c0) * L;
+                        for (size_t l = 0; l < L; l++) {
+                                const float *src = imp_image_f32(cap->frames[l], b->x0 + c0, b->y0 + y);
+                                const struct imp_image *m = cap->valid ? cap->valid[l] : NULL;
+                                const uint8_t *bad = m ? imp_image_u8(m, b->x0 + c0, b->y0 + y) : NULL;
+                                for (int x = 0; x < nc; x++) {
+                                        double val = src[x];
+                                        uint8_t fl = bad ? bad[x] : 0, s = 0;
+                                        s |= isfinite(val) ? 0 : TAP_NONFINITE;
+                                        s |= (sat > 0.0 && val >= sat) || (fl & IMP_BTF_PIX_SATURATED) ? TAP_SATURATED : 0;
+                                        s |= fl ? TAP_MASKED : 0;
+                                        dst[(size_t) x * L + l] = fl ? NAN : src[x];
+                                        sdst[(size_t) x * L + l] = s;
+                                }
                         }
                 }
 }
