@@ -465,7 +465,6 @@ struct resample {
         const struct imp_btf_heightfield *hf;
         const struct imp_btf_capture *cap;
         double R[9], t[3];            /* canvas → world */
-        double (*light_c)[3];         /* light positions, canvas frame */
         double sat;                   /* saturation value (0: flags only) */
         int a;                        /* Lanczos order, 0 = off */
         const struct imp_btf_band *band;  /* the current band's frames, NULL: read the frames */
@@ -840,8 +839,7 @@ int imp_photometric_normals(const struct imp_btf_heightfield *hf, const struct i
                 return r;
         _cleanup_free_ double *dev = malloc(nt * sizeof *dev), *sig = malloc(nt * sizeof *sig),
                               *rmsv = malloc(nt * sizeof *rmsv);
-        _cleanup_free_ double (*light_c)[3] = malloc((size_t) cap->n_lights * sizeof *light_c);
-        if (!dev || !sig || !rmsv || !light_c)
+        if (!dev || !sig || !rmsv)
                 return -ENOMEM;
         /* Shadow-filled texels (mask value 2): cast-shadow trimming (photometric.h). */
         struct imp_photometric_params pf = *p;
@@ -849,19 +847,13 @@ int imp_photometric_normals(const struct imp_btf_heightfield *hf, const struct i
         pf.passes = IMP_MAX(p->passes, p->filled_passes);
         pf.max_dev_deg = p->filled_max_dev_deg > 0 ? p->filled_max_dev_deg : p->max_dev_deg;
         struct pn_grid G = { .hf = hf, .p = p, .pf = &pf, .out = out, .x = x, .dev = dev, .sig = sig, .rmsv = rmsv,
-                             .rs = { .hf = hf, .cap = cap, .light_c = light_c, .sat = sp->saturation_value,
+                             .rs = { .hf = hf, .cap = cap, .sat = sp->saturation_value,
                                      .a = p->lanczos } };
         for (int i = 0; i < 3; i++) {
                 for (int k = 0; k < 3; k++)
                         G.rs.R[3 * i + k] = hf->canvas_to_world[4 * i + k];
                 G.rs.t[i] = hf->canvas_to_world[4 * i + 3];
         }
-        for (int j = 0; j < cap->n_lights; j++)   /* canvas = Rᵀ (world − t) */
-                for (int i = 0; i < 3; i++) {
-                        light_c[j][i] = 0;
-                        for (int k = 0; k < 3; k++)
-                                light_c[j][i] += G.rs.R[3 * k + i] * (cap->lights[j].pos_mm[k] - G.rs.t[k]);
-                }
         memcpy(out->normal, hf->normal, nt * 3 * sizeof *out->normal);
         if (out->normal_bilinear)
                 memcpy(out->normal_bilinear, hf->normal, nt * 3 * sizeof *out->normal_bilinear);
