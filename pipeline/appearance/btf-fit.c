@@ -1015,39 +1015,47 @@ int imp_btf_fit_grid(const struct imp_btf_heightfield *hf, const struct imp_btf_
         if ((r = imp_btf_hf_pyramid_new(hf, &py)) < 0 || (r = imp_btf_extractor_new(hf, cap, sp, py, &x)) < 0)
                 return r;
 
-        /* One parallel loop: each thread extracts a texel's samples into its own buffer and
-         * fits them at once (no tile buffer, no barrier between the two; chunks of
-         * consecutive texels keep the frame taps and the heightfield in cache). */
+        /* One parallel loop per band of texel rows: each thread extracts a texel's samples
+         * into its own buffer and fits them at once (no tile buffer, no barrier between the
+         * two; chunks of consecutive texels keep the heightfield in cache), the taps read
+         * from the band's frames interleaved by light (btf.h, struct imp_btf_band). */
         const int W = hf->width;
         const long nt = (long) W * hf->height, chunk = tile_texels > 0 ? tile_texels : 64;
         long n_samples = 0, n_shadowed = 0, n_done = 0, next_report = nt / 50;
+        struct imp_btf_band band = {};
+        for (int v0 = 0; v0 < hf->height; v0 += IMP_BTF_BAND_ROWS) {
+                int rows = IMP_MIN(IMP_BTF_BAND_ROWS, hf->height - v0);
+                const struct imp_btf_band *b = imp_btf_band_load(x, v0, rows, 1, &band) ? &band : NULL;
 #pragma omp parallel reduction(+ : n_samples, n_shadowed)
-        {
-                struct imp_btf_sample smp[IMP_BTF_MAX_SAMPLES];
+                {
+                        struct imp_btf_sample smp[IMP_BTF_MAX_SAMPLES];
 #pragma omp for schedule(dynamic, chunk)
-                for (long i = 0; i < nt; i++) {
-                        struct imp_btf_texel *t = &ret_texels[i];
-                        if (fp->progress) {   /* reported by the calling thread alone */
-                                long d = __atomic_add_fetch(&n_done, 1, __ATOMIC_RELAXED);
-                                if (IMP_BTF_THREAD_NUM() == 0 && d >= next_report && d < nt) {
-                                        next_report = d + nt / 50;
-                                        fp->progress(fp->progress_data, d, nt);
+                        for (long i = (long) v0 * W; i < (long) (v0 + rows) * W; i++) {
+                                struct imp_btf_texel *t = &ret_texels[i];
+                                if (fp->progress) {   /* reported by the calling thread alone */
+                                        long d = __atomic_add_fetch(&n_done, 1, __ATOMIC_RELAXED);
+                                        if (IMP_BTF_THREAD_NUM() == 0 && d >= next_report && d < nt) {
+                                                next_report = d + nt / 50;
+                                                fp->progress(fp->progress_data, d, nt);
+                                        }
                                 }
+                                uint16_t sf, nsh;
+                                int n = imp_btf_extract_texel_band(x, b, (int) (i % W), (int) (i / W), smp, NULL, &sf,
+                                                                   &nsh);
+                                n_samples += n;
+                                n_shadowed += nsh;
+                                if (sf & (IMP_BTF_MASKED | IMP_BTF_HIDDEN)) {
+                                        *t = dflt;
+                                        t->flags = sf;
+                                        continue;
+                                }
+                                /* Cannot fail: fp checked above, n ≤ IMP_BTF_MAX_SAMPLES. */
+                                (void) imp_btf_fit_texel(smp, n, fp, t);
+                                t->flags |= sf;
                         }
-                        uint16_t sf, nsh;
-                        int n = imp_btf_extract_texel(x, (int) (i % W), (int) (i / W), smp, &sf, &nsh);
-                        n_samples += n;
-                        n_shadowed += nsh;
-                        if (sf & (IMP_BTF_MASKED | IMP_BTF_HIDDEN)) {
-                                *t = dflt;
-                                t->flags = sf;
-                                continue;
-                        }
-                        /* Cannot fail: fp checked above, n ≤ IMP_BTF_MAX_SAMPLES. */
-                        (void) imp_btf_fit_texel(smp, n, fp, t);
-                        t->flags |= sf;
                 }
         }
+        imp_btf_band_done(&band);
         st.n_samples = n_samples;
         st.n_shadowed = n_shadowed;
         if (fp->progress)

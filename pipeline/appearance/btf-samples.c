@@ -284,6 +284,8 @@ static bool march(const struct imp_btf_heightfield *hf, const struct imp_btf_sam
                 double h;
                 (void) height_at_texel(hf, fu, fv, &h);
                 if (z < h - bias) {
+                        if (!ret_t_mm)   /* no hit point asked (the extractor's tests): no bisection */
+                                return true;
                         /* Bisection between the last point above and the first below. */
                         double lo = (k - 1) * step, hi = t;
                         for (int i = 0; i < p->march_refine; i++) {
@@ -293,8 +295,7 @@ static bool march(const struct imp_btf_heightfield *hf, const struct imp_btf_sam
                                 else
                                         lo = m;
                         }
-                        if (ret_t_mm)
-                                *ret_t_mm = hi;
+                        *ret_t_mm = hi;
                         return true;
                 }
                 k++;
@@ -383,6 +384,36 @@ static int frame_sample(const struct imp_image *f, const struct imp_image *valid
         return state;
 }
 
+/* A pixel's tap state in the band (one light): frame_sample()'s decisions on that tap. */
+enum {
+        TAP_NONFINITE = 1 << 0,       /* the value is not finite */
+        TAP_SATURATED = 1 << 1,       /* value ≥ saturation_value, or masked saturated */
+        TAP_MASKED    = 1 << 2,       /* any validity bit */
+};
+
+/* frame_sample() of light j from the band (t inside its box): the OR of the four taps'
+ * states gives its decision (a non-finite tap returns at once there, whatever the other
+ * taps; else a saturated one wins over a masked one), and the value is summed in its order
+ * from the same floats (the band holds the frame's value wherever no bit is set). */
+static int band_sample(const struct imp_btf_band *b, const struct taps *t, int j, float ret[3]) {
+        const size_t L = b->L;
+        size_t o[4];
+        for (int k = 0; k < 4; k++)
+                o[k] = ((size_t) (t->ys[k >> 1] - b->y0) * b->cols + (t->xs[k & 1] - b->x0)) * L + j;
+        unsigned s = b->st[o[0]] | b->st[o[1]] | b->st[o[2]] | b->st[o[3]];
+        if (s & TAP_NONFINITE)
+                return PIX_INVALID;
+        if (s & TAP_SATURATED)
+                return PIX_SATURATED;
+        if (s)
+                return PIX_INVALID;
+        double acc = 0;
+        for (int k = 0; k < 4; k++)
+                acc += t->w[k] * (double) b->v[o[k]];
+        ret[0] = ret[1] = ret[2] = (float) acc;
+        return PIX_OK;
+}
+
 static int check_capture(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap) {
         if (!hf || !cap || !cap->camera || !cap->lights || !cap->frames || hf->width <= 0 ||
             hf->height <= 0 || !(hf->pitch_mm > 0.0) || !hf->height_mm || !hf->normal)
@@ -414,9 +445,9 @@ struct scene {
 };
 
 static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
-                          const struct imp_btf_sample_params *p, const struct scene *sc, int u, int v,
-                          struct imp_btf_sample *out, uint16_t *ret_count, uint16_t *ret_flags,
-                          uint16_t *ret_shadowed) {
+                          const struct imp_btf_sample_params *p, const struct scene *sc,
+                          const struct imp_btf_band *b, int u, int v, struct imp_btf_sample *out,
+                          uint16_t *ret_light, uint16_t *ret_count, uint16_t *ret_flags, uint16_t *ret_shadowed) {
         size_t idx = (size_t) v * hf->width + u;
         const float *nf = hf->normal + 3 * idx;
         double n[3] = { nf[0], nf[1], nf[2] };
@@ -454,6 +485,8 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
         }
         struct taps tp;
         bilinear_taps(cap->camera->width, cap->camera->height, px, &tp);
+        bool in_band = b && tp.xs[0] >= b->x0 && tp.ys[0] >= b->y0 && tp.xs[1] < b->x0 + b->cols &&
+                       tp.ys[1] < b->y0 + b->rows;
 
         for (int j = 0; j < cap->n_lights; j++) {
                 double wl[3], lloc[3], r = 0.0;
@@ -475,14 +508,17 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
                         continue;
                 }
                 float val[3];
-                int st = frame_sample(cap->frames[j], cap->valid ? cap->valid[j] : NULL,
-                                      p->saturation_value, &tp, val);
+                int st = in_band ? band_sample(b, &tp, j, val)
+                                 : frame_sample(cap->frames[j], cap->valid ? cap->valid[j] : NULL,
+                                                p->saturation_value, &tp, val);
                 if (st == PIX_SATURATED)
                         flags |= IMP_BTF_SATURATED;
                 if (st != PIX_OK)
                         continue;
                 if (val[0] < p->dark_value && val[1] < p->dark_value && val[2] < p->dark_value)
                         continue;
+                if (ret_light)
+                        ret_light[count] = (uint16_t) j;
                 struct imp_btf_sample *s = &out[count++];
                 for (int i = 0; i < 3; i++) {
                         s->v[i] = (float) vloc[i];
@@ -568,9 +604,118 @@ int imp_btf_extractor_new(const struct imp_btf_heightfield *hf, const struct imp
 
 int imp_btf_extract_texel(const struct imp_btf_extractor *x, int u, int v, struct imp_btf_sample *out,
                           uint16_t *ret_flags, uint16_t *ret_shadowed) {
+        return imp_btf_extract_texel_band(x, NULL, u, v, out, NULL, ret_flags, ret_shadowed);
+}
+
+int imp_btf_extract_texel_band(const struct imp_btf_extractor *x, const struct imp_btf_band *b, int u, int v,
+                               struct imp_btf_sample *out, uint16_t *ret_light, uint16_t *ret_flags,
+                               uint16_t *ret_shadowed) {
         uint16_t count;
-        extract_texel(x->hf, x->cap, &x->p, &x->sc, u, v, out, &count, ret_flags, ret_shadowed);
+        extract_texel(x->hf, x->cap, &x->p, &x->sc, b, u, v, out, ret_light, &count, ret_flags, ret_shadowed);
         return count;
+}
+
+/* ---- the frames interleaved by light, one band of texel rows at a time ------------ */
+
+static bool band_usable(const struct imp_btf_capture *cap) {
+        const struct imp_image *f0 = cap->frames[0];
+        for (int j = 0; j < cap->n_lights; j++) {
+                const struct imp_image *f = cap->frames[j], *m = cap->valid ? cap->valid[j] : NULL;
+                if (f->type != IMP_PIX_F32 || f->channels != 1 || f->width != f0->width || f->height != f0->height)
+                        return false;
+                if (m && (m->type != IMP_PIX_U8 || m->width != f0->width || m->height != f0->height))
+                        return false;
+        }
+        return true;
+}
+
+/* The pixel box (clamped to the frames) of the projections of texel rows [v0, v0 + rows)
+ * ± margin: [floor(p) − margin + 1, floor(p) + margin + 1) on each axis; false when no
+ * texel of them projects. */
+static bool band_box(const struct imp_btf_extractor *x, int v0, int rows, int margin, struct imp_btf_band *b) {
+        const struct imp_btf_heightfield *hf = x->hf;
+        const struct imp_pinhole *cam = x->cap->camera;
+        double xlo = INFINITY, ylo = INFINITY, xhi = -INFINITY, yhi = -INFINITY;
+#pragma omp parallel for schedule(static) reduction(min : xlo, ylo) reduction(max : xhi, yhi)
+        for (int k = 0; k < rows * hf->width; k++) {
+                int u = k % hf->width, v = v0 + k / hf->width;
+                double P[3] = { u * hf->pitch_mm, v * hf->pitch_mm, hf->height_mm[(size_t) v * hf->width + u] }, Pw[3], px[2];
+                mat_apply(x->sc.R, x->sc.t, P, Pw);
+                if (!imp_pinhole_project(cam, Pw, px) || !isfinite(px[0]) || !isfinite(px[1]))
+                        continue;
+                xlo = fmin(xlo, px[0]), xhi = fmax(xhi, px[0]);
+                ylo = fmin(ylo, px[1]), yhi = fmax(yhi, px[1]);
+        }
+        if (!(xlo <= xhi && ylo <= yhi))
+                return false;
+        double x0 = fmax(0, floor(xlo) - margin + 1), x1 = fmin(cam->width, floor(xhi) + margin + 1);
+        double y0 = fmax(0, floor(ylo) - margin + 1), y1 = fmin(cam->height, floor(yhi) + margin + 1);
+        if (!(x0 < x1 && y0 < y1))
+                return false;
+        b->x0 = (int) x0, b->y0 = (int) y0, b->cols = (int) (x1 - x0), b->rows = (int) (y1 - y0);
+        b->L = x->cap->n_lights;
+        return true;
+}
+
+/* Fills b's values and states from the frames, row by row in blocks of BAND_FILL_COLS
+ * pixels: a block's L lights (BAND_FILL_COLS · L · 5 bytes) stay in L1 while every light's
+ * row is copied into them. */
+#define BAND_FILL_COLS 64
+static void band_fill(const struct imp_btf_capture *cap, double sat, struct imp_btf_band *b) {
+        const size_t L = b->L;
+#pragma omp parallel for schedule(static) collapse(2)
+        for (int y = 0; y < b->rows; y++)
+                for (int c0 = 0; c0 < b->cols; c0 += BAND_FILL_COLS) {
+                        int nc = IMP_MIN(BAND_FILL_COLS, b->cols - c0);
+                        float *dst = b->v + ((size_t) y * b->cols + c0) * L;
+                        uint8_t *sdst = b->st + ((size_t) y * b->cols + c0) * L;
+                        for (size_t l = 0; l < L; l++) {
+                                const float *src = imp_image_f32(cap->frames[l], b->x0 + c0, b->y0 + y);
+                                const struct imp_image *m = cap->valid ? cap->valid[l] : NULL;
+                                const uint8_t *bad = m ? imp_image_u8(m, b->x0 + c0, b->y0 + y) : NULL;
+                                for (int x = 0; x < nc; x++) {
+                                        double val = src[x];
+                                        uint8_t fl = bad ? bad[x] : 0, s = 0;
+                                        s |= isfinite(val) ? 0 : TAP_NONFINITE;
+                                        s |= (sat > 0.0 && val >= sat) || (fl & IMP_BTF_PIX_SATURATED) ? TAP_SATURATED : 0;
+                                        s |= fl ? TAP_MASKED : 0;
+                                        dst[(size_t) x * L + l] = fl ? NAN : src[x];
+                                        sdst[(size_t) x * L + l] = s;
+                                }
+                        }
+                }
+}
+
+bool imp_btf_band_load(const struct imp_btf_extractor *x, int v0, int rows, int margin, struct imp_btf_band *b) {
+        if (!x || !b || v0 < 0 || rows <= 0 || v0 + rows > x->hf->height || !band_usable(x->cap))
+                return false;
+        struct imp_btf_band nb = *b;
+        if (!band_box(x, v0, rows, IMP_MAX(margin, 1), &nb))
+                return false;
+        size_t cells = (size_t) nb.cols * nb.rows * nb.L, need = cells * (sizeof *nb.v + sizeof *nb.st);
+        if (need > IMP_BTF_BAND_BYTES)
+                return false;
+        if (need > b->have) {
+                imp_btf_band_done(b);
+                float *buf = malloc(need);
+                if (!buf)
+                        return false;
+                b->v = buf;
+                b->have = need;
+        }
+        nb.v = b->v;
+        nb.st = (uint8_t *) (b->v + cells);
+        nb.have = b->have;
+        band_fill(x->cap, x->p.saturation_value, &nb);
+        *b = nb;
+        return true;
+}
+
+void imp_btf_band_done(struct imp_btf_band *b) {
+        if (!b)
+                return;
+        free(b->v);
+        *b = (struct imp_btf_band) {};
 }
 
 int imp_btf_samples_extract_pyramid(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,

@@ -171,6 +171,37 @@ DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_btf_extractor *, imp_btf_extractor_free);
 int imp_btf_extract_texel(const struct imp_btf_extractor *x, int u, int v, struct imp_btf_sample *out,
                           uint16_t *ret_flags, uint16_t *ret_shadowed);
 
+/* The frames of one band of texel rows interleaved by light (mono f32 frames of one size
+ * only): over the pixel box the band's texels project into (± margin pixels), pixel
+ * (x, y)'s values of every light side by side, NaN where that light's validity mask is
+ * set, and beside them each pixel's state for the extractor's taps (non-finite, saturated
+ * by value or mask, masked). Both appearance stages read their bilinear taps from it, the
+ * photometric stage its Lanczos windows too: one texel's 2 × 2 taps of all L lights are 4
+ * runs of L values instead of 4 scattered reads in each of L frames and L masks. The
+ * values and decisions are those read from the frames (imp_btf_extract_texel_band()). */
+#define IMP_BTF_BAND_ROWS  64                   /* texel rows per band */
+#define IMP_BTF_BAND_BYTES ((size_t) 80 << 20)  /* larger boxes: read the frames as they are */
+struct imp_btf_band {
+        float *v;                     /* [rows][cols][L] */
+        uint8_t *st;                  /* [rows][cols][L], the extractor's tap states */
+        int x0, y0, cols, rows, L;    /* the box in frame pixels */
+        size_t have;                  /* bytes allocated (reused from band to band) */
+};
+/* Loads texel rows [v0, v0 + rows) of x's heightfield into b (its buffer reused when large
+ * enough): true when loaded; false when the frames are not mono f32 of one size, no texel
+ * of the rows projects, the box exceeds IMP_BTF_BAND_BYTES or memory runs out (the caller
+ * then reads the frames: pass NULL for the band). Parallel (OpenMP): call it outside a
+ * parallel region. */
+bool imp_btf_band_load(const struct imp_btf_extractor *x, int v0, int rows, int margin, struct imp_btf_band *b);
+void imp_btf_band_done(struct imp_btf_band *b);
+/* imp_btf_extract_texel() reading the taps from band b when they lie inside its box (b
+ * may be NULL; the samples are the same bit for bit), and each sample's light index
+ * (into cap->lights) into ret_light (may be NULL), so a caller re-reading the samples
+ * need not find their lights again. */
+int imp_btf_extract_texel_band(const struct imp_btf_extractor *x, const struct imp_btf_band *b, int u, int v,
+                               struct imp_btf_sample *out, uint16_t *ret_light, uint16_t *ret_flags,
+                               uint16_t *ret_shadowed);
+
 /* Ray against the heightfield in canvas coordinates: origin o (on the surface), unit
  * direction d. Linear search in steps of march_step_texels·pitch, then march_refine
  * bisections (seed §5.2). True when the ray passes below the surface (by more than the

@@ -451,32 +451,23 @@ int imp_photometric_texel(const struct imp_btf_sample *s, int n, const struct im
  * here each sample's value is read again with the Lanczos kernel. Samples come in light
  * order, so each is matched to its light by recomputing the local light direction. */
 
-#define PN_MATCH_TOL 1e-4             /* |l − l_light| for a sample to be that light's */
 #define PN_MAX_LANCZOS 4
 
-/* The frames interleaved by light for the re-read (mono frames only): over the pixel box
- * the windows of one band of PN_BAND_ROWS texel rows reach, pixel (x, y)'s values of every
- * light side by side, NaN where that light's validity mask is set. A texel's 2a × 2a
- * window then holds all its lights in 2a contiguous runs of 2a·L floats (a few KiB, in L1
- * after the first sample) instead of 2a rows of each of L frames and L masks, each frame
- * read at a different place. The values are the frames' own: the re-read's arithmetic and
- * its decisions are the same whichever of the two it reads. */
-#define PN_BAND_ROWS  64                    /* texel rows per band */
-#define PN_BAND_BYTES ((size_t) 64 << 20)   /* larger boxes read the frames as they are */
-
-struct pn_band {
-        float *v;                     /* [rows][cols][L] */
-        int x0, y0, cols, rows, L;    /* the box in frame pixels */
-};
+/* The re-read reads the band the extractor reads its taps from (btf.h, struct
+ * imp_btf_band): the frames interleaved by light over the pixel box of one band of texel
+ * rows, NaN where a light's validity mask is set. A texel's 2a × 2a window then holds all
+ * its lights in 2a contiguous runs of 2a·L floats (a few KiB, in L1 after the first
+ * sample) instead of 2a rows of each of L frames and L masks, each frame read at a
+ * different place. The values are the frames' own: the re-read's arithmetic and its
+ * decisions are the same whichever of the two it reads. */
 
 struct resample {
         const struct imp_btf_heightfield *hf;
         const struct imp_btf_capture *cap;
         double R[9], t[3];            /* canvas → world */
-        double (*light_c)[3];         /* light positions, canvas frame */
         double sat;                   /* saturation value (0: flags only) */
         int a;                        /* Lanczos order, 0 = off */
-        const struct pn_band *band;   /* the current band's frames, NULL: read the frames */
+        const struct imp_btf_band *band;  /* the current band's frames, NULL: read the frames */
 };
 
 static double lanczos(double x, int a) {
@@ -494,7 +485,7 @@ static double lanczos(double x, int a) {
  * lights side by side in vector lanes (one light's sums are a chain of dependent
  * additions, L chains at once are not). */
 __attribute__((optimize("no-trapping-math")))   /* gcc 12 vectorises float compares only so */
-static void lanczos_band_all(const struct pn_band *b, int bx, int by, int n, float sat, const double *wx,
+static void lanczos_band_all(const struct imp_btf_band *b, int bx, int by, int n, float sat, const double *wx,
                              const double *wy, double *acc, uint8_t *ok) {
         const int L = b->L;
         double row[IMP_BTF_MAX_SAMPLES];
@@ -583,18 +574,18 @@ static bool canvas_pixel(const struct resample *rs, const double P[3], double px
         return imp_pinhole_project(rs->cap->camera, Pw, px);
 }
 
-/* Re-reads the values of texel (u, v)'s n samples (light colour applied as the extractor
- * does). Returns how many were re-read. */
-static int resample_texel(const struct resample *rs, int u, int v, struct imp_btf_sample *smp, int n) {
+/* Re-reads the values of texel (u, v)'s n samples, sample s of light light[s] (as the
+ * extractor gave them), the light colour applied as the extractor does. Returns how many
+ * were re-read. */
+static int resample_texel(const struct resample *rs, int u, int v, struct imp_btf_sample *smp,
+                          const uint16_t *light, int n) {
         const struct imp_btf_heightfield *hf = rs->hf;
         size_t idx = (size_t) v * hf->width + u;
         const float *nf = hf->normal + 3 * idx;
         double nl = sqrt(nf[0] * nf[0] + nf[1] * nf[1] + nf[2] * nf[2]);
         if (n <= 0 || !(nl > 0.5 && nl < 2.0) || rs->a <= 0)
                 return 0;
-        double nn[3] = { nf[0] / nl, nf[1] / nl, nf[2] / nl }, tb[3], bb[3];
         double P[3] = { u * hf->pitch_mm, v * hf->pitch_mm, hf->height_mm[idx] }, px[2];
-        imp_local_frame(nn, tb, bb);
         if (!canvas_pixel(rs, P, px))
                 return 0;
         double wx[2 * PN_MAX_LANCZOS], wy[2 * PN_MAX_LANCZOS], sx = 0, sy = 0;
@@ -606,31 +597,16 @@ static int resample_texel(const struct resample *rs, int u, int v, struct imp_bt
         for (int k = 0; k < 2 * rs->a; k++)
                 wx[k] /= sx, wy[k] /= sy;
         /* the window inside the band: every light's value at once */
-        const struct pn_band *b = rs->band;
+        const struct imp_btf_band *b = rs->band;
         const int nw = 2 * rs->a;
         bool all = b && x0 >= b->x0 && y0 >= b->y0 && x0 + nw <= b->x0 + b->cols && y0 + nw <= b->y0 + b->rows;
         double acc[IMP_BTF_MAX_SAMPLES];
         uint8_t ok[IMP_BTF_MAX_SAMPLES];
         if (all)
                 lanczos_band_all(b, x0 - b->x0, y0 - b->y0, nw, rs->sat > 0 ? (float) rs->sat : INFINITY, wx, wy, acc, ok);
-        int done = 0, j = 0;
-        for (int s = 0; s < n && j < rs->cap->n_lights; s++) {
-                for (; j < rs->cap->n_lights; j++) {
-                        double wl[3], r = 0, lloc[3];
-                        for (int i = 0; i < 3; i++) {
-                                wl[i] = rs->light_c[j][i] - P[i];
-                                r += wl[i] * wl[i];
-                        }
-                        r = sqrt(r);
-                        for (int i = 0; i < 3; i++)
-                                wl[i] /= r;
-                        imp_to_local(tb, bb, nn, wl, lloc);
-                        if (fabs(lloc[0] - smp[s].l[0]) + fabs(lloc[1] - smp[s].l[1]) +
-                            fabs(lloc[2] - smp[s].l[2]) <= PN_MATCH_TOL)
-                                break;
-                }
-                if (j == rs->cap->n_lights)
-                        break;
+        int done = 0;
+        for (int s = 0; s < n; s++) {
+                int j = light[s];
                 float val[3];
                 if (all && ok[j])
                         val[0] = val[1] = val[2] = (float) acc[j];
@@ -641,7 +617,6 @@ static int resample_texel(const struct resample *rs, int u, int v, struct imp_bt
                                 smp[s].value[c] = white ? val[c] : col[c] > 0 ? (float) (val[c] / col[c]) : 0.0f;
                         done++;
                 }
-                j++;
         }
         return done;
 }
@@ -707,8 +682,9 @@ static void refine_tile(const struct pn_grid *G, int x0, int y0, int w, int h,
         for (int k = 0; k < w * h; k++) {
                 size_t i = (size_t) (y0 + k / w) * hf->width + x0 + k % w;
                 struct imp_btf_sample ts[IMP_BTF_MAX_SAMPLES];   /* 20 KiB of stack */
-                uint16_t sflags, n_shadowed;
-                int count = imp_btf_extract_texel(G->x, x0 + k % w, y0 + k / w, ts, &sflags, &n_shadowed);
+                uint16_t sflags, n_shadowed, light[IMP_BTF_MAX_SAMPLES];
+                int count = imp_btf_extract_texel_band(G->x, G->rs.band, x0 + k % w, y0 + k / w, ts, light, &sflags,
+                                                       &n_shadowed);
                 struct imp_pn_texel t;
                 bool masked = (sflags & (IMP_BTF_MASKED | IMP_BTF_HIDDEN)) || (hf->mask && !hf->mask[i]);
                 if (masked) {
@@ -720,7 +696,7 @@ static void refine_tile(const struct pn_grid *G, int x0, int y0, int w, int h,
                                 imp_photometric_texel(ts, count, pt, &tb);
                                 to_canvas(&hf->normal[3 * i], &tb, pt, &out->normal_bilinear[3 * i]);
                         }
-                        res += resample_texel(&G->rs, x0 + k % w, y0 + k / w, ts, count);
+                        res += resample_texel(&G->rs, x0 + k % w, y0 + k / w, ts, light, count);
                         imp_photometric_texel(ts, count, pt, &t);
                         if ((sflags & IMP_BTF_SATURATED) && (t.flags & IMP_PN_FEW_SAMPLES))
                                 t.flags |= IMP_PN_SATURATED;
@@ -762,88 +738,20 @@ static void refine_tile(const struct pn_grid *G, int x0, int y0, int w, int h,
         st->n_resampled += res;
 }
 
-/* Whether the re-read can use pn_band: every frame mono f32 of the first's size, every
- * validity mask (when given) u8 of that size. */
-static bool band_usable(const struct imp_btf_capture *cap) {
-        const struct imp_image *f0 = cap->frames[0];
-        for (int j = 0; j < cap->n_lights; j++) {
-                const struct imp_image *f = cap->frames[j], *m = cap->valid ? cap->valid[j] : NULL;
-                if (f->type != IMP_PIX_F32 || f->channels != 1 || f->width != f0->width || f->height != f0->height)
-                        return false;
-                if (m && (m->type != IMP_PIX_U8 || m->width != f0->width || m->height != f0->height))
-                        return false;
-        }
-        return true;
-}
-
-/* The pixel box (clamped to the frames) that the windows of texel rows [v0, v0 + rows)
- * reach; false when no texel of them projects. */
-static bool band_box(const struct resample *rs, int v0, int rows, struct pn_band *b) {
-        const struct imp_btf_heightfield *hf = rs->hf;
-        const struct imp_image *f = rs->cap->frames[0];
-        double xlo = INFINITY, ylo = INFINITY, xhi = -INFINITY, yhi = -INFINITY;
-#pragma omp parallel for schedule(static) reduction(min : xlo, ylo) reduction(max : xhi, yhi)
-        for (int k = 0; k < rows * hf->width; k++) {
-                int u = k % hf->width, v = v0 + k / hf->width;
-                double P[3] = { u * hf->pitch_mm, v * hf->pitch_mm, hf->height_mm[(size_t) v * hf->width + u] }, px[2];
-                if (!canvas_pixel(rs, P, px) || !isfinite(px[0]) || !isfinite(px[1]))
-                        continue;
-                xlo = fmin(xlo, px[0]), xhi = fmax(xhi, px[0]);
-                ylo = fmin(ylo, px[1]), yhi = fmax(yhi, px[1]);
-        }
-        if (!(xlo <= xhi && ylo <= yhi))
-                return false;
-        /* a window spans [floor(p) − a + 1, floor(p) + a + 1) */
-        double x0 = fmax(0, floor(xlo) - rs->a + 1), x1 = fmin(f->width, floor(xhi) + rs->a + 1);
-        double y0 = fmax(0, floor(ylo) - rs->a + 1), y1 = fmin(f->height, floor(yhi) + rs->a + 1);
-        if (!(x0 < x1 && y0 < y1))
-                return false;
-        *b = (struct pn_band) { .x0 = (int) x0, .y0 = (int) y0, .cols = (int) (x1 - x0), .rows = (int) (y1 - y0),
-                                .L = rs->cap->n_lights };
-        return true;
-}
-
-/* Fills b->v from the frames and masks over b's box. */
-static void band_fill(const struct imp_btf_capture *cap, struct pn_band *b) {
-#pragma omp parallel for schedule(static)
-        for (int y = 0; y < b->rows; y++)
-                for (int l = 0; l < b->L; l++) {
-                        const float *src = imp_image_f32(cap->frames[l], b->x0, b->y0 + y);
-                        const struct imp_image *m = cap->valid ? cap->valid[l] : NULL;
-                        const uint8_t *bad = m ? imp_image_u8(m, b->x0, b->y0 + y) : NULL;
-                        float *dst = b->v + (size_t) y * b->cols * b->L + l;
-                        for (int x = 0; x < b->cols; x++)
-                                dst[(size_t) x * b->L] = bad && bad[x] ? NAN : src[x];
-                }
-}
-
-/* refine_tile over bands of PN_BAND_ROWS texel rows, each re-reading from its pn_band when
- * the frames allow one and its box fits PN_BAND_BYTES (else, or without memory for it,
- * from the frames: the same values either way). */
+/* refine_tile over bands of IMP_BTF_BAND_ROWS texel rows, the extractor's taps and the
+ * re-read's windows read from the band when the frames allow one and its box fits
+ * IMP_BTF_BAND_BYTES (else, or without memory for it, from the frames: the same values
+ * either way). */
 static void refine_bands(struct pn_grid *G, struct imp_photometric_stats *st) {
         const struct imp_btf_heightfield *hf = G->hf;
-        bool usable = G->rs.a > 0 && band_usable(G->rs.cap);
-        _cleanup_free_ float *buf = NULL;
-        size_t have = 0;
-        for (int v0 = 0; v0 < hf->height; v0 += PN_BAND_ROWS) {
-                int rows = IMP_MIN(PN_BAND_ROWS, hf->height - v0);
-                struct pn_band b;
-                G->rs.band = NULL;
-                if (usable && band_box(&G->rs, v0, rows, &b)) {
-                        size_t need = (size_t) b.cols * b.rows * b.L * sizeof *b.v;
-                        if (need <= PN_BAND_BYTES && need > have) {
-                                free(buf);
-                                have = (buf = malloc(need)) ? need : 0;
-                        }
-                        if (need <= have) {
-                                b.v = buf;
-                                band_fill(G->rs.cap, &b);
-                                G->rs.band = &b;
-                        }
-                }
+        struct imp_btf_band b = {};
+        for (int v0 = 0; v0 < hf->height; v0 += IMP_BTF_BAND_ROWS) {
+                int rows = IMP_MIN(IMP_BTF_BAND_ROWS, hf->height - v0);
+                G->rs.band = imp_btf_band_load(G->x, v0, rows, G->rs.a, &b) ? &b : NULL;
                 refine_tile(G, 0, v0, hf->width, rows, st);
         }
         G->rs.band = NULL;
+        imp_btf_band_done(&b);
 }
 
 /* Ambient light is the room's, not a texel's: it adds ρd·A to every frame, whatever the
@@ -931,8 +839,7 @@ int imp_photometric_normals(const struct imp_btf_heightfield *hf, const struct i
                 return r;
         _cleanup_free_ double *dev = malloc(nt * sizeof *dev), *sig = malloc(nt * sizeof *sig),
                               *rmsv = malloc(nt * sizeof *rmsv);
-        _cleanup_free_ double (*light_c)[3] = malloc((size_t) cap->n_lights * sizeof *light_c);
-        if (!dev || !sig || !rmsv || !light_c)
+        if (!dev || !sig || !rmsv)
                 return -ENOMEM;
         /* Shadow-filled texels (mask value 2): cast-shadow trimming (photometric.h). */
         struct imp_photometric_params pf = *p;
@@ -940,19 +847,13 @@ int imp_photometric_normals(const struct imp_btf_heightfield *hf, const struct i
         pf.passes = IMP_MAX(p->passes, p->filled_passes);
         pf.max_dev_deg = p->filled_max_dev_deg > 0 ? p->filled_max_dev_deg : p->max_dev_deg;
         struct pn_grid G = { .hf = hf, .p = p, .pf = &pf, .out = out, .x = x, .dev = dev, .sig = sig, .rmsv = rmsv,
-                             .rs = { .hf = hf, .cap = cap, .light_c = light_c, .sat = sp->saturation_value,
+                             .rs = { .hf = hf, .cap = cap, .sat = sp->saturation_value,
                                      .a = p->lanczos } };
         for (int i = 0; i < 3; i++) {
                 for (int k = 0; k < 3; k++)
                         G.rs.R[3 * i + k] = hf->canvas_to_world[4 * i + k];
                 G.rs.t[i] = hf->canvas_to_world[4 * i + 3];
         }
-        for (int j = 0; j < cap->n_lights; j++)   /* canvas = Rᵀ (world − t) */
-                for (int i = 0; i < 3; i++) {
-                        light_c[j][i] = 0;
-                        for (int k = 0; k < 3; k++)
-                                light_c[j][i] += G.rs.R[3 * k + i] * (cap->lights[j].pos_mm[k] - G.rs.t[k]);
-                }
         memcpy(out->normal, hf->normal, nt * 3 * sizeof *out->normal);
         if (out->normal_bilinear)
                 memcpy(out->normal_bilinear, hf->normal, nt * 3 * sizeof *out->normal_bilinear);
