@@ -9,8 +9,9 @@
 
 #define NT_DEG (180.0 / M_PI)
 #define NT_EDGE_SIGMA_MAX 90.0f       /* a neighbour's σ passed on at most (180: unknown) */
-#define NT_FINE_K 2.0                 /* rule 3: σ per degree of the window's rms fine bend */
+#define NT_FINE_K 2.4                 /* rule 3: σ per degree of the window's rms fine bend */
 #define NT_FINE_RADIUS 2              /* rule 3: the window is (2R + 1)² texels */
+#define NT_FINE_HALF 3                /* rule 3: the fine bend is a difference of order 2·this */
 
 void imp_normal_trust_params_default(struct imp_normal_trust_params *ret) {
         *ret = (struct imp_normal_trust_params) { .rough_k = 0.1, .edge = true, .fine_k = NT_FINE_K,
@@ -23,29 +24,36 @@ static void unit_normal(const float *nx_, const float *ny_, size_t t, double n[3
         n[2] = sqrt(fmax(0.0, 1 - n[0] * n[0] - n[1] * n[1]));
 }
 
-/* The fourth difference [1 −4 6 −4 1] of the unit normals along axis (di, dj) through
- * texel (i, j), centred on the texel or, near a mask edge, on the nearest texel (at most
- * 2 away along the axis) whose 5 taps are all on the mask; false when there is none. */
-static bool fourth_difference(int nx, int ny, const uint8_t *mask, const float *nx_, const float *ny_, int i, int j,
-                              int di, int dj, double ret[3]) {
-        static const int shift[5] = { 0, 1, -1, 2, -2 };
-        static const double w[5] = { 1, -4, 6, -4, 1 };
-        for (int s = 0; s < 5; s++) {
-                int ci = i + shift[s] * di, cj = j + shift[s] * dj, k;
-                for (k = -2; k <= 2; k++) {
+/* The difference of order 2·NT_FINE_HALF (binomial weights of alternating sign, e.g.
+ * [1 −6 15 −20 15 −6 1] for 3), divided by 4^NT_FINE_HALF, of the unit normals along axis (di, dj) through texel (i, j),
+ * centred on the texel or, near a mask edge, on the nearest texel (at most NT_FINE_HALF
+ * away along the axis) whose taps are all on the mask; false when there is none. */
+static bool fine_difference(int nx, int ny, const uint8_t *mask, const float *nx_, const float *ny_, int i, int j,
+                            int di, int dj, double ret[3]) {
+        const int h = NT_FINE_HALF;
+        double w[2 * NT_FINE_HALF + 1];
+        w[0] = 1;
+        for (int k = 1; k <= 2 * h; k++)   /* (−1)^k C(2h, k) */
+                w[k] = -w[k - 1] * (2 * h - k + 1) / k;
+        for (int s = 0; s <= 2 * h; s++) {
+                int sh = (s + 1) / 2 * (s % 2 ? 1 : -1);   /* 0, 1, −1, 2, −2, … */
+                int ci = i + sh * di, cj = j + sh * dj, k;
+                for (k = -h; k <= h; k++) {
                         int x = ci + k * di, y = cj + k * dj;
                         if (x < 0 || y < 0 || x >= nx || y >= ny || !mask[(size_t) y * nx + x])
                                 break;
                 }
-                if (k <= 2)
+                if (k <= h)
                         continue;
                 double b[3];
                 ret[0] = ret[1] = ret[2] = 0;
-                for (k = -2; k <= 2; k++) {
+                for (k = -h; k <= h; k++) {
                         unit_normal(nx_, ny_, (size_t) (cj + k * dj) * nx + (ci + k * di), b);
                         for (int c = 0; c < 3; c++)
-                                ret[c] += w[k + 2] * b[c];
+                                ret[c] += w[k + h] * b[c];
                 }
+                for (int c = 0; c < 3; c++)
+                        ret[c] /= ldexp(1.0, 2 * h);
                 return true;
         }
         return false;
@@ -62,15 +70,16 @@ static double chord_deg(const double v[3]) {
  *
  * Rule 3's bend: b1 = a − m̂1, the normal a against the unit mean m̂1 of its 4-neighbours,
  * is a Laplacian: it bends as much on relief the grid resolves as on relief it aliases.
- * The fine bend is what smooth relief does not explain, the fourth differences
- * [1 −4 6 −4 1]/16 of the normals along x plus along y (= a − m̂1 − (a − m̂2)/4 with m̂2
- * the mean at distance 2, to first order): along a sinusoid of f cycles per texel it
- * keeps 2·sin⁴(πf) of b1's 2·sin²(πf), i.e. sin²(πf): 10 % at 10 texels per period, 50 % at
- * 4, 95 % at 2.3 and all of it at the Nyquist period of 2, where aliased relief leaves its
- * trace. On the demo (relief resolved, error ≈ 0.1 × the neighbour angle) it takes back
- * most of what b1 flagged; on the painting tiles (0.2 mm grooves at 0.1 mm texels, error
- * 0.4–0.9 × the neighbour angle) it keeps it (docs/copy-quality.md, rule 3). NaN when no
- * 5 taps on the mask fit along an axis; ret_bend1 is |b1| (degrees). */
+ * The fine bend is what smooth relief does not explain: the sixth differences
+ * [1 −6 15 −20 15 −6 1]/64 of the normals along x plus along y. Along a sinusoid of f
+ * cycles per texel b1 is 2·sin²(πf) of its amplitude and the fine bend 2·sin⁶(πf): it
+ * keeps sin⁴(πf) of b1, 1 % at 10 texels per period, 25 % at 4, 91 % at 2.3 and all of it
+ * at the Nyquist period of 2, where aliased relief leaves its trace. Measured with
+ * `impasto process` + `compare` (docs/copy-quality.md, rule 3): the demo's relief is
+ * resolved (error ≈ 0.1 × the neighbour angle) and its flagged fraction went 78.8 → 62 %
+ * (the fourth difference, sin²(πf) of b1, left 71 %), while the painting tiles' aliased
+ * relief (0.2 mm grooves at 0.1 mm texels, error 0.4–0.9 × the neighbour angle) stays
+ * flagged. NaN when no taps on the mask fit along an axis; ret_bend1 is |b1| (degrees). */
 static void neighbour_angles(int nx, int ny, const uint8_t *mask, const float *nx_, const float *ny_, int i, int j,
                              float *ret_max, float *ret_bend1, float *ret_fine) {
         static const int di[4] = { 1, -1, 0, 0 }, dj[4] = { 0, 0, 1, -1 };
@@ -95,18 +104,19 @@ static void neighbour_angles(int nx, int ny, const uint8_t *mask, const float *n
         for (int k = 0; k < 3; k++)
                 v[k] = a[k] - m[k] / len;
         *ret_bend1 = (float) chord_deg(v);
-        if (!fourth_difference(nx, ny, mask, nx_, ny_, i, j, 1, 0, dx) ||
-            !fourth_difference(nx, ny, mask, nx_, ny_, i, j, 0, 1, dy))
+        if (!fine_difference(nx, ny, mask, nx_, ny_, i, j, 1, 0, dx) ||
+            !fine_difference(nx, ny, mask, nx_, ny_, i, j, 0, 1, dy))
                 return;
         for (int k = 0; k < 3; k++)
-                v[k] = (dx[k] + dy[k]) / 16;
+                v[k] = dx[k] + dy[k];
         *ret_fine = (float) chord_deg(v);
 }
 
 /* Rule 3 at texel (i, j): the rms of the fine bends over the (2R + 1)² window on the
- * mask, leaving out texels whose fine bend is unknown (NaN: a mask edge within 2 texels;
- * the window's inner texels see the relief there); the rms of the bends b1 where the
- * whole window is unknown (a strip narrower than 5 texels: the cautious side). */
+ * mask, leaving out texels whose fine bend is unknown (NaN: no 7 taps on the mask along
+ * an axis within 3 texels; the window's inner texels see the relief there); the rms of
+ * the bends b1 where the whole window is unknown (a strip narrower than 7 texels: the
+ * cautious side). */
 static double window_rms(int nx, int ny, const uint8_t *mask, const float *fine, const float *bend1, int R, int i,
                          int j) {
         double s = 0, s1 = 0;
