@@ -76,7 +76,7 @@ static double chord_deg(const double v[3]) {
  * keeps sin⁴(πf) of b1, 1 % at 10 texels per period, 25 % at 4, 91 % at 2.3 and all of it
  * at the Nyquist period of 2, where aliased relief leaves its trace. Measured with
  * `impasto process` + `compare` (docs/copy-quality.md, rule 3): the demo's relief is
- * resolved (error ≈ 0.1 × the neighbour angle) and its flagged fraction went 78.8 → 62 %
+ * resolved (error ≈ 0.1 × the neighbour angle) and its flagged fraction went 78.8 → 62.6 %
  * (the fourth difference, sin²(πf) of b1, left 71 %), while the painting tiles' aliased
  * relief (0.2 mm grooves at 0.1 mm texels, error 0.4–0.9 × the neighbour angle) stays
  * flagged. NaN when no taps on the mask fit along an axis; ret_bend1 is |b1| (degrees). */
