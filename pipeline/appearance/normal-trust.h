@@ -17,13 +17,18 @@
  *     IMP_TEXEL_NORMAL_UNCERTAIN: such rims are where the relief or the shadows change
  *     within a texel (79 % of the demo's unflagged normals more than 10° off were there);
  *  3. relief finer than the texel: σ_n grows in quadrature by fine_k × the rms, over the
- *     (2·fine_radius + 1)² window, of the bend at the grid's own scale (the angle between a
- *     normal and the mean of its 4-neighbours'). Relief at and beyond the texel's
+ *     (2·fine_radius + 1)² window, of the fine bend: the sixth differences
+ *     [1 −6 15 −20 15 −6 1]/64 of the normals along x plus along y, what of the bend at the
+ *     grid's own scale smooth relief does not explain. Relief at and beyond the texel's
  *     wavelength is blended by the footprint and aliases into the copy as a weak trace that
  *     may vanish at the texel itself: on a painting tile at 1 camera pixel per texel
  *     (0.2 mm bristle grooves of up to ±40°), 1.8 % of the unflagged normals were more than 10°
  *     off under σ_n of 1–2° with rules 1 and 2 alone, with their copy's 4-neighbour angles
- *     only 2–12°. fine_k 1.6 was calibrated there, with the spec cone at 30° (docs/copy-quality.md).
+ *     only 2–12°. Relief the grid resolves bends as much between neighbours but its one
+ *     normal is good to ≈ 0.1× that angle (rule 1 covers it), and the sixth difference
+ *     keeps only sin⁴(πf) of its bend (1 % at 10 texels per period, 25 % at 4, all of it
+ *     at 2). fine_k 2.4 was calibrated on painting tiles with the spec cone at 30°
+ *     (docs/copy-quality.md).
  *
  * Texels whose σ_n then exceeds IMP_TEXEL_NORMAL_SIGMA_MAX_DEG get NORMAL_UNCERTAIN too.
  * Library code: no logging; errors are negative errno. */
@@ -34,7 +39,7 @@
 struct imp_normal_trust_params {
         double rough_k;               /* σ per degree of the largest neighbour angle (0.1) */
         bool edge;                    /* rule 2 on (true) */
-        double fine_k;                /* rule 3: σ per degree of the window's rms bend (1.6; 0 off) */
+        double fine_k;                /* rule 3: σ per degree of the window's rms fine bend (2.4; 0 off) */
         int fine_radius;              /* rule 3: window radius in texels (2: 5 × 5) */
 };
 void imp_normal_trust_params_default(struct imp_normal_trust_params *ret);

@@ -6,7 +6,9 @@
  *     than 10° off; without them (rough_k 0, edge off) the ridge is, so the check can fail.
  *  2. A texel whose normal is not vouched for (photometric_rejected, σ_n 6°) passes its σ
  *     and NORMAL_UNCERTAIN to its 8 neighbours and no further; frame_adjacent does not.
- *  3. Bad arguments. */
+ *  3. Grooves: aliased ones (2.3 texels per period) must be flagged by rule 3, resolved
+ *     ones (8–10 texels per period, bending up to 24° between neighbours) must not.
+ *  4. Bad arguments. */
 #include <errno.h>
 #include <stdbool.h>
 #include <stdint.h>
@@ -179,6 +181,27 @@ static void test_grooves(void) {
         CHECK_LE(f, N * N / 4);
 }
 
+/* Resolved relief that bends hard between neighbours (8 texels per period, ±30°, as on
+ * the demo's strokes): the footprint's blend is off by ≈ 0.2× the texel-scale bend, which
+ * rules 1–2 already cover, so rule 3 must not flag it: it adds at most 5 % to what rules
+ * 1–2 flag (a bend measured at the texel's scale alone flagged all of it), and what it
+ * leaves unflagged stays honest. */
+static void test_resolved(void) {
+        struct imp_normal_trust_params p, off;
+        imp_normal_trust_params_default(&p);
+        off = p;
+        off.fine_k = 0;
+        int b3, b10, f, b3o, b10o, fo;
+        grooves(&p, 8, 30, 1.5, &b3, &b10, &f);
+        grooves(&off, 8, 30, 1.5, &b3o, &b10o, &fo);
+        printf("grooves of 8 texels, ±30°: %d beyond 3σ, %d over 10° unflagged, %d flagged with rule 3; "
+               "%d, %d, %d without\n", b3, b10, f, b3o, b10o, fo);
+        CHECK_INT_EQ(b10, 0);
+        CHECK_INT_EQ(b3, 0);
+        CHECK_LE(f - fo, N * N / 20);
+        CHECK(fo < N * N / 2);              /* rules 1–2 leave most of it: rule 3 decides */
+}
+
 static void test_args(void) {
         float v = 0, s = 1;
         uint16_t f = 0;
@@ -199,6 +222,7 @@ int main(void) {
         test_roof();
         test_edge();
         test_grooves();
+        test_resolved();
         test_args();
         return TEST_DONE();
 }
