@@ -17,9 +17,9 @@
 #define FUSE_WEIGHT_RATIO_MAX 100.0   /* (σ_ref/σ_t)² is kept within [1/100, 100] */
 
 void imp_fuse_params_default(struct imp_fuse_params *ret) {
-        *ret = (struct imp_fuse_params) { .lambda = 0.05, .min_nz = 0.2, .max_iter = 500, .tol = 1e-6,
+        *ret = (struct imp_fuse_params) { .lambda = 0.3, .min_nz = 0.2, .max_iter = 500, .tol = 1e-6,
                                           .max_row_sigma = 3, .fill_normal_sigma_deg = 3,
-                                          .segment_max = 4, .row_weight_max = 10 };
+                                          .segment_max = 4, .row_weight_max = 10, .row_weight_gain = 6 };
 }
 
 struct system {
@@ -203,8 +203,8 @@ static void setup_rows(int nx, int ny, double pitch_mm, const float *height_mm, 
  * The right-hand sides tx, ty are scaled by them. Least squares with each residual weighted
  * by its inverse variance (Nehab et al. 2005 §3 weigh positions against normals by their
  * noise; here each normal by its own, as the positions already are). */
-static int row_weights(size_t n, const float *normal, const struct imp_fuse_params *p, const struct imp_fuse_texels *tex,
-                       struct system *s) {
+static int row_weights(size_t n, const float *normal, const uint8_t *mask, const struct imp_fuse_params *p,
+                       const struct imp_fuse_texels *tex, struct system *s) {
         for (size_t t = 0; t < n; t++)
                 s->wx[t] = s->rx[t], s->wy[t] = s->ry[t];
         const float *nsd = !tex ? NULL : tex->row_sigma_deg ? tex->row_sigma_deg : tex->normal_sigma_deg;
@@ -226,8 +226,15 @@ static int row_weights(size_t n, const float *normal, const struct imp_fuse_para
                         continue;
                 double sg = isfinite(nsd[t]) && nsd[t] > 0 ? slope_sigma(&normal[3 * t], nsd[t]) : ref;
                 double wr = IMP_CLAMP((ref / sg) * (ref / sg), 1 / p->row_weight_max, p->row_weight_max);
-                s->wx[t] *= wr, s->wy[t] *= wr;
-                s->tx[t] *= wr, s->ty[t] *= wr;
+                /* a row touching a filled texel (no position) keeps weight 1: there the rows
+                 * alone shape the heights, and weighting them measured worse (demo: the
+                 * filled texels 5.9 → 7.6 µm) */
+                size_t nx = (size_t) s->nx;
+                bool fx = mask && (mask[t] == 2 || (s->rx[t] && (mask[t - 1] == 2 || mask[t + 1] == 2)));
+                bool fy = mask && (mask[t] == 2 || (s->ry[t] && (mask[t - nx] == 2 || mask[t + nx] == 2)));
+                wr *= p->row_weight_gain;
+                s->wx[t] *= fx ? 1 : wr, s->tx[t] *= fx ? 1 : wr;
+                s->wy[t] *= fy ? 1 : wr, s->ty[t] *= fy ? 1 : wr;
         }
         return 0;
 }
@@ -436,7 +443,7 @@ int imp_fuse_heights(int nx, int ny, double pitch_mm, float *height_mm, const fl
         }
         photometric_slopes(n, normal, in, p->min_nz, &gs);
         setup_rows(nx, ny, pitch_mm, height_mm, normal, sigma_mm, mask, p, tex, &gs, &sys, z, &st);
-        int rw = row_weights(n, normal, p, tex, &sys);
+        int rw = row_weights(n, normal, mask, p, tex, &sys);
         if (rw < 0)
                 return rw;
         /* b = W z0 + Dxᵀ tx + Dyᵀ ty, Jacobi diagonal. */

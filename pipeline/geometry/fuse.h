@@ -20,13 +20,10 @@
 #include <stdint.h>
 
 struct imp_fuse_params {
-        double lambda;                /* position weight relative to one gradient row of
-                                         the median normal σ (0.05): positions and normals
-                                         share the frequency where 4 sin²ω = λ (period ≈ 56
-                                         texels at 0.05, 23 at 0.3, the default before the
-                                         rows were weighted:
-                                         docs/mosaic.md "Where a copy's height noise comes
-                                         from") */
+        double lambda;                /* position weight relative to one unweighted
+                                         gradient row (0.3): positions and normals share the
+                                         frequency where 4 sin²ω = λ (period ≈ 23 texels);
+                                         see row_weight_gain for the weighted rows */
         double min_nz;                /* normals with nz below this give no gradient row (0.2) */
         int max_iter;                 /* CG iterations (500) */
         double tol;                   /* stop when |r| ≤ tol·|b| (1e-6) */
@@ -49,6 +46,11 @@ struct imp_fuse_params {
          * (σ_ref/σ_t)² of the slope σ, σ_ref the median over the rows, kept within
          * [1/row_weight_max, row_weight_max]; ≤ 1: every row weighs 1. (10) */
         double row_weight_max;
+        /* The weighted rows (those not touching a filled texel) are multiplied by this: the
+         * median row against a position weighs row_weight_gain / λ (6 / 0.3: they cross at
+         * a period of ~56 texels), while the rows that shape filled texels keep 1 against λ,
+         * as before the weights. (6) */
+        double row_weight_gain;
 };
 void imp_fuse_params_default(struct imp_fuse_params *ret);
 
