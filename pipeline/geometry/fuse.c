@@ -197,6 +197,20 @@ static void setup_rows(int nx, int ny, double pitch_mm, const float *height_mm, 
                 }
 }
 
+/* Whether a filled texel lies within FILL_ROW_REACH texels of t along the row's axis
+ * (stride 1: x, nx: y). */
+#define FILL_ROW_REACH 10
+static bool near_filled(const struct system *s, const uint8_t *mask, size_t t, size_t stride) {
+        if (!mask)
+                return false;
+        long i = (long) (stride == 1 ? t % (size_t) s->nx : t / (size_t) s->nx);
+        long len = stride == 1 ? s->nx : s->ny;
+        for (long d = -FILL_ROW_REACH; d <= FILL_ROW_REACH; d++)
+                if (i + d >= 0 && i + d < len && mask[(long) t + d * (long) stride] == 2)
+                        return true;
+        return false;
+}
+
 /* The rows' weights (fuse.h row_weight_max): (σ_ref/σ_t)² with σ_t the slope σ of the
  * row's normal (slope_sigma of its normal_sigma_deg), σ_ref their median over the rows,
  * within [1/row_weight_max, row_weight_max]; 1 without normal σ or with row_weight_max ≤ 1.
@@ -226,12 +240,11 @@ static int row_weights(size_t n, const float *normal, const uint8_t *mask, const
                         continue;
                 double sg = isfinite(nsd[t]) && nsd[t] > 0 ? slope_sigma(&normal[3 * t], nsd[t]) : ref;
                 double wr = IMP_CLAMP((ref / sg) * (ref / sg), 1 / p->row_weight_max, p->row_weight_max);
-                /* a row touching a filled texel (no position) keeps weight 1: there the rows
-                 * alone shape the heights, and weighting them measured worse (demo: the
-                 * filled texels 5.9 → 7.6 µm) */
-                size_t nx = (size_t) s->nx;
-                bool fx = mask && (mask[t] == 2 || (s->rx[t] && (mask[t - 1] == 2 || mask[t + 1] == 2)));
-                bool fy = mask && (mask[t] == 2 || (s->ry[t] && (mask[t - nx] == 2 || mask[t + nx] == 2)));
+                /* a row within FILL_ROW_REACH of a filled texel (no position) keeps weight
+                 * 1: there the rows alone shape the heights, and weighting them measured
+                 * worse (the demo's filled texels: 5.94 µm unweighted; 7.36 µm with only
+                 * the rows touching one kept at 1, 6.97 within 3 texels, 6.21 within 10) */
+                bool fx = near_filled(s, mask, t, 1), fy = near_filled(s, mask, t, s->nx);
                 wr *= p->row_weight_gain;
                 s->wx[t] *= fx ? 1 : wr, s->tx[t] *= fx ? 1 : wr;
                 s->wy[t] *= fy ? 1 : wr, s->ty[t] *= fy ? 1 : wr;
