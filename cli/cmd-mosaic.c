@@ -72,7 +72,8 @@ static int mosaic(const char *dir, const char *out, const struct imp_mosaic_opti
         struct imp_mosaic_figures f;
         if ((!o->prior_only && (r = registration(&p, o, &err)) < 0) || (r = imp_mosaic_seam_step(&p, o, &seam, &ns, &err)) < 0)
                 goto fail;
-        printf("seam step: %.2f µm rms over %zu overlap points (5×5-texel means)\n", seam, ns);
+        printf("seam step: %.2f µm rms over %zu overlap points (the two copies' 5×5-texel means, before blending)\n",
+               seam, ns);
         int tr = imp_mosaic_truth_load(&p, &tx, &truth, &err);
         if (tr < 0 && tr != -ENOENT) {
                 r = tr;
@@ -89,8 +90,12 @@ static int mosaic(const char *dir, const char *out, const struct imp_mosaic_opti
                 printf("truth: registration %.2f µm rms (gauge removed; absolute %.2f), mean %.2f, far corner %.2f (%.2f× mean), "
                        "max %.2f\n", re.rms_um, re.abs_rms_um, re.mean_um, re.far_corner_um,
                        re.mean_um > 0 ? re.far_corner_um / re.mean_um : 0, re.max_um);
-        if (tr == 0)
+        if (tr == 0) {
                 printf("truth: height RMSE %.2f µm over %zu texels\n", f.height_rmse_um, f.height_n);
+                printf("truth: output seam step %.2f µm (the blended mosaic's error jumps %.2f µm rms across %zu seam "
+                       "segments, %.2f µm across the tiles' middles)\n", f.seam_out_step_um, f.seam_out_jump_um,
+                       f.seam_out_n, f.seam_out_ref_um);
+        }
         imp_mosaic_truth_done(&tx);
         imp_painting_done(&p);
         return IMP_EXIT_OK;

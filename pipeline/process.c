@@ -319,9 +319,20 @@ static int fuse_heights(const struct process_opts *o, struct geometry_out *g, co
         struct imp_fuse_stats fs = {};
         progress(o, "height fusion", 0, 1);
         /* back-off where the normals contradict the heights beyond their σ; the σ of
-         * filled texels from the normals they were integrated from (fuse.h) */
-        struct imp_fuse_texels ft = { normal_sigma_deg, hf->sigma_mm, hf->texel_flags };
+         * filled texels from the normals they were integrated from; the rows weighted by
+         * the σ_n normal-trust will give them (fuse.h row_weight_max: the relief bending
+         * within a texel is where a normal is wrong; the stage's own σ does not see it) */
         size_t n_tex = (size_t) hf->nx * hf->ny;
+        _cleanup_free_ float *row_sigma = malloc(n_tex * sizeof(float));
+        _cleanup_free_ uint16_t *row_flags = malloc(n_tex * sizeof(uint16_t));
+        if (!row_sigma || !row_flags)
+                return imp_error_set(err, -ENOMEM, "%s: height fusion: out of memory", o->capture);
+        memcpy(row_sigma, normal_sigma_deg, n_tex * sizeof(float));
+        memcpy(row_flags, hf->texel_flags, n_tex * sizeof(uint16_t));
+        struct imp_normal_trust_stats nts = {};
+        bool trusted = fp->row_weight_max > 1 && imp_normal_trust(hf->nx, hf->ny, hf->mask, hf->nx_, hf->ny_, row_sigma,
+                                                                  row_flags, &o->opt->normal_trust, &nts) >= 0;
+        struct imp_fuse_texels ft = { normal_sigma_deg, hf->sigma_mm, hf->texel_flags, trusted ? row_sigma : NULL };
         _cleanup_free_ float *measured = malloc(n_tex * sizeof(float));
         if (!measured)
                 return imp_error_set(err, -ENOMEM, "%s: height fusion: out of memory", o->capture);

@@ -10,6 +10,8 @@ impasto_test(test-geometry-stability LABELS stability LIBS impasto_pipeline)
 impasto_test(test-fuse LIBS impasto_pipeline)
 # The back-off over longer baselines: coherently wrong normals on a ridge's flanks.
 impasto_test(test-fuse-segment LIBS impasto_pipeline)
+# Gradient rows weighted by their normal's σ (fuse.h row_weight_max).
+impasto_test(test-fuse-weights LIBS impasto_pipeline)
 # Fusion where the normals are wrong: back-off and the σ of filled texels.
 impasto_test(test-fuse-stability LABELS stability LIBS impasto_pipeline)
 # Projector-shadow fill (heightfield.h shadow_fill_px, fuse.h mask value 2): synthetic

@@ -7,3 +7,5 @@ add_dependencies(test-mosaic-cli impasto)
 impasto_test(test-mosaic-truth LIBS impasto_mosaic TIMEOUT 300)
 # Pairs registered on heights, not on a normal map smaller than the heights (rendered copies').
 impasto_test(test-mosaic-normals LIBS impasto_mosaic TIMEOUT 300)
+# The seam step the output shows (blended copy against truth) beside the copies' disagreement.
+impasto_test(test-mosaic-seam LIBS impasto_mosaic TIMEOUT 300)

@@ -20,9 +20,10 @@
 #include <stdint.h>
 
 struct imp_fuse_params {
-        double lambda;                /* position weight relative to one gradient row (0.3):
-                                         positions and normals share the frequency
-                                         ω ≈ √λ rad/texel (period ≈ 11 texels at 0.3) */
+        double lambda;                /* position weight relative to one unweighted
+                                         gradient row (0.3): positions and normals share the
+                                         frequency where 4 sin²ω = λ (period ≈ 23 texels);
+                                         see row_weight_gain for the weighted rows */
         double min_nz;                /* normals with nz below this give no gradient row (0.2) */
         int max_iter;                 /* CG iterations (500) */
         double tol;                   /* stop when |r| ≤ tol·|b| (1e-6) */
@@ -41,6 +42,15 @@ struct imp_fuse_params {
          * on hard-tilted-10/25, and leaves out twice the rows). */
         int segment_max;
 #define IMP_FUSE_SEGMENT_MAX 256
+        /* Gradient rows weighted by their normal's σ (with imp_fuse_texels.normal_sigma_deg):
+         * (σ_ref/σ_t)² of the slope σ, σ_ref the median over the rows, kept within
+         * [1/row_weight_max, row_weight_max]; ≤ 1: every row weighs 1. (10) */
+        double row_weight_max;
+        /* The weighted rows (those not touching a filled texel) are multiplied by this: the
+         * median row against a position weighs row_weight_gain / λ (6 / 0.3: they cross at
+         * a period of ~56 texels), while the rows that shape filled texels keep 1 against λ,
+         * as before the weights. (6) */
+        double row_weight_gain;
 };
 void imp_fuse_params_default(struct imp_fuse_params *ret);
 
@@ -72,6 +82,8 @@ struct imp_fuse_texels {
         const float *normal_sigma_deg;
         float *sigma_mm;
         uint16_t *flags;
+        const float *row_sigma_deg;   /* in, the σ the rows are weighted by (row_weight_max);
+                                         NULL: normal_sigma_deg */
 };
 
 /* Fuses in place: height_mm (nx·ny, row-major) is replaced by z on mask texels (others

@@ -40,3 +40,14 @@ bool mosaic_height_box(const struct imp_mosaic_tile *t, const struct imp_copy *c
 bool mosaic_overlap(const struct imp_mosaic_tile *a, const struct imp_mosaic_tile *b, double margin_mm, double ret[4]);
 /* Pairs of tiles whose bboxes overlap by at least min_mm in both axes, a < b. */
 int mosaic_pairs(const struct imp_painting *p, double min_mm, unsigned (**ret)[2], size_t *ret_n);
+
+/* The seam step the output mosaic shows, with truth (imp_mosaic_figures.seam_out_*; score.c,
+ * docs/mosaic.md): bands just outside each neighbours' overlap, the jump of the mean height
+ * error from one side to the other, against the same jump about a tile's centre. new() lays
+ * the bands out from the tiles' bboxes under their current poses; add() takes every output
+ * texel's error (mm) at painting (x, y); finish() sets the figures. */
+struct mosaic_seam_score;
+int mosaic_seam_score_new(const struct imp_painting *p, double pitch_mm, struct mosaic_seam_score **ret);
+void mosaic_seam_score_add(struct mosaic_seam_score *s, double x, double y, double err_mm);
+void mosaic_seam_score_finish(const struct mosaic_seam_score *s, struct imp_mosaic_figures *f);
+void mosaic_seam_score_free(struct mosaic_seam_score *s);

@@ -131,6 +131,16 @@ struct imp_mosaic_figures {
         int pyramid_levels;
         double height_rmse_um;        /* vs truth (NAN without) */
         size_t height_n;
+        /* The seam step of the output, with truth (NAN without; docs/mosaic.md): for every
+         * seam of two neighbouring tiles, segments of 2 mm along it, the mean height error
+         * of the mosaic over a 1 mm band just outside the overlap on one side minus that on
+         * the other (jump, RMS over the segments); the same over as wide a gap about the
+         * tile's centre (ref: the copies' own error over that distance, no seam); step =
+         * √(jump² − ref²), 0 when the jump is not above the reference. Unlike the seam step
+         * of imp_mosaic_seam_step (the two copies before blending), this is what the one
+         * copy shows from one tile to the next. */
+        double seam_out_step_um, seam_out_jump_um, seam_out_ref_um;
+        size_t seam_out_n;            /* segments in the jump */
 };
 
 /* Blends the tiles under their current poses into OUT: OUT/mosaic.json (the index),

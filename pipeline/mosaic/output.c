@@ -81,7 +81,7 @@ static void tile_dir(char *buf, size_t n, const char *out, int col, int row) {
 }
 
 static void score_truth(const struct mosaic_out *o, const struct mosaic_grid *g, const struct imp_mosaic_truth *truth,
-                        double *ss, size_t *cnt) {
+                        struct mosaic_seam_score *seams, double *ss, size_t *cnt) {
         if (!truth)
                 return;
         for (int j = 0; j < o->ny; j++)
@@ -89,9 +89,12 @@ static void score_truth(const struct mosaic_out *o, const struct mosaic_grid *g,
                         size_t k = (size_t) j * o->nx + i;
                         if (!o->mask[k])
                                 continue;
-                        double t = truth->height(truth->ctx, (o->i0 + i) * g->pitch_mm, (o->j0 + j) * g->pitch_mm);
-                        if (isfinite(t))
-                                *ss += (o->height[k] - t) * (o->height[k] - t), ++*cnt;
+                        double x = (o->i0 + i) * g->pitch_mm, y = (o->j0 + j) * g->pitch_mm;
+                        double t = truth->height(truth->ctx, x, y);
+                        if (!isfinite(t))
+                                continue;
+                        *ss += (o->height[k] - t) * (o->height[k] - t), ++*cnt;
+                        mosaic_seam_score_add(seams, x, y, o->height[k] - t);
                 }
 }
 
@@ -108,7 +111,10 @@ static int blend_pass(struct imp_painting *p, const struct imp_mosaic_options *o
         if (mosaic_cache_init(&c, p, o->cache_bytes, off, tl, n_out) < 0)
                 return imp_error_set(err, -ENOMEM, "out of memory");
         double tss = 0;
-        int r = 0;
+        struct mosaic_seam_score *seams = NULL;
+        int r = truth ? mosaic_seam_score_new(p, g->pitch_mm, &seams) : 0;
+        if (r < 0)
+                imp_error_set(err, r, "out of memory");
         for (size_t s = 0; s < n_out && r == 0; s++) {
                 int col = (int) (s % g->tiles_x), row = (int) (s / g->tiles_x);
                 struct mosaic_out t = { 0 };
@@ -124,13 +130,17 @@ static int blend_pass(struct imp_painting *p, const struct imp_mosaic_options *o
                         f->texels_written += (size_t) t.nx * t.ny;
                         for (size_t k = 0; k < (size_t) t.nx * t.ny; k++)
                                 f->texels_covered += t.mask[k] != 0;
-                        score_truth(&t, g, truth, &tss, &f->height_n);
+                        score_truth(&t, g, truth, seams, &tss, &f->height_n);
                 }
                 mosaic_out_done(&t);
         }
         f->input_loads = c.loads, f->max_resident = c.max_resident;
         mosaic_cache_done(&c);
         f->height_rmse_um = f->height_n ? 1e3 * sqrt(tss / f->height_n) : NAN;
+        f->seam_out_step_um = f->seam_out_jump_um = f->seam_out_ref_um = NAN;
+        if (seams)
+                mosaic_seam_score_finish(seams, f);
+        mosaic_seam_score_free(seams);
         return r;
 }
 
@@ -171,6 +181,19 @@ static json_t *index_json(const struct imp_painting *p, const struct mosaic_grid
                          "tiles_x", g->tiles_x, "tiles_y", g->tiles_y, "tiles", tiles, "boxes", "h_ref", f->h_ref_mm,
                          "delta0", f->delta0_mm, "H", f->H_mm, "cell_px", o->box_cell_px, "n_boxes",
                          (json_int_t) f->n_boxes, "pyramid", levels, "input_tiles", inputs, "prior_only", o->prior_only);
+}
+
+static json_t *number_or_null(double v) {
+        return isfinite(v) ? json_real(v) : json_null();
+}
+
+/* The figures against truth (docs/mosaic.md): the height RMSE and the output's seam step. */
+static json_t *truth_json(const struct imp_mosaic_figures *f) {
+        return json_pack("{s:o,s:I,s:o,s:o,s:o,s:I}", "height_rmse_um", number_or_null(f->height_rmse_um),
+                         "height_texels", (json_int_t) f->height_n, "seam_step_output_um",
+                         number_or_null(f->seam_out_step_um), "seam_jump_output_um", number_or_null(f->seam_out_jump_um),
+                         "seam_jump_reference_um", number_or_null(f->seam_out_ref_um), "seam_segments",
+                         (json_int_t) f->seam_out_n);
 }
 
 static int make_grid(const struct imp_painting *p, const struct imp_mosaic_options *o, struct mosaic_grid *g,
@@ -218,7 +241,7 @@ int imp_mosaic_write(struct imp_painting *p, const struct imp_mosaic_options *o,
                 return r;
         f->pyramid_levels = r;
         _cleanup_json_ json_t *j = index_json(p, &g, f, o, levels);
-        if (!j)
+        if (!j || (truth && json_object_set_new(j, "truth", truth_json(f)) < 0))
                 return imp_error_set(err, -ENOMEM, "out of memory");
         snprintf(path, sizeof path, "%s/mosaic.json", out);
         return imp_json_save_atomic(path, j, err);

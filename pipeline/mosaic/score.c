@@ -1,4 +1,5 @@
-/* In-plane registration error against the truth poses (mosaic.h). */
+/* Scores against truth (mosaic.h): the in-plane registration error against the truth poses,
+ * the truth heights, and the seam step the output mosaic shows (mosaic-internal.h). */
 #include <errno.h>
 #include <math.h>
 #include <stdio.h>
@@ -8,7 +9,7 @@
 #include "image.h"
 #include "json-util.h"
 #include "macro.h"
-#include "mosaic.h"
+#include "mosaic-internal.h"
 
 /* The 4 corners and the centre of tile t: estimated and true painting positions. */
 static void tile_points(const struct imp_mosaic_tile *t, double est[5][2], double tru[5][2]) {
@@ -134,4 +135,139 @@ int imp_mosaic_truth_load(const struct imp_painting *p, struct imp_mosaic_truth_
 void imp_mosaic_truth_done(struct imp_mosaic_truth_exr *t) {
         imp_image_free(t->img);
         t->img = NULL;
+}
+
+/* The seam step the output shows (mosaic-internal.h). Each seam between two neighbouring
+ * tiles (same row, next column: the jump is along x; same column, next row: along y) gets
+ * two bands of SEAM_BAND_MM just outside the overlap, one on each side (where only one of
+ * the two tiles contributes), cut along the seam into segments of SEAM_SEG_MM; the jump of a
+ * segment is the mosaic's mean height error over its band on the second tile's side minus
+ * that on the first's. Away from the other axis's overlaps (corners: four tiles) by the
+ * overlap + a band. The same two bands, as far apart, placed about the first tile's centre
+ * (one tile only, no seam) give the jump the copies' own error shows over that distance:
+ * the reference. A segment counts when both its bands are at least half covered. */
+#define SEAM_BAND_MM 1.0
+#define SEAM_SEG_MM 2.0
+#define SEAM_SEGS_MAX 4096
+
+struct seam_probe {
+        int axis;                     /* 0: the jump is along x (bands are columns), 1: along y */
+        bool ref;                     /* about a tile's centre (no seam) */
+        double lo[2], hi[2];          /* the two bands across the seam: [lo, lo + band) ... */
+        double s0;                    /* along the seam: segments of SEAM_SEG_MM from s0 */
+        int n_seg;
+        double *sum;                  /* 2 per segment: the band before, the band after */
+        size_t *cnt;
+};
+
+struct mosaic_seam_score {
+        struct seam_probe *pr;
+        size_t n, cap;
+        double pitch_mm;
+};
+
+static int seam_probe_add(struct mosaic_seam_score *s, int axis, bool ref, double a0, double b0, double s0, double s1) {
+        int n_seg = (int) floor((s1 - s0) / SEAM_SEG_MM);
+        if (n_seg < 1)
+                return 0;
+        n_seg = IMP_MIN(n_seg, SEAM_SEGS_MAX);
+        if (s->n == s->cap) {
+                size_t cap = s->cap ? 2 * s->cap : 64;
+                struct seam_probe *np = realloc(s->pr, cap * sizeof *np);
+                if (!np)
+                        return -ENOMEM;
+                s->pr = np, s->cap = cap;
+        }
+        struct seam_probe *q = &s->pr[s->n];
+        *q = (struct seam_probe) { .axis = axis, .ref = ref, .lo = { a0, b0 }, .hi = { a0 + SEAM_BAND_MM, b0 + SEAM_BAND_MM },
+                                   .s0 = s0, .n_seg = n_seg, .sum = calloc(2 * (size_t) n_seg, sizeof(double)),
+                                   .cnt = calloc(2 * (size_t) n_seg, sizeof(size_t)) };
+        if (!q->sum || !q->cnt)
+                return free(q->sum), free(q->cnt), -ENOMEM;
+        s->n++;
+        return 0;
+}
+
+/* The seam of neighbours a (before) and b (after) along axis, and its reference in a. */
+static int seam_probes_pair(struct mosaic_seam_score *s, const struct imp_painting *p, const struct imp_mosaic_tile *a,
+                            const struct imp_mosaic_tile *b, int axis) {
+        int o = 1 - axis;
+        double gap0 = b->bbox[axis], gap1 = a->bbox[axis + 2];      /* the overlap across the seam */
+        if (!(gap1 > gap0))
+                return 0;
+        double margin = p->overlap * p->fov_mm[o] + SEAM_BAND_MM;
+        double s0 = fmax(a->bbox[o], b->bbox[o]) + margin, s1 = fmin(a->bbox[o + 2], b->bbox[o + 2]) - margin;
+        int r = seam_probe_add(s, axis, false, gap0 - SEAM_BAND_MM, gap1, s0, s1);
+        double c = 0.5 * (a->bbox[axis] + a->bbox[axis + 2]), half = 0.5 * (gap1 - gap0);
+        return r < 0 ? r : seam_probe_add(s, axis, true, c - half - SEAM_BAND_MM, c + half, s0, s1);
+}
+
+void mosaic_seam_score_free(struct mosaic_seam_score *s) {
+        if (!s)
+                return;
+        for (size_t k = 0; k < s->n; k++)
+                free(s->pr[k].sum), free(s->pr[k].cnt);
+        free(s->pr), free(s);
+}
+
+int mosaic_seam_score_new(const struct imp_painting *p, double pitch_mm, struct mosaic_seam_score **ret) {
+        struct mosaic_seam_score *s = calloc(1, sizeof *s);
+        if (!s)
+                return -ENOMEM;
+        s->pitch_mm = pitch_mm;
+        int r = 0;
+        for (size_t i = 0; i < p->n_tiles && r == 0; i++)
+                for (size_t k = 0; k < p->n_tiles && r == 0; k++) {
+                        const struct imp_mosaic_tile *a = &p->tiles[i], *b = &p->tiles[k];
+                        int axis = a->row == b->row && b->col == a->col + 1 ? 0
+                                   : a->col == b->col && b->row == a->row + 1 ? 1 : -1;
+                        if (axis < 0)
+                                continue;
+                        /* before / after by position (a grid may number its columns either way) */
+                        bool swap = b->bbox[axis] + b->bbox[axis + 2] < a->bbox[axis] + a->bbox[axis + 2];
+                        r = seam_probes_pair(s, p, swap ? b : a, swap ? a : b, axis);
+                }
+        if (r < 0) {
+                mosaic_seam_score_free(s);
+                return r;
+        }
+        *ret = s;
+        return 0;
+}
+
+void mosaic_seam_score_add(struct mosaic_seam_score *s, double x, double y, double err_mm) {
+        const double xy[2] = { x, y };
+        for (size_t k = 0; k < s->n; k++) {
+                struct seam_probe *q = &s->pr[k];
+                double u = xy[q->axis], v = xy[1 - q->axis];
+                int side = u >= q->lo[0] && u < q->hi[0] ? 0 : u >= q->lo[1] && u < q->hi[1] ? 1 : -1;
+                if (side < 0 || v < q->s0)
+                        continue;
+                long seg = (long) ((v - q->s0) / SEAM_SEG_MM);
+                if (seg >= q->n_seg)
+                        continue;
+                q->sum[2 * seg + side] += err_mm, q->cnt[2 * seg + side]++;
+        }
+}
+
+void mosaic_seam_score_finish(const struct mosaic_seam_score *s, struct imp_mosaic_figures *f) {
+        double ss[2] = { 0 };
+        size_t n[2] = { 0 };
+        /* a band of a segment holds about band × segment / pitch² texels */
+        double full = SEAM_BAND_MM * SEAM_SEG_MM / (s->pitch_mm * s->pitch_mm);
+        for (size_t k = 0; k < s->n; k++) {
+                const struct seam_probe *q = &s->pr[k];
+                for (int g = 0; g < q->n_seg; g++) {
+                        const size_t *c = &q->cnt[2 * g];
+                        if (c[0] < 0.5 * full || c[1] < 0.5 * full)
+                                continue;
+                        double jump = q->sum[2 * g + 1] / c[1] - q->sum[2 * g] / c[0];
+                        ss[q->ref] += jump * jump, n[q->ref]++;
+                }
+        }
+        f->seam_out_jump_um = n[0] ? 1e3 * sqrt(ss[0] / n[0]) : NAN;
+        f->seam_out_ref_um = n[1] ? 1e3 * sqrt(ss[1] / n[1]) : NAN;
+        f->seam_out_n = n[0];
+        double d = f->seam_out_jump_um * f->seam_out_jump_um - f->seam_out_ref_um * f->seam_out_ref_um;
+        f->seam_out_step_um = isfinite(d) ? sqrt(fmax(d, 0)) : NAN;
 }
