@@ -88,6 +88,7 @@ int imp_range_from_set(const char *capture_dir, struct imp_range_image *ret_rang
         imp_sl_params_default(&p, imgs[0]->type);
         p.proj_width = rig->projector.model.width;
         p.proj_height = rig->projector.model.height;
+        p.coords_only = true;   /* triangulation and range.exr read no light map */
         struct imp_sl_frames fr = { pats, (const struct imp_image *const *) imgs, n };
         struct imp_sl_result *sl = NULL;
         r = imp_sl_decode(&fr, &p, &sl, err);

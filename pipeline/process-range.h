@@ -9,7 +9,8 @@
 
 /* Decodes and triangulates camera 0's structured-light frames (first exposure of each
  * pattern). ret_range: caller frees with imp_range_image_done(); ret_sl (may be NULL): the
- * decoder's result, caller frees with imp_sl_result_free(). -EINVAL for a set without a
+ * decoder's result, decoded with coords_only (no direct, global or modulation map: nothing
+ * here reads them), caller frees with imp_sl_result_free(). -EINVAL for a set without a
  * projector or structured-light frames (message names it), I/O and memory errors. */
 int imp_range_from_set(const char *capture_dir, struct imp_range_image *ret_range, struct imp_sl_result **ret_sl,
                        struct imp_error *err);

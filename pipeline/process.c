@@ -473,6 +473,7 @@ static int sl_range(const struct process_opts *o, const struct imp_rig *rig, str
         slp.proj_height = rig->projector.model.height;
         slp.black_level = rig->projector.black_level;
         slp.projector_gamma = rig->projector.gamma;     /* phase response inverted (docs/structured-light.md) */
+        slp.direct_only = true;   /* L_d is the heightfield's albedo; global and modulation are not read */
         if (o->opt->threads > 0)
                 slp.threads = o->opt->threads;
         struct imp_sl_frames fr = { f->pats, (const struct imp_image *const *) f->imgs, (int) f->n,

@@ -12,3 +12,5 @@ impasto_test(test-import-sl LABELS integration LIBS impasto_pipeline)
 if(TARGET impasto_cv)
   impasto_test(test-import-sl-xml LIBS impasto_pipeline impasto_cv)
 endif()
+# imp_range_from_set decodes coords_only: the same range image as a decode with every map.
+impasto_test(test-process-range LIBS impasto_pipeline)

@@ -82,6 +82,12 @@ struct imp_sl_params {
                                          read only coordinates, flags, confidence and σ
                                          (triangulation). Every other map and count is
                                          the same as without it. Default false */
+        bool direct_only;             /* true (without coords_only): of the light maps only
+                                         direct is kept (global and modulation NULL, 8
+                                         bytes a pixel fewer), for callers that read L_d
+                                         alone (process.c's albedo for the flush-frame
+                                         trim). Every other map and count is the same.
+                                         Default false */
         int threads;                  /* OpenMP threads; 0: OpenMP default */
 };
 
@@ -112,7 +118,8 @@ struct imp_sl_result {
         float *confidence;            /* 0..1; 0 where neither axis is valid */
         uint16_t *flags;              /* IMP_SL_* */
         float *direct, *global;       /* L_d, L_g estimates (input units, ≥ 0); NULL
-                                         with coords_only, as is modulation */
+                                         with coords_only, as is modulation; global and
+                                         modulation NULL with direct_only */
         float *modulation;            /* phase amplitude B (min over axes), 0 without phase */
         /* 1σ of the decoded projector coordinate, projector px, the larger over the valid
          * axes (0 where none is valid): what the decoder knows of its own error. A Gray
@@ -139,10 +146,10 @@ struct imp_sl_result {
 int imp_sl_decode(const struct imp_sl_frames *in, const struct imp_sl_params *p,
                   struct imp_sl_result **ret, struct imp_error *err);
 /* As imp_sl_decode, into *ret when it is a result of the frames' size (from an earlier
- * decode with the same coords_only): every map and count is written anew, so a caller
+ * decode with the same coords_only and direct_only): every map and count is written anew, so a caller
  * decoding view after view saves allocating and faulting in 30 bytes a pixel each time (page
  * faults and the kernel's zeroing of the fresh pages). Otherwise (NULL, another size, or maps
- * that coords_only adds or drops) *ret is freed and replaced by a new result. On error *ret is left as it was (its maps' contents unspecified). */
+ * that coords_only or direct_only adds or drops) *ret is freed and replaced by a new result. On error *ret is left as it was (its maps' contents unspecified). */
 int imp_sl_decode_reuse(const struct imp_sl_frames *in, const struct imp_sl_params *p,
                         struct imp_sl_result **ret, struct imp_error *err);
 void imp_sl_result_free(struct imp_sl_result *r);

@@ -431,8 +431,48 @@ static void test_errors(struct set *s) {
         CHECK(r == sentinel);
 }
 
+/* The maps every result has (coordinates, confidence, σ, flags) and the counts, equal. */
+static bool same_coords(const struct imp_sl_result *ro, const struct imp_sl_result *rf) {
+        size_t np = (size_t) rf->width * rf->height;
+        return ro->width == rf->width && ro->height == rf->height &&
+                    !memcmp(ro->proj_x, rf->proj_x, np * sizeof(float)) &&
+                    !memcmp(ro->proj_y, rf->proj_y, np * sizeof(float)) &&
+                    !memcmp(ro->confidence, rf->confidence, np * sizeof(float)) &&
+                    !memcmp(ro->sigma_px, rf->sigma_px, np * sizeof(float)) &&
+                    !memcmp(ro->flags, rf->flags, np * sizeof(uint16_t)) &&
+                    ro->n_valid_x == rf->n_valid_x && ro->n_valid_y == rf->n_valid_y &&
+                    ro->n_valid_xy == rf->n_valid_xy && ro->n_shadow == rf->n_shadow &&
+                    ro->n_saturated == rf->n_saturated && ro->n_weak == rf->n_weak &&
+                    ro->n_disagree == rf->n_disagree &&
+                    !memcmp(ro->phase_err_px, rf->phase_err_px, sizeof ro->phase_err_px);
+}
+
+/* direct_only: direct as the full decode's, no global or modulation map, every other map
+ * and count the same; imp_sl_decode_reuse turns a full result into a direct_only one. */
+static void check_direct_only(const struct imp_sl_frames *fr, const struct imp_sl_params *p,
+                              const struct imp_sl_result *rf, const char *what) {
+        struct imp_sl_params pd = *p;
+        pd.direct_only = true;
+        struct imp_sl_result *rd = NULL, *rr = NULL;
+        struct imp_error err = {};
+        size_t np = (size_t) rf->width * rf->height;
+        CHECK_OK(imp_sl_decode(fr, &pd, &rd, &err));
+        CHECK_OK(imp_sl_decode(fr, p, &rr, &err));
+        if (!rd || !rr)
+                return;
+        CHECK_MSG(rd->direct && !rd->global && !rd->modulation && !memcmp(rd->direct, rf->direct, np * sizeof(float)),
+                  "%s: direct_only keeps direct (the full decode's) alone", what);
+        CHECK_MSG(same_coords(rd, rf), "%s: direct_only maps and counts = the full decode's", what);
+        CHECK_OK(imp_sl_decode_reuse(fr, &pd, &rr, &err));
+        CHECK_MSG(rr->direct && !rr->global && !memcmp(rr->direct, rf->direct, np * sizeof(float)) &&
+                  same_coords(rr, rf), "%s: full result reused for direct_only", what);
+        imp_sl_result_free(rd);
+        imp_sl_result_free(rr);
+}
+
 /* coords_only: no direct, global or modulation map, and every other map and count as the
- * full decode's; imp_sl_decode_reuse turns a full result into a coords_only one and back. */
+ * full decode's; imp_sl_decode_reuse turns a full result into a coords_only one and back.
+ * direct_only too (check_direct_only). */
 static void check_coords_only(const struct imp_sl_frames *fr, const struct imp_sl_params *p,
                               const char *what) {
         struct imp_sl_params pc = *p;
@@ -447,17 +487,8 @@ static void check_coords_only(const struct imp_sl_frames *fr, const struct imp_s
         size_t np = (size_t) rf->width * rf->height;
         CHECK_MSG(ro->proj_x && !ro->direct && !ro->global && !ro->modulation,
                   "%s: coords_only has no direct/global/modulation maps", what);
-        bool same = !memcmp(ro->proj_x, rf->proj_x, np * sizeof(float)) &&
-                    !memcmp(ro->proj_y, rf->proj_y, np * sizeof(float)) &&
-                    !memcmp(ro->confidence, rf->confidence, np * sizeof(float)) &&
-                    !memcmp(ro->sigma_px, rf->sigma_px, np * sizeof(float)) &&
-                    !memcmp(ro->flags, rf->flags, np * sizeof(uint16_t)) &&
-                    ro->n_valid_x == rf->n_valid_x && ro->n_valid_y == rf->n_valid_y &&
-                    ro->n_valid_xy == rf->n_valid_xy && ro->n_shadow == rf->n_shadow &&
-                    ro->n_saturated == rf->n_saturated && ro->n_weak == rf->n_weak &&
-                    ro->n_disagree == rf->n_disagree &&
-                    !memcmp(ro->phase_err_px, rf->phase_err_px, sizeof ro->phase_err_px);
-        CHECK_MSG(same, "%s: coords_only maps and counts = the full decode's", what);
+        CHECK_MSG(same_coords(ro, rf), "%s: coords_only maps and counts = the full decode's", what);
+        check_direct_only(fr, p, rf, what);
         /* the full result reused for coords_only, then for the full decode again */
         CHECK_OK(imp_sl_decode_reuse(fr, &pc, &rr, &err));
         CHECK_MSG(!rr->direct && !memcmp(rr->proj_x, rf->proj_x, np * sizeof(float)),
@@ -556,6 +587,73 @@ static void test_u8_equals_float(const struct set *g, int cw) {
         free(f32);
 }
 
+/* Rows y0..y0+h of the frames g tiled TX × TY times (u8: scaled as test_u8_equals_float). */
+#define TX 4
+#define TY 4
+static struct imp_image *tiled(const struct imp_image *src, bool u8, int y0, int h) {
+        struct imp_image *im = NULL;
+        CHECK_OK(imp_image_new(TX * CW, h, 1, u8 ? IMP_PIX_U8 : IMP_PIX_F32, &im));
+        for (int y = 0; im && y < h; y++)
+                for (int x = 0; x < TX * CW; x++) {
+                        float v = *imp_image_f32(src, x % CW, (y0 + y) % CH);
+                        if (u8)
+                                *imp_image_u8(im, x, y) = (uint8_t) fmin(fmax(rint(300.0 * v), 0), 255);
+                        else
+                                *imp_image_f32(im, x, y) = v;
+                }
+        return im;
+}
+
+/* A result larger than STREAM_MIN_BYTES (16 MiB: 896 × 672 × 30 B) is built in scratch rows
+ * and streamed to the maps: its rows equal those of a decode of a 40-row band of the same
+ * frames (0.9 MiB, written in place), at the top and at the bottom, every map byte for
+ * byte, on the byte-lane path (u8) and the float path. */
+static void test_streamed(const struct set *g) {
+        enum { BH = 40, TH = TY * CH };
+        const int tw = TX * CW, y0s[2] = { 0, TH - BH };
+        for (int u8 = 1; u8 >= 0; u8--) {
+                struct imp_image *big[64] = {}, *band[64] = {};
+                struct imp_sl_params p = params();
+                if (u8) {
+                        imp_sl_params_default(&p, IMP_PIX_U8);
+                        p.proj_width = PW, p.proj_height = PH, p.black_level = BLACK;
+                }
+                for (int i = 0; i < g->n; i++)
+                        big[i] = tiled(g->img[i], u8, 0, TH);
+                struct imp_sl_frames fb = { g->pat, (const struct imp_image *const *) big, g->n };
+                struct imp_sl_result *rb = NULL, *rs = NULL;
+                struct imp_error err = {};
+                CHECK_OK(imp_sl_decode(&fb, &p, &rb, &err));
+                CHECK((size_t) tw * TH * 30 >= 16u << 20);
+                for (int k = 0; k < 2 && rb; k++) {
+                        for (int i = 0; i < g->n; i++) {
+                                imp_image_free(band[i]);
+                                band[i] = tiled(g->img[i], u8, y0s[k], BH);
+                        }
+                        struct imp_sl_frames fs = { g->pat, (const struct imp_image *const *) band, g->n };
+                        CHECK_OK(imp_sl_decode_reuse(&fs, &p, &rs, &err));
+                        if (!rs)
+                                break;
+                        size_t o = (size_t) y0s[k] * tw, nb = (size_t) BH * tw, fb4 = nb * sizeof(float);
+                        bool same = !memcmp(rb->proj_x + o, rs->proj_x, fb4) && !memcmp(rb->proj_y + o, rs->proj_y, fb4) &&
+                                    !memcmp(rb->confidence + o, rs->confidence, fb4) &&
+                                    !memcmp(rb->sigma_px + o, rs->sigma_px, fb4) &&
+                                    !memcmp(rb->direct + o, rs->direct, fb4) && !memcmp(rb->global + o, rs->global, fb4) &&
+                                    !memcmp(rb->modulation + o, rs->modulation, fb4) &&
+                                    !memcmp(rb->flags + o, rs->flags, nb * sizeof(uint16_t));
+                        CHECK_MSG(same, "streamed result (%s) rows %d–%d = the band's decode", u8 ? "u8" : "f32",
+                                  y0s[k], y0s[k] + BH);
+                        CHECK_INT_GE(rs->n_valid_xy, nb / 4);   /* the band decodes: not all invalid */
+                }
+                imp_sl_result_free(rb);
+                imp_sl_result_free(rs);
+                for (int i = 0; i < g->n; i++) {
+                        imp_image_free(big[i]);
+                        imp_image_free(band[i]);
+                }
+        }
+}
+
 int main(void) {
         test_helpers();
 
@@ -586,6 +684,7 @@ int main(void) {
         p.robust = true;
         test_u8_equals_float(&gray, CW);
         test_u8_equals_float(&gray, CW - 3);
+        test_streamed(&gray);
 
         /* Without inverses: p̄ = white + black − p. */
         struct imp_pattern pat_ni[64];
