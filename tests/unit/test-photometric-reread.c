@@ -128,5 +128,5 @@ int main(void) {
                 imp_image_free(rgb[j]);
                 imp_image_free(valid[j]);
         }
-        return 0;
+        return TEST_DONE();
 }
