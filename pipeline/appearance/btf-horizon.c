@@ -166,3 +166,12 @@ bool imp_btf_horizon_clear(const struct imp_btf_horizon *hz, int u, int v, const
 double imp_btf_horizon_slope(const struct imp_btf_horizon *hz, int u, int v, int q) {
         return hz->slope[(size_t) (q & 3) * hz->width * hz->height + (size_t) v * hz->width + u];
 }
+
+bool imp_btf_horizon_texel(const struct imp_btf_horizon *hz, int u, int v, float ret[4]) {
+        if (!hz)
+                return false;
+        const size_t n = (size_t) hz->width * hz->height, i = (size_t) v * hz->width + u;
+        for (int q = 0; q < 4; q++)
+                ret[q] = hz->slope[q * n + i];
+        return true;
+}

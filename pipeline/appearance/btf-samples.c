@@ -8,6 +8,10 @@
 #include <stdlib.h>
 #include <string.h>
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
 #include "btf.h"
 #include "hdr.h"
 
@@ -394,7 +398,8 @@ enum {
 /* frame_sample() of light j from the band (t inside its box): the OR of the four taps'
  * states gives its decision (a non-finite tap returns at once there, whatever the other
  * taps; else a saturated one wins over a masked one), and the value is summed in its order
- * from the same floats (the band holds the frame's value wherever no bit is set). */
+ * from the same floats (the band holds the frame's value wherever no bit is set). ret
+ * NULL: the decision alone, no value read. */
 static int band_sample(const struct imp_btf_band *b, const struct taps *t, int j, float ret[3]) {
         const size_t L = b->L;
         size_t o[4];
@@ -407,6 +412,8 @@ static int band_sample(const struct imp_btf_band *b, const struct taps *t, int j
                 return PIX_SATURATED;
         if (s)
                 return PIX_INVALID;
+        if (!ret)   /* the decision only: the caller has the value */
+                return PIX_OK;
         double acc = 0;
         for (int k = 0; k < 4; k++)
                 acc += t->w[k] * (double) b->v[o[k]];
@@ -442,12 +449,102 @@ struct scene {
         const struct imp_btf_horizon *hz;     /* rays it clears are not marched */
         double (*light_c)[3];         /* light positions, canvas frame */
         double colour_inv[IMP_BTF_MAX_SAMPLES][3];
+        const double *lt;             /* the lights' LT_* rows of n_lights each (light_table()) */
+        bool any_pow;                 /* a light's profile exponent needs pow() */
 };
+
+/* The lights by field, a row of n_lights doubles each, for light_geometry()'s lanes. */
+enum { LT_CX, LT_CY, LT_CZ, LT_WX, LT_WY, LT_WZ, LT_I6, LT_AX, LT_AY, LT_AZ, LT_PE, LT_ROWS };
+
+/* The lights' geometry at one texel, LIGHT_CHUNK lights at a time: the direction wl
+ * (canvas frame, unit), distance r, local direction lloc, irradiance e (at normal
+ * incidence) and horizontal run of each, as the loop of extract_texel(),
+ * imp_btf_light_irradiance() and imp_btf_horizon_clear() compute them one light at a time
+ * (the same operations in the same order, so the same values), in vector lanes: one
+ * light's square roots and divisions are a dependent chain, LIGHT_CHUNK lights' are not. */
+#define LIGHT_CHUNK 64
+struct light_geo {
+        double wl[3][LIGHT_CHUNK], r[LIGHT_CHUNK], lloc[3][LIGHT_CHUNK], e[LIGHT_CHUNK];
+        double run[LIGHT_CHUNK];      /* √(wl₀² + wl₁²), imp_btf_horizon_clear()'s */
+        double rr[LIGHT_CHUNK], r2[LIGHT_CHUNK], s2[LIGHT_CHUNK], dot[LIGHT_CHUNK];   /* scratch */
+};
+
+/* x[k] = sqrt(src[k]), k < n: sqrtpd two at a time (gcc does not vectorise sqrt() when it
+ * may set errno; the instruction rounds as sqrt() does). */
+static void sqrt_lanes(const double *src, double *x, int n) {
+        int k = 0;
+#if defined(__SSE2__)
+        for (; k + 2 <= n; k += 2)
+                _mm_storeu_pd(x + k, _mm_sqrt_pd(_mm_loadu_pd(src + k)));
+#endif
+        for (; k < n; k++)
+                x[k] = sqrt(src[k]);
+}
+
+__attribute__((optimize("no-trapping-math")))   /* gcc 12 if-converts the selects only so */
+static void light_geometry(const struct scene *sc, int n_lights, int j0, int nj, const double P[3],
+                           const double Pw[3], const double tb[3], const double bb[3], const double n[3],
+                           struct light_geo *g) {
+        const double *lt = sc->lt + j0;
+        const size_t L = (size_t) n_lights;
+#pragma omp simd
+        for (int k = 0; k < nj; k++) {
+                double w0 = lt[LT_CX * L + k] - P[0], w1 = lt[LT_CY * L + k] - P[1], w2 = lt[LT_CZ * L + k] - P[2];
+                g->wl[0][k] = w0, g->wl[1][k] = w1, g->wl[2][k] = w2;
+                g->rr[k] = w0 * w0 + w1 * w1 + w2 * w2;
+                /* imp_btf_light_irradiance()'s d = X − pos */
+                double d0 = Pw[0] - lt[LT_WX * L + k], d1 = Pw[1] - lt[LT_WY * L + k], d2 = Pw[2] - lt[LT_WZ * L + k];
+                g->r2[k] = d0 * d0 + d1 * d1 + d2 * d2;
+                g->dot[k] = d0 * lt[LT_AX * L + k] + d1 * lt[LT_AY * L + k] + d2 * lt[LT_AZ * L + k];
+        }
+        sqrt_lanes(g->rr, g->r, nj);
+        sqrt_lanes(g->r2, g->s2, nj);   /* r2: the irradiance's squared distance, s2: its root */
+#pragma omp simd
+        for (int k = 0; k < nj; k++) {
+                double r = g->r[k], w0 = g->wl[0][k] / r, w1 = g->wl[1][k] / r, w2 = g->wl[2][k] / r;
+                g->wl[0][k] = w0, g->wl[1][k] = w1, g->wl[2][k] = w2;
+                g->lloc[0][k] = tb[0] * w0 + tb[1] * w1 + tb[2] * w2;
+                g->lloc[1][k] = bb[0] * w0 + bb[1] * w1 + bb[2] * w2;
+                g->lloc[2][k] = n[0] * w0 + n[1] * w1 + n[2] * w2;
+                double r2 = g->r2[k], pe = lt[LT_PE * L + k];
+                double e = lt[LT_I6 * L + k] / r2, c = g->dot[k] / g->s2[k];
+                double f = !(c > 0.0) ? 0.0 : pe == 1.0 ? c : c * c;   /* pe 2 (others: any_pow) */
+                e = pe != 0.0 ? e * f : e;
+                g->e[k] = r2 > 0.0 ? e : 0.0;
+                g->rr[k] = w0 * w0 + w1 * w1;
+        }
+        sqrt_lanes(g->rr, g->run, nj);
+}
+
+/* Values given by the caller (imp_btf_extract_texel_given()): value[j] for light j when
+ * ok[j]. */
+struct given {
+        const float (*value)[3];
+        const uint8_t *ok;
+};
+
+/* The pixel reading of light j at the taps into val (its value when g gives none): the
+ * decision PIX_*. With a value given, from the band, and no dark test to feed, only the
+ * taps' states are read. */
+static int read_light(const struct imp_btf_capture *cap, const struct imp_btf_sample_params *p,
+                      const struct imp_btf_band *b, bool in_band, const struct given *g, const struct taps *tp,
+                      int j, const struct scene *sc, float val[3]) {
+        bool have = g && g->ok[j], skip = have && in_band && !(p->dark_value > -HUGE_VAL);
+        int st = in_band ? band_sample(b, tp, j, skip ? NULL : val)
+                         : frame_sample(cap->frames[j], cap->valid ? cap->valid[j] : NULL, p->saturation_value, tp,
+                                        val);
+        if (st != PIX_OK || (!skip && val[0] < p->dark_value && val[1] < p->dark_value && val[2] < p->dark_value))
+                return st == PIX_OK ? PIX_INVALID : st;
+        for (int c = 0; c < 3; c++)
+                val[c] = have ? g->value[j][c] : (float) (val[c] * sc->colour_inv[j][c]);
+        return PIX_OK;
+}
 
 static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
                           const struct imp_btf_sample_params *p, const struct scene *sc,
-                          const struct imp_btf_band *b, int u, int v, struct imp_btf_sample *out,
-                          uint16_t *ret_light, uint16_t *ret_count, uint16_t *ret_flags, uint16_t *ret_shadowed) {
+                          const struct imp_btf_band *b, const struct given *g, int u, int v,
+                          struct imp_btf_sample *out, uint16_t *ret_light, uint16_t *ret_count, uint16_t *ret_flags,
+                          uint16_t *ret_shadowed) {
         size_t idx = (size_t) v * hf->width + u;
         const float *nf = hf->normal + 3 * idx;
         double n[3] = { nf[0], nf[1], nf[2] };
@@ -488,34 +585,34 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
         bool in_band = b && tp.xs[0] >= b->x0 && tp.ys[0] >= b->y0 && tp.xs[1] < b->x0 + b->cols &&
                        tp.ys[1] < b->y0 + b->rows;
 
+        struct light_geo lg;
+        float hs[4];
+        bool hz = imp_btf_horizon_texel(sc->hz, u, v, hs);
         for (int j = 0; j < cap->n_lights; j++) {
-                double wl[3], lloc[3], r = 0.0;
-                for (int i = 0; i < 3; i++) {
-                        wl[i] = sc->light_c[j][i] - P[i];
-                        r += wl[i] * wl[i];
-                }
-                r = sqrt(r);
-                for (int i = 0; i < 3; i++)
-                        wl[i] /= r;
-                imp_to_local(tb, bb, n, wl, lloc);
+                int k = j % LIGHT_CHUNK;
+                if (k == 0)
+                        light_geometry(sc, cap->n_lights, j, IMP_MIN(LIGHT_CHUNK, cap->n_lights - j), P, Pw, tb, bb,
+                                       n, &lg);
+                double wl[3] = { lg.wl[0][k], lg.wl[1][k], lg.wl[2][k] };
+                double lloc[3] = { lg.lloc[0][k], lg.lloc[1][k], lg.lloc[2][k] };
                 if (!(lloc[2] >= p->min_cos_l))
                         continue;
-                double e_cos = imp_btf_light_irradiance(&cap->lights[j], Pw) * lloc[2];
+                double irr = sc->any_pow ? imp_btf_light_irradiance(&cap->lights[j], Pw) : lg.e[k];
+                double e_cos = irr * lloc[2];
                 if (!(e_cos >= p->min_e_cos))
                         continue;
-                if (!imp_btf_horizon_clear(sc->hz, u, v, wl) && march(hf, p, sc->py, sc->hmax, P, wl, r, NULL)) {
+                /* imp_btf_horizon_clear() */
+                int q = (wl[0] < 0.0) | (wl[1] < 0.0) << 1;
+                bool clear = hz && wl[2] > 0.0 && wl[2] >= (double) hs[q] * lg.run[k];
+                if (!clear && march(hf, p, sc->py, sc->hmax, P, wl, lg.r[k], NULL)) {
                         shadowed++;
                         continue;
                 }
                 float val[3];
-                int st = in_band ? band_sample(b, &tp, j, val)
-                                 : frame_sample(cap->frames[j], cap->valid ? cap->valid[j] : NULL,
-                                                p->saturation_value, &tp, val);
+                int st = read_light(cap, p, b, in_band, g, &tp, j, sc, val);
                 if (st == PIX_SATURATED)
                         flags |= IMP_BTF_SATURATED;
                 if (st != PIX_OK)
-                        continue;
-                if (val[0] < p->dark_value && val[1] < p->dark_value && val[2] < p->dark_value)
                         continue;
                 if (ret_light)
                         ret_light[count] = (uint16_t) j;
@@ -523,7 +620,7 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
                 for (int i = 0; i < 3; i++) {
                         s->v[i] = (float) vloc[i];
                         s->l[i] = (float) lloc[i];
-                        s->value[i] = (float) (val[i] * sc->colour_inv[j][i]);
+                        s->value[i] = val[i];
                 }
                 s->e_cos = (float) e_cos;
         }
@@ -550,13 +647,31 @@ struct imp_btf_extractor {
         struct imp_btf_sample_params p;
         struct scene sc;
         double (*light_c)[3];
+        double *lt;
 };
 
 void imp_btf_extractor_free(struct imp_btf_extractor *x) {
         if (!x)
                 return;
         free(x->light_c);
+        free(x->lt);
         free(x);
+}
+
+/* sc's light table (its light_c set): the rows of enum LT_*. */
+static void light_table(const struct imp_btf_capture *cap, struct scene *sc, double *lt) {
+        const size_t L = (size_t) cap->n_lights;
+        sc->any_pow = false;
+        for (size_t j = 0; j < L; j++) {
+                const struct imp_rig_light *l = &cap->lights[j];
+                const double row[LT_ROWS] = { sc->light_c[j][0], sc->light_c[j][1], sc->light_c[j][2], l->pos_mm[0],
+                                              l->pos_mm[1], l->pos_mm[2], l->intensity * 1e6, l->axis[0], l->axis[1],
+                                              l->axis[2], l->profile_exp };
+                for (int f = 0; f < LT_ROWS; f++)
+                        lt[f * L + j] = row[f];
+                sc->any_pow |= l->profile_exp != 0.0 && l->profile_exp != 1.0 && l->profile_exp != 2.0;
+        }
+        sc->lt = lt;
 }
 
 int imp_btf_extractor_new(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
@@ -571,7 +686,8 @@ int imp_btf_extractor_new(const struct imp_btf_heightfield *hf, const struct imp
         if (!x)
                 return -ENOMEM;
         x->light_c = malloc(cap->n_lights * sizeof *x->light_c);
-        if (!x->light_c) {
+        x->lt = malloc((size_t) LT_ROWS * cap->n_lights * sizeof *x->lt);
+        if (!x->light_c || !x->lt) {
                 imp_btf_extractor_free(x);
                 return -ENOMEM;
         }
@@ -598,6 +714,7 @@ int imp_btf_extractor_new(const struct imp_btf_heightfield *hf, const struct imp
                 for (int c = 0; c < 3; c++)
                         sc->colour_inv[j][c] = unset ? 1.0 : L->colour[c] > 0.0 ? 1.0 / L->colour[c] : 0.0;
         }
+        light_table(cap, sc, x->lt);
         *ret = x;
         return 0;
 }
@@ -611,7 +728,17 @@ int imp_btf_extract_texel_band(const struct imp_btf_extractor *x, const struct i
                                struct imp_btf_sample *out, uint16_t *ret_light, uint16_t *ret_flags,
                                uint16_t *ret_shadowed) {
         uint16_t count;
-        extract_texel(x->hf, x->cap, &x->p, &x->sc, b, u, v, out, ret_light, &count, ret_flags, ret_shadowed);
+        extract_texel(x->hf, x->cap, &x->p, &x->sc, b, NULL, u, v, out, ret_light, &count, ret_flags, ret_shadowed);
+        return count;
+}
+
+int imp_btf_extract_texel_given(const struct imp_btf_extractor *x, const struct imp_btf_band *b, int u, int v,
+                                const float (*given)[3], const uint8_t *given_ok, struct imp_btf_sample *out,
+                                uint16_t *ret_light, uint16_t *ret_flags, uint16_t *ret_shadowed) {
+        uint16_t count;
+        struct given g = { .value = given, .ok = given_ok };
+        extract_texel(x->hf, x->cap, &x->p, &x->sc, b, given && given_ok ? &g : NULL, u, v, out, ret_light, &count,
+                      ret_flags, ret_shadowed);
         return count;
 }
 

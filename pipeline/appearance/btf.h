@@ -148,6 +148,10 @@ DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_btf_horizon *, imp_btf_horizon_free);
 bool imp_btf_horizon_clear(const struct imp_btf_horizon *hz, int u, int v, const double d[3]);
 /* The bound itself (rise over run) at texel (u, v) for quadrant q = (du < 0) | (dv < 0)·2. */
 double imp_btf_horizon_slope(const struct imp_btf_horizon *hz, int u, int v, int q);
+/* The four bounds of texel (u, v) (q = 0..3) into ret, for a caller testing many rays of
+ * one texel: imp_btf_horizon_clear() is d[2] > 0 && d[2] ≥ ret[q] · √(d[0]² + d[1]²) in
+ * double. False (ret untouched) when hz is NULL. */
+bool imp_btf_horizon_texel(const struct imp_btf_horizon *hz, int u, int v, float ret[4]);
 
 /* imp_btf_samples_extract() with a pyramid built once for many tiles (the plain call
  * builds one per call). -EINVAL also when py was built from another heightfield. */
@@ -201,6 +205,16 @@ void imp_btf_band_done(struct imp_btf_band *b);
 int imp_btf_extract_texel_band(const struct imp_btf_extractor *x, const struct imp_btf_band *b, int u, int v,
                                struct imp_btf_sample *out, uint16_t *ret_light, uint16_t *ret_flags,
                                uint16_t *ret_shadowed);
+/* imp_btf_extract_texel_band() for a caller that reads the values itself (the photometric
+ * stage's Lanczos re-read, before the extraction): a sample of light j with given_ok[j]
+ * set gets given[j] (final, the light colour applied) as its value instead of the bilinear
+ * reading, which is then not computed when the taps lie in band b and no dark_value test
+ * needs it. Everything else is the full extraction's: which samples exist (the taps'
+ * states, the rays), their geometry, flags, shadowed count and light indices. given and
+ * given_ok: room for cap->n_lights (both NULL: imp_btf_extract_texel_band()). */
+int imp_btf_extract_texel_given(const struct imp_btf_extractor *x, const struct imp_btf_band *b, int u, int v,
+                                const float (*given)[3], const uint8_t *given_ok, struct imp_btf_sample *out,
+                                uint16_t *ret_light, uint16_t *ret_flags, uint16_t *ret_shadowed);
 
 /* Ray against the heightfield in canvas coordinates: origin o (on the surface), unit
  * direction d. Linear search in steps of march_step_texels·pitch, then march_refine

@@ -448,8 +448,10 @@ int imp_photometric_texel(const struct imp_btf_sample *s, int n, const struct im
  * grooves (4 pixels per period) bilinear reading alone leaves 2.9° between the truth
  * normals at the pixels and at the texel, Lanczos-3 1.3° (docs/geometry.md). The
  * extractor keeps the geometry (directions, irradiance, shadow and visibility rays);
- * here each sample's value is read again with the Lanczos kernel. Samples come in light
- * order, so each is matched to its light by recomputing the local light direction. */
+ * here each sample's value is read again with the Lanczos kernel, the extractor naming
+ * each sample's light. Where the window lies in the band (struct imp_btf_band) every
+ * light's value is read before the extraction and handed to it, which then skips the
+ * bilinear values it would compute only to be replaced. */
 
 #define PN_MAX_LANCZOS 4
 
@@ -574,21 +576,23 @@ static bool canvas_pixel(const struct resample *rs, const double P[3], double px
         return imp_pinhole_project(rs->cap->camera, Pw, px);
 }
 
-/* Re-reads the values of texel (u, v)'s n samples, sample s of light light[s] (as the
- * extractor gave them), the light colour applied as the extractor does. Returns how many
- * were re-read. */
-static int resample_texel(const struct resample *rs, int u, int v, struct imp_btf_sample *smp,
-                          const uint16_t *light, int n) {
+/* Texel (u, v)'s Lanczos window: its corner (x0, y0) in frame pixels and its normalised
+ * weights wx, wy; false when nothing is re-read (a texel the extractor masks or finds
+ * outside the frame, re-reading off). */
+static bool texel_window(const struct resample *rs, int u, int v, int *ret_x0, int *ret_y0, double *wx,
+                         double *wy) {
         const struct imp_btf_heightfield *hf = rs->hf;
         size_t idx = (size_t) v * hf->width + u;
         const float *nf = hf->normal + 3 * idx;
         double nl = sqrt(nf[0] * nf[0] + nf[1] * nf[1] + nf[2] * nf[2]);
-        if (n <= 0 || !(nl > 0.5 && nl < 2.0) || rs->a <= 0)
-                return 0;
+        if (!(nl > 0.5 && nl < 2.0) || rs->a <= 0 || !isfinite(hf->height_mm[idx]))
+                return false;
         double P[3] = { u * hf->pitch_mm, v * hf->pitch_mm, hf->height_mm[idx] }, px[2];
-        if (!canvas_pixel(rs, P, px))
-                return 0;
-        double wx[2 * PN_MAX_LANCZOS], wy[2 * PN_MAX_LANCZOS], sx = 0, sy = 0;
+        /* the extractor's visibility test: outside the frame its texel is HIDDEN */
+        if (!canvas_pixel(rs, P, px) || !(px[0] >= 0.0 && px[1] >= 0.0 && px[0] <= rs->cap->camera->width - 1 &&
+                                          px[1] <= rs->cap->camera->height - 1))
+                return false;
+        double sx = 0, sy = 0;
         int x0 = (int) floor(px[0]) - rs->a + 1, y0 = (int) floor(px[1]) - rs->a + 1;
         for (int k = 0; k < 2 * rs->a; k++) {
                 sx += wx[k] = lanczos(px[0] - (x0 + k), rs->a);
@@ -596,14 +600,42 @@ static int resample_texel(const struct resample *rs, int u, int v, struct imp_bt
         }
         for (int k = 0; k < 2 * rs->a; k++)
                 wx[k] /= sx, wy[k] /= sy;
-        /* the window inside the band: every light's value at once */
+        *ret_x0 = x0, *ret_y0 = y0;
+        return true;
+}
+
+/* Light j's re-read value val (the same in every channel of a mono frame) with its colour
+ * applied as the extractor applies it, into ret. */
+static void apply_colour(const struct resample *rs, int j, const float val[3], float ret[3]) {
+        const double *col = rs->cap->lights[j].colour;
+        bool white = col[0] == 0 && col[1] == 0 && col[2] == 0;
+        for (int c = 0; c < 3; c++)
+                ret[c] = white ? val[c] : col[c] > 0 ? (float) (val[c] / col[c]) : 0.0f;
+}
+
+/* The window at (x0, y0) inside the current band: every light's value at once. */
+static bool window_in_band(const struct resample *rs, int x0, int y0) {
         const struct imp_btf_band *b = rs->band;
         const int nw = 2 * rs->a;
-        bool all = b && x0 >= b->x0 && y0 >= b->y0 && x0 + nw <= b->x0 + b->cols && y0 + nw <= b->y0 + b->rows;
+        return b && x0 >= b->x0 && y0 >= b->y0 && x0 + nw <= b->x0 + b->cols && y0 + nw <= b->y0 + b->rows;
+}
+
+/* Re-reads the values of texel (u, v)'s n samples, sample s of light light[s] (as the
+ * extractor gave them), the light colour applied as the extractor does. Returns how many
+ * were re-read. */
+static int resample_texel(const struct resample *rs, int u, int v, struct imp_btf_sample *smp,
+                          const uint16_t *light, int n) {
+        double wx[2 * PN_MAX_LANCZOS], wy[2 * PN_MAX_LANCZOS];
+        int x0, y0;
+        if (n <= 0 || !texel_window(rs, u, v, &x0, &y0, wx, wy))
+                return 0;
+        const struct imp_btf_band *b = rs->band;
+        bool all = window_in_band(rs, x0, y0);
         double acc[IMP_BTF_MAX_SAMPLES];
         uint8_t ok[IMP_BTF_MAX_SAMPLES];
         if (all)
-                lanczos_band_all(b, x0 - b->x0, y0 - b->y0, nw, rs->sat > 0 ? (float) rs->sat : INFINITY, wx, wy, acc, ok);
+                lanczos_band_all(b, x0 - b->x0, y0 - b->y0, 2 * rs->a, rs->sat > 0 ? (float) rs->sat : INFINITY, wx,
+                                 wy, acc, ok);
         int done = 0;
         for (int s = 0; s < n; s++) {
                 int j = light[s];
@@ -611,14 +643,31 @@ static int resample_texel(const struct resample *rs, int u, int v, struct imp_bt
                 if (all && ok[j])
                         val[0] = val[1] = val[2] = (float) acc[j];
                 if (all ? ok[j] : lanczos_sample(rs, j, x0, y0, wx, wy, val)) {
-                        const double *col = rs->cap->lights[j].colour;
-                        bool white = col[0] == 0 && col[1] == 0 && col[2] == 0;
-                        for (int c = 0; c < 3; c++)
-                                smp[s].value[c] = white ? val[c] : col[c] > 0 ? (float) (val[c] / col[c]) : 0.0f;
+                        apply_colour(rs, j, val, smp[s].value);
                         done++;
                 }
         }
         return done;
+}
+
+/* The re-read ahead of the extraction, for imp_btf_extract_texel_given(): every light's
+ * Lanczos value of texel (u, v), colour applied, into given[j] and ok[j] (read cleanly);
+ * false when its window is not inside the band (the caller extracts, then resample_texel()
+ * re-reads what it can from the frames). The values are resample_texel()'s. */
+static bool reread_ahead(const struct resample *rs, int u, int v, float (*given)[3], uint8_t *ok) {
+        double wx[2 * PN_MAX_LANCZOS], wy[2 * PN_MAX_LANCZOS], acc[IMP_BTF_MAX_SAMPLES];
+        int x0, y0;
+        if (!texel_window(rs, u, v, &x0, &y0, wx, wy) || !window_in_band(rs, x0, y0))
+                return false;
+        const struct imp_btf_band *b = rs->band;
+        lanczos_band_all(b, x0 - b->x0, y0 - b->y0, 2 * rs->a, rs->sat > 0 ? (float) rs->sat : INFINITY, wx, wy,
+                         acc, ok);
+        for (int j = 0; j < b->L; j++)
+                if (ok[j]) {
+                        float val[3] = { (float) acc[j], (float) acc[j], (float) acc[j] };
+                        apply_colour(rs, j, val, given[j]);
+                }
+        return true;
 }
 
 /* Texel result (local frame of the geometric normal ng) → unit canvas normal in out;
@@ -683,8 +732,15 @@ static void refine_tile(const struct pn_grid *G, int x0, int y0, int w, int h,
                 size_t i = (size_t) (y0 + k / w) * hf->width + x0 + k % w;
                 struct imp_btf_sample ts[IMP_BTF_MAX_SAMPLES];   /* 20 KiB of stack */
                 uint16_t sflags, n_shadowed, light[IMP_BTF_MAX_SAMPLES];
-                int count = imp_btf_extract_texel_band(G->x, G->rs.band, x0 + k % w, y0 + k / w, ts, light, &sflags,
-                                                       &n_shadowed);
+                float given[IMP_BTF_MAX_SAMPLES][3];
+                uint8_t given_ok[IMP_BTF_MAX_SAMPLES];
+                /* the re-read first (every light's window at once), the extractor then skips the
+                 * bilinear values it replaces; with normal_bilinear asked the bilinear model
+                 * needs them, and off the band the re-read comes after */
+                bool ahead = !out->normal_bilinear && !(hf->mask && !hf->mask[i]) &&
+                             reread_ahead(&G->rs, x0 + k % w, y0 + k / w, given, given_ok);
+                int count = imp_btf_extract_texel_given(G->x, G->rs.band, x0 + k % w, y0 + k / w, ahead ? given : NULL,
+                                                        ahead ? given_ok : NULL, ts, light, &sflags, &n_shadowed);
                 struct imp_pn_texel t;
                 bool masked = (sflags & (IMP_BTF_MASKED | IMP_BTF_HIDDEN)) || (hf->mask && !hf->mask[i]);
                 if (masked) {
@@ -696,7 +752,11 @@ static void refine_tile(const struct pn_grid *G, int x0, int y0, int w, int h,
                                 imp_photometric_texel(ts, count, pt, &tb);
                                 to_canvas(&hf->normal[3 * i], &tb, pt, &out->normal_bilinear[3 * i]);
                         }
-                        res += resample_texel(&G->rs, x0 + k % w, y0 + k / w, ts, light, count);
+                        if (ahead)
+                                for (int s = 0; s < count; s++)
+                                        res += given_ok[light[s]];
+                        else
+                                res += resample_texel(&G->rs, x0 + k % w, y0 + k / w, ts, light, count);
                         imp_photometric_texel(ts, count, pt, &t);
                         if ((sflags & IMP_BTF_SATURATED) && (t.flags & IMP_PN_FEW_SAMPLES))
                                 t.flags |= IMP_PN_SATURATED;

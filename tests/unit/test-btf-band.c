@@ -4,7 +4,9 @@
  * samples, flags, shadowed count and light indices from the band equal, bit for bit, those
  * read from the frames; each sample's light index names the light it came from; and the
  * BTF fit of the grid (which reads bands for mono frames) equals the fit of the same frames
- * as RGB (which read the frames). */
+ * as RGB (which read the frames); values given by the caller replace exactly the bilinear
+ * values of their lights' samples (imp_btf_extract_texel_given()); and the per-light
+ * geometry computed in vector lanes equals the one-light-at-a-time formulas. */
 #include <stdlib.h>
 
 #include "btf.h"
@@ -153,6 +155,164 @@ static void test_extraction(const struct imp_btf_heightfield *hf, const struct i
         CHECK_INT_GE(poisoned, (long) W * H / 2);
 }
 
+/* imp_btf_extract_texel_given(): the caller's values replace the bilinear ones of the
+ * lights it gives, nothing else changes. Given for about two lights in three (a marker
+ * value per texel and light), from the band (taps' states only) and from the frames: the
+ * samples that exist, their geometry, flags, shadowed counts and lights are the full
+ * extraction's, including where a given light's taps are NaN, saturated or masked (such a
+ * sample stays out), and with a dark_value (whose test reads the bilinear value). */
+static void test_given(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
+                       const struct imp_btf_sample_params *sp0) {
+        _cleanup_(imp_btf_hf_pyramid_freep) struct imp_btf_hf_pyramid *py = NULL;
+        CHECK_OK(imp_btf_hf_pyramid_new(hf, &py));
+        static struct texel_out a, t;
+        float given[NL][3];
+        uint8_t ok[NL];
+        for (int dark = 0; dark < 2; dark++) {
+                struct imp_btf_sample_params sp = *sp0;
+                if (dark)
+                        sp.dark_value = 0.2;   /* ≈ 2 % of the samples (4 taps averaged) are darker */
+                _cleanup_(imp_btf_extractor_freep) struct imp_btf_extractor *x = NULL;
+                CHECK_OK(imp_btf_extractor_new(hf, cap, &sp, py, &x));
+                struct imp_btf_band b = {};
+                long differ = 0, replaced = 0, kept = 0, refused = 0, total = 0;
+                for (int v0 = 0; v0 < H; v0 += IMP_BTF_BAND_ROWS) {
+                        int rows = IMP_MIN(IMP_BTF_BAND_ROWS, H - v0);
+                        CHECK(imp_btf_band_load(x, v0, rows, 1, &b));
+                        for (int v = v0; v < v0 + rows; v++)
+                                for (int u = 0; u < W; u++) {
+                                        extract(x, NULL, u, v, &a);
+                                        total += a.n;
+                                        for (int j = 0; j < NL; j++) {
+                                                ok[j] = (j + u + 2 * v) % 3 != 0;
+                                                for (int c = 0; c < 3; c++)
+                                                        given[j][c] = 100.0f + j + 0.25f * c + 0.001f * (u % 7);
+                                        }
+                                        /* given lights that the full extraction drops (bad taps, dark, rays) */
+                                        for (int j = 0, s = 0; j < NL; j++) {
+                                                bool in = s < a.n && a.light[s] == j;
+                                                refused += ok[j] && !in;
+                                                s += in;
+                                        }
+                                        for (int from_band = 0; from_band < 2; from_band++) {
+                                                memset(&t, 0, sizeof t);
+                                                t.n = imp_btf_extract_texel_given(x, from_band ? &b : NULL, u, v,
+                                                                                  (const float (*)[3]) given, ok, t.s,
+                                                                                  t.light, &t.flags, &t.shadowed);
+                                                bool d = t.n != a.n || t.flags != a.flags || t.shadowed != a.shadowed ||
+                                                         memcmp(t.light, a.light, a.n * sizeof *a.light);
+                                                for (int s = 0; !d && s < a.n; s++) {
+                                                        int j = a.light[s];
+                                                        const float *want = ok[j] ? given[j] : a.s[s].value;
+                                                        d = memcmp(t.s[s].v, a.s[s].v, sizeof a.s[s].v) ||
+                                                            memcmp(t.s[s].l, a.s[s].l, sizeof a.s[s].l) ||
+                                                            t.s[s].e_cos != a.s[s].e_cos ||
+                                                            memcmp(t.s[s].value, want, sizeof a.s[s].value);
+                                                        replaced += ok[j] && from_band;
+                                                        kept += !ok[j] && from_band;
+                                                }
+                                                differ += d;
+                                        }
+                                }
+                }
+                imp_btf_band_done(&b);
+                fprintf(stderr, "given (dark_value %g): %ld samples, %ld replaced, %ld kept, %ld given but "
+                        "refused; %ld texels differ\n", sp.dark_value, total, replaced, kept, refused, differ);
+                CHECK_INT_EQ(differ, 0);
+                CHECK_INT_GE(replaced, total / 2);
+                CHECK_INT_GE(kept, total / 5);
+                CHECK_INT_GE(refused, 10000);
+        }
+}
+
+/* Light j's geometry at texel (u, v) as the extractor computed it one light at a time
+ * before it did so in vector lanes (the canvas-to-world map: identity rotation), from the
+ * public pieces: its local direction lloc, e_cos and whether the plain march (no pyramid,
+ * no horizon) finds it shadowed. False: no sample of it (attached shadow, too dim). */
+static bool reference_light(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
+                            const struct imp_btf_sample_params *sp, double hmax, int u, int v, int j, double lloc[3],
+                            double *e_cos, bool *shadowed) {
+        size_t idx = (size_t) v * W + u;
+        double n[3] = { hf->normal[3 * idx], hf->normal[3 * idx + 1], hf->normal[3 * idx + 2] };
+        double nl = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]), tb[3], bb[3], wl[3], Pw[3], r = 0;
+        for (int i = 0; i < 3; i++)
+                n[i] /= nl;
+        imp_local_frame(n, tb, bb);
+        const double *M = hf->canvas_to_world;
+        double P[3] = { u * hf->pitch_mm, v * hf->pitch_mm, hf->height_mm[idx] };
+        for (int i = 0; i < 3; i++) {
+                Pw[i] = M[4 * i] * P[0] + M[4 * i + 1] * P[1] + M[4 * i + 2] * P[2] + M[4 * i + 3];
+                double y[3] = { cap->lights[j].pos_mm[0] - M[3], cap->lights[j].pos_mm[1] - M[7],
+                                cap->lights[j].pos_mm[2] - M[11] };
+                wl[i] = M[i] * y[0] + M[4 + i] * y[1] + M[8 + i] * y[2] - P[i];
+                r += wl[i] * wl[i];
+        }
+        r = sqrt(r);
+        for (int i = 0; i < 3; i++)
+                wl[i] /= r;
+        imp_to_local(tb, bb, n, wl, lloc);
+        if (!(lloc[2] >= sp->min_cos_l))
+                return false;
+        *e_cos = imp_btf_light_irradiance(&cap->lights[j], Pw) * lloc[2];
+        if (!(*e_cos >= sp->min_e_cos))
+                return false;
+        *shadowed = imp_btf_heightfield_ray(hf, sp, hmax, P, wl, r, NULL);
+        return true;
+}
+
+/* The extractor's per-light geometry (directions, irradiance with each profile exponent,
+ * the horizon's clearing and the march) equals the one-light-at-a-time reference bit for
+ * bit: every sample's l and e_cos, every texel's shadowed count; profile exponents 0, 1, 2
+ * (the lanes' own formula) and then 1.5 on one light (pow()). */
+static void test_light_geometry(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap0,
+                                const struct imp_btf_sample_params *sp) {
+        _cleanup_(imp_btf_hf_pyramid_freep) struct imp_btf_hf_pyramid *py = NULL;
+        CHECK_OK(imp_btf_hf_pyramid_new(hf, &py));
+        double hmax = imp_btf_heightfield_hmax(hf);
+        static struct imp_rig_light L[NL];
+        static struct texel_out a;
+        for (int pow_light = 0; pow_light < 2; pow_light++) {
+                for (int j = 0; j < NL; j++) {
+                        L[j] = cap0->lights[j];
+                        L[j].profile_exp = j % 3;
+                }
+                if (pow_light)
+                        L[5].profile_exp = 1.5;
+                struct imp_btf_capture cap = *cap0;
+                cap.lights = L;
+                _cleanup_(imp_btf_extractor_freep) struct imp_btf_extractor *x = NULL;
+                CHECK_OK(imp_btf_extractor_new(hf, &cap, sp, py, &x));
+                long differ = 0, samples = 0, shadowed = 0;
+                for (int v = 0; v < H; v += 2)
+                        for (int u = 0; u < W; u++) {
+                                extract(x, NULL, u, v, &a);
+                                if (a.flags & (IMP_BTF_MASKED | IMP_BTF_HIDDEN))
+                                        continue;
+                                int sh = 0;
+                                for (int j = 0, s = 0; j < NL; j++) {
+                                        double ll[3] = { 0, 0, 0 }, e_cos = 0;
+                                        bool shd = false;
+                                        bool lit = reference_light(hf, &cap, sp, hmax, u, v, j, ll, &e_cos, &shd);
+                                        sh += lit && shd;
+                                        if (s >= a.n || a.light[s] != j)
+                                                continue;
+                                        const struct imp_btf_sample *q = &a.s[s++];
+                                        differ += !lit || shd || q->e_cos != (float) e_cos ||
+                                                  q->l[0] != (float) ll[0] || q->l[1] != (float) ll[1] ||
+                                                  q->l[2] != (float) ll[2];
+                                }
+                                differ += sh != a.shadowed;
+                                samples += a.n;
+                                shadowed += sh;
+                        }
+                fprintf(stderr, "light geometry (pow %d): %ld samples, %ld shadowed; %ld differ\n", pow_light, samples,
+                        shadowed, differ);
+                CHECK_INT_EQ(differ, 0);
+                CHECK_INT_GE(samples, 50000);
+                CHECK_INT_GE(shadowed, 500);
+        }
+}
+
 static void test_fit_grid(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
                           const struct imp_btf_sample_params *sp) {
         struct imp_btf_fit_params fp;
@@ -193,6 +353,8 @@ int main(void) {
         imp_btf_sample_params_default(&sp);
         sp.saturation_value = 1.0;
         test_extraction(&hf, &cap, &sp);
+        test_given(&hf, &cap, &sp);
+        test_light_geometry(&hf, &cap, &sp);
         test_fit_grid(&hf, &cap, &sp);
         for (int j = 0; j < NL; j++) {
                 imp_image_free(mono[j]);
