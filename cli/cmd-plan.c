@@ -82,12 +82,13 @@ static json_t *offline_result(const struct imp_plan *plan, const struct imp_rig 
 
 static void human_painting(const json_t *p) {
         char b[32], d[4][32];
-        printf("painting      %lld tiles (%lld × %lld, overlap %.0f %% × %.0f %%)\n"
+        printf("painting      %lld tiles (%lld × %lld, overlap %.0f %% × %.0f %%, edge margin %.2f mm)\n"
                "  frames      %lld\n  bytes       %s\n  capture     %s (moves %s)\n"
                "  processing  %s on %lld worker(s), done %s after the first frame\n",
                imp_client_int(p, "tiles"), imp_client_int(p, "cols"), imp_client_int(p, "rows"),
                100 * json_number_value(json_array_get(json_object_get(p, "overlap"), 0)),
-               100 * json_number_value(json_array_get(json_object_get(p, "overlap"), 1)), imp_client_int(p, "frames"),
+               100 * json_number_value(json_array_get(json_object_get(p, "overlap"), 1)),
+               json_number_value(json_object_get(p, "edge_margin_mm")), imp_client_int(p, "frames"),
                imp_client_fmt_bytes(imp_client_num(p, "bytes"), b, sizeof b),
                imp_client_fmt_duration(imp_client_num(p, "capture_s"), d[0], sizeof d[0]),
                imp_client_fmt_duration(imp_client_num(p, "move_s"), d[1], sizeof d[1]),
