@@ -94,6 +94,10 @@ static void human_painting(const json_t *p) {
                imp_client_fmt_duration(imp_client_num(p, "move_s"), d[1], sizeof d[1]),
                imp_client_fmt_duration(imp_client_num(p, "process_s"), d[2], sizeof d[2]),
                imp_client_int(p, "workers"), imp_client_fmt_duration(imp_client_num(p, "wall_s"), d[3], sizeof d[3]));
+        if (!(json_number_value(json_object_get(p, "edge_margin_mm")) > 0))
+                printf("  note        no edge margin: a copy stops ~0.15 mm inside its field and the stage lands within "
+                       "its repeatability, so the painting's border will not be covered (docs/painting.md, \"The edge "
+                       "margin\")\n");
 }
 
 /* Refuses a plan whose bytes (the whole painting's when it has one) exceed the free space of
