@@ -54,6 +54,18 @@ static int registration(struct imp_painting *p, const struct imp_mosaic_options 
         return 0;
 }
 
+/* The texels of the extent left uncovered, by cause (mosaic.h; the output tiles' masks are 0
+ * there). */
+static void print_uncovered(const struct imp_mosaic_figures *f) {
+        const size_t *u = f->uncovered;
+        printf("uncovered: %zu texels: %zu at the painting's edge (beyond every copy, up to %.3f mm in), %zu in gaps "
+               "between copies, %zu at a copy's edge off its mask, %zu in holes of a copy\n",
+               u[IMP_MOSAIC_UNCOVERED_EDGE] + u[IMP_MOSAIC_UNCOVERED_GAP] + u[IMP_MOSAIC_UNCOVERED_COPY_EDGE] +
+                       u[IMP_MOSAIC_UNCOVERED_HOLE],
+               u[IMP_MOSAIC_UNCOVERED_EDGE], f->edge_depth_mm, u[IMP_MOSAIC_UNCOVERED_GAP],
+               u[IMP_MOSAIC_UNCOVERED_COPY_EDGE], u[IMP_MOSAIC_UNCOVERED_HOLE]);
+}
+
 static int mosaic(const char *dir, const char *out, const struct imp_mosaic_options *o) {
         struct imp_painting p;
         struct imp_error err = { 0 };
@@ -85,6 +97,7 @@ static int mosaic(const char *dir, const char *out, const struct imp_mosaic_opti
                "pyramid %d levels; %zu tile reads, at most %zu held\n", out, f.out_nx, f.out_ny, f.out_tiles_x, f.out_tiles_y,
                f.texels_covered, 100.0 * f.texels_covered / (f.out_nx * f.out_ny), f.texels_doubled, f.n_boxes, f.h_ref_mm,
                f.delta0_mm, f.pyramid_levels, f.input_loads, f.max_resident);
+        print_uncovered(&f);
         struct imp_mosaic_reg_error re;
         if (imp_mosaic_registration_error(&p, &re) == 0)
                 printf("truth: registration %.2f µm rms (gauge removed; absolute %.2f), mean %.2f, far corner %.2f (%.2f× mean), "

@@ -82,17 +82,22 @@ static json_t *offline_result(const struct imp_plan *plan, const struct imp_rig 
 
 static void human_painting(const json_t *p) {
         char b[32], d[4][32];
-        printf("painting      %lld tiles (%lld × %lld, overlap %.0f %% × %.0f %%)\n"
+        printf("painting      %lld tiles (%lld × %lld, overlap %.0f %% × %.0f %%, edge margin %.2f mm)\n"
                "  frames      %lld\n  bytes       %s\n  capture     %s (moves %s)\n"
                "  processing  %s on %lld worker(s), done %s after the first frame\n",
                imp_client_int(p, "tiles"), imp_client_int(p, "cols"), imp_client_int(p, "rows"),
                100 * json_number_value(json_array_get(json_object_get(p, "overlap"), 0)),
-               100 * json_number_value(json_array_get(json_object_get(p, "overlap"), 1)), imp_client_int(p, "frames"),
+               100 * json_number_value(json_array_get(json_object_get(p, "overlap"), 1)),
+               json_number_value(json_object_get(p, "edge_margin_mm")), imp_client_int(p, "frames"),
                imp_client_fmt_bytes(imp_client_num(p, "bytes"), b, sizeof b),
                imp_client_fmt_duration(imp_client_num(p, "capture_s"), d[0], sizeof d[0]),
                imp_client_fmt_duration(imp_client_num(p, "move_s"), d[1], sizeof d[1]),
                imp_client_fmt_duration(imp_client_num(p, "process_s"), d[2], sizeof d[2]),
                imp_client_int(p, "workers"), imp_client_fmt_duration(imp_client_num(p, "wall_s"), d[3], sizeof d[3]));
+        if (!(json_number_value(json_object_get(p, "edge_margin_mm")) > 0))
+                printf("  note        no edge margin: a copy stops ~0.15 mm inside its field and the stage lands within "
+                       "its repeatability, so the painting's border will not be covered (docs/painting.md, \"The edge "
+                       "margin\")\n");
 }
 
 /* Refuses a plan whose bytes (the whole painting's when it has one) exceed the free space of

@@ -9,3 +9,5 @@ impasto_test(test-mosaic-truth LIBS impasto_mosaic TIMEOUT 300)
 impasto_test(test-mosaic-normals LIBS impasto_mosaic TIMEOUT 300)
 # The seam step the output shows (blended copy against truth) beside the copies' disagreement.
 impasto_test(test-mosaic-seam LIBS impasto_mosaic TIMEOUT 300)
+# The extent covered to its edges with the plan's edge margin; uncovered texels counted by cause.
+impasto_test(test-mosaic-coverage LIBS impasto_mosaic TIMEOUT 300)

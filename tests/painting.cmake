@@ -6,7 +6,7 @@ impasto_test(test-painting LABELS unit LIBS impasto_sim)
 add_test(NAME test-painting-estimate COMMAND sh -c "\
   out=$($<TARGET_FILE:impasto> plan estimate ${PROJECT_SOURCE_DIR}/config/plans/painting-small.cfg \
         --scene ${PROJECT_SOURCE_DIR}/config/scenes/painting-small.cfg --json) && \
-  echo \"$out\" | grep -q '\"painting\":{\"tiles\":6,\"cols\":3,\"rows\":2' && \
+  echo \"$out\" | grep -q '\"painting\":{\"tiles\":9,\"cols\":3,\"rows\":3' && \
   printf 'dome = { lights = \"all\"; exposures_us = [10000.0]; repeat = 2000; };\\npainting = { extent_mm = [5000.0, 5000.0]; fov_mm = [20.0, 20.0]; };\\n' > huge-painting.cfg && \
   ! $<TARGET_FILE:impasto> plan estimate huge-painting.cfg --scene ${PROJECT_SOURCE_DIR}/config/scenes/painting-small.cfg --target . 2> err.txt; \
   rc=$?; grep -q 'on disk but . has' err.txt && test $rc -eq 0"

@@ -574,8 +574,9 @@ json_t *imp_plan_painting_estimate_json(const struct imp_plan *p, const struct i
         imp_tile_plan_grid(tp, &cols, &rows);
         double step[2], overlap[2];
         imp_tile_plan_spacing(tp, step, overlap);
-        return json_pack("{s:I,s:I,s:I,s:[f,f],s:I,s:f,s:f,s:f,s:f,s:f,s:f,s:I,s:f,s:f}", "tiles", (json_int_t) e.tiles,
+        return json_pack("{s:I,s:I,s:I,s:[f,f],s:f,s:I,s:f,s:f,s:f,s:f,s:f,s:f,s:I,s:f,s:f}", "tiles", (json_int_t) e.tiles,
                          "cols", (json_int_t) cols, "rows", (json_int_t) rows, "overlap", overlap[0], overlap[1],
+                         "edge_margin_mm", imp_tile_plan_options(tp)->edge_margin_mm,
                          "frames", (json_int_t) e.frames, "bytes", e.bytes, "move_s", e.move_s, "capture_s",
                          e.capture_s, "process_s", e.process_s, "wall_s", e.wall_s, "tile_process_s", cost.process_s,
                          "workers", (json_int_t) cost.workers, "stage_speed_mm_s", cost.speed_mm_s, "settle_s",

@@ -37,6 +37,9 @@ static int check_options(const struct imp_tile_options *o, struct imp_error *err
                         return imp_error_set(err, -EINVAL, "tiles: origin_mm %c: expected a finite number within "
                                              "±1e6 mm, got %g", axis[a], o->origin_mm[a]);
         }
+        if (!(o->edge_margin_mm >= 0 && o->edge_margin_mm <= IMP_PAINTING_MAX_MM))
+                return imp_error_set(err, -EINVAL, "tiles: edge_margin_mm: expected a number in [0, %g] mm, got %g",
+                                     IMP_PAINTING_MAX_MM, o->edge_margin_mm);
         if (!(o->overlap >= 0 && o->overlap <= IMP_TILES_MAX_OVERLAP))
                 return imp_error_set(err, -EINVAL, "tiles: overlap: expected 0..%g (a fraction of the field), got %g",
                                      IMP_TILES_MAX_OVERLAP, o->overlap);
@@ -50,7 +53,7 @@ static int check_options(const struct imp_tile_options *o, struct imp_error *err
         return 0;
 }
 
-/* Tiles along one axis and their spacing (0 for a single tile). */
+/* Tiles along one axis and their spacing (0 for a single tile); extent includes both margins. */
 static unsigned axis_count(double extent, double fov, double overlap, double *ret_step) {
         if (extent <= fov) {
                 *ret_step = 0;
@@ -62,8 +65,9 @@ static unsigned axis_count(double extent, double fov, double overlap, double *re
         return n > IMP_TILES_MAX ? IMP_TILES_MAX + 1 : (unsigned) n;
 }
 
-static double axis_center(double extent, double fov, double step, unsigned i) {
-        return step > 0 ? fov / 2 + step * i : extent / 2;
+/* Centre of tile i along an axis of the painting frame: from the grown area's start −margin. */
+static double axis_center(double extent, double margin, double fov, double step, unsigned i) {
+        return step > 0 ? fov / 2 - margin + step * i : extent / 2;
 }
 
 /* The corners' bilinear surface at (x, y) of the painting frame. */
@@ -89,8 +93,9 @@ static void fill_tile(struct imp_tile_plan *p, unsigned k) {
         struct imp_tile *t = &p->tiles[k];
         unsigned col, row;
         scan_cell(p, k, &col, &row);
-        double cx = axis_center(o->extent_mm[0], o->fov_mm[0], p->step_mm[0], col);
-        double cy = axis_center(o->extent_mm[1], o->fov_mm[1], p->step_mm[1], row);
+        double m = o->edge_margin_mm;
+        double cx = axis_center(o->extent_mm[0], m, o->fov_mm[0], p->step_mm[0], col);
+        double cy = axis_center(o->extent_mm[1], m, o->fov_mm[1], p->step_mm[1], row);
         double z_off = corner_surface(o, cx, cy) + p->correction_mm[(size_t) row * p->cols + col];
         *t = (struct imp_tile) {
                 .index = k, .col = col, .row = row,
@@ -111,8 +116,8 @@ int imp_tile_plan_new(const struct imp_tile_options *o, struct imp_tile_plan **r
         if (!p)
                 return -ENOMEM;
         p->opt = *o;
-        p->cols = axis_count(o->extent_mm[0], o->fov_mm[0], o->overlap, &p->step_mm[0]);
-        p->rows = axis_count(o->extent_mm[1], o->fov_mm[1], o->overlap, &p->step_mm[1]);
+        p->cols = axis_count(o->extent_mm[0] + 2 * o->edge_margin_mm, o->fov_mm[0], o->overlap, &p->step_mm[0]);
+        p->rows = axis_count(o->extent_mm[1] + 2 * o->edge_margin_mm, o->fov_mm[1], o->overlap, &p->step_mm[1]);
         if ((uint64_t) p->cols * p->rows > IMP_TILES_MAX)
                 return imp_error_set(err, -E2BIG, "tiles: %u × %u tiles for %g × %g mm at a %g × %g mm field: more than %d",
                                      p->cols, p->rows, o->extent_mm[0], o->extent_mm[1], o->fov_mm[0], o->fov_mm[1],
@@ -258,8 +263,8 @@ int imp_tile_plan_estimate(const struct imp_tile_plan *p, const struct imp_tile_
 
 static int parse_options(const struct imp_conf *c, const config_setting_t *g, struct imp_tile_options *o,
                          struct imp_error *err) {
-        static const char *const known[] = { "extent_mm", "fov_mm", "overlap", "order", "origin_mm", "z_mm",
-                                             "corner_z_mm", "z_corrections", NULL };
+        static const char *const known[] = { "extent_mm", "fov_mm", "overlap", "edge_margin_mm", "order", "origin_mm",
+                                             "z_mm", "corner_z_mm", "z_corrections", NULL };
         static const char *const orders[] = { "rows", "columns", NULL };
         int order = IMP_TILE_ORDER_ROWS, r;
         imp_tile_options_default(o);
@@ -267,6 +272,7 @@ static int parse_options(const struct imp_conf *c, const config_setting_t *g, st
             (r = imp_conf_get_doubles(c, g, "extent_mm", true, 2, o->extent_mm, 2, NULL, err)) < 0 ||
             (r = imp_conf_get_doubles(c, g, "fov_mm", true, 2, o->fov_mm, 2, NULL, err)) < 0 ||
             (r = imp_conf_get_double(c, g, "overlap", false, 0, IMP_TILES_MAX_OVERLAP, &o->overlap, err)) < 0 ||
+            (r = imp_conf_get_double(c, g, "edge_margin_mm", false, 0, IMP_PAINTING_MAX_MM, &o->edge_margin_mm, err)) < 0 ||
             (r = imp_conf_get_enum(c, g, "order", false, orders, &order, err)) < 0 ||
             (r = imp_conf_get_doubles(c, g, "origin_mm", false, 2, o->origin_mm, 2, NULL, err)) < 0 ||
             (r = imp_conf_get_double(c, g, "z_mm", false, -1e6, 1e6, &o->z_mm, err)) < 0 ||
@@ -342,9 +348,9 @@ json_t *imp_tile_plan_painting_json(const struct imp_tile_plan *p, double stage_
         }
         if (!tiles)
                 return NULL;
-        return json_pack("{s:s,s:i,s:[f,f],s:[f,f],s:f,s:[f,f],s:f,s:f,s:I,s:I,s:o}", "format", "impasto-painting",
+        return json_pack("{s:s,s:i,s:[f,f],s:[f,f],s:f,s:f,s:[f,f],s:f,s:f,s:I,s:I,s:o}", "format", "impasto-painting",
                          "version", 1, "extent_mm", o->extent_mm[0], o->extent_mm[1], "fov_mm", o->fov_mm[0],
-                         o->fov_mm[1], "overlap", o->overlap, "origin_mm", o->origin_mm[0], o->origin_mm[1],
+                         o->fov_mm[1], "overlap", o->overlap, "edge_margin_mm", o->edge_margin_mm, "origin_mm", o->origin_mm[0], o->origin_mm[1],
                          "stage_sigma_mm", stage_sigma_mm, "stage_sigma_deg", stage_sigma_deg, "cols",
                          (json_int_t) p->cols, "rows", (json_int_t) p->rows, "tiles", tiles);
 }
@@ -472,6 +478,7 @@ static int check_painting_header(const json_t *j, const char *what, long long *c
             (r = check_sizes(j, "extent_mm", true, what, err)) < 0 || (r = check_sizes(j, "fov_mm", true, what, err)) < 0 ||
             (r = check_finite(j, "origin_mm", true, 2, w, err)) < 0 ||
             (r = check_number(j, "overlap", 0, false, 0.999, what, err)) < 0 ||
+            (r = check_number(j, "edge_margin_mm", 0, false, IMP_PAINTING_MAX_MM, what, err)) < 0 ||
             (r = check_number(j, "stage_sigma_mm", 0, false, 1e3, what, err)) < 0 ||
             (r = check_number(j, "stage_sigma_deg", 0, false, 180, what, err)) < 0 ||
             (r = check_number(j, "stage_sigma_z_mm", 0, false, 1e3, what, err)) < 0 ||

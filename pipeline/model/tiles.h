@@ -12,16 +12,20 @@
  * offsets (a canvas that sags or leans), evaluated at the tile's centre, plus a per-tile
  * correction where one was set.
  *
- * Spacing: n = 1 + ceil((extent − fov) / (fov · (1 − overlap))) tiles per axis, spread
- * evenly from fov/2 to extent − fov/2, so the first and last tiles end at the area's edges
- * and the overlap is at least the one asked for (the actual one is reported). An axis
- * shorter than the field has one tile, centred.
+ * Spacing: the scanned area is the extent grown by edge_margin_mm m on every side (what a
+ * tile's copy really covers stops short of its field, and the stage lands within its
+ * repeatability of the target: docs/painting.md, "The edge margin"); n = 1 + ceil((extent +
+ * 2m − fov) / (fov · (1 − overlap))) tiles per axis, spread evenly from fov/2 − m to
+ * extent + m − fov/2, so the first and last tiles' fields pass the area's edges by m and the
+ * overlap is at least the one asked for (the actual one is reported). An axis whose grown
+ * area fits in the field has one tile, centred.
  *
  * As a group of a plan file (imp_tile_plan_from_conf):
  *   painting = {
  *     extent_mm = [300.0, 200.0];       # required
  *     fov_mm = [60.0, 40.0];            # required
  *     overlap = 0.2;                    # default 0.2
+ *     edge_margin_mm = 1.0;             # default 0: fields end at the extent's edges
  *     order = "rows";                   # or "columns"; default "rows"
  *     origin_mm = [10.0, 5.0];          # default [0, 0]
  *     z_mm = 20.0;                      # default 0
@@ -48,6 +52,7 @@ struct imp_tile_options {
         double extent_mm[2];            /* scan area, x and y, > 0 */
         double fov_mm[2];               /* field of view on the canvas, x and y, > 0 */
         double overlap;                 /* fraction of the field shared by neighbours, 0..IMP_TILES_MAX_OVERLAP */
+        double edge_margin_mm;          /* the outer tiles' fields pass the extent by this, ≥ 0 */
         enum imp_tile_order order;
         double origin_mm[2];            /* stage x, y of the painting's corner (0, 0), see above */
         double z_mm;                    /* stage z in focus at a height offset of 0 */
@@ -58,8 +63,8 @@ struct imp_tile {
         unsigned index;                 /* scan order, 0 first */
         unsigned col, row;              /* grid position: col along x, row along y */
         double center_mm[2];            /* painting frame */
-        double rect_mm[4];              /* x0, y0, x1, y1 in the painting frame (may pass the area
-                                         * only when the field is larger than the area) */
+        double rect_mm[4];              /* x0, y0, x1, y1 in the painting frame (passes the area by
+                                         * the edge margin, or more when the field is larger) */
         double z_offset_mm;             /* height offset: the corners' surface plus any correction */
         double stage_mm[3];             /* stage target x, y, z */
 };
@@ -129,7 +134,7 @@ int imp_tile_plan_estimate(const struct imp_tile_plan *p, const struct imp_tile_
                            struct imp_tile_estimate *ret);
 
 /* painting.json (docs/painting.md, format "impasto-painting" version 1): extent, field,
- * overlap, origin, the stage's prior σ and per tile its index, grid cell, nominal centre,
+ * overlap, edge margin, origin, the stage's prior σ and per tile its index, grid cell, nominal centre,
  * commanded stage target, read-back (the target until set), capture "tiles/NNNN" and copy
  * "copies/NNNN". NULL when out of memory. */
 json_t *imp_tile_plan_painting_json(const struct imp_tile_plan *p, double stage_sigma_mm, double stage_sigma_deg);

@@ -122,6 +122,31 @@ static void finish(const struct acc *a, struct mosaic_out *o, size_t k) {
         L->k = (float) (a->lobe[3] / a->w);
 }
 
+const char *imp_mosaic_uncovered_name(enum imp_mosaic_uncovered c) {
+        static const char *const names[IMP_MOSAIC_UNCOVERED_N] = { "edge", "gap", "copy_edge", "hole" };
+        return (unsigned) c < IMP_MOSAIC_UNCOVERED_N ? names[c] : "?";
+}
+
+/* Why painting (x, y) got no contribution (mosaic.h): whether a copy's grid holds it (within
+ * half a texel, as nearest() reads) and how near that grid's edge; else how near the border. */
+static enum imp_mosaic_uncovered uncovered_cause(const struct imp_painting *p, const unsigned *in, size_t n_in,
+                                                 const struct mosaic_grid *g, double x, double y, double *ret_border) {
+        bool in_grid = false, deep = false;
+        for (size_t q = 0; q < n_in; q++) {
+                const struct imp_mosaic_tile *t = &p->tiles[in[q]];
+                double ij[2];
+                if (!imp_mosaic_painting_to_tile(t, x, y, ij) ||
+                    !(ij[0] > -0.5 && ij[1] > -0.5 && ij[0] < t->nx - 0.5 && ij[1] < t->ny - 0.5))
+                        continue;
+                in_grid = true;
+                deep |= fmin(fmin(ij[0], t->nx - 1 - ij[0]), fmin(ij[1], t->ny - 1 - ij[1])) > 2;
+        }
+        *ret_border = fmin(fmin(x, g->extent_mm[0] - x), fmin(y, g->extent_mm[1] - y));
+        if (in_grid)
+                return deep ? IMP_MOSAIC_UNCOVERED_HOLE : IMP_MOSAIC_UNCOVERED_COPY_EDGE;
+        return *ret_border <= g->edge_band_mm ? IMP_MOSAIC_UNCOVERED_EDGE : IMP_MOSAIC_UNCOVERED_GAP;
+}
+
 int mosaic_blend_tile(const struct imp_painting *p, const struct mosaic_cache *c, const unsigned *in, size_t n_in,
                       const struct mosaic_grid *g, int col, int row, struct mosaic_out *o) {
         int i0 = col * g->tile_px, j0 = row * g->tile_px;
@@ -137,6 +162,13 @@ int mosaic_blend_tile(const struct imp_painting *p, const struct mosaic_cache *c
                         for (size_t q = 0; q < n_in; q++)
                                 contribute(&p->tiles[in[q]], &c->copies[in[q]], x, y, g->feather_mm, &a);
                         finish(&a, o, (size_t) j * o->nx + i);
+                        if (a.w > 0)
+                                continue;
+                        double border;
+                        enum imp_mosaic_uncovered why = uncovered_cause(p, in, n_in, g, x, y, &border);
+                        o->uncovered[why]++;
+                        if (why == IMP_MOSAIC_UNCOVERED_EDGE)
+                                o->edge_depth_mm = fmax(o->edge_depth_mm, border);
                 }
         return 0;
 }

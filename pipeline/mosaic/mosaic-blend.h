@@ -10,6 +10,7 @@
 struct mosaic_grid {
         int nx, ny, tile_px, tiles_x, tiles_y;
         double pitch_mm, feather_mm;
+        double extent_mm[2], edge_band_mm;   /* the painting; IMP_MOSAIC_UNCOVERED_EDGE's band */
 };
 
 struct mosaic_out {
@@ -19,6 +20,8 @@ struct mosaic_out {
         uint8_t *mask;
         uint16_t *flags;
         struct imp_lafortune *brdf;
+        size_t uncovered[IMP_MOSAIC_UNCOVERED_N];   /* texels left off the mask, by cause */
+        double edge_depth_mm;         /* farthest of the EDGE ones from the painting's border */
 };
 int mosaic_out_alloc(struct mosaic_out *t, int nx, int ny);   /* zeroed arrays */
 void mosaic_out_done(struct mosaic_out *t);

@@ -121,8 +121,25 @@ struct imp_mosaic_truth {
         void *ctx;
 };
 
+/* Why an output texel is not covered (docs/mosaic.md, "Coverage"): beyond every copy's grid
+ * within the edge band of the painting's border (the outer tiles do not reach the extent:
+ * plan an edge margin), beyond every copy's grid farther in (a gap between the copies),
+ * inside a copy's grid within 2 texels of its edge but off its mask (the copy's ragged
+ * edge), inside a copy's grid farther in but off its mask (a hole in the copy). */
+enum imp_mosaic_uncovered {
+        IMP_MOSAIC_UNCOVERED_EDGE,
+        IMP_MOSAIC_UNCOVERED_GAP,
+        IMP_MOSAIC_UNCOVERED_COPY_EDGE,
+        IMP_MOSAIC_UNCOVERED_HOLE,
+        IMP_MOSAIC_UNCOVERED_N
+};
+const char *imp_mosaic_uncovered_name(enum imp_mosaic_uncovered c);
+
 struct imp_mosaic_figures {
         size_t out_nx, out_ny, out_tiles_x, out_tiles_y, texels_written, texels_covered;
+        size_t uncovered[IMP_MOSAIC_UNCOVERED_N];   /* texels not covered, by cause */
+        double edge_band_mm;          /* IMP_MOSAIC_UNCOVERED_EDGE: within this of the border */
+        double edge_depth_mm;         /* farthest from the border of those texels (0: none) */
         size_t texels_doubled;        /* written by more than one output tile (must be 0) */
         size_t input_loads;           /* tile copies read (a tile read again after eviction counts) */
         size_t max_resident;          /* most input tiles held at once */
@@ -166,6 +183,7 @@ int imp_mosaic_registration_error(const struct imp_painting *p, struct imp_mosai
  * painting.json and truth/tile-poses.json (truth/height.exr too when truth_exr). */
 struct imp_mosaic_synth {
         double extent_mm[2], fov_mm[2], overlap, pitch_mm;
+        double edge_margin_mm;        /* the tile plan's (tiles.h): outer fields pass the extent; 0 */
         double sigma_mm, sigma_deg, noise_um;
         unsigned seed;
         bool truth_exr;

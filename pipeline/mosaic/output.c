@@ -130,6 +130,9 @@ static int blend_pass(struct imp_painting *p, const struct imp_mosaic_options *o
                         f->texels_written += (size_t) t.nx * t.ny;
                         for (size_t k = 0; k < (size_t) t.nx * t.ny; k++)
                                 f->texels_covered += t.mask[k] != 0;
+                        for (int q = 0; q < IMP_MOSAIC_UNCOVERED_N; q++)
+                                f->uncovered[q] += t.uncovered[q];
+                        f->edge_depth_mm = fmax(f->edge_depth_mm, t.edge_depth_mm);
                         score_truth(&t, g, truth, seams, &tss, &f->height_n);
                 }
                 mosaic_out_done(&t);
@@ -196,6 +199,17 @@ static json_t *truth_json(const struct imp_mosaic_figures *f) {
                          (json_int_t) f->seam_out_n);
 }
 
+/* The extent's coverage (docs/mosaic.md, "Coverage"): texels, covered, and the others by
+ * cause; the output tiles' masks say which ones. */
+static json_t *coverage_json(const struct imp_mosaic_figures *f) {
+        json_t *why = json_object();
+        for (int q = 0; why && q < IMP_MOSAIC_UNCOVERED_N; q++)
+                json_object_set_new(why, imp_mosaic_uncovered_name(q), json_integer((json_int_t) f->uncovered[q]));
+        return json_pack("{s:I,s:I,s:o,s:f,s:f}", "texels", (json_int_t) (f->out_nx * f->out_ny), "covered",
+                         (json_int_t) f->texels_covered, "uncovered", why, "edge_band_mm", f->edge_band_mm,
+                         "edge_depth_mm", f->edge_depth_mm);
+}
+
 static int make_grid(const struct imp_painting *p, const struct imp_mosaic_options *o, struct mosaic_grid *g,
                      struct imp_error *err) {
         double pitch = p->tiles[0].pitch_mm;
@@ -210,6 +224,10 @@ static int make_grid(const struct imp_painting *p, const struct imp_mosaic_optio
         g->tiles_x = (g->nx + g->tile_px - 1) / g->tile_px, g->tiles_y = (g->ny + g->tile_px - 1) / g->tile_px;
         g->feather_mm = o->feather_mm > 0 ? o->feather_mm
                                           : fmax(0.5 * p->overlap * fmin(p->fov_mm[0], p->fov_mm[1]), 2 * pitch);
+        g->extent_mm[0] = p->extent_mm[0], g->extent_mm[1] = p->extent_mm[1];
+        /* an uncovered texel beyond every copy this near the border is the outer tiles' shortfall
+           (a gap between two copies lies an overlap's half or more inside) */
+        g->edge_band_mm = fmax(0.5 * p->overlap * fmin(p->fov_mm[0], p->fov_mm[1]), 2 * pitch);
         return 0;
 }
 
@@ -226,6 +244,7 @@ int imp_mosaic_write(struct imp_painting *p, const struct imp_mosaic_options *o,
         if ((r = imp_mkdir_p(path, 0755)) < 0)
                 return imp_error_set(err, r, "%s: cannot create: %s", path, strerror(-r));
         f->out_nx = g.nx, f->out_ny = g.ny, f->out_tiles_x = g.tiles_x, f->out_tiles_y = g.tiles_y;
+        f->edge_band_mm = g.edge_band_mm;
         struct sample_set ss = { .hmax = -INFINITY };
         r = blend_pass(p, o, &g, out, truth, &ss, f, err);
         if (r == 0 && (r = box_thresholds(&ss, o, f)) < 0)
@@ -241,7 +260,8 @@ int imp_mosaic_write(struct imp_painting *p, const struct imp_mosaic_options *o,
                 return r;
         f->pyramid_levels = r;
         _cleanup_json_ json_t *j = index_json(p, &g, f, o, levels);
-        if (!j || (truth && json_object_set_new(j, "truth", truth_json(f)) < 0))
+        if (!j || json_object_set_new(j, "coverage", coverage_json(f)) < 0 ||
+            (truth && json_object_set_new(j, "truth", truth_json(f)) < 0))
                 return imp_error_set(err, -ENOMEM, "out of memory");
         snprintf(path, sizeof path, "%s/mosaic.json", out);
         return imp_json_save_atomic(path, j, err);

@@ -11,6 +11,7 @@
 #include "json-util.h"
 #include "macro.h"
 #include "mosaic-blend.h"
+#include "tiles.h"
 
 void imp_mosaic_synth_default(struct imp_mosaic_synth *s) {
         *s = (struct imp_mosaic_synth) { .extent_mm = { 40, 26 }, .fov_mm = { 12, 8 }, .overlap = 0.2, .pitch_mm = 0.05,
@@ -59,14 +60,6 @@ static double gauss(uint64_t *st) {
         double u1 = fmax(unit(*st), 1e-300);
         *st = mix(*st);
         return sqrt(-2 * log(u1)) * cos(2 * M_PI * unit(*st));
-}
-
-/* Tile centres along one axis as the tile plan lays them out (tiles.h). */
-static int axis_centres(double extent, double fov, double overlap, double *c) {
-        int n = extent <= fov ? 1 : 1 + (int) ceil((extent - fov) / (fov * (1 - overlap)) - 1e-9);
-        for (int i = 0; i < n; i++)
-                c[i] = n == 1 ? extent / 2 : fov / 2 + i * (extent - fov) / (n - 1);
-        return n;
 }
 
 /* The relief's gradient in the tile's frame at tile point (wx, wy) (central differences of
@@ -151,39 +144,45 @@ static int write_truth_exr(const struct imp_mosaic_synth *s, const char *dir, st
 }
 
 int imp_mosaic_synth_write(const struct imp_mosaic_synth *s, const char *dir, struct imp_error *err) {
-        double cx[512], cy[512];
-        int ncx = axis_centres(s->extent_mm[0], s->fov_mm[0], s->overlap, cx);
-        int ncy = axis_centres(s->extent_mm[1], s->fov_mm[1], s->overlap, cy);
+        struct imp_tile_options to;
+        imp_tile_options_default(&to);
+        to.extent_mm[0] = s->extent_mm[0], to.extent_mm[1] = s->extent_mm[1];
+        to.fov_mm[0] = s->fov_mm[0], to.fov_mm[1] = s->fov_mm[1];
+        to.overlap = s->overlap, to.edge_margin_mm = s->edge_margin_mm;
+        _cleanup_(imp_tile_plan_freep) struct imp_tile_plan *tp = NULL;
+        int r = imp_tile_plan_new(&to, &tp, err);
+        if (r < 0)
+                return r;
         char path[4300];
         snprintf(path, sizeof path, "%s/truth", dir);
-        int r = imp_mkdir_p(path, 0755);
+        r = imp_mkdir_p(path, 0755);
         if (r < 0)
                 return imp_error_set(err, r, "%s: cannot create: %s", path, strerror(-r));
         const double origin[2] = { 100, 50 };
         json_t *tiles = json_array(), *truth = json_array();
-        _cleanup_json_ json_t *pj = json_pack("{s:s,s:i,s:[f,f],s:[f,f],s:f,s:[f,f],s:f,s:f,s:o}", "format", "impasto-painting",
+        _cleanup_json_ json_t *pj = json_pack("{s:s,s:i,s:[f,f],s:[f,f],s:f,s:f,s:[f,f],s:f,s:f,s:o}", "format", "impasto-painting",
                 "version", 1, "extent_mm", s->extent_mm[0], s->extent_mm[1], "fov_mm", s->fov_mm[0], s->fov_mm[1],
-                "overlap", s->overlap, "origin_mm", origin[0], origin[1], "stage_sigma_mm", s->sigma_mm,
+                "overlap", s->overlap, "edge_margin_mm", s->edge_margin_mm, "origin_mm", origin[0], origin[1], "stage_sigma_mm", s->sigma_mm,
                 "stage_sigma_deg", s->sigma_deg, "tiles", tiles);
         _cleanup_json_ json_t *tj = json_pack("{s:o}", "tiles", truth);
         uint64_t rng = mix(s->seed);
-        for (int row = 0, idx = 0; row < ncy; row++)
-                for (int q = 0; q < ncx; q++, idx++) {
-                        int col = row % 2 ? ncx - 1 - q : q;      /* serpentine */
-                        double pose[4] = { cx[col] + s->sigma_mm * gauss(&rng), cy[row] + s->sigma_mm * gauss(&rng),
-                                           s->sigma_deg * M_PI / 180 * gauss(&rng), 0.005 * gauss(&rng) };
-                        char rel[64];
-                        snprintf(rel, sizeof rel, "copies/%04d", idx);
-                        snprintf(path, sizeof path, "%s/%s", dir, rel);
-                        if ((r = write_tile(s, pose, path, &rng, err)) < 0)
-                                return r;
-                        double st[3] = { origin[0] + cx[col], origin[1] + cy[row], 0 };
-                        json_array_append_new(tiles, json_pack("{s:i,s:i,s:i,s:[f,f],s:[f,f,f],s:[f,f,f],s:s,s:s}", "index", idx,
-                                "col", col, "row", row, "center_mm", cx[col], cy[row], "commanded_mm", st[0], st[1], st[2],
-                                "readback_mm", st[0], st[1], st[2], "capture", "", "copy", rel));
-                        json_array_append_new(truth, json_pack("{s:i,s:f,s:f,s:f,s:f}", "index", idx, "x_mm", pose[0],
-                                "y_mm", pose[1], "theta_deg", pose[2] * 180 / M_PI, "dz_mm", pose[3]));
-                }
+        for (size_t idx = 0; idx < imp_tile_plan_count(tp); idx++) {      /* serpentine rows, as the plan */
+                const struct imp_tile *t = imp_tile_plan_tile(tp, idx);
+                const double *ctr = t->center_mm;
+                double pose[4] = { ctr[0] + s->sigma_mm * gauss(&rng), ctr[1] + s->sigma_mm * gauss(&rng),
+                                   s->sigma_deg * M_PI / 180 * gauss(&rng), 0.005 * gauss(&rng) };
+                char rel[64];
+                snprintf(rel, sizeof rel, "copies/%04zu", idx);
+                snprintf(path, sizeof path, "%s/%s", dir, rel);
+                if ((r = write_tile(s, pose, path, &rng, err)) < 0)
+                        return r;
+                double st[3] = { origin[0] + ctr[0], origin[1] + ctr[1], 0 };
+                json_array_append_new(tiles, json_pack("{s:I,s:i,s:i,s:[f,f],s:[f,f,f],s:[f,f,f],s:s,s:s}", "index",
+                        (json_int_t) idx, "col", (int) t->col, "row", (int) t->row, "center_mm", ctr[0], ctr[1],
+                        "commanded_mm", st[0], st[1], st[2], "readback_mm", st[0], st[1], st[2], "capture", "", "copy", rel));
+                json_array_append_new(truth, json_pack("{s:I,s:f,s:f,s:f,s:f}", "index", (json_int_t) idx, "x_mm", pose[0],
+                        "y_mm", pose[1], "theta_deg", pose[2] * 180 / M_PI, "dz_mm", pose[3]));
+        }
         snprintf(path, sizeof path, "%s/truth/tile-poses.json", dir);
         if ((r = imp_json_save_atomic(path, tj, err)) < 0)
                 return r;

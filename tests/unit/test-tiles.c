@@ -67,13 +67,16 @@ static void test_exact_fit(void) {
         CHECK(imp_tile_plan_at(p, 6, 0) == NULL);
 }
 
-/* Every point of the area under at least one tile, every tile inside the area, and each
- * neighbour pair sharing at least the asked overlap. Sampled every 0.5 mm. */
+/* Every point of the area grown by the edge margin m under at least one tile, every tile
+ * inside that, and each neighbour pair sharing at least the asked overlap. Sampled every
+ * 0.5 mm from −m (and at the far edge + m). */
 static void check_cover(const struct imp_tile_plan *p, double ex, double ey, double overlap) {
         size_t n = imp_tile_plan_count(p);
         unsigned uncovered = 0;
-        for (double y = 0; y <= ey; y += 0.5)
-                for (double x = 0; x <= ex; x += 0.5) {
+        const double m = imp_tile_plan_options(p)->edge_margin_mm;
+        for (double ys = -m; ys <= ey + m + 0.5; ys += 0.5)
+                for (double xs = -m; xs <= ex + m + 0.5; xs += 0.5) {
+                        double x = fmin(xs, ex + m), y = fmin(ys, ey + m);
                         bool in = false;
                         for (size_t i = 0; i < n && !in; i++) {
                                 const double *r = imp_tile_plan_tile(p, i)->rect_mm;
@@ -93,14 +96,14 @@ static void check_cover(const struct imp_tile_plan *p, double ex, double ey, dou
                 CHECK_GE(ov[a], overlap - EPS);
                 /* As few tiles as that takes: one fewer would overlap less than asked. */
                 if (grid[a] > 2)
-                        CHECK(1 - (o->extent_mm[a] - o->fov_mm[a]) / (grid[a] - 2) / o->fov_mm[a] < overlap);
+                        CHECK(1 - (o->extent_mm[a] + 2 * m - o->fov_mm[a]) / (grid[a] - 2) / o->fov_mm[a] < overlap);
         }
         for (size_t i = 0; i < n; i++) {
                 const double *r = imp_tile_plan_tile(p, i)->rect_mm;
-                if (o->extent_mm[0] >= o->fov_mm[0])
-                        CHECK(r[0] >= -EPS && r[2] <= ex + EPS);
-                if (o->extent_mm[1] >= o->fov_mm[1])
-                        CHECK(r[1] >= -EPS && r[3] <= ey + EPS);
+                if (o->extent_mm[0] + 2 * m >= o->fov_mm[0])
+                        CHECK(r[0] >= -m - EPS && r[2] <= ex + m + EPS);
+                if (o->extent_mm[1] + 2 * m >= o->fov_mm[1])
+                        CHECK(r[1] >= -m - EPS && r[3] <= ey + m + EPS);
         }
 }
 
@@ -170,6 +173,67 @@ static void test_exact_cover(void) {
         _cleanup_(imp_tile_plan_freep) struct imp_tile_plan *p = make(300, 200, 60, 40, 0.2, IMP_TILE_ORDER_ROWS);
         if (p)
                 check_cover(p, 300, 200, 0.2);
+}
+
+/* An edge margin: the outer fields pass the extent by m on every side, the overlap stays at
+ * least the asked one, the extra tiles are counted (300 × 200 mm: 6 × 6 fits exactly, so any
+ * margin takes 7 × 7), the stage targets move with the tiles, and the estimate's path and
+ * tile count are the new layout's. */
+static void test_edge_margin(void) {
+        struct imp_tile_options o;
+        imp_tile_options_default(&o);
+        o.extent_mm[0] = 300, o.extent_mm[1] = 200, o.fov_mm[0] = 60, o.fov_mm[1] = 40;
+        o.origin_mm[0] = 20, o.origin_mm[1] = 20;
+        o.edge_margin_mm = 1;
+        _cleanup_(imp_tile_plan_freep) struct imp_tile_plan *p = NULL;
+        struct imp_error err = {};
+        CHECK_OK(imp_tile_plan_new(&o, &p, &err));
+        if (!p)
+                return;
+        unsigned cols, rows;
+        imp_tile_plan_grid(p, &cols, &rows);
+        CHECK_INT_EQ(cols, 7);                  /* 1 + ceil(242 / 48) */
+        CHECK_INT_EQ(rows, 7);                  /* 1 + ceil(162 / 32) */
+        double step[2], ov[2];
+        imp_tile_plan_spacing(p, step, ov);
+        CHECK_NEAR(step[0], 242.0 / 6, EPS);
+        CHECK_NEAR(step[1], 162.0 / 6, EPS);
+        const struct imp_tile *first = imp_tile_plan_tile(p, 0), *last = imp_tile_plan_at(p, 6, 6);
+        CHECK_NEAR(first->rect_mm[0], -1, EPS);
+        CHECK_NEAR(first->rect_mm[1], -1, EPS);
+        CHECK_NEAR(last->rect_mm[2], 301, EPS);
+        CHECK_NEAR(last->rect_mm[3], 201, EPS);
+        CHECK_NEAR(first->stage_mm[0], 20 + 29, EPS);
+        CHECK_NEAR(first->stage_mm[1], 20 + 19, EPS);
+        check_cover(p, 300, 200, 0.2);
+        struct imp_tile_cost c = { .frames = 120, .bytes = 2e9, .capture_s = 60, .process_s = 30, .workers = 1,
+                                   .speed_mm_s = 50, .settle_s = 1 };
+        struct imp_tile_estimate e;
+        CHECK_OK(imp_tile_plan_estimate(p, &c, &e));
+        CHECK_INT_EQ(e.tiles, 49);
+        CHECK_INT_EQ(e.frames, 49 * 120);
+        CHECK_NEAR(e.move_s, (7 * 242.0 + 6 * 27.0) / 50 + 48, 1e-6);
+        CHECK_NEAR(e.capture_s, 49 * 60 + e.move_s, 1e-6);
+        /* painting.json says it */
+        _cleanup_json_ json_t *j = imp_tile_plan_painting_json(p, 0.05, 0.05);
+        CHECK(j && json_real_value(json_object_get(j, "edge_margin_mm")) == 1.0);
+        CHECK(j && imp_painting_json_check(j, "painting.json", &err) == 0);
+        /* painting-small's plan: 100 × 54 mm at 40 × 30 mm, 24 mm steps fit y exactly: 3 × 3 */
+        o.extent_mm[0] = 100, o.extent_mm[1] = 54, o.fov_mm[0] = 40, o.fov_mm[1] = 30;
+        _cleanup_(imp_tile_plan_freep) struct imp_tile_plan *q = NULL;
+        CHECK_OK(imp_tile_plan_new(&o, &q, &err));
+        if (!q)
+                return;
+        imp_tile_plan_grid(q, &cols, &rows);
+        CHECK_INT_EQ(cols, 3);
+        CHECK_INT_EQ(rows, 3);
+        check_cover(q, 100, 54, 0.2);
+        /* a negative margin is refused */
+        o.edge_margin_mm = -0.5;
+        struct imp_tile_plan *bad = NULL;
+        CHECK_ERR(imp_tile_plan_new(&o, &bad, &err), -EINVAL);
+        CHECK_STR_CONTAINS(err.msg, "edge_margin_mm");
+        CHECK(bad == NULL);
 }
 
 static void test_order(void) {
@@ -277,6 +341,7 @@ static void test_conf(void) {
         CHECK_NEAR(imp_tile_plan_at(p, 2, 1)->stage_mm[2], 20.3, EPS);
         CHECK_NEAR(imp_tile_plan_at(p, 1, 1)->stage_mm[2], 20.0, EPS);
         CHECK_NEAR(imp_tile_plan_tile(p, 0)->stage_mm[0], 40.0, EPS);
+        CHECK_NEAR(imp_tile_plan_options(p)->edge_margin_mm, 0, EPS);   /* the default */
 
         static const char *const bad[][2] = {
                 { "painting = { extent_mm = [300.0, 200.0]; fov_mm = [60.0, 40.0]; overlap = 0.9; };", "plan.cfg:1: painting.overlap" },
@@ -284,6 +349,8 @@ static void test_conf(void) {
                 { "painting = { extent_mm = [300.0, 200.0];\n fov_mm = [60.0, 40.0];\n z_corrections = ( { tile = [6, 0]; z_mm = 0.1; } ); };",
                   "plan.cfg:3: painting.z_corrections.[0].tile: expected [col, row] inside the 6 × 6 grid, got [6, 0]" },
                 { "painting = { extent_mm = [300.0, -2.0]; fov_mm = [60.0, 40.0]; };", "plan.cfg:1: painting: tiles: extent_mm y" },
+                { "painting = { extent_mm = [300.0, 200.0]; fov_mm = [60.0, 40.0]; edge_margin_mm = -1.0; };",
+                  "plan.cfg:1: painting.edge_margin_mm" },
         };
         for (size_t i = 0; i < ARRAY_SIZE(bad); i++) {
                 _cleanup_(imp_conf_freep) struct imp_conf *b = NULL;
@@ -488,6 +555,7 @@ int main(void) {
         test_uneven();
         test_small_area();
         test_exact_cover();
+        test_edge_margin();
         test_order();
         test_targets();
         test_bad_options();
