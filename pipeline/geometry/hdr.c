@@ -357,6 +357,14 @@ static bool same_layout(const struct imp_image *a, const struct imp_image *b) {
         return a->width == b->width && a->height == b->height && a->channels == b->channels;
 }
 
+/* *img taken when it has this layout (its samples are all overwritten by the merge). */
+static struct imp_image *recycled(struct imp_image **img, int w, int h, int C, enum imp_pixel_type type) {
+        struct imp_image *m = *img;
+        if (!m || m->width != w || m->height != h || m->channels != C || m->type != type)
+                return NULL;
+        return TAKE_PTR(*img);
+}
+
 int imp_hdr_merge(const struct imp_hdr_exposure *stack, size_t n, const struct imp_sensor *sensor,
                   const struct imp_hdr_options *opt, struct imp_hdr_result *ret) {
         struct imp_hdr_options defaults;
@@ -406,9 +414,13 @@ int imp_hdr_merge(const struct imp_hdr_exposure *stack, size_t n, const struct i
 
         int w = f0->width, h = f0->height, C = f0->channels, r;
         _cleanup_image_ struct imp_image *v = NULL, *var = NULL, *fl = NULL;
+        if (opt->recycle && !bayer) {
+                var = recycled(&opt->recycle->variance, w, h, C, IMP_PIX_F32);
+                fl = recycled(&opt->recycle->flags, w, h, C, IMP_PIX_U8);
+        }
         if ((r = imp_image_new(w, h, C, IMP_PIX_F32, &v)) < 0 ||
-            (r = imp_image_new(w, h, C, IMP_PIX_F32, &var)) < 0 ||
-            (r = imp_image_new(w, h, C, IMP_PIX_U8, &fl)) < 0)
+            (!var && (r = imp_image_new(w, h, C, IMP_PIX_F32, &var)) < 0) ||
+            (!fl && (r = imp_image_new(w, h, C, IMP_PIX_U8, &fl)) < 0))
                 return r;
         size_t n_sat = 0, n_dark = 0;
         if (!opt->dark) {
