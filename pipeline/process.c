@@ -107,11 +107,12 @@ static int collect_stacks(const struct imp_captureset *cs, const char *step, con
 }
 
 /* Frame `first` and its repeats (same shot, exposure and gain) later in the set, as their
- * mean (rounded DN) in *img; the number of frames in *ret_n. */
+ * mean (rounded DN) in *img (decoded into the image *img holds when it has the frame's
+ * layout); the number of frames in *ret_n. */
 static int load_averaged(const struct imp_captureset *cs, size_t first, struct imp_image **img,
                          unsigned *ret_n, struct imp_error *err) {
         const struct imp_frame_record *a = imp_captureset_record(cs, first);
-        int r = imp_captureset_load_frame(cs, first, img, err);
+        int r = imp_captureset_load_frame_reuse(cs, first, img, err);   /* *img: the thread's buffer */
         if (r < 0)
                 return r;
         *ret_n = 1;
@@ -156,31 +157,51 @@ static int load_averaged(const struct imp_captureset *cs, size_t first, struct i
         return 0;
 }
 
-/* Loads and merges one stack into linear values (mono: the mean of the channels). */
+/* What one thread keeps from stack to stack: its decoded frames and the variance and flags
+ * images of its last merge, which the next decodes and merges into: the same bytes, without
+ * allocating, zeroing and faulting in ~13 MB a stack anew. */
+struct stack_scratch {
+        struct imp_image *frames[IMP_HDR_MAX_STACK];
+        struct imp_hdr_result spare;
+};
+
+static void stack_scratch_done(struct stack_scratch *sc) {
+        for (int k = 0; k < IMP_HDR_MAX_STACK; k++)
+                imp_image_free(sc->frames[k]);
+        imp_hdr_result_done(&sc->spare);
+        *sc = (struct stack_scratch) {};
+}
+
+/* The merge's variance and flags, once read, kept as the thread's spare; h is done. */
+static void keep_spare(struct stack_scratch *sc, struct imp_hdr_result *h) {
+        imp_hdr_result_done(&sc->spare);
+        sc->spare = (struct imp_hdr_result) { .variance = TAKE_PTR(h->variance), .flags = TAKE_PTR(h->flags) };
+        imp_hdr_result_done(h);
+}
+
+/* Loads and merges one stack into linear values (mono: the mean of the channels), in the
+ * thread's buffers sc. */
 static int merge_stack(const struct imp_captureset *cs, const struct stack *s,
-                       const struct imp_sensor *sensor, struct imp_hdr_result *ret,
-                       struct imp_error *err) {
-        struct imp_image *frames[IMP_HDR_MAX_STACK] = {};
+                       const struct imp_sensor *sensor, struct stack_scratch *sc,
+                       struct imp_hdr_result *ret, struct imp_error *err) {
         struct imp_hdr_exposure ex[IMP_HDR_MAX_STACK];
         int r = 0;
         for (int k = 0; k < s->n; k++) {
                 unsigned n_avg = 1;
-                r = load_averaged(cs, s->idx[k], &frames[k], &n_avg, err);
+                r = load_averaged(cs, s->idx[k], &sc->frames[k], &n_avg, err);
                 if (r < 0)
-                        goto out;
+                        return r;
                 const struct imp_frame_record *rec = imp_captureset_record(cs, s->idx[k]);
-                ex[k] = (struct imp_hdr_exposure) { frames[k], rec->exposure_us, rec->gain_db, n_avg };
+                ex[k] = (struct imp_hdr_exposure) { sc->frames[k], rec->exposure_us, rec->gain_db, n_avg };
         }
         struct imp_hdr_options opt;
         imp_hdr_options_default(&opt);
         opt.demosaic = true;
+        opt.recycle = &sc->spare;
         r = imp_hdr_merge(ex, s->n, sensor, &opt, ret);
         if (r < 0)
                 imp_error_set(err, r, "%s: HDR merge of frame %zu failed: %s",
                               imp_captureset_dir(cs), s->first, strerror(-r));
-out:
-        for (int k = 0; k < s->n; k++)
-                imp_image_free(frames[k]);
         return r;
 }
 
@@ -190,16 +211,26 @@ out:
  * OpenMP does not nest). Progress from the calling thread; returns the error of the first
  * failing stack in manifest order (those after it are not started once it is known). */
 static int for_each_stack(const struct process_opts *o, const char *stage, size_t n,
-                          int (*each)(void *ctx, size_t i, struct imp_error *err), void *ctx,
-                          struct imp_error *err) {
+                          int (*each)(void *ctx, size_t i, struct stack_scratch *sc, struct imp_error *err),
+                          void *ctx, struct imp_error *err) {
         size_t fail = n, done = 0;
-        int r = 0;
+        int r = 0, n_threads = 1;
+#ifdef _OPENMP
+        n_threads = omp_get_max_threads();
+#endif
+        _cleanup_free_ struct stack_scratch *scratch = calloc((size_t) n_threads, sizeof *scratch);
+        if (!scratch)
+                return imp_error_set(err, -ENOMEM, "out of memory");
 #pragma omp parallel for schedule(dynamic, 1)
         for (size_t i = 0; i < n; i++) {
                 if (__atomic_load_n(&fail, __ATOMIC_RELAXED) < i)
                         continue;
                 struct imp_error e = {};
-                int ri = each(ctx, i, &e);
+                int t = 0;
+#ifdef _OPENMP
+                t = omp_get_thread_num();
+#endif
+                int ri = each(ctx, i, &scratch[t], &e);
                 if (ri < 0) {
 #pragma omp critical(process_stack_fail)
                         if (i < fail) {
@@ -215,6 +246,8 @@ static int for_each_stack(const struct process_opts *o, const char *stage, size_
 #endif
                         progress(o, stage, d, n);
         }
+        for (int t = 0; t < n_threads; t++)
+                stack_scratch_done(&scratch[t]);
         if (fail < n)
                 return r;
         progress(o, stage, n, n);
@@ -400,18 +433,18 @@ struct sl_merge_ctx {
 };
 
 /* Stack i merged, to mono, with its saturation mask (a for_each_stack step). */
-static int sl_merge_one(void *ctx, size_t i, struct imp_error *err) {
+static int sl_merge_one(void *ctx, size_t i, struct stack_scratch *sc, struct imp_error *err) {
         const struct sl_merge_ctx *c = ctx;
         struct sl_frames *f = c->f;
         struct imp_hdr_result h = {};
-        int r = merge_stack(c->cs, &c->stacks[i], &c->cam->sensor, &h, err);
+        int r = merge_stack(c->cs, &c->stacks[i], &c->cam->sensor, sc, &h, err);
         if (r < 0)
                 return r;
         c->counts[i][0] = h.n_saturated;
         c->counts[i][1] = h.n_dark;
         f->imgs[i] = TAKE_PTR(h.value);
         r = imp_hdr_saturated_mask(h.flags, &f->sats[i]);
-        imp_hdr_result_done(&h);
+        keep_spare(sc, &h);
         if (r < 0 || (r = to_mono(&f->imgs[i])) < 0)
                 return imp_error_set(err, r, "out of memory");
         f->pats[i] = imp_captureset_record(c->cs, c->stacks[i].first)->pattern;
@@ -662,7 +695,7 @@ struct dome_merge_ctx {
 
 /* Dome stack i merged with its validity mask, into its place among the used or the held-out
  * lights (a for_each_stack step). */
-static int dome_merge_one(void *ctx, size_t i, struct imp_error *err) {
+static int dome_merge_one(void *ctx, size_t i, struct stack_scratch *sc, struct imp_error *err) {
         const struct dome_merge_ctx *c = ctx;
         const struct imp_rig *rig = imp_captureset_rig(c->cs);
         struct dome *d = c->d;
@@ -672,7 +705,7 @@ static int dome_merge_one(void *ctx, size_t i, struct imp_error *err) {
                 return imp_error_set(err, -EINVAL, "%s/manifest.jsonl: frame %zu: light %d is not in rig.json",
                                      c->o->capture, c->stacks[i].first, id);
         struct imp_hdr_result h = {};
-        int r = merge_stack(c->cs, &c->stacks[i], &rig->cameras[0].sensor, &h, err);
+        int r = merge_stack(c->cs, &c->stacks[i], &rig->cameras[0].sensor, sc, &h, err);
         if (r < 0)
                 return r;
         /* Validity per pixel from the merge flags (any channel). */
@@ -694,7 +727,7 @@ static int dome_merge_one(void *ctx, size_t i, struct imp_error *err) {
                 d->valid[k] = vimg;
                 d->lights[k] = *L;
         }
-        imp_hdr_result_done(&h);
+        keep_spare(sc, &h);
         return 0;
 }
 

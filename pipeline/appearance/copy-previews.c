@@ -15,6 +15,7 @@
 #include "copy-previews.h"
 #include "json-util.h"
 #include "macro.h"
+#include "numerics.h"
 
 #define PANEL_W 120       /* the colour bar's panel right of a ramp image, pixels */
 #define SCALE_H 40        /* the length scale's strip below it */
@@ -130,11 +131,6 @@ static void previews_done(struct previews *p) {
         imp_image_free(p->albedo);
 }
 
-static int cmp_float(const void *a, const void *b) {
-        float x = *(const float *) a, y = *(const float *) b;
-        return (x > y) - (x < y);
-}
-
 /* The ranges the ramps span: heights min..max, σ 0..its 99th percentile; the flagged share. */
 static int ranges(const struct imp_heightfield *hf, struct previews *p) {
         size_t n = (size_t) hf->nx * hf->ny, m = 0, flagged = 0;
@@ -156,8 +152,7 @@ static int ranges(const struct imp_heightfield *hf, struct previews *p) {
                 p->lo = isfinite(p->lo) ? p->lo : 0;
                 p->hi = p->lo + 1e-3;
         }
-        qsort(s, m, sizeof *s, cmp_float);
-        p->sigma_hi = m ? fmax(s[(size_t) (0.99 * (m - 1))], 1e-6) : 1e-3;
+        p->sigma_hi = m ? fmax(imp_select_kth_float(s, m, (size_t) (0.99 * (m - 1))), 1e-6) : 1e-3;
         p->flagged_fraction = p->texels ? (double) flagged / p->texels : 0;
         return 0;
 }
@@ -245,7 +240,7 @@ static int write_index(const char *dir, const struct imp_heightfield *hf, const 
 
 int imp_copy_previews(const char *copy_dir, const struct imp_heightfield *hf, const struct imp_image *rho_d,
                       struct imp_error *err) {
-        char dir[4096], path[4200];
+        char dir[4096];
         snprintf(dir, sizeof dir, "%s/previews", copy_dir);
         int r = imp_mkdir_p(dir, 0755);
         if (r < 0)
@@ -261,11 +256,19 @@ int imp_copy_previews(const char *copy_dir, const struct imp_heightfield *hf, co
         static const char *const names[] = { "relief.png", "normals.png", "height.png", "sigma.png", "flags.png",
                                              "albedo.png" };
         const struct imp_image *imgs[] = { p.shade, p.nmap, hbar, sbar, p.fmap, p.albedo };
-        for (size_t k = 0; k < ARRAY_SIZE(names) && r >= 0; k++) {
-                snprintf(path, sizeof path, "%s/%s", dir, names[k]);
+        /* One image a thread (zlib is most of the time); the first failure in this order. */
+        int rk[ARRAY_SIZE(names)] = {};
+        struct imp_error ek[ARRAY_SIZE(names)] = {};
+#pragma omp parallel for schedule(dynamic, 1)
+        for (size_t k = 0; k < ARRAY_SIZE(names); k++) {
+                char pk[4200];
+                snprintf(pk, sizeof pk, "%s/%s", dir, names[k]);
                 if (imgs[k])
-                        r = imp_png_write(path, imgs[k], err);
+                        rk[k] = imp_png_write(pk, imgs[k], &ek[k]);
         }
+        for (size_t k = 0; k < ARRAY_SIZE(names) && r >= 0; k++)
+                if ((r = rk[k]) < 0 && err)
+                        *err = ek[k];
         if (r >= 0)
                 r = write_index(dir, hf, &p, err);
         previews_done(&p);

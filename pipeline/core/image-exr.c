@@ -2,10 +2,15 @@
  * compression, one named HALF or FLOAT channel per image channel, chunk-by-chunk encode and
  * decode straight from/into the interleaved f32 image. The library's error callback keeps
  * the first message in a thread-local buffer instead of printing it. */
+#define _GNU_SOURCE   /* CPU_COUNT, sched_getaffinity */
 #include <errno.h>
 #include <fcntl.h>
 #include <inttypes.h>
 #include <openexr.h>
+#include <pthread.h>
+#include <sched.h>
+#include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
 #include <unistd.h>
@@ -107,30 +112,31 @@ static int point_encoder(exr_encode_pipeline_t *enc, const struct imp_image *img
         return 0;
 }
 
-static exr_result_t exr_write_chunks(exr_context_t ctxt, const struct imp_image *img,
-                                     const char *const *names) {
-        exr_encode_pipeline_t enc = EXR_ENCODE_PIPELINE_INITIALIZER;
-        exr_result_t rv;
-        int32_t lines = 0;
-        bool started = false;
+/* Chunk y's encoder pointed at the image; the first call chooses the library's routines. */
+static exr_result_t encode_setup(exr_context_t ctxt, const struct imp_image *img, const char *const *names,
+                                 int y, exr_encode_pipeline_t *enc, bool *started) {
+        exr_chunk_info_t cinfo;
+        exr_result_t rv = exr_write_scanline_chunk_info(ctxt, 0, y, &cinfo);
+        if (rv != EXR_ERR_SUCCESS)
+                return rv;
+        rv = *started ? exr_encoding_update(ctxt, 0, &cinfo, enc) : exr_encoding_initialize(ctxt, 0, &cinfo, enc);
+        if (rv != EXR_ERR_SUCCESS)
+                return rv;
+        if (point_encoder(enc, img, names, y) < 0)
+                return EXR_ERR_INVALID_ARGUMENT;
+        if (!*started)
+                rv = exr_encoding_choose_default_routines(ctxt, 0, enc);
+        *started = true;
+        return rv;
+}
 
-        rv = exr_get_scanlines_per_chunk(ctxt, 0, &lines);
-        if (rv == EXR_ERR_SUCCESS && lines < 1)
-                rv = EXR_ERR_INVALID_ARGUMENT;
+static exr_result_t exr_write_chunks_serial(exr_context_t ctxt, const struct imp_image *img,
+                                            const char *const *names, int lines) {
+        exr_encode_pipeline_t enc = EXR_ENCODE_PIPELINE_INITIALIZER;
+        exr_result_t rv = EXR_ERR_SUCCESS;
+        bool started = false;
         for (int y = 0; y < img->height && rv == EXR_ERR_SUCCESS; y += lines) {
-                exr_chunk_info_t cinfo;
-                rv = exr_write_scanline_chunk_info(ctxt, 0, y, &cinfo);
-                if (rv != EXR_ERR_SUCCESS)
-                        break;
-                rv = started ? exr_encoding_update(ctxt, 0, &cinfo, &enc)
-                             : exr_encoding_initialize(ctxt, 0, &cinfo, &enc);
-                if (rv != EXR_ERR_SUCCESS)
-                        break;
-                if (point_encoder(&enc, img, names, y) < 0)
-                        rv = EXR_ERR_INVALID_ARGUMENT;
-                if (rv == EXR_ERR_SUCCESS && !started)
-                        rv = exr_encoding_choose_default_routines(ctxt, 0, &enc);
-                started = true;
+                rv = encode_setup(ctxt, img, names, y, &enc, &started);
                 if (rv == EXR_ERR_SUCCESS)
                         rv = exr_encoding_run(ctxt, 0, &enc);
         }
@@ -139,8 +145,171 @@ static exr_result_t exr_write_chunks(exr_context_t ctxt, const struct imp_image 
         return rv;
 }
 
+/* Parallel writing: worker threads pack and compress chunks (the costly part: zlib) into
+ * memory, the calling thread writes them to the file in chunk order. A chunk's bytes are
+ * exactly what the serial encoder writes: the same library routines run, only the last
+ * step (the write) is replaced by keeping the chunk. At most EXR_PAR_WINDOW chunks are
+ * held in memory ahead of the writer. */
+#define EXR_PAR_WINDOW   64
+#define EXR_PAR_MAX      8       /* threads at most */
+
+struct exr_chunk_out {
+        void *data;
+        uint64_t size;
+        bool done;
+};
+
+struct exr_par {
+        exr_context_t ctxt;
+        const struct imp_image *img;
+        const char *const *names;
+        int lines, n_chunks;
+        pthread_mutex_t mu;
+        pthread_cond_t cv;
+        int next, written;              /* next chunk to encode; chunks written */
+        exr_result_t fail;              /* first failure (EXR_ERR_SUCCESS: none) */
+        char fail_msg[sizeof exr_msg];
+        struct exr_chunk_out *out;
+};
+
+/* write_fn of the workers' pipelines: keeps the chunk the default would write. */
+static exr_result_t keep_chunk(exr_encode_pipeline_t *enc) {
+        struct exr_chunk_out *o = enc->encoding_user_data;
+        o->data = malloc(enc->compressed_bytes ? enc->compressed_bytes : 1);
+        if (!o->data)
+                return EXR_ERR_OUT_OF_MEMORY;
+        memcpy(o->data, enc->compressed_buffer, enc->compressed_bytes);
+        o->size = enc->compressed_bytes;
+        return EXR_ERR_SUCCESS;
+}
+
+static void par_failed(struct exr_par *p, exr_result_t rv) {   /* with p->mu held */
+        if (p->fail == EXR_ERR_SUCCESS) {
+                p->fail = rv;
+                snprintf(p->fail_msg, sizeof p->fail_msg, "%s", exr_detail(rv));
+        }
+        pthread_cond_broadcast(&p->cv);
+}
+
+static void *exr_par_worker(void *arg) {
+        struct exr_par *p = arg;
+        exr_encode_pipeline_t enc = EXR_ENCODE_PIPELINE_INITIALIZER;
+        bool started = false;
+        pthread_mutex_lock(&p->mu);
+        for (;;) {
+                while (p->fail == EXR_ERR_SUCCESS && p->next < p->n_chunks && p->next >= p->written + EXR_PAR_WINDOW)
+                        pthread_cond_wait(&p->cv, &p->mu);
+                if (p->fail != EXR_ERR_SUCCESS || p->next >= p->n_chunks)
+                        break;
+                int k = p->next++;
+                pthread_mutex_unlock(&p->mu);
+                exr_msg[0] = 0;
+                exr_result_t rv = encode_setup(p->ctxt, p->img, p->names, k * p->lines, &enc, &started);
+                if (rv == EXR_ERR_SUCCESS) {
+                        enc.yield_until_ready_fn = NULL;   /* the order is the writer's */
+                        enc.write_fn = keep_chunk;
+                        enc.encoding_user_data = &p->out[k];
+                        rv = exr_encoding_run(p->ctxt, 0, &enc);
+                }
+                pthread_mutex_lock(&p->mu);
+                if (rv != EXR_ERR_SUCCESS)
+                        par_failed(p, rv);
+                p->out[k].done = true;
+                pthread_cond_broadcast(&p->cv);
+        }
+        pthread_mutex_unlock(&p->mu);
+        if (started)
+                exr_encoding_destroy(p->ctxt, &enc);
+        return NULL;
+}
+
+/* The writer: chunk k once it is encoded, in order. */
+static exr_result_t exr_par_write(struct exr_par *p) {
+        exr_result_t rv = EXR_ERR_SUCCESS;
+        for (int k = 0; k < p->n_chunks && rv == EXR_ERR_SUCCESS; k++) {
+                pthread_mutex_lock(&p->mu);
+                while (!p->out[k].done && p->fail == EXR_ERR_SUCCESS)
+                        pthread_cond_wait(&p->cv, &p->mu);
+                rv = p->fail;
+                pthread_mutex_unlock(&p->mu);
+                if (rv == EXR_ERR_SUCCESS)
+                        rv = exr_write_scanline_chunk(p->ctxt, 0, k * p->lines, p->out[k].data, p->out[k].size);
+                free(p->out[k].data);
+                p->out[k].data = NULL;
+                pthread_mutex_lock(&p->mu);
+                if (rv != EXR_ERR_SUCCESS)
+                        par_failed(p, rv);
+                p->written = k + 1;
+                pthread_cond_broadcast(&p->cv);
+                pthread_mutex_unlock(&p->mu);
+        }
+        return rv;
+}
+
+static exr_result_t exr_write_chunks_parallel(exr_context_t ctxt, const struct imp_image *img,
+                                              const char *const *names, int lines, int threads) {
+        int n_chunks = (img->height + lines - 1) / lines;
+        _cleanup_free_ struct exr_chunk_out *out = calloc((size_t) n_chunks, sizeof *out);
+        pthread_t tid[EXR_PAR_MAX];
+        if (!out)
+                return EXR_ERR_OUT_OF_MEMORY;
+        struct exr_par p = { .ctxt = ctxt, .img = img, .names = names, .lines = lines, .n_chunks = n_chunks,
+                             .mu = PTHREAD_MUTEX_INITIALIZER, .cv = PTHREAD_COND_INITIALIZER, .out = out };
+        int started = 0;
+        for (; started < threads; started++)
+                if (pthread_create(&tid[started], NULL, exr_par_worker, &p) != 0)
+                        break;
+        exr_result_t rv = started > 0 ? exr_par_write(&p) : EXR_ERR_OUT_OF_MEMORY;
+        if (rv != EXR_ERR_SUCCESS) {   /* stop the workers at their next chunk */
+                pthread_mutex_lock(&p.mu);
+                par_failed(&p, rv);
+                pthread_mutex_unlock(&p.mu);
+        }
+        for (int t = 0; t < started; t++)
+                pthread_join(tid[t], NULL);
+        for (int k = 0; k < n_chunks; k++)
+                free(out[k].data);
+        if (rv != EXR_ERR_SUCCESS && p.fail_msg[0] && !exr_msg[0])
+                snprintf(exr_msg, sizeof exr_msg, "%s", p.fail_msg);
+        pthread_cond_destroy(&p.cv);
+        pthread_mutex_destroy(&p.mu);
+        return rv;
+}
+
+/* The CPUs this process may run on (its affinity: a job's cpuset), at most EXR_PAR_MAX. */
+static int exr_default_threads(void) {
+        cpu_set_t set;
+        int n = sched_getaffinity(0, sizeof set, &set) == 0 ? CPU_COUNT(&set) : 1;
+        return n < 1 ? 1 : n > EXR_PAR_MAX ? EXR_PAR_MAX : n;
+}
+
+static exr_result_t exr_write_chunks(exr_context_t ctxt, const struct imp_image *img,
+                                     const char *const *names, int threads) {
+        int32_t lines = 0;
+        exr_result_t rv = exr_get_scanlines_per_chunk(ctxt, 0, &lines);
+        if (rv == EXR_ERR_SUCCESS && lines < 1)
+                rv = EXR_ERR_INVALID_ARGUMENT;
+        if (rv != EXR_ERR_SUCCESS)
+                return rv;
+        if (threads <= 0)
+                threads = exr_default_threads();
+        int n_chunks = (img->height + lines - 1) / lines;
+        if (threads > EXR_PAR_MAX)
+                threads = EXR_PAR_MAX;
+        if (threads > n_chunks)
+                threads = n_chunks;
+        if (threads <= 1)
+                return exr_write_chunks_serial(ctxt, img, names, lines);
+        return exr_write_chunks_parallel(ctxt, img, names, lines, threads);
+}
+
 int imp_exr_write(const char *path, const struct imp_image *img, const char *const *names,
                   bool half, struct imp_error *err) {
+        return imp_exr_write_threads(path, img, names, half, 0, err);
+}
+
+int imp_exr_write_threads(const char *path, const struct imp_image *img, const char *const *names,
+                          bool half, int threads, struct imp_error *err) {
         _cleanup_(exr_finishp) exr_context_t ctxt = NULL;
         exr_result_t rv;
         int r;
@@ -164,7 +333,7 @@ int imp_exr_write(const char *path, const struct imp_image *img, const char *con
         if (rv != EXR_ERR_SUCCESS)      /* e.g. a channel name longer than EXR allows */
                 return imp_error_set(err, rv == EXR_ERR_OUT_OF_MEMORY ? -ENOMEM : -EINVAL,
                                      "%s: cannot write OpenEXR header: %s", path, exr_detail(rv));
-        rv = exr_write_chunks(ctxt, img, names);
+        rv = exr_write_chunks(ctxt, img, names, threads);
         if (rv == EXR_ERR_SUCCESS)
                 rv = exr_finish(&ctxt);         /* writes the chunk table, renames */
         if (rv != EXR_ERR_SUCCESS)

@@ -99,7 +99,9 @@ static int tiff_layout(TIFF *tif, const char *path, int *ret_channels, enum imp_
         return 0;
 }
 
-static int tiff_read_pixels(TIFF *tif, const char *path, struct imp_image **ret, struct imp_error *err) {
+/* Decodes into *io when it has the file's layout (width, height, channels, type), else into
+ * a new image that replaces it. */
+static int tiff_read_pixels(TIFF *tif, const char *path, struct imp_image **io, struct imp_error *err) {
         _cleanup_image_ struct imp_image *img = NULL;
         uint32_t width = 0, height = 0;
         enum imp_pixel_type type = IMP_PIX_U8;
@@ -115,7 +117,12 @@ static int tiff_read_pixels(TIFF *tif, const char *path, struct imp_image **ret,
                 return imp_error_set(err, -EMEDIUMTYPE, "%s: TIFF image of %ux%u pixels is too large "
                                      "(expected at most %d per side)", path, width, height,
                                      IMP_IMAGE_MAX_SIDE);
-        r = imp_image_new((int) width, (int) height, channels, type, &img);
+        struct imp_image *old = *io;
+        if (old && old->width == (int) width && old->height == (int) height && old->channels == channels &&
+            old->type == type)
+                img = TAKE_PTR(*io);   /* every row is overwritten below */
+        else
+                r = imp_image_new((int) width, (int) height, channels, type, &img);
         if (r == -EINVAL)
                 return imp_error_set(err, -EMEDIUMTYPE, "%s: TIFF image too large (expected at "
                                      "most %zu bytes of pixels)", path, IMP_IMAGE_MAX_BYTES);
@@ -130,20 +137,34 @@ static int tiff_read_pixels(TIFF *tif, const char *path, struct imp_image **ret,
                 if (TIFFReadScanline(tif, imp_image_row(img, (int) y), y, 0) < 0)
                         return imp_error_set(err, -EBADMSG, "%s: truncated or corrupt TIFF data "
                                              "at row %u: %s", path, y, tiff_last_error());
-        *ret = TAKE_PTR(img);
+        imp_image_free(*io);
+        *io = TAKE_PTR(img);
         return 0;
 }
 
 int imp_tiff_read(const char *path, struct imp_image **ret, char **ret_description,
                   struct imp_error *err) {
+        if (!ret)
+                return imp_error_set(err, -EINVAL, "imp_tiff_read: no path or result given");
+        struct imp_image *img = NULL;
+        int r = imp_tiff_read_reuse(path, &img, ret_description, err);
+        if (r < 0) {
+                imp_image_free(img);
+                return r;
+        }
+        *ret = img;
+        return 0;
+}
+
+int imp_tiff_read_reuse(const char *path, struct imp_image **io, char **ret_description,
+                        struct imp_error *err) {
         _cleanup_(tiff_closep) TIFF *tif = NULL;
-        _cleanup_image_ struct imp_image *img = NULL;
         _cleanup_free_ char *description = NULL;
         _cleanup_close_ int fd = -1;
         struct stat st;
         int r;
 
-        if (!path || !ret)
+        if (!path || !io)
                 return imp_error_set(err, -EINVAL, "imp_tiff_read: no path or result given");
         fd = open(path, O_RDONLY | O_CLOEXEC);
         if (fd < 0 || fstat(fd, &st) < 0) {
@@ -160,7 +181,7 @@ int imp_tiff_read(const char *path, struct imp_image **ret, char **ret_descripti
                                      tiff_last_error());
         fd = -1;        /* TIFFClose() closes it now */
 
-        r = tiff_read_pixels(tif, path, &img, err);
+        r = tiff_read_pixels(tif, path, io, err);
         if (r < 0)
                 return r;
         if (ret_description) {
@@ -172,7 +193,6 @@ int imp_tiff_read(const char *path, struct imp_image **ret, char **ret_descripti
                 }
                 *ret_description = TAKE_PTR(description);
         }
-        *ret = TAKE_PTR(img);
         return 0;
 }
 

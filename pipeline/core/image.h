@@ -78,6 +78,12 @@ int imp_tiff_write_fast(const char *path, const struct imp_image *img, const cha
                         struct imp_error *err);
 int imp_tiff_read(const char *path, struct imp_image **ret, char **ret_description,
                   struct imp_error *err);
+/* imp_tiff_read into *io when it already has the file's layout (width, height, channels,
+ * pixel type): its pages are reused, none allocated or zeroed; otherwise *io is freed and
+ * replaced by a new image (*io may be NULL). The pixels are those imp_tiff_read returns,
+ * byte for byte. On failure *io is an image of unspecified content or NULL. */
+int imp_tiff_read_reuse(const char *path, struct imp_image **io, char **ret_description,
+                        struct imp_error *err);
 
 /* OpenEXR (C API, ZIP compression): an f32 image with one named channel per image
  * channel (names[c], e.g. "R","G","B" or "height","nx","ny"); half=true stores HALF.
@@ -85,6 +91,11 @@ int imp_tiff_read(const char *path, struct imp_image **ret, char **ret_descripti
  * gets a NULL-terminated malloc'd array of malloc'd names (free with imp_strv_free). */
 int imp_exr_write(const char *path, const struct imp_image *img, const char *const *names,
                   bool half, struct imp_error *err);
+/* The same with the chunks packed and compressed on `threads` threads (0: the CPUs the
+ * process may run on, at most 8; 1: on the calling thread alone): byte for byte the file
+ * imp_exr_write with any thread count writes. imp_exr_write uses 0. */
+int imp_exr_write_threads(const char *path, const struct imp_image *img, const char *const *names,
+                          bool half, int threads, struct imp_error *err);
 int imp_exr_read(const char *path, struct imp_image **ret, char ***ret_names,
                  struct imp_error *err);
 void imp_strv_free(char **v);

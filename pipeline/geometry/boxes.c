@@ -3,6 +3,7 @@
 #include <string.h>
 #include "boxes.h"
 #include "json-util.h"
+#include "numerics.h"
 
 #define BOXES_DEFAULT_DELTA_FRAC   0.3
 #define BOXES_DEFAULT_CELL_PX      20
@@ -26,11 +27,6 @@ void imp_boxes_done(struct imp_boxes *b) {
         free(b->boxes);
         free(b->significant);
         *b = (struct imp_boxes) {};
-}
-
-static int cmp_float(const void *a, const void *b) {
-        float x = *(const float *) a, y = *(const float *) b;
-        return (x > y) - (x < y);
 }
 
 /* Label 8-connected components of sig; drop those below min_px. */
@@ -85,8 +81,7 @@ static double median_sigma(const struct imp_heightfield *hf, float *tmp) {
                         tmp[m++] = hf->sigma_mm[i];
         if (!m)
                 return 0;
-        qsort(tmp, m, sizeof *tmp, cmp_float);
-        return tmp[m / 2];
+        return imp_select_kth_float(tmp, m, m / 2);   /* the sorted array's element, without sorting */
 }
 
 int imp_boxes_classify(const struct imp_heightfield *hf, const struct imp_boxes_options *opt,
@@ -115,8 +110,7 @@ int imp_boxes_classify(const struct imp_heightfield *hf, const struct imp_boxes_
                 }
         if (n == 0)
                 return -ENODATA;
-        qsort(hv, n, sizeof(float), cmp_float);
-        double href = hv[(size_t) llround(opt->ref_percentile / 100.0 * (double) (n - 1))];
+        double href = imp_select_kth_float(hv, n, (size_t) llround(opt->ref_percentile / 100.0 * (double) (n - 1)));
         double H = fmax(hmax - href, 0.0), floor_mm = opt->noise_k * median_sigma(hf, hv);
         double delta0 = fmax(opt->delta_frac * H, floor_mm);
         for (size_t i = 0; i < N; i++)

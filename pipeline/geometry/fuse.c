@@ -11,6 +11,7 @@
 #endif
 #include "fuse.h"
 #include "macro.h"
+#include "numerics.h"
 #include "quality.h"
 
 #define DEG (180.0 / M_PI)
@@ -56,11 +57,6 @@ static double agreement_deg(const struct system *s, const double *z, const float
         return cnt ? sum / cnt : 0;
 }
 
-static int cmp_float(const void *a, const void *b) {
-        float x = *(const float *) a, y = *(const float *) b;
-        return (x > y) - (x < y);
-}
-
 /* Median of the positive finite σ over the measured mask texels (0 when none). */
 static double sigma_ref(const float *sigma, const uint8_t *in, const uint8_t *mask, size_t n) {
         if (!sigma)
@@ -74,8 +70,7 @@ static double sigma_ref(const float *sigma, const uint8_t *in, const uint8_t *ma
                         v[m++] = sigma[t];
         if (!m)
                 return 0;
-        qsort(v, m, sizeof *v, cmp_float);
-        return v[m / 2];
+        return imp_select_kth_float(v, m, m / 2);   /* the sorted array's element, without sorting */
 }
 
 /* Slope σ of a normal with angular σ sd (degrees): d(tan θ)/dθ = 1/cos²θ = 1/nz². */
@@ -233,8 +228,7 @@ static int row_weights(size_t n, const float *normal, const uint8_t *mask, const
                         v[m++] = (float) slope_sigma(&normal[3 * t], nsd[t]);
         if (!m)
                 return 0;
-        qsort(v, m, sizeof *v, cmp_float);
-        double ref = v[m / 2];
+        double ref = imp_select_kth_float(v, m, m / 2);
         for (size_t t = 0; t < n; t++) {
                 if (!(s->rx[t] || s->ry[t]))
                         continue;

@@ -187,6 +187,7 @@ static void demosaic(const struct imp_image *v1, const struct imp_image *var1, c
  * most HDR_MAX_STACK positive terms: relative error ~1e-6, far inside the estimator's
  * noise. */
 #define HDR_SPAN 256    /* samples merged together: their sums (9 KiB) stay in L1 */
+#define HDR_KEEP_X 4    /* exposures whose pass-1 table reading pass 2 reuses (4 KiB) */
 
 struct hdr_fast_exp {
         const float *w1;           /* [2^bits] pass-1 weight, 0 when excluded */
@@ -257,6 +258,7 @@ __attribute__((target_clones("avx2", "default"),
 static void merge_span(const struct hdr_fast *fx, const uint16_t *const *raw, const float *flat, size_t m,
                        float *ret_v, float *ret_var, uint8_t *ret_flag) {
         float sw[HDR_SPAN], sx[HDR_SPAN], lb[HDR_SPAN], x0[HDR_SPAN], sw2[HDR_SPAN], sx2[HDR_SPAN], fl[HDR_SPAN];
+        float xk[HDR_KEEP_X + 1][HDR_SPAN];   /* x[d] of the first exposures (the last row: discarded) */
         int32_t sat[HDR_SPAN];
         uint32_t max_dn = fx->max_dn;
 
@@ -270,11 +272,13 @@ static void merge_span(const struct hdr_fast *fx, const uint16_t *const *raw, co
                 const float *w1 = e->w1, *xt = e->x;
                 uint32_t sat_dn = e->sat_dn;
                 float sat_lb = e->sat_lb;
+                float *keep = xk[i < HDR_KEEP_X ? i : HDR_KEEP_X];
                 for (size_t j = 0; j < m; j++) {
                         uint32_t d = p[j] < max_dn ? p[j] : max_dn;
-                        float w = w1[d];
+                        float w = w1[d], xd = xt[d];
+                        keep[j] = xd;
                         sw[j] += w;
-                        sx[j] += w * xt[d];
+                        sx[j] += w * xd;
                         int32_t s = p[j] >= sat_dn;
                         float l = s ? sat_lb : 0.0f;
                         sat[j] |= s;
@@ -290,15 +294,26 @@ static void merge_span(const struct hdr_fast *fx, const uint16_t *const *raw, co
                 const float *xt = e->x;
                 uint32_t clip_dn = e->clip_dn;
                 float r = e->r, b = e->b, x_sat = e->x_sat, x_lo = e->x_lo;
-                for (size_t j = 0; j < m; j++) {
-                        uint32_t d = p[j] < max_dn ? p[j] : max_dn;
-                        float xx = x0[j];
-                        float q = 1.0f / (xx * r + b);     /* > 0: x0 >= 0, b > 0 */
-                        bool ok = p[j] < clip_dn && xx < x_sat && xx >= x_lo;
-                        q = ok ? q : 0.0f;
-                        sw2[j] += q;
-                        sx2[j] += q * xt[d];
-                }
+                const float *kept = xk[i < HDR_KEEP_X ? i : 0];
+                if (i < HDR_KEEP_X)   /* the same x[d] values, read back instead of gathered */
+                        for (size_t j = 0; j < m; j++) {
+                                float xx = x0[j];
+                                float q = 1.0f / (xx * r + b);     /* > 0: x0 >= 0, b > 0 */
+                                bool ok = p[j] < clip_dn && xx < x_sat && xx >= x_lo;
+                                q = ok ? q : 0.0f;
+                                sw2[j] += q;
+                                sx2[j] += q * kept[j];
+                        }
+                else
+                        for (size_t j = 0; j < m; j++) {
+                                uint32_t d = p[j] < max_dn ? p[j] : max_dn;
+                                float xx = x0[j];
+                                float q = 1.0f / (xx * r + b);
+                                bool ok = p[j] < clip_dn && xx < x_sat && xx >= x_lo;
+                                q = ok ? q : 0.0f;
+                                sw2[j] += q;
+                                sx2[j] += q * xt[d];
+                        }
         }
         if (flat)
                 for (size_t j = 0; j < m; j++)
@@ -357,6 +372,14 @@ static bool same_layout(const struct imp_image *a, const struct imp_image *b) {
         return a->width == b->width && a->height == b->height && a->channels == b->channels;
 }
 
+/* *img taken when it has this layout (its samples are all overwritten by the merge). */
+static struct imp_image *recycled(struct imp_image **img, int w, int h, int C, enum imp_pixel_type type) {
+        struct imp_image *m = *img;
+        if (!m || m->width != w || m->height != h || m->channels != C || m->type != type)
+                return NULL;
+        return TAKE_PTR(*img);
+}
+
 int imp_hdr_merge(const struct imp_hdr_exposure *stack, size_t n, const struct imp_sensor *sensor,
                   const struct imp_hdr_options *opt, struct imp_hdr_result *ret) {
         struct imp_hdr_options defaults;
@@ -406,9 +429,13 @@ int imp_hdr_merge(const struct imp_hdr_exposure *stack, size_t n, const struct i
 
         int w = f0->width, h = f0->height, C = f0->channels, r;
         _cleanup_image_ struct imp_image *v = NULL, *var = NULL, *fl = NULL;
+        if (opt->recycle && !bayer) {
+                var = recycled(&opt->recycle->variance, w, h, C, IMP_PIX_F32);
+                fl = recycled(&opt->recycle->flags, w, h, C, IMP_PIX_U8);
+        }
         if ((r = imp_image_new(w, h, C, IMP_PIX_F32, &v)) < 0 ||
-            (r = imp_image_new(w, h, C, IMP_PIX_F32, &var)) < 0 ||
-            (r = imp_image_new(w, h, C, IMP_PIX_U8, &fl)) < 0)
+            (!var && (r = imp_image_new(w, h, C, IMP_PIX_F32, &var)) < 0) ||
+            (!fl && (r = imp_image_new(w, h, C, IMP_PIX_U8, &fl)) < 0))
                 return r;
         size_t n_sat = 0, n_dark = 0;
         if (!opt->dark) {

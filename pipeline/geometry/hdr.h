@@ -36,6 +36,8 @@ struct imp_hdr_exposure {
         unsigned n_frames;
 };
 
+struct imp_hdr_result;
+
 struct imp_hdr_options {
         /* Per-pixel offset in DN (u16 or f32, same size and channel count as the frames),
          * replacing sensor->black_level_dn: the mean of closed-shutter frames at a short
@@ -57,6 +59,13 @@ struct imp_hdr_options {
         /* Bayer input (sensor->bayer with 1-channel frames): demosaic the merged values
          * (bilinear, RGGB) into 3 channels. false keeps the mosaic (1 channel). */
         bool demosaic;
+        /* An earlier result whose variance and flags images are written into instead of
+         * allocating new ones (their pages are mapped already: a loop over stacks keeps one
+         * spare per thread). Each moves into the new result when it has the result's layout
+         * (no demosaic) and is left where it is otherwise; every sample is overwritten, so
+         * the result is byte for byte that of a fresh merge. The value image is always new.
+         * NULL: allocate. */
+        struct imp_hdr_result *recycle;
 };
 
 /* Fills the defaults above (all fields). */

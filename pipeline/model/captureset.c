@@ -999,6 +999,18 @@ static int check_embedded(const struct imp_captureset *cs, size_t i, const char 
 
 int imp_captureset_load_frame(const struct imp_captureset *cs, size_t i, struct imp_image **ret,
                               struct imp_error *err) {
+        struct imp_image *img = NULL;
+        int r = imp_captureset_load_frame_reuse(cs, i, &img, err);
+        if (r < 0) {
+                imp_image_free(img);
+                return r;
+        }
+        *ret = img;
+        return 0;
+}
+
+int imp_captureset_load_frame_reuse(const struct imp_captureset *cs, size_t i, struct imp_image **io,
+                                    struct imp_error *err) {
         if (i >= cs->n)
                 return imp_error_set(err, -ERANGE, "%s: frame %zu of %zu", cs->dir, i, cs->n);
         const struct imp_frame_record *rec = &cs->recs[i];
@@ -1013,11 +1025,11 @@ int imp_captureset_load_frame(const struct imp_captureset *cs, size_t i, struct 
         if (crc != rec->crc32)
                 return imp_error_set(err, -EBADMSG, "%s: checksum mismatch (manifest says %08x, file "
                                      "has %08x): the frame is damaged", path, rec->crc32, crc);
-        _cleanup_image_ struct imp_image *img = NULL;
         _cleanup_free_ char *desc = NULL;
-        if ((r = imp_tiff_read(path, &img, &desc, err)) < 0 ||
+        if ((r = imp_tiff_read_reuse(path, io, &desc, err)) < 0 ||
             (r = check_embedded(cs, i, path, desc, err)) < 0)
                 return r;
+        const struct imp_image *img = *io;
         if (img->type != IMP_PIX_U16)
                 return imp_error_set(err, -EBADMSG, "%s: expected a 16-bit frame, got %s", path,
                                      imp_pixel_type_name(img->type));
@@ -1035,7 +1047,6 @@ int imp_captureset_load_frame(const struct imp_captureset *cs, size_t i, struct 
                                      "(model.width, model.height) is %d × %d: the frame or rig.json is damaged",
                                      path, img->width, img->height, cam->name, cam->model.width,
                                      cam->model.height);
-        *ret = TAKE_PTR(img);
         return 0;
 }
 

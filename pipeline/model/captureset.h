@@ -71,6 +71,11 @@ const char *imp_captureset_dir(const struct imp_captureset *cs);
 /* Loads frame i (u16, raw digital numbers), verifying its checksum. */
 int imp_captureset_load_frame(const struct imp_captureset *cs, size_t i, struct imp_image **ret,
                               struct imp_error *err);
+/* The same, decoded into *io when it already has the frame's layout (no pages allocated or
+ * zeroed; imp_tiff_read_reuse), else into a new image replacing it (*io may be NULL): for
+ * a loop over frames that keeps one buffer. On failure *io is unspecified content or NULL. */
+int imp_captureset_load_frame_reuse(const struct imp_captureset *cs, size_t i, struct imp_image **io,
+                                    struct imp_error *err);
 
 /* The set against its own plan (plan.cfg, expanded against its rig; read as text, no
  * @include): 0 when every planned frame is recorded (or the set has no plan); 1 when some

@@ -5,6 +5,7 @@
  * field, Bayer demosaic, argument errors. */
 #include <math.h>
 #include <stdint.h>
+#include <string.h>
 #include "hdr.h"
 #include "unit/test.h"
 
@@ -218,10 +219,82 @@ static void test_errors(void) {
         imp_image_free(g);
 }
 
+static bool same_bytes(const struct imp_image *a, const struct imp_image *b) {
+        return a && b && a->width == b->width && a->height == b->height && a->channels == b->channels &&
+               a->type == b->type && a->stride == b->stride &&
+               !memcmp(a->data, b->data, a->stride * (size_t) a->height);
+}
+
+/* A spare of the result's layout filled with junk (NaN, 0xa5 flags) that every sample must
+ * overwrite. */
+static void junk_spare(struct imp_hdr_result *sp, int w, int h) {
+        CHECK_OK(imp_image_new(w, h, 1, IMP_PIX_F32, &sp->variance));
+        CHECK_OK(imp_image_new(w, h, 1, IMP_PIX_U8, &sp->flags));
+        for (int y = 0; y < h; y++)
+                for (int x = 0; x < w; x++) {
+                        *imp_image_f32(sp->variance, x, y) = NAN;
+                        *imp_image_u8(sp->flags, x, y) = 0xa5;
+                }
+}
+
+/* options.recycle: the variance and flags of an earlier result (junk-filled here) are
+ * written into, taken over (the same images), and the result is byte for byte that of a
+ * fresh merge, on the table path and on the dark-frame path; a spare of another layout is
+ * left in place and the merge allocates. */
+static void test_recycle(void) {
+        int w = 67, h = 64 * 3;
+        struct imp_image *f[3], *dark;
+        struct imp_hdr_exposure st[3];
+        CHECK_OK(imp_image_new(w, h, 1, IMP_PIX_F32, &dark));
+        for (int k = 0; k < 3; k++) {
+                CHECK_OK(imp_image_new(w, h, 1, IMP_PIX_U16, &f[k]));
+                st[k] = (struct imp_hdr_exposure) { .frame = f[k], .exposure_us = EXPOSURES_US[k] };
+        }
+        for (int y = 0; y < h; y++)
+                for (int x = 0; x < w; x++) {
+                        double V = y < 64 ? 1000.0 : y < 128 ? 0.0 : 0.02 * (1 + x);   /* saturated, dark, a ramp */
+                        *imp_image_f32(dark, x, y) = 60 + (x * 7 + y * 3) % 11;
+                        for (int k = 0; k < 3; k++)
+                                *imp_image_u16(f[k], x, y) = draw_dn(&SENSOR, V, EXPOSURES_US[k], 0, 1, SENSOR.black_level_dn);
+                }
+        for (int with_dark = 0; with_dark < 2; with_dark++) {
+                struct imp_hdr_options o;
+                imp_hdr_options_default(&o);
+                o.dark = with_dark ? dark : NULL;
+                struct imp_hdr_result fresh = {}, got = {}, spare = {}, other = {};
+                CHECK_OK(imp_hdr_merge(st, 3, &SENSOR, &o, &fresh));
+                junk_spare(&spare, w, h);
+                const struct imp_image *var0 = spare.variance, *fl0 = spare.flags;
+                o.recycle = &spare;
+                CHECK_OK(imp_hdr_merge(st, 3, &SENSOR, &o, &got));
+                CHECK_MSG(got.variance == var0 && got.flags == fl0 && !spare.variance && !spare.flags,
+                          "recycle (dark %d): the spare images were not taken over", with_dark);
+                CHECK_MSG(same_bytes(fresh.value, got.value) && same_bytes(fresh.variance, got.variance) &&
+                          same_bytes(fresh.flags, got.flags), "recycle (dark %d): result differs from a fresh merge",
+                          with_dark);
+                CHECK(fresh.n_saturated == got.n_saturated && fresh.n_dark == got.n_dark && fresh.n_dark > 0 &&
+                      fresh.n_saturated > 0);
+                imp_hdr_result_done(&got);
+                junk_spare(&other, w + 1, h);   /* another layout: left, not written */
+                var0 = other.variance;
+                o.recycle = &other;
+                CHECK_OK(imp_hdr_merge(st, 3, &SENSOR, &o, &got));
+                CHECK(other.variance == var0 && got.variance != var0 && same_bytes(fresh.variance, got.variance));
+                imp_hdr_result_done(&got);
+                imp_hdr_result_done(&other);
+                imp_hdr_result_done(&spare);
+                imp_hdr_result_done(&fresh);
+        }
+        for (int k = 0; k < 3; k++)
+                imp_image_free(f[k]);
+        imp_image_free(dark);
+}
+
 int main(void) {
         test_unbiased_and_variance();
         test_dark_flat_gain();
         test_bayer();
         test_errors();
+        test_recycle();
         return TEST_DONE();
 }

@@ -206,6 +206,36 @@ static void test_tiff_roundtrip(void) {
                         }
 }
 
+/* imp_tiff_read_reuse: into an image of the file's layout (junk-filled) it decodes in place
+ * (the same image, its bytes those imp_tiff_read returns); an image of another layout is
+ * replaced by a new one holding the same pixels; both the capture writer's frames (Zstandard,
+ * predictor) and plain ones, u16 and f32. */
+static void test_tiff_read_reuse(void) {
+        static const enum imp_pixel_type types[] = { IMP_PIX_U16, IMP_PIX_F32 };
+        for (size_t t = 0; t < ARRAY_SIZE(types); t++)
+                for (int fast = 0; fast < 2; fast++) {
+                        if (fast && types[t] != IMP_PIX_U16)
+                                continue;
+                        _cleanup_image_ struct imp_image *a = NULL, *want = NULL, *io = NULL, *wrong = NULL;
+                        struct imp_error err = { 0 };
+                        const char *p = tmp_path("reuse.tiff");
+                        CHECK_OK(imp_image_new(301, 77, 1, types[t], &a));
+                        fill_pattern(a, 31u + (unsigned) t);
+                        CHECK_OK(fast ? imp_tiff_write_fast(p, a, NULL, &err) : imp_tiff_write(p, a, NULL, &err));
+                        CHECK_OK(imp_tiff_read(p, &want, NULL, &err));
+                        CHECK_OK(imp_image_new(301, 77, 1, types[t], &io));
+                        memset(io->data, 0xa5, io->stride * (size_t) io->height);
+                        const struct imp_image *before = io;
+                        CHECK_OK(imp_tiff_read_reuse(p, &io, NULL, &err));
+                        CHECK_MSG(io == before, "reuse: a new image was allocated for the same layout");
+                        CHECK_MSG(same_pixels(io, want) && same_pixels(io, a), "reuse (%s, fast %d): pixels differ",
+                                  imp_pixel_type_name(types[t]), fast);
+                        CHECK_OK(imp_image_new(300, 77, 1, types[t], &wrong));
+                        CHECK_OK(imp_tiff_read_reuse(p, &wrong, NULL, &err));
+                        CHECK(wrong && wrong->width == 301 && same_pixels(wrong, want));
+                }
+}
+
 /* Frames as the capture set stores them (imp_tiff_write_fast): another reader sees Zstandard
  * and the horizontal predictor, and libtiff's own decoder gives back every sample of a
  * camera-like frame (ramps, noise, full scale, several strips). */
@@ -328,6 +358,63 @@ static void test_exr_float_roundtrip(void) {
                         }
                         imp_strv_free(names);
                 }
+}
+
+/* The whole file's bytes (malloc'd) in *ret, its size returned; 0 when unreadable. */
+static size_t file_bytes(const char *path, uint8_t **ret) {
+        *ret = NULL;
+        FILE *f = fopen(path, "rb");
+        if (!f)
+                return 0;
+        size_t n = 0, cap = 0;
+        uint8_t *buf = NULL;
+        for (;;) {
+                if (n == cap) {
+                        uint8_t *nb = realloc(buf, cap = cap ? 2 * cap : 1 << 16);
+                        if (!nb)
+                                break;
+                        buf = nb;
+                }
+                size_t got = fread(buf + n, 1, cap - n, f);
+                if (got == 0)
+                        break;
+                n += got;
+        }
+        fclose(f);
+        *ret = buf;
+        return n;
+}
+
+/* Chunks compressed on several threads (imp_exr_write_threads) give the very file the
+ * single-threaded encoder writes, byte for byte, float and half, with more chunks than the
+ * writer keeps in flight (64) and a last chunk of fewer lines; the file reads back. */
+static void test_exr_threads_same_bytes(void) {
+        static const int threads[] = { 2, 3, 8, 0 };
+        for (int half = 0; half < 2; half++) {
+                _cleanup_image_ struct imp_image *a = NULL, *b = NULL;
+                struct imp_error err = { 0 };
+                char **got_names = NULL;
+                CHECK_OK(imp_image_new(53, 16 * 70 + 5, 5, IMP_PIX_F32, &a));
+                fill_pattern(a, 7u + (unsigned) half);
+                const char *p1 = tmp_path("serial.exr"), *pn = tmp_path("threads.exr");
+                CHECK_OK(imp_exr_write_threads(p1, a, exr_names, half, 1, &err));
+                _cleanup_free_ uint8_t *want = NULL;
+                size_t n_want = file_bytes(p1, &want);
+                CHECK(n_want > 1000);
+                for (size_t t = 0; t < ARRAY_SIZE(threads); t++) {
+                        CHECK_OK(imp_exr_write_threads(pn, a, exr_names, half, threads[t], &err));
+                        _cleanup_free_ uint8_t *got = NULL;
+                        size_t n_got = file_bytes(pn, &got);
+                        CHECK_MSG(n_got == n_want && got && want && !memcmp(got, want, n_want),
+                                  "EXR %s on %d threads: %zu bytes, not the serial file's %zu (or they differ)",
+                                  half ? "half" : "float", threads[t], n_got, n_want);
+                }
+                CHECK_OK(imp_exr_read(pn, &b, &got_names, &err));
+                if (!half)
+                        CHECK_MSG(exr_matches(a, b, got_names, 0, false), "EXR written on threads reads back different (%s)",
+                                  err.msg);
+                imp_strv_free(got_names);
+        }
 }
 
 static void fill_half_values(struct imp_image *img, bool representable) {
@@ -518,6 +605,8 @@ int main(void) {
         test_exr_half_roundtrip();
         test_exr_file_layout();
         test_exr_uint_channel();
+        test_exr_threads_same_bytes();
+        test_tiff_read_reuse();
         test_read_by_extension();
         return TEST_DONE();
 }
