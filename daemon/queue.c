@@ -72,6 +72,17 @@ static int entry_from_json(const json_t *e, const char *what, struct queue_entry
         if (uid < 0 || uid >= UINT32_MAX || gid < 0 || gid >= UINT32_MAX || strlen(id) >= sizeof q->id)
                 return imp_error_set(err, -EINVAL, "%s: expected id of at most 15 bytes, uid and gid from 0 to %u",
                                      what, UINT32_MAX - 1);
+        /* cut to fit, a string could end inside a character: the entry would vanish from the
+         * listing and from the next queue.json saved */
+        const struct {
+                const char *key, *v;
+                size_t max;
+        } str[] = { { "plan", plan, sizeof q->plan - 1 }, { "name", name, sizeof q->name - 1 },
+                    { "added", added ? added : "", sizeof q->added - 1 }, { "error", error ? error : "", sizeof q->error - 1 } };
+        for (size_t i = 0; i < ARRAY_SIZE(str); i++)
+                if (strlen(str[i].v) > str[i].max)
+                        return imp_error_set(err, -EINVAL, "%s%s: expected at most %zu bytes, got %zu", what, str[i].key,
+                                             str[i].max, strlen(str[i].v));
         snprintf(q->id, sizeof q->id, "%s", id);
         snprintf(q->plan, sizeof q->plan, "%s", plan);
         snprintf(q->name, sizeof q->name, "%s", name);
