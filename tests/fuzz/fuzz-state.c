@@ -128,6 +128,31 @@ static struct daemon *daemon_new(const char *state) {
         return d;
 }
 
+/* `status`'s attention list and `report` (daemon/report.c) over what was loaded: every paused
+ * session and every failed job has its item, and the report can be built. */
+static void check_report(struct daemon *d) {
+        size_t paused = 0, failed = 0, items[2] = { 0 };
+        for (const struct session *s = d->sessions; s; s = s->next)
+                paused += s->state == SESSION_PAUSED;
+        for (const struct job *j = d->jobs; j; j = j->next)
+                failed += j->state == IMP_JOB_FAILED;
+        json_t *a = night_attention_json(d), *it;
+        FUZZ_CHECK(a, "the attention list cannot be built");
+        size_t i;
+        json_array_foreach(json_object_get(a, "items"), i, it) {
+                const char *kind = json_string_value(json_object_get(it, "kind"));
+                items[0] += kind && !strncmp(kind, "session_", 8);
+                items[1] += kind && !strcmp(kind, "job_failed");
+        }
+        FUZZ_CHECK(items[0] == paused && items[1] == failed, "attention: %zu of %zu paused sessions, %zu of %zu "
+                   "failed jobs", items[0], paused, items[1], failed);
+        json_decref(a);
+        struct imp_proto_error e = {};
+        json_t *r = night_report_json(d, "1970-01-01T00:00:00Z", &e);
+        FUZZ_CHECK(r, "the report cannot be built: %s", e.message);
+        json_decref(r);
+}
+
 static void daemon_del(struct daemon *d) {
         while (d->sessions) {
                 struct session *s = d->sessions;
@@ -182,6 +207,7 @@ static void fuzz_job(const uint8_t *data, size_t size) {
                         FUZZ_CHECK(snap_same(&before[i]), "%s changed although the job was refused", before[i].path);
         for (const struct job *j = d->jobs; j; j = j->next)
                 check_job(j);
+        check_report(d);
         snap_free(before, n_before);
         daemon_del(d);
 }
@@ -271,6 +297,7 @@ static void fuzz_session(const uint8_t *data, size_t size) {
                 FUZZ_CHECK(snap_same(&before[i]), "%s changed by reading the sessions", before[i].path);
         for (const struct session *s = d->sessions; s; s = s->next)
                 check_session(s);
+        check_report(d);
         snap_free(before, n_before);
         daemon_del(d);
 }
@@ -286,16 +313,18 @@ static void check_task(const struct imp_slurm_task *t, const char *what) {
         FUZZ_CHECK(strcmp(t->state, "failed") || t->error[0], "%s failed without a reason", what);
 }
 
-/* A line of squeue ("A|I|STATE") or sacct ("A_I|A_I|STATE") about array job a's task i. */
-static bool slurm_lists(const char *out, long a, size_t i) {
-        char sq[64], sa[64];
-        snprintf(sq, sizeof sq, "%ld|%zu|", a, i);
-        snprintf(sa, sizeof sa, "%ld_%zu|%ld_%zu|", a, i, a, i);
+/* A line of squeue's "A|I|STATE" (sacct false) or sacct's "A_I|A_I|STATE" (true) about
+ * array job a's task i. */
+static bool slurm_lists(const char *out, long a, size_t i, bool sacct) {
+        char want[64];
+        if (sacct)
+                snprintf(want, sizeof want, "%ld_%zu|%ld_%zu|", a, i, a, i);
+        else
+                snprintf(want, sizeof want, "%ld|%zu|", a, i);
+        size_t w = strlen(want);
         for (const char *l = out; l && *l; l = strchr(l, '\n') ? strchr(l, '\n') + 1 : NULL) {
-                size_t n = strcspn(l, "\n");
                 /* a state follows, one the parser keeps (no '|', space or CR first) */
-                if ((!strncmp(l, sq, strlen(sq)) && n > strlen(sq) && !strchr("| \r", l[strlen(sq)])) ||
-                    (!strncmp(l, sa, strlen(sa)) && n > strlen(sa) && !strchr("| \r", l[strlen(sa)])))
+                if (!strncmp(l, want, w) && strcspn(l, "\n") > w && !strchr("| \r", l[w]))
                         return true;
         }
         return false;
@@ -379,7 +408,7 @@ static void fuzz_slurm(const uint8_t *data, size_t size) {
                                         st.tasks[i].slurm_state, st.tasks[i].error);
                         /* Slurm said something about it: never "no longer listed" */
                         FUZZ_CHECK(!a || !strstr(st.tasks[i].error, "gone from Slurm") ||
-                                   !(slurm_lists(out[0], a, i) || slurm_lists(out[1], a, i)),
+                                   !(slurm_lists(out[0], a, i, false) || slurm_lists(out[1], a, i, true)),
                                    "task %zu: \"%s\" although Slurm lists %ld_%zu", i, st.tasks[i].error, a, i);
                 }
                 check_task(&st.finish, "the finish step");
