@@ -72,12 +72,7 @@ int main(void) {
         char id[128], setdir[1024];
         tc_start_session(&c, plan, "pause-reopen", id, setdir);
         CHECK(id[0] != 0);
-        while (c.n_frames < 3 && !c.n_done) {
-                struct imp_proto_message m = { 0 };
-                if (tc_read(&c, 10000, &m) < 0)
-                        break;
-                imp_proto_message_done(&m);
-        }
+        tc_wait_frames(&c, 3, 10000);
         CHECK_MSG(c.n_frames >= 3 && !c.n_done, "%u frames before the stall", c.n_frames);
         atomic_store(&stall_armed, 1);
         /* One attempt per step: the first timed-out frame pauses the session. */
