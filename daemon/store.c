@@ -225,7 +225,16 @@ int store_sessions_load(struct daemon *d) {
                 qsort(names, n, sizeof *names, cmp_names);
         int loaded = 0;
         for (size_t i = 0; i < n; i++) {
-                char sd[PATH_MAX + 300];
+                char sd[PATH_MAX + 300], probe[256];
+                /* a session id fits its buffer and is valid UTF-8 (clients get it in JSON);
+                 * a folder someone named otherwise is left alone, not listed under a cut name */
+                snprintf(probe, sizeof probe, "%s", names[i] ? names[i] : "");
+                if (names[i] && (strlen(names[i]) >= sizeof ((struct session *) NULL)->id || imp_utf8_sanitize(probe))) {
+                        log_warning("%s/%s: not a session id (at most %zu bytes of UTF-8), ignoring", p, probe,
+                                    sizeof ((struct session *) NULL)->id - 1);
+                        free(names[i]);
+                        continue;
+                }
                 if (names[i]) {
                         snprintf(sd, sizeof sd, "%s/%s", p, names[i]);
                         if (load_one(d, sd, names[i]) == 0)

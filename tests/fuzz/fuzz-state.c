@@ -6,7 +6,7 @@
  *   1  the scan queue (daemon/queue.c, queue_load): the whole input after byte 0 is queue.json
  *   2  a session (daemon/store.c, store_sessions_load): parts are files of sessions/S/
  *      (session.json, set.json, manifest.jsonl, plan.cfg, rig.json, painting.json,
- *      tiles/NNNN/manifest.jsonl, …)
+ *      tiles/NNNN/manifest.jsonl, …); a part "@" holds another name for the folder S
  *   3  a Slurm batch as the daemon polls it (daemon/sched-slurm.c: imp_batch_load,
  *      imp_slurm_status): parts are files of the batch directory (batch.json, tasks/N.json,
  *      result.json, a task's copy k0/result.json, …) and "squeue", "sacct": what those
@@ -267,6 +267,8 @@ static void fuzz_queue(const uint8_t *data, size_t size) {
 
 static void check_session(const struct session *s) {
         FUZZ_CHECK(session_state_name(s->state) != NULL, "session %s: state %d", s->id, (int) s->state);
+        const char *folder = strrchr(s->dir, '/');
+        FUZZ_CHECK(folder && !strcmp(folder + 1, s->id), "session %s is in the folder %s", s->id, s->dir);
         json_t *a = session_summary_json(s), *b = session_show_json(s);
         FUZZ_CHECK(a && b, "session %s: its %s JSON cannot be built (`sessions`, `session.show`)", s->id,
                    a ? "show" : "summary");
@@ -278,12 +280,19 @@ static void fuzz_session(const uint8_t *data, size_t size) {
         const char *state = fresh_state();
         struct fuzz_part parts[16];
         size_t n = fuzz_split(data, size, parts, 16);
-        char dir[4608];
-        snprintf(dir, sizeof dir, "%s/sessions/S", state);
+        /* a part "@" names the session's folder (any bytes but '/' and NUL), else "S" */
+        char dir[4608], sname[256] = "S";
+        for (size_t i = 0; i < n; i++)
+                if (!strcmp(parts[i].name, "@") && parts[i].size > 0 && parts[i].size < sizeof sname &&
+                    !memchr(parts[i].data, '/', parts[i].size) && !memchr(parts[i].data, 0, parts[i].size) &&
+                    parts[i].data[0] != '.')
+                        snprintf(sname, sizeof sname, "%.*s", (int) parts[i].size, parts[i].data);
+        snprintf(dir, sizeof dir, "%s/sessions/%s", state, sname);
         FUZZ_CHECK(mkdir(dir, 0700) == 0, "mkdir %s", dir);
         for (size_t i = 0; i < n; i++)
-                (void) write_under(dir, parts[i].name[0] ? parts[i].name : "session.json", parts[i].data,
-                                   parts[i].size);
+                if (strcmp(parts[i].name, "@"))
+                        (void) write_under(dir, parts[i].name[0] ? parts[i].name : "session.json", parts[i].data,
+                                           parts[i].size);
         struct snap before[SNAP_MAX];
         size_t n_before = 0;
         snap_tree(state, 0, before, &n_before);
