@@ -124,6 +124,8 @@ static void queue_set_aside(struct daemon *d, const char *p, const char *msg, un
         (void) queue_save(d);
 }
 
+static struct queue_entry *entry_find(struct daemon *d, const char *id, struct queue_entry ***ret_link);
+
 int queue_load(struct daemon *d) {
         struct night *n = d->night;
         char p[PATH_MAX + 16];
@@ -150,6 +152,8 @@ int queue_load(struct daemon *d) {
                 snprintf(what, sizeof what, "%s: entries[%zu].", p, i);
                 int k = q ? entry_from_json(e, what, q, &err) :
                         imp_error_set(&err, -ENOSPC, "%sa queue holds at most %d entries", what, NIGHT_QUEUE_MAX);
+                if (k == 0 && entry_find(d, q->id, NULL))       /* `queue cancel ID` would pick one */
+                        k = imp_error_set(&err, -EINVAL, "%sid: \"%s\" is the id of an earlier entry", what, q->id);
                 if (k < 0) {            /* this entry is lost to the queue (kept in the file set aside) */
                         free(q);
                         if (!lost++)
@@ -165,6 +169,13 @@ int queue_load(struct daemon *d) {
                 n->queue_next_id = (unsigned) json_integer_value(next);
         else if (r < 0 || lost)
                 n->queue_next_id = 1000;        /* ids of the lost entries are not reused */
+        /* a next_id at or below an id in use (a hand-edited file) would give a new entry that id */
+        for (struct queue_entry *q = n->queue; q; q = q->next) {
+                unsigned k;
+                char end;
+                if (sscanf(q->id, "q%u%c", &k, &end) == 1 && k >= n->queue_next_id && k < 1000000000)
+                        n->queue_next_id = k + 1;
+        }
         if (r < 0 || lost) {
                 queue_set_aside(d, p, first.msg, r < 0 ? 0 : lost);
                 return -EBADMSG;

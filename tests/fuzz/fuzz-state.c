@@ -254,7 +254,19 @@ static void fuzz_queue(const uint8_t *data, size_t size) {
                 FUZZ_CHECK(nt->queue_broken || nt->queue_damaged[0], "a damaged queue.json without a reason");
         }
         FUZZ_CHECK(nt->n_queue <= NIGHT_QUEUE_MAX, "%u entries queued", nt->n_queue);
-        json_t *l = queue_list_json(d);
+        json_t *l = queue_list_json(d), *e, *f;
+        size_t i, k;
+        json_array_foreach(json_object_get(l, "queue"), i, e) {
+                const char *id = json_string_value(json_object_get(e, "id"));
+                unsigned num;
+                char end;
+                /* the id the next `queue add` takes is no entry's */
+                FUZZ_CHECK(!id || sscanf(id, "q%u%c", &num, &end) != 1 || num < nt->queue_next_id || num >= 1000000000,
+                           "entry %s while the next id is q%u", id, nt->queue_next_id);
+                json_array_foreach(json_object_get(l, "queue"), k, f)
+                        FUZZ_CHECK(k == i || !json_equal(json_object_get(e, "id"), json_object_get(f, "id")),
+                                   "two entries with the id %s", id);
+        }
         FUZZ_CHECK(l && json_array_size(json_object_get(l, "queue")) == nt->n_queue,
                    "the queue's listing shows %zu of its %u entries", json_array_size(json_object_get(l, "queue")),
                    nt->n_queue);
