@@ -11,6 +11,8 @@
  *      imp_slurm_status): parts are files of the batch directory (batch.json, tasks/N.json,
  *      result.json, a task's copy k0/result.json, …) and "squeue", "sacct": what those
  *      commands print (stand-ins on PATH)
+ *   4  a calibration (daemon/calibration.c, calibrations_load): parts are files of
+ *      calibrations/1/ (calibration.json, rig.json, …) and "current" (calibrations/current)
  * Checked beyond "no crash, no leak, no UB": a refusal says why; what is loaded answers the
  * protocol (its JSON can be built: a field cut inside a UTF-8 character cannot); counters
  * hold sane values; a file that was refused is unchanged, and queue.json, when damaged, is
@@ -444,13 +446,58 @@ static void fuzz_slurm(const uint8_t *data, size_t size) {
         free(out[1]);
 }
 
+/* ---- 4: a calibration ------------------------------------------------------------------------ */
+
+static void fuzz_calibration(const uint8_t *data, size_t size) {
+        const char *state = fresh_state();
+        struct fuzz_part parts[8];
+        size_t n = fuzz_split(data, size, parts, 8);
+        char dir[4608], top[4608];
+        snprintf(top, sizeof top, "%s/calibrations", state);
+        snprintf(dir, sizeof dir, "%.4500s/1", top);
+        FUZZ_CHECK(imp_mkdir_p(dir, 0700) == 0, "mkdir %s", dir);
+        for (size_t i = 0; i < n; i++)
+                (void) write_under(!strcmp(parts[i].name, "current") ? top : dir,
+                                   parts[i].name[0] ? parts[i].name : "calibration.json", parts[i].data, parts[i].size);
+        struct snap before[SNAP_MAX];
+        size_t n_before = 0;
+        snap_tree(state, 0, before, &n_before);
+        struct daemon *d = daemon_new(state);
+        d->stopping = true;             /* nothing is started: only what is read */
+        d->rigcfg = calloc(1, sizeof *d->rigcfg);       /* impastod has one before this (no devices) */
+        snprintf(d->rigcfg->calibration, sizeof d->rigcfg->calibration, "%s/rig.json", state);
+        (void) calibrations_load(d);
+        if (getenv("FUZZ_VERBOSE"))
+                fprintf(stderr, "calibration: %s\n", d->calibrations ? "loaded" : "refused");
+        if (!d->calibrations)
+                for (size_t i = 0; i < n_before; i++)
+                        FUZZ_CHECK(snap_same(&before[i]), "%s changed although the calibration was refused",
+                                   before[i].path);
+        for (const struct calibration *c = d->calibrations; c; c = c->next) {
+                FUZZ_CHECK(c->attempts >= 0 && c->max_attempts >= 1 && c->max_attempts <= IMP_JOB_MAX_ATTEMPTS_LIMIT,
+                           "calibration %s: attempts %d of %d accepted", c->id, c->attempts, c->max_attempts);
+                json_t *a = calibration_json(c, false), *b = calibration_json(c, true);
+                FUZZ_CHECK(a && b, "calibration %s: its JSON cannot be built", c->id);
+                FUZZ_CHECK(c->state != CALIB_FAILED || !c->error[0] || json_is_object(json_object_get(b, "error")),
+                           "calibration %s failed, and its JSON lost why", c->id);
+                json_decref(a);
+                json_decref(b);
+        }
+        snap_free(before, n_before);
+        calibrations_free_all(d);
+        if (d->have_rig)
+                imp_rig_free(&d->rig);
+        rigcfg_free(d->rigcfg);
+        daemon_del(d);
+}
+
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
         if (size < 1)
                 return 0;
         static char cwd[4096];
         if (!cwd[0])
                 FUZZ_CHECK(getcwd(cwd, sizeof cwd), "getcwd");
-        switch (data[0] % 4) {
+        switch (data[0] % 5) {
         case 0:
                 fuzz_job(data + 1, size - 1);
                 break;
@@ -460,8 +507,11 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
         case 2:
                 fuzz_session(data + 1, size - 1);
                 break;
-        default:
+        case 3:
                 fuzz_slurm(data + 1, size - 1);
+                break;
+        default:
+                fuzz_calibration(data + 1, size - 1);
                 break;
         }
         FUZZ_CHECK(chdir(cwd) == 0, "chdir %s", cwd);
