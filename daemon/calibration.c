@@ -352,13 +352,14 @@ static int calib_read(struct calibration *c) {
                 log_warning("calibration %s: %s: bad state or routine, ignoring", c->id, p);
                 return -EBADMSG;
         }
-        /* read as they were, -5 attempts or a max_attempts of 2^31 retried without end */
+        /* read as they were, -5 attempts or a max_attempts of 2^31 retried without end (the
+         * bound: --job-attempts', which the daemon writes here) */
         json_t *na = json_object_get(j, "attempts"), *nm = json_object_get(j, "max_attempts");
         if ((na && (!json_is_integer(na) || json_integer_value(na) < 0 || json_integer_value(na) > INT_MAX)) ||
             (nm && (!json_is_integer(nm) || json_integer_value(nm) < 1 ||
-                    json_integer_value(nm) > IMP_JOB_MAX_ATTEMPTS_LIMIT))) {
+                    json_integer_value(nm) > DAEMON_ATTEMPTS_MAX))) {
                 log_warning("calibration %s: %s: attempts: expected an integer from 0, max_attempts one from 1 to %d, "
-                            "ignoring", c->id, p, IMP_JOB_MAX_ATTEMPTS_LIMIT);
+                            "ignoring", c->id, p, DAEMON_ATTEMPTS_MAX);
                 return -EBADMSG;
         }
         c->state = (enum calib_state) state;

@@ -131,12 +131,13 @@ static void job_sanitize(struct job *j) {
 
 /* The counters a hand-edited or damaged file may hold out of range: read as they are, -5
  * attempts or a max_attempts of 2^31 would retry a failing job without end, and a value past
- * an int would be cut to another number. */
+ * an int would be cut to another number. (max_attempts up to --job-attempts' bound: the
+ * daemon writes what it was given, though the worker takes at most 100.) */
 static int job_check_counts(const json_t *doc, const char *p, struct imp_error *e) {
         static const struct {
                 const char *key;
                 long long min, max;
-        } k[] = { { "attempts", 0, INT_MAX }, { "max_attempts", 1, IMP_JOB_MAX_ATTEMPTS_LIMIT } };
+        } k[] = { { "attempts", 0, INT_MAX }, { "max_attempts", 1, DAEMON_ATTEMPTS_MAX } };
         for (size_t i = 0; i < ARRAY_SIZE(k); i++) {
                 const json_t *v = json_object_get(doc, k[i].key);
                 if (v && !json_is_null(v) &&

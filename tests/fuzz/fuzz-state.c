@@ -172,7 +172,7 @@ static void daemon_del(struct daemon *d) {
 static void check_job(const struct job *j) {
         FUZZ_CHECK(j->state < _IMP_JOB_STATE_MAX, "job %s: state %d", j->id, (int) j->state);
         FUZZ_CHECK(j->attempts >= 0, "job %s: %d attempts accepted", j->id, j->attempts);
-        FUZZ_CHECK(j->max_attempts >= 1 && j->max_attempts <= IMP_JOB_MAX_ATTEMPTS_LIMIT,
+        FUZZ_CHECK(j->max_attempts >= 1 && j->max_attempts <= DAEMON_ATTEMPTS_MAX,
                    "job %s: max_attempts %d accepted", j->id, j->max_attempts);
         FUZZ_CHECK(isfinite(j->progress) && j->progress >= 0 && j->progress <= 1, "job %s: progress %g", j->id,
                    j->progress);
@@ -474,7 +474,7 @@ static void fuzz_calibration(const uint8_t *data, size_t size) {
                         FUZZ_CHECK(snap_same(&before[i]), "%s changed although the calibration was refused",
                                    before[i].path);
         for (const struct calibration *c = d->calibrations; c; c = c->next) {
-                FUZZ_CHECK(c->attempts >= 0 && c->max_attempts >= 1 && c->max_attempts <= IMP_JOB_MAX_ATTEMPTS_LIMIT,
+                FUZZ_CHECK(c->attempts >= 0 && c->max_attempts >= 1 && c->max_attempts <= DAEMON_ATTEMPTS_MAX,
                            "calibration %s: attempts %d of %d accepted", c->id, c->attempts, c->max_attempts);
                 json_t *a = calibration_json(c, false), *b = calibration_json(c, true);
                 FUZZ_CHECK(a && b, "calibration %s: its JSON cannot be built", c->id);
