@@ -326,9 +326,11 @@ static int calib_save(struct calibration *c) {
         return r;
 }
 
+/* Cut to fit (maybe inside a character) and made valid UTF-8: calibration_json would fail. */
 static void copy_str(const json_t *j, const char *key, char *buf, size_t size) {
         const char *s = json_string_value(json_object_get(j, key));
         snprintf(buf, size, "%s", s ? s : "");
+        (void) imp_utf8_sanitize(buf);
 }
 
 static int calib_read(struct calibration *c) {
@@ -348,6 +350,16 @@ static int calib_read(struct calibration *c) {
                         state = (int) i;
         if (state < 0 || !routine_find(json_string_value(json_object_get(j, "routine")))) {
                 log_warning("calibration %s: %s: bad state or routine, ignoring", c->id, p);
+                return -EBADMSG;
+        }
+        /* read as they were, -5 attempts or a max_attempts of 2^31 retried without end (the
+         * bound: --job-attempts', which the daemon writes here) */
+        json_t *na = json_object_get(j, "attempts"), *nm = json_object_get(j, "max_attempts");
+        if ((na && (!json_is_integer(na) || json_integer_value(na) < 0 || json_integer_value(na) > INT_MAX)) ||
+            (nm && (!json_is_integer(nm) || json_integer_value(nm) < 1 ||
+                    json_integer_value(nm) > DAEMON_ATTEMPTS_MAX))) {
+                log_warning("calibration %s: %s: attempts: expected an integer from 0, max_attempts one from 1 to %d, "
+                            "ignoring", c->id, p, DAEMON_ATTEMPTS_MAX);
                 return -EBADMSG;
         }
         c->state = (enum calib_state) state;

@@ -120,6 +120,39 @@ static int job_write(struct job *j, enum imp_job_file which) {
         return r;
 }
 
+/* The strings a job shows, valid UTF-8 whatever a file or a worker's output held and wherever
+ * a buffer cut them: job_json and job_file_json (json_pack) fail on anything else, and the
+ * job would vanish from `jobs` and never be saved again. */
+static void job_sanitize(struct job *j) {
+        char *const s[] = { j->set_dir, j->output, j->session, j->queued, j->started, j->ended, j->stage, j->error };
+        for (size_t i = 0; i < ARRAY_SIZE(s); i++)
+                (void) imp_utf8_sanitize(s[i]);
+}
+
+/* The counters a hand-edited or damaged file may hold out of range: read as they are, -5
+ * attempts or a max_attempts of 2^31 would retry a failing job without end, and a value past
+ * an int would be cut to another number. (max_attempts up to --job-attempts' bound: the
+ * daemon writes what it was given, though the worker takes at most 100.) */
+static int job_check_counts(const json_t *doc, const char *p, struct imp_error *e) {
+        static const struct {
+                const char *key;
+                long long min, max;
+        } k[] = { { "attempts", 0, INT_MAX }, { "max_attempts", 1, DAEMON_ATTEMPTS_MAX } };
+        for (size_t i = 0; i < ARRAY_SIZE(k); i++) {
+                const json_t *v = json_object_get(doc, k[i].key);
+                if (v && !json_is_null(v) &&
+                    (!json_is_integer(v) || json_integer_value(v) < k[i].min || json_integer_value(v) > k[i].max))
+                        return imp_error_set(e, -EBADMSG, "%s: %s: expected an integer from %lld to %lld", p, k[i].key,
+                                             k[i].min, k[i].max);
+        }
+        const json_t *task = json_object_get(json_object_get(doc, "slurm"), "task");
+        if (task && (!json_is_integer(task) || json_integer_value(task) < 0 ||
+                     json_integer_value(task) >= IMP_BATCH_MAX_TASKS))
+                return imp_error_set(e, -EBADMSG, "%s: slurm.task: expected an integer from 0 to %d", p,
+                                     IMP_BATCH_MAX_TASKS - 1);
+        return 0;
+}
+
 /* Reads the job's file (the queue name, else the claim) into j. *ret_which says which one;
  * *ret_legacy is set for a file in the daemon's old format (job/set/output), which the
  * caller rewrites. -ENOENT when neither exists, -EBADMSG when it is not a job. */
@@ -135,6 +168,8 @@ static int job_read(struct job *j, enum imp_job_file *ret_which, bool *ret_legac
                 job_path(j, which, p, sizeof p);
                 r = imp_job_read(p, IMP_JOB_LENIENT, &f, &e);
         }
+        if (r == 0)
+                r = job_check_counts(f.doc, p, &e);
         if (r == -EBADMSG)
                 log_warning("%s, ignoring", e.msg);
         if (r < 0)
@@ -162,6 +197,7 @@ static int job_read(struct job *j, enum imp_job_file *ret_which, bool *ret_legac
         json_decref(j->worker_args);
         j->worker_args = json_incref(f.worker_args);
         sched_slurm_read(j, f.doc);
+        job_sanitize(j);
         j->state = f.state;
         /* A claim is running whatever its file says yet; a running job under the queue name
          * was left by the old daemon (it ran the worker itself): queued again. */
@@ -196,6 +232,7 @@ static void job_unlock(const struct job *j, int fd) {
 
 static void job_set_failed_attempt(struct job *j, const char *why) {
         snprintf(j->error, sizeof j->error, "%.1000s", why);
+        (void) imp_utf8_sanitize(j->error);    /* a worker's output, cut anywhere */
         j->state = j->attempts >= j->max_attempts ? IMP_JOB_FAILED : IMP_JOB_QUEUED;
         rfc3339_now(j->ended);
 }
@@ -271,6 +308,7 @@ static void job_announce(struct daemon *d, struct job *j) {
 }
 
 void jobs_save_announce(struct daemon *d, struct job *j) {
+        job_sanitize(j);        /* (Slurm's task errors come from the task's file) */
         (void) job_write(j, IMP_JOB_FILE_QUEUE);
         job_announce(d, j);
 }

@@ -209,10 +209,10 @@ static int parse_args(int argc, char **argv, struct daemon *d) {
                 case ARG_MAXC:
                 case ARG_RETRIES:
                 case ARG_JOBS:
-                        if (parse_u64(optarg, &v) < 0 || v < 1 || v > 10000) {
-                                log_error("--%s: expected an integer from 1 to 10000, got \"%s\"",
+                        if (parse_u64(optarg, &v) < 0 || v < 1 || v > DAEMON_ATTEMPTS_MAX) {
+                                log_error("--%s: expected an integer from 1 to %d, got \"%s\"",
                                           c == ARG_MAXC ? "max-clients" : c == ARG_RETRIES ? "retries" : "job-attempts",
-                                          optarg);
+                                          DAEMON_ATTEMPTS_MAX, optarg);
                                 return -EINVAL;
                         }
                         *(c == ARG_MAXC ? &d->max_clients : c == ARG_RETRIES ? &d->retries : &d->job_attempts) =

@@ -72,6 +72,17 @@ static int entry_from_json(const json_t *e, const char *what, struct queue_entry
         if (uid < 0 || uid >= UINT32_MAX || gid < 0 || gid >= UINT32_MAX || strlen(id) >= sizeof q->id)
                 return imp_error_set(err, -EINVAL, "%s: expected id of at most 15 bytes, uid and gid from 0 to %u",
                                      what, UINT32_MAX - 1);
+        /* cut to fit, a string could end inside a character: the entry would vanish from the
+         * listing and from the next queue.json saved */
+        const struct {
+                const char *key, *v;
+                size_t max;
+        } str[] = { { "plan", plan, sizeof q->plan - 1 }, { "name", name, sizeof q->name - 1 },
+                    { "added", added ? added : "", sizeof q->added - 1 }, { "error", error ? error : "", sizeof q->error - 1 } };
+        for (size_t i = 0; i < ARRAY_SIZE(str); i++)
+                if (strlen(str[i].v) > str[i].max)
+                        return imp_error_set(err, -EINVAL, "%s%s: expected at most %zu bytes, got %zu", what, str[i].key,
+                                             str[i].max, strlen(str[i].v));
         snprintf(q->id, sizeof q->id, "%s", id);
         snprintf(q->plan, sizeof q->plan, "%s", plan);
         snprintf(q->name, sizeof q->name, "%s", name);
@@ -113,6 +124,8 @@ static void queue_set_aside(struct daemon *d, const char *p, const char *msg, un
         (void) queue_save(d);
 }
 
+static struct queue_entry *entry_find(struct daemon *d, const char *id, struct queue_entry ***ret_link);
+
 int queue_load(struct daemon *d) {
         struct night *n = d->night;
         char p[PATH_MAX + 16];
@@ -139,6 +152,8 @@ int queue_load(struct daemon *d) {
                 snprintf(what, sizeof what, "%s: entries[%zu].", p, i);
                 int k = q ? entry_from_json(e, what, q, &err) :
                         imp_error_set(&err, -ENOSPC, "%sa queue holds at most %d entries", what, NIGHT_QUEUE_MAX);
+                if (k == 0 && entry_find(d, q->id, NULL))       /* `queue cancel ID` would pick one */
+                        k = imp_error_set(&err, -EINVAL, "%sid: \"%s\" is the id of an earlier entry", what, q->id);
                 if (k < 0) {            /* this entry is lost to the queue (kept in the file set aside) */
                         free(q);
                         if (!lost++)
@@ -154,6 +169,13 @@ int queue_load(struct daemon *d) {
                 n->queue_next_id = (unsigned) json_integer_value(next);
         else if (r < 0 || lost)
                 n->queue_next_id = 1000;        /* ids of the lost entries are not reused */
+        /* a next_id at or below an id in use (a hand-edited file) would give a new entry that id */
+        for (struct queue_entry *q = n->queue; q; q = q->next) {
+                unsigned k;
+                char end;
+                if (sscanf(q->id, "q%u%c", &k, &end) == 1 && k >= n->queue_next_id && k < 1000000000)
+                        n->queue_next_id = k + 1;
+        }
         if (r < 0 || lost) {
                 queue_set_aside(d, p, first.msg, r < 0 ? 0 : lost);
                 return -EBADMSG;

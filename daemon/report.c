@@ -3,6 +3,7 @@
  * quality verdicts, from the daemon's own state (session.json, the job files, copy.json). */
 #include <string.h>
 #include "impastod.h"
+#include "json-util.h"
 #include "log.h"
 #include "night.h"
 
@@ -40,6 +41,7 @@ static void attention_sessions(struct daemon *d, json_t *list, unsigned *more) {
                                  s->frames_total, *last_fault(s) ? ": " : "", last_fault(s));
                 snprintf(action, sizeof action, "impasto scan resume %s --follow (or impasto scan abort %s)", s->id,
                          s->id);
+                (void) imp_utf8_sanitize(msg);  /* a fault's message cut inside a character */
                 attention_add(list, more, json_pack("{s:s, s:s, s:s, s:s}", "kind", kind, "id", s->id, "message", msg,
                                                     "action", action));
         }
@@ -54,6 +56,7 @@ static void attention_jobs(struct daemon *d, json_t *list, unsigned *more) {
                          j->attempts, j->error[0] ? ": " : "", j->error);
                 snprintf(action, sizeof action, "impasto jobs retry %.128s (impasto jobs show %.128s for the error)", j->id,
                          j->id);
+                (void) imp_utf8_sanitize(msg);
                 attention_add(list, more, json_pack("{s:s, s:s, s:s, s:s}", "kind", "job_failed", "id", j->id,
                                                     "message", msg, "action", action));
         }

@@ -106,6 +106,18 @@ static int load_session_json(struct session *s, struct imp_error *e) {
         int st = session_state_from_name(state);
         if (st < 0 || total < 0)
                 return imp_error_set(e, -EBADMSG, "%s: state: \"%s\" is not a session state", p, state);
+        /* what the daemon wrote fits its buffers; a longer string (a hand-edited file) would be
+         * cut, maybe inside a character, and the session could neither be listed nor saved */
+        const struct {
+                const char *key, *v;
+                size_t max;
+        } str[] = { { "name", name, sizeof s->name - 1 }, { "plan", plan, sizeof s->plan_path - 1 },
+                    { "started", started, sizeof s->started - 1 }, { "ended", ended ? ended : "", sizeof s->ended - 1 },
+                    { "rebuilt", rebuilt ? rebuilt : "", 2000 } };
+        for (size_t i = 0; i < ARRAY_SIZE(str); i++)
+                if (strlen(str[i].v) > str[i].max)
+                        return imp_error_set(e, -EBADMSG, "%s: %s: expected at most %zu bytes, got %zu", p, str[i].key,
+                                             str[i].max, strlen(str[i].v));
         snprintf(s->name, sizeof s->name, "%s", name);
         snprintf(s->plan_path, sizeof s->plan_path, "%s", plan);
         snprintf(s->started, sizeof s->started, "%s", started);
@@ -213,7 +225,16 @@ int store_sessions_load(struct daemon *d) {
                 qsort(names, n, sizeof *names, cmp_names);
         int loaded = 0;
         for (size_t i = 0; i < n; i++) {
-                char sd[PATH_MAX + 300];
+                char sd[PATH_MAX + 300], probe[256];
+                /* a session id fits its buffer and is valid UTF-8 (clients get it in JSON);
+                 * a folder someone named otherwise is left alone, not listed under a cut name */
+                snprintf(probe, sizeof probe, "%s", names[i] ? names[i] : "");
+                if (names[i] && (strlen(names[i]) >= sizeof ((struct session *) NULL)->id || imp_utf8_sanitize(probe))) {
+                        log_warning("%s/%s: not a session id (at most %zu bytes of UTF-8), ignoring", p, probe,
+                                    sizeof ((struct session *) NULL)->id - 1);
+                        free(names[i]);
+                        continue;
+                }
                 if (names[i]) {
                         snprintf(sd, sizeof sd, "%s/%s", p, names[i]);
                         if (load_one(d, sd, names[i]) == 0)

@@ -18,3 +18,12 @@ if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WI
   add_dependencies(test-daemon-replug impastod)
   set_tests_properties(test-daemon-replug PROPERTIES RESOURCE_LOCK gvcp)
 endif()
+# - test-daemon-pause-reopen: a camera stalls once past its frame timeout, the session (one
+#   attempt per step) pauses, the resume opens the camera afresh and completes the set frame
+#   for frame (Modbus TCP 15904).
+if(TARGET impastod AND TARGET impasto_emu AND IMPASTO_WITH_ARAVIS AND IMPASTO_WITH_MODBUS)
+  impasto_test(test-daemon-pause-reopen LABELS integration fault LIBS impasto_proto impasto_pipeline impasto_emu
+               TIMEOUT 180)
+  add_dependencies(test-daemon-pause-reopen impastod)
+  set_tests_properties(test-daemon-pause-reopen PROPERTIES RESOURCE_LOCK gvcp)
+endif()

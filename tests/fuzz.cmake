@@ -35,6 +35,13 @@ if(TARGET impastod)
   if(IMPASTO_FUZZ)
     target_include_directories(fuzz-conf PRIVATE ${PROJECT_SOURCE_DIR}/daemon)
   endif()
+  # What impastod reads back from its own state directory: jobs, queue.json, sessions
+  impasto_fuzz_target(state LIBS impasto_proto impasto_drivers impasto_model PkgConfig::SYSTEMD_PKG
+    SOURCES ${fuzz_daemon_sources})
+  target_include_directories(test-fuzz-state PRIVATE ${PROJECT_SOURCE_DIR}/daemon)
+  if(IMPASTO_FUZZ)
+    target_include_directories(fuzz-state PRIVATE ${PROJECT_SOURCE_DIR}/daemon)
+  endif()
 else()
   impasto_fuzz_target(conf LIBS impasto_model)
 endif()

@@ -238,3 +238,35 @@ int imp_mkdir_p(const char *path, int mode) {
 json_t *imp_json_figure(double v) {
         return v >= 0 && isfinite(v) ? json_real(v) : json_null();
 }
+
+/* The length of the valid UTF-8 character at s (RFC 3629: no overlong form, no surrogate,
+ * at most U+10FFFF), 0 when there is none. */
+static size_t utf8_char_len(const unsigned char *s) {
+        unsigned c = s[0];
+        size_t n = c < 0x80 ? 1 : (c & 0xe0) == 0xc0 ? 2 : (c & 0xf0) == 0xe0 ? 3 : (c & 0xf8) == 0xf0 ? 4 : 0;
+        if (n <= 1)
+                return n;
+        unsigned cp = c & (0x7f >> n);
+        for (size_t i = 1; i < n; i++) {
+                if ((s[i] & 0xc0) != 0x80)
+                        return 0;
+                cp = (cp << 6) | (s[i] & 0x3f);
+        }
+        static const unsigned min[5] = { 0, 0, 0x80, 0x800, 0x10000 };
+        if (cp < min[n] || cp > 0x10ffff || (cp >= 0xd800 && cp <= 0xdfff))
+                return 0;
+        return n;
+}
+
+size_t imp_utf8_sanitize(char *s) {
+        size_t replaced = 0;
+        while (*s) {
+                size_t n = utf8_char_len((const unsigned char *) s);
+                if (n == 0) {
+                        *s++ = '?';
+                        replaced++;
+                } else
+                        s += n;
+        }
+        return replaced;
+}

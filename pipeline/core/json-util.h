@@ -29,6 +29,10 @@ const char *imp_json_type_name(const json_t *v);
 /* A figure that is never negative, as JSON: null when it is not available (a negative
  * sentinel such as -1, or not finite), the number otherwise. A new reference. */
 json_t *imp_json_figure(double v);
+/* Makes s valid UTF-8 in place, as json_string() wants it: every byte that is not part of a
+ * whole, valid character (a string cut by snprintf mid-character, a program's raw output)
+ * becomes '?'. Returns the number of bytes replaced. */
+size_t imp_utf8_sanitize(char *s);
 /* Load a whole file; parse errors name file:line:column. */
 int imp_json_load(const char *path, json_t **ret, struct imp_error *err);
 /* Crash-safe: writes PATH.tmp, fsyncs it, renames over PATH, fsyncs the directory. */

@@ -374,8 +374,9 @@ struct slurm_line {
         char state[32];
 };
 
-/* Parses "JOB|INDEX|STATE" lines (INDEX "N/A" for a plain job; sacct's JOB "123_4"). */
-static size_t parse_lines(char *text, struct slurm_line *out, size_t max) {
+/* Parses "JOB|INDEX|STATE" lines (INDEX "N/A" for a plain job); sacct's are
+ * "JOB_INDEX|JOB_INDEX|STATE" ("JOB|JOB|STATE" for a plain job), whose second field is no index. */
+static size_t parse_lines(char *text, struct slurm_line *out, size_t max, bool sacct) {
         size_t n = 0;
         char *save = NULL;
         for (char *l = strtok_r(text, "\n", &save); l && n < max; l = strtok_r(NULL, "\n", &save)) {
@@ -388,7 +389,7 @@ static size_t parse_lines(char *text, struct slurm_line *out, size_t max) {
                 if (*end != '|')
                         continue;
                 char *p = end + 1;
-                if (*p != '|' && strncmp(p, "N/A", 3))
+                if (!sacct && *p != '|' && strncmp(p, "N/A", 3))
                         index = strtol(p, &end, 10);
                 char *bar = strchr(p, '|');
                 if (!bar)
@@ -408,11 +409,11 @@ static size_t slurm_lines(const struct imp_batch *b, struct slurm_line *out, siz
         snprintf(names, sizeof names, "--name=impasto-tile-%s,impasto-finish-%s", b->id, b->id);
         const char *sq[] = { "squeue", "-h", "-r", "-t", "all", "-o", "%F|%K|%T", names, NULL };
         struct imp_error e = {};
-        size_t n = run_cmd(sq, buf, sizeof buf, &e) == 0 ? parse_lines(buf, out, max) : 0;
+        size_t n = run_cmd(sq, buf, sizeof buf, &e) == 0 ? parse_lines(buf, out, max, false) : 0;
         const char *sa[] = { "sacct", "-n", "-P", "-X", "-o", "JobID,JobID,State", names, NULL };
         if (n < max && run_cmd(sa, buf, sizeof buf, &e) == 0) {
                 struct slurm_line more[256];
-                size_t m = parse_lines(buf, more, 256);
+                size_t m = parse_lines(buf, more, 256, true);
                 for (size_t i = 0; i < m && n < max; i++) {
                         bool seen = false;
                         for (size_t k = 0; k < n && !seen; k++)

@@ -20,7 +20,7 @@ static void remove_tree(const char *dir, int depth) {
                 snprintf(p, sizeof p, "%s/%s", dir, de->d_name);
                 struct stat st;
                 if (lstat(p, &st) == 0 && S_ISDIR(st.st_mode)) {
-                        if (depth < 3)
+                        if (depth < 8)
                                 remove_tree(p, depth + 1);
                         rmdir(p);
                 } else {

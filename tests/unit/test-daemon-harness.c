@@ -324,6 +324,17 @@ _unused_ static int tc_read(struct tclient *c, unsigned timeout_ms, struct imp_p
         }
 }
 
+/* Reads (and counts) messages until n frame events have come, a session ended (a done
+ * event) or nothing came for timeout_ms. */
+_unused_ static void tc_wait_frames(struct tclient *c, unsigned n, unsigned timeout_ms) {
+        while (c->n_frames < n && !c->n_done) {
+                struct imp_proto_message m = { 0 };
+                if (tc_read(c, timeout_ms, &m) < 0)
+                        break;
+                imp_proto_message_done(&m);
+        }
+}
+
 /* Sends {"id","cmd","args"} and returns its reply in *ret (events before it are counted).
  * args is stolen. */
 _unused_ static int tc_call(struct tclient *c, const char *cmd, json_t *args, struct imp_proto_message *ret) {

@@ -71,12 +71,7 @@ static void unplug_and_back(struct harness *h, const char *plan, size_t frames, 
         tc_start_session(&c, plan, name, id, setdir);
         CHECK(id[0] != 0);
         /* Three frames in, the camera goes. */
-        while (c.n_frames < 3 && !c.n_done) {
-                struct imp_proto_message m = { 0 };
-                if (tc_read(&c, 10000, &m) < 0)
-                        break;
-                imp_proto_message_done(&m);
-        }
+        tc_wait_frames(&c, 3, 10000);
         CHECK_MSG(c.n_frames >= 3 && !c.n_done, "%s: %u frames before the unplug", name, c.n_frames);
         if (stall) {
                 atomic_store(&stall_armed, 1);

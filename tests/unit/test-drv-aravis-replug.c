@@ -6,6 +6,7 @@
 #include <time.h>
 #include "camera.h"
 #include "emu.h"
+#include "unit/gige-emu-setup.h"
 #include "unit/test.h"
 
 #define ADDRESS "127.0.0.1"
@@ -64,20 +65,13 @@ static void check_frames(struct imp_camera *cam, int n) {
 }
 
 int main(void) {
-        if (!imp_emu_gige_port_free(ADDRESS))
-                TEST_SKIP("UDP %s:3956 (GVCP) is taken by another camera", ADDRESS);
         _cleanup_(imp_emu_rig_freep) struct imp_emu_rig *r = NULL;
-        CHECK_OK(imp_emu_rig_new(8, &r));
+        _cleanup_(imp_emu_gige_freep) struct imp_emu_gige *emu = NULL;
+        if (gige_emu_setup(ADDRESS, SERIAL, 8, &r, &emu) < 0)
+                return TEST_DONE();
         rig = r;
         imp_emu_rig_set_light(rig, 3, 1000);
         imp_emu_rig_set_pattern(rig, 2);
-        _cleanup_(imp_emu_gige_freep) struct imp_emu_gige *emu = NULL;
-        int ret = imp_emu_gige_new(ADDRESS, SERIAL, rig, NULL, NULL, &emu);
-        if (ret == -EADDRINUSE)
-                TEST_SKIP("UDP %s:3956 (GVCP) is taken by another camera", ADDRESS);
-        CHECK_OK(ret);
-        if (ret < 0)
-                return TEST_DONE();
 
         struct imp_camera *cam = open_and_start();
         if (!cam)

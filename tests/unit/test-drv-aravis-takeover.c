@@ -11,6 +11,7 @@
 #include <unistd.h>
 #include "camera.h"
 #include "emu.h"
+#include "unit/gige-emu-setup.h"
 #include "unit/test.h"
 
 #define ADDRESS "127.0.0.1"
@@ -57,18 +58,11 @@ static int dying_controller(void) {
 int main(int argc, char **argv) {
         if (argc > 1 && !strcmp(argv[1], "--dying-controller"))
                 return dying_controller();
-        if (!imp_emu_gige_port_free(ADDRESS))
-                TEST_SKIP("UDP %s:3956 (GVCP) is taken by another camera", ADDRESS);
         _cleanup_(imp_emu_rig_freep) struct imp_emu_rig *rig = NULL;
-        CHECK_OK(imp_emu_rig_new(8, &rig));
-        imp_emu_rig_set_light(rig, 2, 1000);
         _cleanup_(imp_emu_gige_freep) struct imp_emu_gige *emu = NULL;
-        int ret = imp_emu_gige_new(ADDRESS, SERIAL, rig, NULL, NULL, &emu);
-        if (ret == -EADDRINUSE)
-                TEST_SKIP("UDP %s:3956 (GVCP) is taken by another camera", ADDRESS);
-        CHECK_OK(ret);
-        if (ret < 0)
+        if (gige_emu_setup(ADDRESS, SERIAL, 8, &rig, &emu) < 0)
                 return TEST_DONE();
+        imp_emu_rig_set_light(rig, 2, 1000);
 
         /* a process of its own (a fresh exec, not a fork of this threaded one) */
         pid_t pid = fork();

@@ -101,8 +101,37 @@ static void test_files(void) {
         CHECK_STR_CONTAINS(e.msg, "absent.json");
 }
 
+/* imp_utf8_sanitize: whole valid characters kept, every other byte '?', and jansson takes
+ * the result. */
+static void test_utf8(void) {
+        static const struct {
+                const char *in, *out;
+                size_t replaced;
+        } c[] = {
+                { "abc", "abc", 0 },
+                { "n\xc3\xa9" "e \xe2\x82\xac \xf0\x9f\x8e\xa8", "n\xc3\xa9" "e \xe2\x82\xac \xf0\x9f\x8e\xa8", 0 },
+                { "cut \xc3", "cut ?", 1 },                         /* snprintf's cut inside é */
+                { "cut \xe2\x82", "cut ??", 2 },
+                { "latin-1 caf\xe9!", "latin-1 caf?!", 1 },
+                { "\xc0\x80", "??", 2 },                             /* overlong NUL */
+                { "\xed\xa0\x80", "???", 3 },                         /* a surrogate */
+                { "\xf4\x90\x80\x80", "????", 4 },                   /* past U+10FFFF */
+                { "\x80x", "?x", 1 },                                 /* a lone continuation byte */
+        };
+        for (size_t i = 0; i < sizeof c / sizeof c[0]; i++) {
+                char buf[64];
+                snprintf(buf, sizeof buf, "%s", c[i].in);
+                CHECK_INT_EQ(imp_utf8_sanitize(buf), c[i].replaced);
+                CHECK_STR_EQ(buf, c[i].out);
+                json_t *j = json_string(buf);
+                CHECK_MSG(j != NULL, "case %zu: jansson refuses the result", i);
+                json_decref(j);
+        }
+}
+
 int main(void) {
         test_getters();
         test_files();
+        test_utf8();
         return TEST_DONE();
 }
