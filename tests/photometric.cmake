@@ -9,3 +9,5 @@ impasto_test(test-photometric-honest LABELS unit stability LIBS impasto_pipeline
 impasto_test(test-normal-trust LABELS unit stability LIBS impasto_pipeline)
 # The Lanczos re-read from frames interleaved by light equals the re-read from the frames.
 impasto_test(test-photometric-reread LIBS impasto_pipeline)
+# Where the normal map puts ridges sharper than a pixel: the re-read's kernel.
+impasto_test(test-photometric-kernel LIBS impasto_pipeline)

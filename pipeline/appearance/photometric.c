@@ -468,7 +468,9 @@ struct resample {
         const struct imp_btf_capture *cap;
         double R[9], t[3];            /* canvas → world */
         double sat;                   /* saturation value (0: flags only) */
-        int a;                        /* Lanczos order, 0 = off */
+        int a;                        /* the window's half width in pixels, 0 = off */
+        int order;                    /* Lanczos order */
+        int kernel;                   /* IMP_PN_KERNEL_* */
         const struct imp_btf_band *band;  /* the current band's frames, NULL: read the frames */
 };
 
@@ -479,6 +481,55 @@ static double lanczos(double x, int a) {
         if (x >= a)
                 return 0;
         return a * sin(M_PI * x) * sin(M_PI * x / a) / (M_PI * M_PI * x * x);
+}
+
+/* Mitchell–Netravali cubic with parameters (B, C): B = 1, C = 0 is the cubic B-spline
+ * (non-negative, smoothing), B = C = 1/3 Mitchell's filter (small negative lobes). */
+static double bc_cubic(double x, double B, double C) {
+        x = fabs(x);
+        if (x < 1)
+                return ((12 - 9 * B - 6 * C) * x * x * x + (-18 + 12 * B + 6 * C) * x * x + (6 - 2 * B)) / 6;
+        if (x < 2)
+                return ((-B - 6 * C) * x * x * x + (6 * B + 30 * C) * x * x + (-12 * B - 48 * C) * x + (8 * B + 24 * C)) /
+                       6;
+        return 0;
+}
+
+/* Weight of the re-read's kernel at distance x (pixels) from the sample's position;
+ * the caller normalises the window's weights to sum 1. */
+static double kernel_weight(const struct resample *rs, double x) {
+        switch (rs->kernel) {
+        case IMP_PN_KERNEL_LANCZOS_CLAMPED:
+                return fmax(0.0, lanczos(x, rs->order));
+        case IMP_PN_KERNEL_MITCHELL:
+                return bc_cubic(x, 1.0 / 3, 1.0 / 3);
+        case IMP_PN_KERNEL_BSPLINE:
+                return bc_cubic(x, 1, 0);
+        case IMP_PN_KERNEL_PREFILTERED:
+                /* frames smoothed by the binomial [1 2 1]/4, then read with Lanczos */
+                return 0.25 * lanczos(x - 1, rs->order) + 0.5 * lanczos(x, rs->order) + 0.25 * lanczos(x + 1, rs->order);
+        default:
+                return lanczos(x, rs->order);
+        }
+}
+
+/* Half width of the re-read's window in pixels for kernel k of Lanczos order a; 0 when
+ * the pair is not valid (the window must fit in PN_MAX_LANCZOS). */
+static int kernel_half_width(int k, int a) {
+        if (a <= 0)
+                return 0;
+        switch (k) {
+        case IMP_PN_KERNEL_LANCZOS:
+        case IMP_PN_KERNEL_LANCZOS_CLAMPED:
+                return a <= PN_MAX_LANCZOS ? a : -1;
+        case IMP_PN_KERNEL_MITCHELL:
+        case IMP_PN_KERNEL_BSPLINE:
+                return 2;
+        case IMP_PN_KERNEL_PREFILTERED:
+                return a + 1 <= PN_MAX_LANCZOS ? a + 1 : -1;
+        default:
+                return -1;
+        }
 }
 
 /* lanczos_sample of every light at once from the band, (bx, by) the window's corner in
@@ -595,8 +646,8 @@ static bool texel_window(const struct resample *rs, int u, int v, int *ret_x0, i
         double sx = 0, sy = 0;
         int x0 = (int) floor(px[0]) - rs->a + 1, y0 = (int) floor(px[1]) - rs->a + 1;
         for (int k = 0; k < 2 * rs->a; k++) {
-                sx += wx[k] = lanczos(px[0] - (x0 + k), rs->a);
-                sy += wy[k] = lanczos(px[1] - (y0 + k), rs->a);
+                sx += wx[k] = kernel_weight(rs, px[0] - (x0 + k));
+                sy += wy[k] = kernel_weight(rs, px[1] - (y0 + k));
         }
         for (int k = 0; k < 2 * rs->a; k++)
                 wx[k] /= sx, wy[k] /= sy;
@@ -889,7 +940,7 @@ int imp_photometric_normals(const struct imp_btf_heightfield *hf, const struct i
             out->normal_bilinear == hf->normal || out->normal_bilinear == out->normal ||
             hf->width <= 0 || hf->height <= 0)
                 return -EINVAL;
-        if (p->lanczos < 0 || p->lanczos > PN_MAX_LANCZOS)
+        if (p->lanczos < 0 || p->lanczos > PN_MAX_LANCZOS || kernel_half_width(p->kernel, p->lanczos) < 0)
                 return -EINVAL;
         size_t nt = (size_t) hf->width * hf->height;
         _cleanup_(imp_btf_hf_pyramid_freep) struct imp_btf_hf_pyramid *py = NULL;
@@ -908,7 +959,8 @@ int imp_photometric_normals(const struct imp_btf_heightfield *hf, const struct i
         pf.max_dev_deg = p->filled_max_dev_deg > 0 ? p->filled_max_dev_deg : p->max_dev_deg;
         struct pn_grid G = { .hf = hf, .p = p, .pf = &pf, .out = out, .x = x, .dev = dev, .sig = sig, .rmsv = rmsv,
                              .rs = { .hf = hf, .cap = cap, .sat = sp->saturation_value,
-                                     .a = p->lanczos } };
+                                     .a = kernel_half_width(p->kernel, p->lanczos), .order = p->lanczos,
+                                     .kernel = p->kernel } };
         for (int i = 0; i < 3; i++) {
                 for (int k = 0; k < 3; k++)
                         G.rs.R[3 * i + k] = hf->canvas_to_world[4 * i + k];

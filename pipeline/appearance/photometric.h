@@ -37,6 +37,16 @@ enum imp_pn_flag {
         IMP_PN_SATURATED   = 1 << 7,  /* the extractor dropped saturated samples (set with
                                          FEW_SAMPLES when that is why too few are left) */
 };
+/* The kernel imp_photometric_normals() re-reads the frames with (imp_photometric_params.kernel). */
+enum imp_pn_kernel {
+        IMP_PN_KERNEL_LANCZOS = 0,    /* Lanczos of order lanczos */
+        IMP_PN_KERNEL_LANCZOS_CLAMPED,/* the same with its negative lobes set to 0 */
+        IMP_PN_KERNEL_MITCHELL,       /* Mitchell–Netravali B = C = 1/3, 4 × 4 pixels */
+        IMP_PN_KERNEL_BSPLINE,        /* cubic B-spline (non-negative, smoothing), 4 × 4 */
+        IMP_PN_KERNEL_PREFILTERED,    /* frames smoothed by the binomial [1 2 1]/4 in x and
+                                         y, then Lanczos of order lanczos (≤ 3) */
+};
+
 #define IMP_PN_KEPT (IMP_PN_FEW_SAMPLES | IMP_PN_ILL_COND | IMP_PN_DARK | IMP_PN_DISAGREES | IMP_PN_MASKED | \
                      IMP_PN_AMBIENT | IMP_PN_RESIDUAL)
 
@@ -65,6 +75,9 @@ struct imp_photometric_params {
                                          each sample with a Lanczos kernel of this order
                                          (1..4; 3) instead of the extractor's bilinear value;
                                          0: keep the bilinear values */
+        int kernel;                   /* enum imp_pn_kernel of that re-read (LANCZOS); the
+                                         cubics ignore the order but lanczos = 0 still turns
+                                         the re-read off; PREFILTERED needs lanczos ≤ 3 */
         double shadow_trim_sigma;     /* > 0: samples darker than the current fit by more
                                          than this many robust σ get weight 0 in the next
                                          solve (a cast shadow only darkens). 0 (default) */
