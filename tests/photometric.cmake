@@ -9,5 +9,6 @@ impasto_test(test-photometric-honest LABELS unit stability LIBS impasto_pipeline
 impasto_test(test-normal-trust LABELS unit stability LIBS impasto_pipeline)
 # The Lanczos re-read from frames interleaved by light equals the re-read from the frames.
 impasto_test(test-photometric-reread LIBS impasto_pipeline)
-# Where the normal map puts ridges sharper than a pixel: the re-read's kernel.
-impasto_test(test-photometric-kernel LIBS impasto_pipeline)
+# Where the normal map puts ridges sharper than a pixel: the re-read's kernel. Renders a
+# scene (8 s of CPU in the release build, 144 s under ASan): integration, not in the ASan set.
+impasto_test(test-photometric-kernel LABELS integration LIBS impasto_pipeline)
