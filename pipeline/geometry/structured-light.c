@@ -835,29 +835,34 @@ static struct u8_lim u8_limits(int16_t minc, int16_t sat) {
                                  (uint8_t) (sat < 0 ? 0 : sat > 255 ? 255 : sat), sat <= 255 };
 }
 
-/* Every Gray plane of axis ax over one block, in byte lanes: g8[0] takes planes 0–7, g8[1]
- * planes 8–15; wk8, cm8, g8 start at 0, 255, 0; hi8 is raised by every sample. */
+/* The next row of axis ax's frames over [x0, x0 + n): the thread decodes it next (rows come
+ * in chunks), and 40 streams of a row each are more than the hardware prefetchers follow. */
+static inline __attribute__((always_inline)) void prefetch_next_rows(
+                const struct imp_image *const *im, const struct axis_plan *ax, int y, int x0, int n) {
+        if (y + 1 >= im[0]->height)
+                return;
+        for (int k = 0; k < ax->nbits; k++) {
+                const char *pn = (const char *) imp_image_row(im[ax->p[k]], y + 1) + x0;
+                const char *qn = (const char *) imp_image_row(im[ax->q[k]], y + 1) + x0;
+                for (int x = 0; x < n; x += 64) {
+                        __builtin_prefetch(pn + x);
+                        __builtin_prefetch(qn + x);
+                }
+        }
+}
+
+/* Every Gray plane of axis ax over n pixels from x0, in byte lanes: g0 takes planes 0–7, g1
+ * planes 8–15; wk8, cm8, g0, g1 start at 0, 255, 0, 0; hi8 is raised by every sample. */
 static inline __attribute__((always_inline)) void gray_u8_planes(
                 const struct imp_image *const *im, const struct axis_plan *ax, int y, int x0, int n,
                 const uint8_t *restrict td8, const uint8_t *restrict tg8, const uint8_t *restrict alw8,
-                const uint8_t *restrict tgok, struct u8_lim lim, uint8_t (*restrict g8)[IBLK],
+                const uint8_t *restrict tgok, struct u8_lim lim, uint8_t *restrict g0, uint8_t *restrict g1,
                 uint8_t *restrict wk8, uint8_t *restrict cm8, uint8_t *restrict hi8) {
         for (int k = 0; k < ax->nbits; k++) {
                 const uint8_t *pr = (const uint8_t *) imp_image_row(im[ax->p[k]], y) + x0;
                 const uint8_t *qr = (const uint8_t *) imp_image_row(im[ax->q[k]], y) + x0;
-                if (y + 1 < im[0]->height) {
-                        /* The next row of this plane's frames: the thread decodes it next
-                         * (rows come in chunks), and 40 streams of a row each are more than
-                         * the hardware prefetchers follow. */
-                        const char *pn = (const char *) imp_image_row(im[ax->p[k]], y + 1) + x0;
-                        const char *qn = (const char *) imp_image_row(im[ax->q[k]], y + 1) + x0;
-                        for (int x = 0; x < n; x += 64) {
-                                __builtin_prefetch(pn + x);
-                                __builtin_prefetch(qn + x);
-                        }
-                }
                 gray_u8_plane(pr, qr, n, td8, tg8, alw8, tgok, lim.minc, lim.weak_all, lim.sat, lim.sat_on,
-                              g8[k >= 8], wk8, cm8, hi8);
+                              k >= 8 ? g1 : g0, wk8, cm8, hi8);
         }
 }
 
@@ -876,7 +881,9 @@ static __attribute__((noinline, CLONES)) bool gray_u8_axis(
                 g8[0][x] = g8[1][x] = wk8[x] = 0;
                 cm8[x] = 255;
         }
-        gray_u8_planes(im, ax, y, x0, n, td8, tg8, alw8, tgok, u8_limits(minc, sat), g8, wk8, cm8, hi8);
+        prefetch_next_rows(im, ax, y, x0, n);
+        gray_u8_planes(im, ax, y, x0, n, td8, tg8, alw8, tgok, u8_limits(minc, sat), g8[0], g8[1], wk8,
+                       cm8, hi8);
         const int low = ax->nbits > 8 ? ax->nbits - 8 : 0;      /* bits in g8[1] */
         SIMD
         for (int x = 0; x < n; x++) {
@@ -905,7 +912,6 @@ DEFINE_GRAY_INT(gray_int_u16, uint16_t, int32_t, uint32_t, (1 << 20), NO_BYTES) 
  * so every value is the same; the SSE2 clone runs each as two 4-lane halves. */
 typedef float v8f __attribute__((vector_size(32)));
 typedef int32_t v8i __attribute__((vector_size(32)));
-typedef uint8_t v8b __attribute__((vector_size(8)));
 
 /* m ? a : b lane by lane, m a comparison's −1 / 0 (a macro: a 32-byte vector argument
  * would change the ABI of the SSE2 clone) */
@@ -914,10 +920,11 @@ typedef uint8_t v8b __attribute__((vector_size(8)));
 static inline __attribute__((always_inline)) void thr8(
                 const uint8_t *mx, const uint8_t *mn, float k1, float k2, float b, uint8_t always,
                 float *ld, float *lg, int32_t *ti, int32_t *gi, int32_t *ai) {
-        v8b bx, bn;
-        memcpy(&bx, mx, sizeof bx);
-        memcpy(&bn, mn, sizeof bn);
-        const v8f lmax = __builtin_convertvector(bx, v8f), lmin = __builtin_convertvector(bn, v8f);
+        /* Bytes → int lanes element by element: gcc 12 turns this into one pmovzxbd (AVX2) or
+         * two unpacks, but converts a loaded 8-byte vector (v8b) lane by lane in scalar code. */
+        const v8i ix = { mx[0], mx[1], mx[2], mx[3], mx[4], mx[5], mx[6], mx[7] };
+        const v8i in = { mn[0], mn[1], mn[2], mn[3], mn[4], mn[5], mn[6], mn[7] };
+        const v8f lmax = __builtin_convertvector(ix, v8f), lmin = __builtin_convertvector(in, v8f);
         const v8f zero = { 0 }, c255 = zero + 255.0f, c256 = zero + 256.0f;
         v8f d = (zero + k1) * (lmax - lmin), e = (zero + k2) * (lmin - (zero + b) * lmax);
         d = SEL8(d > zero, d, zero);
@@ -994,6 +1001,161 @@ static __attribute__((noinline, CLONES)) void u8_axis_out(
         }
 }
 
+/* ---- the byte-lane block in explicit vectors (x86) ----------------------------------------
+ * gray_u8_planes as gcc vectorizes it keeps the block's state (code bits, weak count, smallest
+ * contrast, maximum) in memory: every plane loads and stores four arrays and loads four
+ * threshold arrays, ≈ 46 instructions per 32 pixels and plane. Here one vector of pixels
+ * runs through every plane of the axis with its state in registers (≈ 26). Same decisions:
+ * for the thresholds t_d = ⌊L_d⌋ ≤ t_g = ⌈L_g⌉ (when L_d ≤ L_g, i.e. the rules apply) the
+ * two classifying rules reduce to min(p, p̄) ≤ t_d and max(p, p̄) ≥ t_g (with p > p̄ the
+ * first, p ≤ t_d ≤ t_g ≤ p̄, cannot hold, nor the second with p < p̄), and L_d > L_g (or
+ * !robust: every bit classified) becomes t_d = 255, t_g = 0, which always hold. Unsigned
+ * byte comparisons as min/max and equality (SSE2 has no unsigned compare); the bit p > p̄ as
+ * min(p − min(p, p̄), 1). Instantiated for AVX2 (32 lanes) and SSE2 (16), chosen by the
+ * CPU at run time (IMPASTO_SL_NO_CLONES: SSE2 alone). */
+#if defined(__x86_64__) && defined(__SSE2__) && defined(__GNUC__)
+#define U8_SIMD 1
+#include <immintrin.h>
+
+/* VT: vector type, VW: its bytes; LD/ST unaligned load/store; the rest byte-wise ops. */
+#define DEFINE_U8_BLOCK(SFX, ATTR, VT, VW, LD, ST, MINU, MAXU, SUB, ADD, AND, OR, ANDN, CMPEQ, SET1) \
+/* L_max / L_min over the frames D[0..nd) for pixels [0, nv), nv a multiple of VW. */              \
+static ATTR void u8_maxima_##SFX(const uint8_t *const *D, int nd, int nv, uint8_t *restrict mx,   \
+                                 uint8_t *restrict mn) {                                          \
+        for (int x = 0; x < nv; x += VW) {                                                        \
+                VT hi = LD((const VT *) (const void *) (D[0] + x)), lo = hi;                       \
+                for (int i = 1; i < nd; i++) {                                                     \
+                        VT v = LD((const VT *) (const void *) (D[i] + x));                         \
+                        hi = MAXU(hi, v);                                                          \
+                        lo = MINU(lo, v);                                                          \
+                }                                                                                  \
+                ST((VT *) (void *) (mx + x), hi);                                                  \
+                ST((VT *) (void *) (mn + x), lo);                                                  \
+        }                                                                                          \
+}                                                                                                  \
+                                                                                                   \
+/* Every plane k < nbits (frames P[k], Q[k]) for pixels [0, nv): g0/g1 (planes 0–7 / 8–15),   \
+ * wk, cm written, hi raised; the arrays as gray_u8_planes leaves them. */                        \
+static ATTR void u8_axis_##SFX(const uint8_t *const *P, const uint8_t *const *Q, int nbits,       \
+                               int nv, const uint8_t *restrict td8, const uint8_t *restrict tg8,  \
+                               const uint8_t *restrict tgok, const uint8_t *restrict alw8,        \
+                               struct u8_lim lim, uint8_t *restrict g0o, uint8_t *restrict g1o,   \
+                               uint8_t *restrict wko, uint8_t *restrict cmo, uint8_t *restrict hio) { \
+        const VT zero = SET1(0), one = SET1(1), ff = SET1(-1);                                     \
+        const VT minc = SET1((char) lim.minc), sat = SET1((char) lim.sat);                         \
+        const VT sat_on = lim.sat_on ? ff : zero, strong_ok = lim.weak_all ? zero : ff;           \
+        for (int x = 0; x < nv; x += VW) {                                                        \
+                const VT alw = SUB(zero, LD((const VT *) (const void *) (alw8 + x)));               \
+                const VT td = OR(LD((const VT *) (const void *) (td8 + x)), alw);                  \
+                const VT tg = ANDN(alw, LD((const VT *) (const void *) (tg8 + x)));                \
+                const VT ok = AND(OR(alw, SUB(zero, LD((const VT *) (const void *) (tgok + x)))), strong_ok); \
+                VT g0 = zero, g1 = zero, wk = zero, cm = ff;                                       \
+                VT hi = LD((const VT *) (const void *) (hio + x));                                 \
+                for (int k = 0; k < nbits; k++) {                                                  \
+                        const VT p = LD((const VT *) (const void *) (P[k] + x));                   \
+                        const VT q = LD((const VT *) (const void *) (Q[k] + x));                   \
+                        const VT lo = MINU(p, q), up = MAXU(p, q), ad = SUB(up, lo);              \
+                        const VT bit = MINU(SUB(p, lo), one);                                      \
+                        const VT cls = AND(AND(CMPEQ(MAXU(lo, td), td), CMPEQ(MINU(up, tg), tg)), ok); \
+                        const VT strong = CMPEQ(MAXU(ad, minc), ad);                               \
+                        const VT clip = AND(CMPEQ(MAXU(lo, sat), lo), sat_on);                     \
+                        const VT good = ANDN(clip, AND(cls, strong));                              \
+                        wk = ADD(wk, ANDN(good, one));                                             \
+                        if (k < 8)                                                                 \
+                                g0 = OR(ADD(g0, g0), bit);                                         \
+                        else                                                                       \
+                                g1 = OR(ADD(g1, g1), bit);                                         \
+                        cm = MINU(cm, ad);                                                         \
+                        hi = MAXU(hi, up);                                                         \
+                }                                                                                  \
+                ST((VT *) (void *) (g0o + x), g0);                                                 \
+                ST((VT *) (void *) (g1o + x), g1);                                                 \
+                ST((VT *) (void *) (wko + x), wk);                                                 \
+                ST((VT *) (void *) (cmo + x), cm);                                                 \
+                ST((VT *) (void *) (hio + x), hi);                                                 \
+        }                                                                                          \
+}
+
+DEFINE_U8_BLOCK(sse2, , __m128i, 16, _mm_loadu_si128, _mm_storeu_si128, _mm_min_epu8, _mm_max_epu8,
+                _mm_sub_epi8, _mm_add_epi8, _mm_and_si128, _mm_or_si128, _mm_andnot_si128,
+                _mm_cmpeq_epi8, _mm_set1_epi8)
+#if !defined(IMPASTO_SL_NO_CLONES) && !defined(__clang__)
+#define U8_AVX2 1
+DEFINE_U8_BLOCK(avx2, __attribute__((target("avx2"))), __m256i, 32, _mm256_loadu_si256,
+                _mm256_storeu_si256, _mm256_min_epu8, _mm256_max_epu8, _mm256_sub_epi8,
+                _mm256_add_epi8, _mm256_and_si256, _mm256_or_si256, _mm256_andnot_si256,
+                _mm256_cmpeq_epi8, _mm256_set1_epi8)
+#endif
+
+/* The vector width in use and its kernels: AVX2 where the CPU has it. */
+struct u8_kernels {
+        int vw;
+        void (*maxima)(const uint8_t *const *, int, int, uint8_t *, uint8_t *);
+        void (*axis)(const uint8_t *const *, const uint8_t *const *, int, int, const uint8_t *,
+                     const uint8_t *, const uint8_t *, const uint8_t *, struct u8_lim, uint8_t *,
+                     uint8_t *, uint8_t *, uint8_t *, uint8_t *);
+};
+
+static struct u8_kernels u8_kernels(void) {
+#ifdef U8_AVX2
+        if (__builtin_cpu_supports("avx2"))
+                return (struct u8_kernels) { 32, u8_maxima_avx2, u8_axis_avx2 };
+#endif
+        return (struct u8_kernels) { 16, u8_maxima_sse2, u8_axis_sse2 };
+}
+#endif
+
+/* L_max / L_min (mx, mn) over the frames giving them, and hi8 = white, for n pixels from x0:
+ * the first nv (a multiple of the vector width) in explicit vectors. */
+static void u8_block_maxima(const struct ctx *c, int y, int x0, int n, int nv, uint8_t *restrict mx,
+                            uint8_t *restrict mn, uint8_t *restrict hi8) {
+        const struct plan *pl = c->pl;
+        const struct imp_image *const *im = c->in->images;
+        const uint8_t *D[4 * MAX_BITS];
+        for (int i = 0; i < pl->ndg; i++)
+                D[i] = (const uint8_t *) imp_image_row(im[pl->dg[i]], y) + x0;
+        const uint8_t *wr = (const uint8_t *) imp_image_row(im[pl->white], y) + x0;
+#ifdef U8_SIMD
+        if (nv)
+                u8_kernels().maxima(D, pl->ndg, nv, mx, mn);
+#endif
+        for (int x = nv; x < n; x++)
+                mx[x] = mn[x] = D[0][x];
+        for (int i = 1; i < pl->ndg; i++)
+                for (int x = nv; x < n; x++) {
+                        mx[x] = mx[x] > D[i][x] ? mx[x] : D[i][x];
+                        mn[x] = mn[x] < D[i][x] ? mn[x] : D[i][x];
+                }
+        memcpy(hi8, wr, (size_t) n);    /* the black frame never counted here */
+}
+
+/* Every Gray plane of axis ax over n pixels from x0 into g8, wk8, cm8 (hi8 raised): the
+ * first nv in explicit vectors, the rest by gray_u8_plane. */
+static void u8_block_axis(const struct ctx *c, const struct axis_plan *ax, int y, int x0, int n, int nv,
+                          const uint8_t *td8, const uint8_t *tg8, const uint8_t *tgok, const uint8_t *alw8,
+                          struct u8_lim lim, uint8_t (*g8)[IBLK], uint8_t *wk8, uint8_t *cm8, uint8_t *hi8) {
+        const struct imp_image *const *im = c->in->images;
+        prefetch_next_rows(im, ax, y, x0, n);
+#ifdef U8_SIMD
+        if (nv) {
+                const uint8_t *P[MAX_BITS], *Q[MAX_BITS];
+                for (int k = 0; k < ax->nbits; k++) {
+                        P[k] = (const uint8_t *) imp_image_row(im[ax->p[k]], y) + x0;
+                        Q[k] = (const uint8_t *) imp_image_row(im[ax->q[k]], y) + x0;
+                }
+                u8_kernels().axis(P, Q, ax->nbits, nv, td8, tg8, tgok, alw8, lim, g8[0], g8[1], wk8, cm8, hi8);
+        }
+#endif
+        if (nv == n)
+                return;
+        for (int x = nv; x < n; x++) {
+                g8[0][x] = g8[1][x] = wk8[x] = 0;
+                cm8[x] = 255;
+        }
+        gray_u8_planes(im, ax, y, x0 + nv, n - nv, td8 + nv, tg8 + nv, alw8 + nv, tgok + nv, lim, g8[0] + nv,
+                       g8[1] + nv, wk8 + nv, cm8 + nv, hi8 + nv);
+}
+
 static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void gray_u8_row(
                 const struct ctx *c, int y, float **R, int w) {
         const struct plan *pl = c->pl;
@@ -1002,41 +1164,28 @@ static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void gray
                                             (int16_t) int_ceil_clamp(c->sat, -INT16_MAX, INT16_MAX));
         const float b = c->b, k1 = 1.0f / (1.0f - b), k2 = 2.0f / (1.0f - b * b);
         const uint8_t always = c->p->robust ? 0 : 1;
+#ifdef U8_SIMD
+        const int vw = u8_kernels().vw;
+#else
+        const int vw = 0;
+#endif
         for (int x0 = 0; x0 < w; x0 += IBLK) {
-                const int n = IMP_MIN(IBLK, w - x0);
+                const int n = IMP_MIN(IBLK, w - x0), nv = vw ? n - n % vw : 0;
                 uint8_t mx[IBLK], mn[IBLK], td8[IBLK], tg8[IBLK], tgok[IBLK], alw8[IBLK], hi8[IBLK];
                 uint8_t g8[2][IBLK], wk8[IBLK], cm8[IBLK];
-                const uint8_t *wr = (const uint8_t *) imp_image_row(im[pl->white], y) + x0;
-                const uint8_t *br = (const uint8_t *) imp_image_row(im[pl->black], y) + x0;
-                const uint8_t *p0 = (const uint8_t *) imp_image_row(im[pl->dg[0]], y) + x0;
-                SIMD
-                for (int x = 0; x < n; x++) {
-                        mx[x] = mn[x] = p0[x];
-                        hi8[x] = wr[x];         /* the black frame never counted here */
-                }
-                for (int i = 1; i < pl->ndg; i++) {
-                        const uint8_t *pi = (const uint8_t *) imp_image_row(im[pl->dg[i]], y) + x0;
-                        SIMD
-                        for (int x = 0; x < n; x++) {
-                                mx[x] = mx[x] > pi[x] ? mx[x] : pi[x];
-                                mn[x] = mn[x] < pi[x] ? mn[x] : pi[x];
-                        }
-                }
+                u8_block_maxima(c, y, x0, n, nv, mx, mn, hi8);
                 u8_thresholds(n, mx, mn, k1, k2, b, always, R[R_LD] + x0, R[R_LG] + x0, td8, tg8, tgok, alw8);
                 for (int a = 0; a < 2; a++) {
                         const struct axis_plan *ax = &pl->ax[a];
                         if (!ax->nbits)
                                 continue;
-                        SIMD
-                        for (int x = 0; x < n; x++) {
-                                g8[0][x] = g8[1][x] = wk8[x] = 0;
-                                cm8[x] = 255;
-                        }
-                        gray_u8_planes(im, ax, y, x0, n, td8, tg8, alw8, tgok, lim, g8, wk8, cm8, hi8);
+                        u8_block_axis(c, ax, y, x0, n, nv, td8, tg8, tgok, alw8, lim, g8, wk8, cm8, hi8);
                         u8_axis_out(n, ax->nbits, g8[0], g8[1], wk8, cm8,
                                     (uint32_t *) R[R_CODE0 + a] + x0, (uint32_t *) R[R_WEAK0 + a] + x0,
                                     R[R_CMIN0 + a] + x0);
                 }
+                const uint8_t *wr = (const uint8_t *) imp_image_row(im[pl->white], y) + x0;
+                const uint8_t *br = (const uint8_t *) imp_image_row(im[pl->black], y) + x0;
                 float *restrict hr = R[R_HI] + x0, *restrict wf = R[R_WHITE] + x0, *restrict bf = R[R_BLACK] + x0;
                 SIMD
                 for (int x = 0; x < n; x++) {
