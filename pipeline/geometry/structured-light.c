@@ -969,33 +969,32 @@ static __attribute__((noinline, CLONES)) void u8_thresholds(
         }
 }
 
-/* Axis a's block result into the combine step's rows: the binary code (Gray → binary on the
- * 16-bit code, g ^ g>>1 ^ g>>2 …), the weak-bit count and the smallest contrast. This loop
- * and u8_thresholds are functions of their own: inlined into the block loop, gcc 12 leaves
- * them scalar (≈ 100 instructions a pixel under callgrind). */
-static __attribute__((noinline, CLONES)) void u8_axis_out(
+/* Axis a's block code: Gray → binary on the 16-bit code (g ^ g>>1 ^ g>>2 …), planes 0–7 in
+ * g0, 8–15 in g1. This loop and u8_thresholds are functions of their own: inlined into the
+ * block loop, gcc 12 leaves them scalar (≈ 100 instructions a pixel under callgrind). */
+static __attribute__((noinline, CLONES)) void u8_axis_code(
                 int n, int nbits, const uint8_t *restrict g0, const uint8_t *restrict g1,
-                const uint8_t *restrict wk8, const uint8_t *restrict cm8, uint32_t *restrict code,
-                uint32_t *restrict weak, float *restrict cmin) {
-        uint16_t g[IBLK];
-        if (nbits > 8) {
-                const int low = nbits - 8;      /* bits in g1 */
-                SIMD
-                for (int x = 0; x < n; x++)
-                        g[x] = (uint16_t) ((g0[x] << low) | g1[x]);
-        } else {
-                SIMD
-                for (int x = 0; x < n; x++)
-                        g[x] = g0[x];
-        }
+                uint16_t *restrict code) {
+        const int low = nbits > 8 ? nbits - 8 : 0;      /* bits in g1 */
         SIMD
         for (int x = 0; x < n; x++) {
-                uint16_t v = g[x];
+                uint16_t v = (uint16_t) ((g0[x] << low) | (low ? g1[x] : 0));
                 v ^= v >> 1;
                 v ^= v >> 2;
                 v ^= v >> 4;
                 v ^= v >> 8;
                 code[x] = v;
+        }
+}
+
+/* Axis a's block result into the combine step's rows: the code, the weak-bit count and the
+ * smallest contrast, widened. */
+static __attribute__((noinline, CLONES)) void u8_axis_out(
+                int n, const uint16_t *restrict cd16, const uint8_t *restrict wk8, const uint8_t *restrict cm8,
+                uint32_t *restrict code, uint32_t *restrict weak, float *restrict cmin) {
+        SIMD
+        for (int x = 0; x < n; x++) {
+                code[x] = cd16[x];
                 weak[x] = wk8[x];
                 cmin[x] = cm8[x];
         }
@@ -1159,14 +1158,162 @@ static void u8_block_axis(const struct ctx *c, const struct axis_plan *ax, int y
                        g8[1] + nv, wk8 + nv, cm8 + nv, hi8 + nv);
 }
 
+/* ---- the combine step of a Gray-only byte-lane row, straight from the block's bytes -----
+ * combine_gray_row as gcc vectorizes it reads eleven 32-bit rows (the block's bytes widened
+ * by u8_axis_out and gray_u8_row) and costs ≈ 29 instructions a pixel; here eight pixels
+ * at a time in GCC's generic vectors from the bytes and 16-bit codes themselves. The same
+ * operations on the same float values (the integer tests are exact twins: for an integer
+ * v, v > t ⇔ v > ⌊t⌋ and v ≥ s ⇔ v ≥ ⌈s⌉), so every map and count is bit-identical. */
+typedef uint16_t v8s __attribute__((vector_size(16)));
+
+struct comb_in {                /* one block's inputs, pixel 0 at the block's start */
+        const uint8_t *w, *b, *hi, *cm[2], *wk[2];
+        const uint16_t *cd[2];
+        const float *ld;
+};
+
+struct comb_k {                 /* the row's constants */
+        int32_t thr, sat, ext[2];
+        float minc_d, ob, q[2], sw[2], ss[2];   /* 1 − b; σ of a weak / a sure Gray centre */
+        int32_t robust, rej[2];
+};
+
+struct comb_out {
+        float *ox, *oy, *oc, *os;
+        uint16_t *of;
+};
+
+#define LD8(p) ((v8i) { (p)[0], (p)[1], (p)[2], (p)[3], (p)[4], (p)[5], (p)[6], (p)[7] })
+#define BIT8(m, f) ((m) & (int32_t) (f))
+
+/* Pixels [x, x + 8); cnt: −(count) per lane (masks are −1), in the order of counts[]. */
+static inline __attribute__((always_inline)) void comb8(const struct comb_in *in, const struct comb_k *k,
+                                                         int x, const struct comb_out *o, v8i cnt[6]) {
+        const v8f zero = { 0 }, one = zero + 1.0f;
+        v8f ld;
+        memcpy(&ld, in->ld + x, sizeof ld);
+        const v8i shadow = (LD8(in->w + x) - LD8(in->b + x) <= k->thr) | ((ld < k->minc_d) & k->robust);
+        const v8f span = ld * k->ob;
+        const v8f sd = SEL8(span > zero, span, zero + INFINITY);
+        v8i ok[2], und[2], wb[2], oor[2];
+        v8f ca[2], pos[2], sg[2];
+        for (int a = 0; a < 2; a++) {
+                const v8i wk = LD8(in->wk[a] + x), cd = LD8(in->cd[a] + x);
+                und[a] = wk > GRAY_WEAK_ALLOWED;
+                wb[a] = wk == 1;
+                oor[a] = cd >= k->ext[a];
+                ok[a] = ~(shadow | und[a] | oor[a]);
+                const v8f v = __builtin_convertvector(LD8(in->cm[a] + x), v8f) / sd;
+                const v8f t = SEL8(v > zero, v, zero);
+                ca[a] = SEL8(wb[a], zero + 0.5f, one) * SEL8(t < one, t, one);
+                pos[a] = SEL8(ok[a], (__builtin_convertvector(cd, v8f) + 0.5f) * k->q[a],
+                              zero + IMP_SL_INVALID_COORD);
+                sg[a] = SEL8(ok[a], SEL8(wb[a], zero + k->sw[a], zero + k->ss[a]), zero);
+        }
+        v8f conf = SEL8(ok[0], SEL8(one < ca[0], one, ca[0]), one);
+        conf = SEL8(ok[1], SEL8(conf < ca[1], conf, ca[1]), conf);
+        conf = SEL8(ok[0] | ok[1], conf, zero);
+        const v8f os = SEL8(sg[0] > sg[1], sg[0], sg[1]);
+        const v8i sat = LD8(in->hi + x) >= k->sat;
+        const v8i f = BIT8(shadow, IMP_SL_SHADOW) | BIT8(sat, IMP_SL_SATURATED) |
+                      BIT8(und[0] | und[1], IMP_SL_UNDECODABLE) | BIT8(wb[0] | wb[1], IMP_SL_WEAK_BIT) |
+                      BIT8(oor[0] | oor[1], IMP_SL_OUT_OF_RANGE) | BIT8(ok[0], IMP_SL_VALID_X) |
+                      BIT8(ok[1], IMP_SL_VALID_Y) |
+                      BIT8((ok[0] & k->rej[0]) | (ok[1] & k->rej[1]), IMP_SL_PHASE_REJECTED);
+        const v8s f16 = __builtin_convertvector(f, v8s);
+        memcpy(o->ox + x, &pos[0], sizeof pos[0]);
+        memcpy(o->oy + x, &pos[1], sizeof pos[1]);
+        memcpy(o->oc + x, &conf, sizeof conf);
+        memcpy(o->os + x, &os, sizeof os);
+        memcpy(o->of + x, &f16, sizeof f16);
+        cnt[0] += ok[0];
+        cnt[1] += ok[1];
+        cnt[2] += ok[0] & ok[1];
+        cnt[3] += shadow;
+        cnt[4] += sat;
+        cnt[5] += wb[0] | wb[1];
+}
+
+/* Pixels [0, n) of a block; the last n % 8 through zero-padded copies of their inputs. */
+static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void combine_u8_block(
+                const struct comb_in *in, const struct comb_k *k, int n, const struct comb_out *o,
+                size_t counts[8]) {
+        v8i cnt[6] = { { 0 } };
+        int x = 0;
+        for (; x + 8 <= n; x += 8)
+                comb8(in, k, x, o, cnt);
+        if (x < n) {
+                const size_t m = (size_t) (n - x);
+                uint8_t bw[8] = { 0 }, bb[8] = { 0 }, bh[8] = { 0 }, bc[2][8] = { { 0 } }, bk[2][8] = { { 0 } };
+                uint16_t bd[2][8] = { { 0 } }, tf[8];
+                float bl[8] = { 0 }, tx[8], ty[8], tc[8], ts[8];
+                memcpy(bw, in->w + x, m);
+                memcpy(bb, in->b + x, m);
+                memcpy(bh, in->hi + x, m);
+                memcpy(bl, in->ld + x, m * sizeof *bl);
+                for (int a = 0; a < 2; a++) {
+                        memcpy(bc[a], in->cm[a] + x, m);
+                        memcpy(bk[a], in->wk[a] + x, m);
+                        memcpy(bd[a], in->cd[a] + x, m * sizeof **bd);
+                }
+                const struct comb_in t = { bw, bb, bh, { bc[0], bc[1] }, { bk[0], bk[1] }, { bd[0], bd[1] }, bl };
+                const struct comb_out to = { tx, ty, tc, ts, tf };
+                v8i tcnt[6] = { { 0 } };
+                comb8(&t, k, 0, &to, tcnt);
+                memcpy(o->ox + x, tx, m * sizeof *tx);
+                memcpy(o->oy + x, ty, m * sizeof *ty);
+                memcpy(o->oc + x, tc, m * sizeof *tc);
+                memcpy(o->os + x, ts, m * sizeof *ts);
+                memcpy(o->of + x, tf, m * sizeof *tf);
+                for (int i = 0; i < 6; i++)     /* only the m lanes that are pixels */
+                        for (size_t l = 0; l < m; l++)
+                                cnt[i][l] += tcnt[i][l];
+        }
+        for (int i = 0; i < 6; i++) {
+                int32_t s = 0;
+                for (int l = 0; l < 8; l++)
+                        s -= cnt[i][l];
+                counts[i] += (size_t) s;
+        }
+}
+
+/* The constants of combine_u8_block for this decode. */
+static struct comb_k comb_constants(const struct ctx *c) {
+        const struct plan *pl = c->pl;
+        const float thr = (float) c->p->shadow_threshold;
+        struct comb_k k = {
+                .thr = !(thr < 1000.0f) ? 1000 : !(thr > -1000.0f) ? -1000 : (int32_t) floorf(thr),
+                .sat = int_ceil_clamp(c->sat, -INT16_MAX, INT16_MAX),
+                .minc_d = (float) c->p->min_direct, .ob = 1 - c->b,
+                .robust = c->p->robust ? -1 : 0,
+        };
+        for (int a = 0; a < 2; a++) {
+                k.ext[a] = pl->ax[a].ncodes;
+                k.q[a] = pl->ax[a].quantum;
+                k.sw[a] = WEAK_SIGMA * pl->ax[a].quantum;
+                k.ss[a] = INV_SQRT12 * pl->ax[a].quantum;
+                k.rej[a] = (c->rejected >> a & 1) ? -1 : 0;
+        }
+        return k;
+}
+
+/* Whether a row's combine step runs in gray_u8_row (combine_u8_block): a Gray-only byte-lane
+ * row with both axes. */
+static bool u8_combines(const struct plan *pl) {
+        return pl->ax[0].nbits && pl->ax[1].nbits && !pl->ax[0].nphase && !pl->ax[1].nphase;
+}
+
+/* counts NULL: the block's results into the combine step's rows (R_CODE, R_WEAK, R_CMIN, R_HI,
+ * R_WHITE, R_BLACK); else (u8_combines) combined into o (row y's maps) and counts. */
 static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void gray_u8_row(
-                const struct ctx *c, int y, float **R, int w) {
+                const struct ctx *c, int y, float **R, int w, const struct comb_out *o, size_t counts[8]) {
         const struct plan *pl = c->pl;
         const struct imp_image *const *im = c->in->images;
         const struct u8_lim lim = u8_limits((int16_t) int_ceil_clamp((float) c->p->min_bit_contrast, 0, INT16_MAX),
                                             (int16_t) int_ceil_clamp(c->sat, -INT16_MAX, INT16_MAX));
         const float b = c->b, k1 = 1.0f / (1.0f - b), k2 = 2.0f / (1.0f - b * b);
         const uint8_t always = c->p->robust ? 0 : 1;
+        const struct comb_k ck = comb_constants(c);
 #ifdef U8_SIMD
         const int vw = u8_kernels().vw;
 #else
@@ -1175,20 +1322,29 @@ static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void gray
         for (int x0 = 0; x0 < w; x0 += IBLK) {
                 const int n = IMP_MIN(IBLK, w - x0), nv = vw ? n - n % vw : 0;
                 uint8_t mx[IBLK], mn[IBLK], td8[IBLK], tg8[IBLK], tgok[IBLK], alw8[IBLK], hi8[IBLK];
-                uint8_t g8[2][IBLK], wk8[IBLK], cm8[IBLK];
+                uint8_t g8[2][IBLK], wk8[2][IBLK], cm8[2][IBLK];
+                uint16_t cd16[2][IBLK];
                 u8_block_maxima(c, y, x0, n, nv, mx, mn, hi8);
                 u8_thresholds(n, mx, mn, k1, k2, b, always, R[R_LD] + x0, R[R_LG] + x0, td8, tg8, tgok, alw8);
                 for (int a = 0; a < 2; a++) {
                         const struct axis_plan *ax = &pl->ax[a];
                         if (!ax->nbits)
                                 continue;
-                        u8_block_axis(c, ax, y, x0, n, nv, td8, tg8, tgok, alw8, lim, g8, wk8, cm8, hi8);
-                        u8_axis_out(n, ax->nbits, g8[0], g8[1], wk8, cm8,
-                                    (uint32_t *) R[R_CODE0 + a] + x0, (uint32_t *) R[R_WEAK0 + a] + x0,
-                                    R[R_CMIN0 + a] + x0);
+                        u8_block_axis(c, ax, y, x0, n, nv, td8, tg8, tgok, alw8, lim, g8, wk8[a], cm8[a], hi8);
+                        u8_axis_code(n, ax->nbits, g8[0], g8[1], cd16[a]);
+                        if (!counts)
+                                u8_axis_out(n, cd16[a], wk8[a], cm8[a], (uint32_t *) R[R_CODE0 + a] + x0,
+                                            (uint32_t *) R[R_WEAK0 + a] + x0, R[R_CMIN0 + a] + x0);
                 }
                 const uint8_t *wr = (const uint8_t *) imp_image_row(im[pl->white], y) + x0;
                 const uint8_t *br = (const uint8_t *) imp_image_row(im[pl->black], y) + x0;
+                if (counts) {
+                        const struct comb_in in = { wr, br, hi8, { cm8[0], cm8[1] }, { wk8[0], wk8[1] },
+                                                    { cd16[0], cd16[1] }, R[R_LD] + x0 };
+                        const struct comb_out ob = { o->ox + x0, o->oy + x0, o->oc + x0, o->os + x0, o->of + x0 };
+                        combine_u8_block(&in, &ck, n, &ob, counts);
+                        continue;
+                }
                 float *restrict hr = R[R_HI] + x0, *restrict wf = R[R_WHITE] + x0, *restrict bf = R[R_BLACK] + x0;
                 SIMD
                 for (int x = 0; x < n; x++) {
@@ -1704,26 +1860,44 @@ static void gray_row_saturation(const struct ctx *c, int y, float **R, int w, si
                 }
 }
 
+/* Where a Gray-only row's maps go: the R_O* rows when streamed, else the result's row y. */
+static struct comb_out gray_row_out(const struct ctx *c, int y, float **R) {
+        struct imp_sl_result *res = c->res;
+        const size_t off = (size_t) y * res->width;
+        if (c->stream)
+                return (struct comb_out) { R[R_OX], R[R_OY], R[R_OC], R[R_OS], (uint16_t *) R[R_OF] };
+        return (struct comb_out) { res->proj_x + off, res->proj_y + off, res->confidence + off,
+                                   res->sigma_px + off, res->flags + off };
+}
+
 static void decode_row(const struct ctx *c, int y, float **R, size_t counts[8]) {
         const struct plan *pl = c->pl;
         const int w = pl->width;
-        if (c->int_path == IMP_PIX_U8 && u8_row_applies(pl))
-                gray_u8_row(c, y, R, w);
-        else if (c->int_path == IMP_PIX_U8)
+        /* gray_u8_row's L_d, L_g are finite: the light maps as they are */
+        const bool bytes = c->int_path == IMP_PIX_U8 && u8_row_applies(pl), comb = bytes && u8_combines(pl);
+        if (bytes) {
+                const struct comb_out o = gray_row_out(c, y, R);
+                gray_u8_row(c, y, R, w, &o, comb ? counts : NULL);
+        } else if (c->int_path == IMP_PIX_U8) {
                 gray_int_u8(c, y, R, w);
-        else if (c->int_path == IMP_PIX_U16)
+        } else if (c->int_path == IMP_PIX_U16) {
                 gray_int_u16(c, y, R, w);
-        else
+        } else {
                 float_gray_row(c, y, R, w);
+        }
         bool have_satm = saturation_row(c, y, R, w);
         if (!pl->ax[0].nphase && !pl->ax[1].nphase) {
-                /* gray_u8_row's L_d, L_g are finite: the light maps as they are */
-                const bool light = c->int_path == IMP_PIX_U8 && u8_row_applies(pl);
-                combine_gray_row(c, y, R, w, light, counts);
+                struct imp_sl_result *res = c->res;
+                const size_t off = (size_t) y * w;
+                if (!comb)
+                        combine_gray_row(c, y, R, w, bytes, counts);
+                else if (res->direct && !c->stream)
+                        light_maps_row(res->direct + off, res->global ? res->global + off : NULL,
+                                       res->global ? res->modulation + off : NULL, R[R_LD], R[R_LG], w);
                 if (have_satm)
                         gray_row_saturation(c, y, R, w, counts);
                 if (c->stream)
-                        stream_gray_row(c, y, R, w, light);
+                        stream_gray_row(c, y, R, w, bytes);
                 return;
         }
         for (int a = 0; a < 2; a++)
