@@ -975,10 +975,20 @@ static __attribute__((noinline, CLONES)) void u8_thresholds(
 static __attribute__((noinline, CLONES)) void u8_axis_code(
                 int n, int nbits, const uint8_t *restrict g0, const uint8_t *restrict g1,
                 uint16_t *restrict code) {
-        const int low = nbits > 8 ? nbits - 8 : 0;      /* bits in g1 */
+        /* (two loops: with the select between them in one, gcc 12 leaves it scalar) */
+        if (nbits > 8) {
+                const int low = nbits - 8;      /* bits in g1 */
+                SIMD
+                for (int x = 0; x < n; x++)
+                        code[x] = (uint16_t) ((g0[x] << low) | g1[x]);
+        } else {
+                SIMD
+                for (int x = 0; x < n; x++)
+                        code[x] = g0[x];
+        }
         SIMD
         for (int x = 0; x < n; x++) {
-                uint16_t v = (uint16_t) ((g0[x] << low) | (low ? g1[x] : 0));
+                uint16_t v = code[x];
                 v ^= v >> 1;
                 v ^= v >> 2;
                 v ^= v >> 4;
@@ -1197,6 +1207,7 @@ static inline __attribute__((always_inline)) void comb8(const struct comb_in *in
         const v8f sd = SEL8(span > zero, span, zero + INFINITY);
         v8i ok[2], und[2], wb[2], oor[2];
         v8f ca[2], pos[2], sg[2];
+#pragma GCC unroll 2
         for (int a = 0; a < 2; a++) {
                 const v8i wk = LD8(in->wk[a] + x), cd = LD8(in->cd[a] + x);
                 und[a] = wk > GRAY_WEAK_ALLOWED;
@@ -1236,8 +1247,13 @@ static inline __attribute__((always_inline)) void comb8(const struct comb_in *in
 
 /* Pixels [0, n) of a block; the last n % 8 through zero-padded copies of their inputs. */
 static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void combine_u8_block(
-                const struct comb_in *in, const struct comb_k *k, int n, const struct comb_out *o,
+                const struct comb_in *inp, const struct comb_k *kp, int n, const struct comb_out *op,
                 size_t counts[8]) {
+        /* local copies: gcc then keeps the pointers and constants in registers instead of
+         * reloading them after every store */
+        const struct comb_in lin = *inp, *in = &lin;
+        const struct comb_k lk = *kp, *k = &lk;
+        const struct comb_out lo = *op, *o = &lo;
         v8i cnt[6] = { { 0 } };
         int x = 0;
         for (; x + 8 <= n; x += 8)
