@@ -1049,7 +1049,8 @@ static ATTR void u8_maxima_##SFX(const uint8_t *const *D, int nd, int nv, uint8_
  * differences are all 0; min(p, p̄) ≥ sat (both clipped) is folded into t_d (≤ sat − 1), and   \
  * what no sample can pass (⌈L_g⌉ > 255, minc > 255, sat ≤ 0) into a per-pixel "never" mask.   \
  * Decided bits are counted; the weak count is nbits minus that. */                            \
-static ATTR void u8_axis_##SFX(const uint8_t *const *P, const uint8_t *const *Q, int nbits,       \
+static ATTR void u8_axis_##SFX(const uint8_t *const *P, const uint8_t *const *Q,                   \
+                               const uint8_t *const *Pn, const uint8_t *const *Qn, int nbits,     \
                                int nv, const uint8_t *restrict td8, const uint8_t *restrict tg8,  \
                                const uint8_t *restrict tgok, const uint8_t *restrict alw8,        \
                                struct u8_lim lim, uint8_t *restrict g0o, uint8_t *restrict g1o,   \
@@ -1069,6 +1070,10 @@ static ATTR void u8_axis_##SFX(const uint8_t *const *P, const uint8_t *const *Q,
                 for (int h = 0, k = 0; h < 2; h++) {                                               \
                         VT gh = zero;                                                              \
                         for (; k < nbits && k < 8 * (h + 1); k++) {                                \
+                                if (Pn && !(x & 63)) {                                             \
+                                        __builtin_prefetch(Pn[k] + x);                             \
+                                        __builtin_prefetch(Qn[k] + x);                             \
+                                }                                                                  \
                                 const VT p = LD((const VT *) (const void *) (P[k] + x));           \
                                 const VT q = LD((const VT *) (const void *) (Q[k] + x));           \
                                 const VT lo = MINU(p, q), up = MAXU(p, q), ad = SUB(up, lo);      \
@@ -1103,7 +1108,8 @@ DEFINE_U8_BLOCK(avx2, __attribute__((target("avx2"))), __m256i, 32, _mm256_loadu
 struct u8_kernels {
         int vw;
         void (*maxima)(const uint8_t *const *, int, int, uint8_t *, uint8_t *);
-        void (*axis)(const uint8_t *const *, const uint8_t *const *, int, int, const uint8_t *,
+        void (*axis)(const uint8_t *const *, const uint8_t *const *, const uint8_t *const *,
+                     const uint8_t *const *, int, int, const uint8_t *,
                      const uint8_t *, const uint8_t *, const uint8_t *, struct u8_lim, uint8_t *,
                      uint8_t *, uint8_t *, uint8_t *, uint8_t *);
 };
@@ -1147,16 +1153,24 @@ static void u8_block_axis(const struct ctx *c, const struct axis_plan *ax, int y
                           const uint8_t *td8, const uint8_t *tg8, const uint8_t *tgok, const uint8_t *alw8,
                           struct u8_lim lim, uint8_t (*g8)[IBLK], uint8_t *wk8, uint8_t *cm8, uint8_t *hi8) {
         const struct imp_image *const *im = c->in->images;
-        prefetch_next_rows(im, ax, y, x0, n);
 #ifdef U8_SIMD
         if (nv) {
-                const uint8_t *P[MAX_BITS], *Q[MAX_BITS];
+                /* the next row's lines are prefetched as the kernel goes (Pn, Qn) */
+                const uint8_t *P[MAX_BITS], *Q[MAX_BITS], *Pn[MAX_BITS], *Qn[MAX_BITS];
+                const bool next = y + 1 < im[0]->height;
                 for (int k = 0; k < ax->nbits; k++) {
                         P[k] = (const uint8_t *) imp_image_row(im[ax->p[k]], y) + x0;
                         Q[k] = (const uint8_t *) imp_image_row(im[ax->q[k]], y) + x0;
+                        Pn[k] = next ? (const uint8_t *) imp_image_row(im[ax->p[k]], y + 1) + x0 : NULL;
+                        Qn[k] = next ? (const uint8_t *) imp_image_row(im[ax->q[k]], y + 1) + x0 : NULL;
                 }
-                u8_kernels().axis(P, Q, ax->nbits, nv, td8, tg8, tgok, alw8, lim, g8[0], g8[1], wk8, cm8, hi8);
+                u8_kernels().axis(P, Q, next ? Pn : NULL, next ? Qn : NULL, ax->nbits, nv, td8, tg8, tgok,
+                                  alw8, lim, g8[0], g8[1], wk8, cm8, hi8);
         }
+        if (nv < n)
+                prefetch_next_rows(im, ax, y, x0 + nv, n - nv);
+#else
+        prefetch_next_rows(im, ax, y, x0, n);
 #endif
         if (nv == n)
                 return;
