@@ -16,7 +16,8 @@
  * the captures are looked for under $IMPASTO_SHARED_DIR (else the build's shared directory).
  * --checksum prints an FNV-1a 64 of every result map of each capture (1 and all threads)
  * and exits: two builds decode bit-identically when their lines are equal. Then one line a
- * capture for coords_only: the hash of its maps and counts, equal to the full decode's. */
+ * capture for coords_only: the hash of its maps and counts, equal to the full decode's; then
+ * capture 0 with non-default thresholds (print_param_checksums). */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -125,6 +126,55 @@ static int print_coords_checksums(const struct imp_sl_params *p1) {
         return rc;
 }
 
+/* FNV-1a of every map of r (those it has) and of its counts. */
+static uint64_t result_hash(const struct imp_sl_result *r) {
+        size_t n = (size_t) r->width * r->height;
+        uint64_t h = 0xcbf29ce484222325ull;
+        const float *maps[] = { r->proj_x, r->proj_y, r->confidence, r->direct, r->global,
+                                r->modulation, r->sigma_px };
+        for (size_t m = 0; m < sizeof maps / sizeof *maps; m++)
+                if (maps[m])
+                        h = fnv(h, maps[m], n * sizeof(float));
+        h = fnv(h, r->flags, n * sizeof(uint16_t));
+        size_t cnt[] = { r->n_valid_x, r->n_valid_y, r->n_valid_xy, r->n_shadow, r->n_saturated,
+                         r->n_weak, r->n_disagree };
+        return fnv(h, cnt, sizeof cnt);
+}
+
+/* Capture 0 decoded with thresholds other than the defaults, one line each: the byte-lane
+ * kernels fold some of them into their per-pixel thresholds (saturation below 255 or at 0,
+ * a contrast threshold no byte reaches, sign-only bits, a black level, a non-integer shadow
+ * threshold, min_direct 0), so two builds must print the same lines for these too. */
+static int print_param_checksums(const struct imp_sl_params *p1) {
+        static const struct { const char *what; double sat, minc, black, shadow, mind; bool robust; } v[] = {
+                { "saturation 200", 200, 5, 0, 40, 5, true },
+                { "saturation 1 (every sample clipped)", 1, 5, 0, 40, 5, true },
+                { "min_bit_contrast 300 (no bit decided)", 0, 300, 0, 40, 5, true },
+                { "sign only, contrast 12.5", 0, 12.5, 0, 40, 5, false },
+                { "black level 0.1, shadow 30.5, min_direct 0", 0, 5, 0.1, 30.5, 0, true },
+        };
+        struct imp_sl_frames fr = { seq, (const struct imp_image *const *) img[0], NFRAMES };
+        for (size_t i = 0; i < sizeof v / sizeof *v; i++) {
+                struct imp_sl_params p = *p1;
+                p.saturation = v[i].sat;
+                p.min_bit_contrast = v[i].minc;
+                p.black_level = v[i].black;
+                p.shadow_threshold = v[i].shadow;
+                p.min_direct = v[i].mind;
+                p.robust = v[i].robust;
+                struct imp_sl_result *r = NULL;
+                struct imp_error err = { 0 };
+                if (imp_sl_decode(&fr, &p, &r, &err) < 0) {
+                        fprintf(stderr, "%s\n", err.msg);
+                        return 1;
+                }
+                printf("capture 0, %s: %016llx (%zu valid, %zu weak, %zu saturated)\n", v[i].what,
+                       (unsigned long long) result_hash(r), r->n_valid_xy, r->n_weak, r->n_saturated);
+                imp_sl_result_free(r);
+        }
+        return 0;
+}
+
 /* One line per capture and thread count: the hash of every map and of the counts. The 1-thread
  * decode gets a new result each time, the all-threads decode reuses one result across the
  * captures (imp_sl_decode_reuse): equal lines also say that reuse leaves nothing stale. */
@@ -139,16 +189,7 @@ static int print_checksums(const struct imp_sl_params *p1, const struct imp_sl_p
                                 fprintf(stderr, "%s\n", err.msg);
                                 return 1;
                         }
-                        size_t n = (size_t) r->width * r->height;
-                        uint64_t h = 0xcbf29ce484222325ull;
-                        const float *maps[] = { r->proj_x, r->proj_y, r->confidence, r->direct,
-                                                r->global, r->modulation, r->sigma_px };
-                        for (size_t m = 0; m < sizeof maps / sizeof *maps; m++)
-                                h = fnv(h, maps[m], n * sizeof(float));
-                        h = fnv(h, r->flags, n * sizeof(uint16_t));
-                        size_t cnt[] = { r->n_valid_x, r->n_valid_y, r->n_valid_xy, r->n_shadow,
-                                         r->n_saturated, r->n_weak, r->n_disagree };
-                        h = fnv(h, cnt, sizeof cnt);
+                        uint64_t h = result_hash(r);
                         printf("capture %d, %s: %016llx (%zu valid)\n", c, t ? "all threads" : "1 thread",
                                (unsigned long long) h, r->n_valid_xy);
                         if (t)
@@ -157,7 +198,7 @@ static int print_checksums(const struct imp_sl_params *p1, const struct imp_sl_p
                                 imp_sl_result_free(r);
                 }
         imp_sl_result_free(reused);
-        return print_coords_checksums(p1);
+        return print_coords_checksums(p1) || print_param_checksums(p1);
 }
 
 /* The memory-bandwidth limit of a decode: one read pass over every frame of each capture

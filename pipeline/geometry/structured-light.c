@@ -835,29 +835,34 @@ static struct u8_lim u8_limits(int16_t minc, int16_t sat) {
                                  (uint8_t) (sat < 0 ? 0 : sat > 255 ? 255 : sat), sat <= 255 };
 }
 
-/* Every Gray plane of axis ax over one block, in byte lanes: g8[0] takes planes 0–7, g8[1]
- * planes 8–15; wk8, cm8, g8 start at 0, 255, 0; hi8 is raised by every sample. */
+/* The next row of axis ax's frames over [x0, x0 + n): the thread decodes it next (rows come
+ * in chunks), and 40 streams of a row each are more than the hardware prefetchers follow. */
+static inline __attribute__((always_inline)) void prefetch_next_rows(
+                const struct imp_image *const *im, const struct axis_plan *ax, int y, int x0, int n) {
+        if (y + 1 >= im[0]->height)
+                return;
+        for (int k = 0; k < ax->nbits; k++) {
+                const char *pn = (const char *) imp_image_row(im[ax->p[k]], y + 1) + x0;
+                const char *qn = (const char *) imp_image_row(im[ax->q[k]], y + 1) + x0;
+                for (int x = 0; x < n; x += 64) {
+                        __builtin_prefetch(pn + x);
+                        __builtin_prefetch(qn + x);
+                }
+        }
+}
+
+/* Every Gray plane of axis ax over n pixels from x0, in byte lanes: g0 takes planes 0–7, g1
+ * planes 8–15; wk8, cm8, g0, g1 start at 0, 255, 0, 0; hi8 is raised by every sample. */
 static inline __attribute__((always_inline)) void gray_u8_planes(
                 const struct imp_image *const *im, const struct axis_plan *ax, int y, int x0, int n,
                 const uint8_t *restrict td8, const uint8_t *restrict tg8, const uint8_t *restrict alw8,
-                const uint8_t *restrict tgok, struct u8_lim lim, uint8_t (*restrict g8)[IBLK],
+                const uint8_t *restrict tgok, struct u8_lim lim, uint8_t *restrict g0, uint8_t *restrict g1,
                 uint8_t *restrict wk8, uint8_t *restrict cm8, uint8_t *restrict hi8) {
         for (int k = 0; k < ax->nbits; k++) {
                 const uint8_t *pr = (const uint8_t *) imp_image_row(im[ax->p[k]], y) + x0;
                 const uint8_t *qr = (const uint8_t *) imp_image_row(im[ax->q[k]], y) + x0;
-                if (y + 1 < im[0]->height) {
-                        /* The next row of this plane's frames: the thread decodes it next
-                         * (rows come in chunks), and 40 streams of a row each are more than
-                         * the hardware prefetchers follow. */
-                        const char *pn = (const char *) imp_image_row(im[ax->p[k]], y + 1) + x0;
-                        const char *qn = (const char *) imp_image_row(im[ax->q[k]], y + 1) + x0;
-                        for (int x = 0; x < n; x += 64) {
-                                __builtin_prefetch(pn + x);
-                                __builtin_prefetch(qn + x);
-                        }
-                }
                 gray_u8_plane(pr, qr, n, td8, tg8, alw8, tgok, lim.minc, lim.weak_all, lim.sat, lim.sat_on,
-                              g8[k >= 8], wk8, cm8, hi8);
+                              k >= 8 ? g1 : g0, wk8, cm8, hi8);
         }
 }
 
@@ -876,7 +881,9 @@ static __attribute__((noinline, CLONES)) bool gray_u8_axis(
                 g8[0][x] = g8[1][x] = wk8[x] = 0;
                 cm8[x] = 255;
         }
-        gray_u8_planes(im, ax, y, x0, n, td8, tg8, alw8, tgok, u8_limits(minc, sat), g8, wk8, cm8, hi8);
+        prefetch_next_rows(im, ax, y, x0, n);
+        gray_u8_planes(im, ax, y, x0, n, td8, tg8, alw8, tgok, u8_limits(minc, sat), g8[0], g8[1], wk8,
+                       cm8, hi8);
         const int low = ax->nbits > 8 ? ax->nbits - 8 : 0;      /* bits in g8[1] */
         SIMD
         for (int x = 0; x < n; x++) {
@@ -905,7 +912,6 @@ DEFINE_GRAY_INT(gray_int_u16, uint16_t, int32_t, uint32_t, (1 << 20), NO_BYTES) 
  * so every value is the same; the SSE2 clone runs each as two 4-lane halves. */
 typedef float v8f __attribute__((vector_size(32)));
 typedef int32_t v8i __attribute__((vector_size(32)));
-typedef uint8_t v8b __attribute__((vector_size(8)));
 
 /* m ? a : b lane by lane, m a comparison's −1 / 0 (a macro: a 32-byte vector argument
  * would change the ABI of the SSE2 clone) */
@@ -914,10 +920,11 @@ typedef uint8_t v8b __attribute__((vector_size(8)));
 static inline __attribute__((always_inline)) void thr8(
                 const uint8_t *mx, const uint8_t *mn, float k1, float k2, float b, uint8_t always,
                 float *ld, float *lg, int32_t *ti, int32_t *gi, int32_t *ai) {
-        v8b bx, bn;
-        memcpy(&bx, mx, sizeof bx);
-        memcpy(&bn, mn, sizeof bn);
-        const v8f lmax = __builtin_convertvector(bx, v8f), lmin = __builtin_convertvector(bn, v8f);
+        /* Bytes → int lanes element by element: gcc 12 turns this into one pmovzxbd (AVX2) or
+         * two unpacks, but converts a loaded 8-byte vector (v8b) lane by lane in scalar code. */
+        const v8i ix = { mx[0], mx[1], mx[2], mx[3], mx[4], mx[5], mx[6], mx[7] };
+        const v8i in = { mn[0], mn[1], mn[2], mn[3], mn[4], mn[5], mn[6], mn[7] };
+        const v8f lmax = __builtin_convertvector(ix, v8f), lmin = __builtin_convertvector(in, v8f);
         const v8f zero = { 0 }, c255 = zero + 255.0f, c256 = zero + 256.0f;
         v8f d = (zero + k1) * (lmax - lmin), e = (zero + k2) * (lmin - (zero + b) * lmax);
         d = SEL8(d > zero, d, zero);
@@ -962,80 +969,411 @@ static __attribute__((noinline, CLONES)) void u8_thresholds(
         }
 }
 
-/* Axis a's block result into the combine step's rows: the binary code (Gray → binary on the
- * 16-bit code, g ^ g>>1 ^ g>>2 …), the weak-bit count and the smallest contrast. This loop
- * and u8_thresholds are functions of their own: inlined into the block loop, gcc 12 leaves
- * them scalar (≈ 100 instructions a pixel under callgrind). */
-static __attribute__((noinline, CLONES)) void u8_axis_out(
+/* Axis a's block code: Gray → binary on the 16-bit code (g ^ g>>1 ^ g>>2 …), planes 0–7 in
+ * g0, 8–15 in g1. This loop and u8_thresholds are functions of their own: inlined into the
+ * block loop, gcc 12 leaves them scalar (≈ 100 instructions a pixel under callgrind). */
+static __attribute__((noinline, CLONES)) void u8_axis_code(
                 int n, int nbits, const uint8_t *restrict g0, const uint8_t *restrict g1,
-                const uint8_t *restrict wk8, const uint8_t *restrict cm8, uint32_t *restrict code,
-                uint32_t *restrict weak, float *restrict cmin) {
-        uint16_t g[IBLK];
+                uint16_t *restrict code) {
+        /* (two loops: with the select between them in one, gcc 12 leaves it scalar) */
         if (nbits > 8) {
                 const int low = nbits - 8;      /* bits in g1 */
                 SIMD
                 for (int x = 0; x < n; x++)
-                        g[x] = (uint16_t) ((g0[x] << low) | g1[x]);
+                        code[x] = (uint16_t) ((g0[x] << low) | g1[x]);
         } else {
                 SIMD
                 for (int x = 0; x < n; x++)
-                        g[x] = g0[x];
+                        code[x] = g0[x];
         }
         SIMD
         for (int x = 0; x < n; x++) {
-                uint16_t v = g[x];
+                uint16_t v = code[x];
                 v ^= v >> 1;
                 v ^= v >> 2;
                 v ^= v >> 4;
                 v ^= v >> 8;
                 code[x] = v;
+        }
+}
+
+/* Axis a's block result into the combine step's rows: the code, the weak-bit count and the
+ * smallest contrast, widened. */
+static __attribute__((noinline, CLONES)) void u8_axis_out(
+                int n, const uint16_t *restrict cd16, const uint8_t *restrict wk8, const uint8_t *restrict cm8,
+                uint32_t *restrict code, uint32_t *restrict weak, float *restrict cmin) {
+        SIMD
+        for (int x = 0; x < n; x++) {
+                code[x] = cd16[x];
                 weak[x] = wk8[x];
                 cmin[x] = cm8[x];
         }
 }
 
+/* ---- the byte-lane block in explicit vectors (x86) ----------------------------------------
+ * gray_u8_planes as gcc vectorizes it keeps the block's state (code bits, weak count, smallest
+ * contrast, maximum) in memory: every plane loads and stores four arrays and loads four
+ * threshold arrays, ≈ 46 instructions per 32 pixels and plane. Here one vector of pixels
+ * runs through every plane of the axis with its state in registers (≈ 26). Same decisions:
+ * for the thresholds t_d = ⌊L_d⌋ ≤ t_g = ⌈L_g⌉ (when L_d ≤ L_g, i.e. the rules apply) the
+ * two classifying rules reduce to min(p, p̄) ≤ t_d and max(p, p̄) ≥ t_g (with p > p̄ the
+ * first, p ≤ t_d ≤ t_g ≤ p̄, cannot hold, nor the second with p < p̄), and L_d > L_g (or
+ * !robust: every bit classified) becomes t_d = 255, t_g = 0, which always hold. Unsigned
+ * byte comparisons as min/max and equality (SSE2 has no unsigned compare); the bit p > p̄ as
+ * min(p − min(p, p̄), 1). Instantiated for AVX2 (32 lanes) and SSE2 (16), chosen by the
+ * CPU at run time (IMPASTO_SL_NO_CLONES: SSE2 alone). */
+#if defined(__x86_64__) && defined(__SSE2__) && defined(__GNUC__)
+#define U8_SIMD 1
+#include <immintrin.h>
+
+/* VT: vector type, VW: its bytes; LD/ST unaligned load/store; the rest byte-wise ops. */
+#define DEFINE_U8_BLOCK(SFX, ATTR, VT, VW, LD, ST, MINU, MAXU, SUB, SUBS, ADD, OR, ANDN, CMPEQ, SET1) \
+/* L_max / L_min over the frames D[0..nd) for pixels [0, nv), nv a multiple of VW. */              \
+static ATTR void u8_maxima_##SFX(const uint8_t *const *D, int nd, int nv, uint8_t *restrict mx,   \
+                                 uint8_t *restrict mn) {                                          \
+        for (int x = 0; x < nv; x += VW) {                                                        \
+                VT hi = LD((const VT *) (const void *) (D[0] + x)), lo = hi;                       \
+                for (int i = 1; i < nd; i++) {                                                     \
+                        VT v = LD((const VT *) (const void *) (D[i] + x));                         \
+                        hi = MAXU(hi, v);                                                          \
+                        lo = MINU(lo, v);                                                          \
+                }                                                                                  \
+                ST((VT *) (void *) (mx + x), hi);                                                  \
+                ST((VT *) (void *) (mn + x), lo);                                                  \
+        }                                                                                          \
+}                                                                                                  \
+                                                                                                   \
+/* Every plane k < nbits (frames P[k], Q[k]) for pixels [0, nv): g0/g1 (planes 0–7 / 8–15),   \
+ * wk, cm written, hi raised; the arrays as gray_u8_planes leaves them. A bit is decided when    \
+ * min(p, p̄) ≤ t_d, max(p, p̄) ≥ t_g and |p − p̄| ≥ minc, i.e. when the three saturating      \
+ * differences are all 0; min(p, p̄) ≥ sat (both clipped) is folded into t_d (≤ sat − 1), and   \
+ * what no sample can pass (⌈L_g⌉ > 255, minc > 255, sat ≤ 0) into a per-pixel "never" mask.   \
+ * Decided bits are counted; the weak count is nbits minus that. */                            \
+static ATTR void u8_axis_##SFX(const uint8_t *const *P, const uint8_t *const *Q,                   \
+                               const uint8_t *const *Pn, const uint8_t *const *Qn, int nbits,     \
+                               int nv, const uint8_t *restrict td8, const uint8_t *restrict tg8,  \
+                               const uint8_t *restrict tgok, const uint8_t *restrict alw8,        \
+                               struct u8_lim lim, uint8_t *restrict g0o, uint8_t *restrict g1o,   \
+                               uint8_t *restrict wko, uint8_t *restrict cmo, uint8_t *restrict hio) { \
+        const VT zero = SET1(0), one = SET1(1), ff = SET1(-1), nb = SET1((char) nbits);            \
+        const VT minc = SET1((char) lim.minc);                                                     \
+        const VT tdmax = SET1((char) (lim.sat_on && lim.sat ? lim.sat - 1 : 255));                 \
+        const VT never = lim.weak_all || (lim.sat_on && !lim.sat) ? ff : zero;                     \
+        for (int x = 0; x < nv; x += VW) {                                                        \
+                const VT alw = SUB(zero, LD((const VT *) (const void *) (alw8 + x)));               \
+                const VT td = MINU(OR(LD((const VT *) (const void *) (td8 + x)), alw), tdmax);     \
+                const VT tg = ANDN(alw, LD((const VT *) (const void *) (tg8 + x)));                \
+                const VT ok = OR(alw, SUB(zero, LD((const VT *) (const void *) (tgok + x))));      \
+                const VT no = OR(ANDN(ok, ff), never);                                             \
+                VT g[2] = { zero, zero }, good = zero, cm = ff;                                    \
+                VT hi = LD((const VT *) (const void *) (hio + x));                                 \
+                for (int h = 0, k = 0; h < 2; h++) {                                               \
+                        VT gh = zero;                                                              \
+                        for (; k < nbits && k < 8 * (h + 1); k++) {                                \
+                                if (Pn && !(x & 63)) {                                             \
+                                        __builtin_prefetch(Pn[k] + x);                             \
+                                        __builtin_prefetch(Qn[k] + x);                             \
+                                }                                                                  \
+                                const VT p = LD((const VT *) (const void *) (P[k] + x));           \
+                                const VT q = LD((const VT *) (const void *) (Q[k] + x));           \
+                                const VT lo = MINU(p, q), up = MAXU(p, q), ad = SUB(up, lo);      \
+                                gh = OR(ADD(gh, gh), MINU(SUB(p, lo), one));                       \
+                                const VT miss = OR(OR(SUBS(lo, td), SUBS(tg, up)), OR(SUBS(minc, ad), no)); \
+                                good = SUB(good, CMPEQ(miss, zero));                               \
+                                cm = MINU(cm, ad);                                                 \
+                                hi = MAXU(hi, up);                                                 \
+                        }                                                                          \
+                        g[h] = gh;                                                                 \
+                }                                                                                  \
+                ST((VT *) (void *) (g0o + x), g[0]);                                               \
+                ST((VT *) (void *) (g1o + x), g[1]);                                               \
+                ST((VT *) (void *) (wko + x), SUB(nb, good));                                      \
+                ST((VT *) (void *) (cmo + x), cm);                                                 \
+                ST((VT *) (void *) (hio + x), hi);                                                 \
+        }                                                                                          \
+}
+
+DEFINE_U8_BLOCK(sse2, , __m128i, 16, _mm_loadu_si128, _mm_storeu_si128, _mm_min_epu8, _mm_max_epu8,
+                _mm_sub_epi8, _mm_subs_epu8, _mm_add_epi8, _mm_or_si128, _mm_andnot_si128,
+                _mm_cmpeq_epi8, _mm_set1_epi8)
+#if !defined(IMPASTO_SL_NO_CLONES) && !defined(__clang__)
+#define U8_AVX2 1
+DEFINE_U8_BLOCK(avx2, __attribute__((target("avx2"))), __m256i, 32, _mm256_loadu_si256,
+                _mm256_storeu_si256, _mm256_min_epu8, _mm256_max_epu8, _mm256_sub_epi8,
+                _mm256_subs_epu8, _mm256_add_epi8, _mm256_or_si256, _mm256_andnot_si256,
+                _mm256_cmpeq_epi8, _mm256_set1_epi8)
+#endif
+
+/* The vector width in use and its kernels: AVX2 where the CPU has it. */
+struct u8_kernels {
+        int vw;
+        void (*maxima)(const uint8_t *const *, int, int, uint8_t *, uint8_t *);
+        void (*axis)(const uint8_t *const *, const uint8_t *const *, const uint8_t *const *,
+                     const uint8_t *const *, int, int, const uint8_t *,
+                     const uint8_t *, const uint8_t *, const uint8_t *, struct u8_lim, uint8_t *,
+                     uint8_t *, uint8_t *, uint8_t *, uint8_t *);
+};
+
+static struct u8_kernels u8_kernels(void) {
+#ifdef U8_AVX2
+        if (__builtin_cpu_supports("avx2"))
+                return (struct u8_kernels) { 32, u8_maxima_avx2, u8_axis_avx2 };
+#endif
+        return (struct u8_kernels) { 16, u8_maxima_sse2, u8_axis_sse2 };
+}
+#endif
+
+/* L_max / L_min (mx, mn) over the frames giving them, and hi8 = white, for n pixels from x0:
+ * the first nv (a multiple of the vector width) in explicit vectors. */
+static void u8_block_maxima(const struct ctx *c, int y, int x0, int n, int nv, uint8_t *restrict mx,
+                            uint8_t *restrict mn, uint8_t *restrict hi8) {
+        const struct plan *pl = c->pl;
+        const struct imp_image *const *im = c->in->images;
+        const uint8_t *D[4 * MAX_BITS];
+        for (int i = 0; i < pl->ndg; i++)
+                D[i] = (const uint8_t *) imp_image_row(im[pl->dg[i]], y) + x0;
+        const uint8_t *wr = (const uint8_t *) imp_image_row(im[pl->white], y) + x0;
+#ifdef U8_SIMD
+        if (nv)
+                u8_kernels().maxima(D, pl->ndg, nv, mx, mn);
+#endif
+        for (int x = nv; x < n; x++)
+                mx[x] = mn[x] = D[0][x];
+        for (int i = 1; i < pl->ndg; i++)
+                for (int x = nv; x < n; x++) {
+                        mx[x] = mx[x] > D[i][x] ? mx[x] : D[i][x];
+                        mn[x] = mn[x] < D[i][x] ? mn[x] : D[i][x];
+                }
+        memcpy(hi8, wr, (size_t) n);    /* the black frame never counted here */
+}
+
+/* Every Gray plane of axis ax over n pixels from x0 into g8, wk8, cm8 (hi8 raised): the
+ * first nv in explicit vectors, the rest by gray_u8_plane. */
+static void u8_block_axis(const struct ctx *c, const struct axis_plan *ax, int y, int x0, int n, int nv,
+                          const uint8_t *td8, const uint8_t *tg8, const uint8_t *tgok, const uint8_t *alw8,
+                          struct u8_lim lim, uint8_t (*g8)[IBLK], uint8_t *wk8, uint8_t *cm8, uint8_t *hi8) {
+        const struct imp_image *const *im = c->in->images;
+#ifdef U8_SIMD
+        if (nv) {
+                /* the next row's lines are prefetched as the kernel goes (Pn, Qn) */
+                const uint8_t *P[MAX_BITS], *Q[MAX_BITS], *Pn[MAX_BITS], *Qn[MAX_BITS];
+                const bool next = y + 1 < im[0]->height;
+                for (int k = 0; k < ax->nbits; k++) {
+                        P[k] = (const uint8_t *) imp_image_row(im[ax->p[k]], y) + x0;
+                        Q[k] = (const uint8_t *) imp_image_row(im[ax->q[k]], y) + x0;
+                        Pn[k] = next ? (const uint8_t *) imp_image_row(im[ax->p[k]], y + 1) + x0 : NULL;
+                        Qn[k] = next ? (const uint8_t *) imp_image_row(im[ax->q[k]], y + 1) + x0 : NULL;
+                }
+                u8_kernels().axis(P, Q, next ? Pn : NULL, next ? Qn : NULL, ax->nbits, nv, td8, tg8, tgok,
+                                  alw8, lim, g8[0], g8[1], wk8, cm8, hi8);
+        }
+        if (nv < n)
+                prefetch_next_rows(im, ax, y, x0 + nv, n - nv);
+#else
+        prefetch_next_rows(im, ax, y, x0, n);
+#endif
+        if (nv == n)
+                return;
+        for (int x = nv; x < n; x++) {
+                g8[0][x] = g8[1][x] = wk8[x] = 0;
+                cm8[x] = 255;
+        }
+        gray_u8_planes(im, ax, y, x0 + nv, n - nv, td8 + nv, tg8 + nv, alw8 + nv, tgok + nv, lim, g8[0] + nv,
+                       g8[1] + nv, wk8 + nv, cm8 + nv, hi8 + nv);
+}
+
+/* ---- the combine step of a Gray-only byte-lane row, straight from the block's bytes -----
+ * combine_gray_row as gcc vectorizes it reads eleven 32-bit rows (the block's bytes widened
+ * by u8_axis_out and gray_u8_row) and costs ≈ 29 instructions a pixel; here eight pixels
+ * at a time in GCC's generic vectors from the bytes and 16-bit codes themselves. The same
+ * operations on the same float values (the integer tests are exact twins: for an integer
+ * v, v > t ⇔ v > ⌊t⌋ and v ≥ s ⇔ v ≥ ⌈s⌉), so every map and count is bit-identical. */
+typedef uint16_t v8s __attribute__((vector_size(16)));
+
+struct comb_in {                /* one block's inputs, pixel 0 at the block's start */
+        const uint8_t *w, *b, *hi, *cm[2], *wk[2];
+        const uint16_t *cd[2];
+        const float *ld;
+};
+
+struct comb_k {                 /* the row's constants */
+        int32_t thr, sat, ext[2];
+        float minc_d, ob, q[2], sw[2], ss[2];   /* 1 − b; σ of a weak / a sure Gray centre */
+        int32_t robust, rej[2];
+};
+
+struct comb_out {
+        float *ox, *oy, *oc, *os;
+        uint16_t *of;
+};
+
+#define LD8(p) ((v8i) { (p)[0], (p)[1], (p)[2], (p)[3], (p)[4], (p)[5], (p)[6], (p)[7] })
+#define BIT8(m, f) ((m) & (int32_t) (f))
+
+/* Pixels [x, x + 8); cnt: −(count) per lane (masks are −1), in the order of counts[]. */
+static inline __attribute__((always_inline)) void comb8(const struct comb_in *in, const struct comb_k *k,
+                                                         int x, const struct comb_out *o, v8i cnt[6]) {
+        const v8f zero = { 0 }, one = zero + 1.0f;
+        v8f ld;
+        memcpy(&ld, in->ld + x, sizeof ld);
+        const v8i shadow = (LD8(in->w + x) - LD8(in->b + x) <= k->thr) | ((ld < k->minc_d) & k->robust);
+        const v8f span = ld * k->ob;
+        const v8f sd = SEL8(span > zero, span, zero + INFINITY);
+        v8i ok[2], und[2], wb[2], oor[2];
+        v8f ca[2], pos[2], sg[2];
+#pragma GCC unroll 2
+        for (int a = 0; a < 2; a++) {
+                const v8i wk = LD8(in->wk[a] + x), cd = LD8(in->cd[a] + x);
+                und[a] = wk > GRAY_WEAK_ALLOWED;
+                wb[a] = wk == 1;
+                oor[a] = cd >= k->ext[a];
+                ok[a] = ~(shadow | und[a] | oor[a]);
+                const v8f v = __builtin_convertvector(LD8(in->cm[a] + x), v8f) / sd;
+                const v8f t = SEL8(v > zero, v, zero);
+                ca[a] = SEL8(wb[a], zero + 0.5f, one) * SEL8(t < one, t, one);
+                pos[a] = SEL8(ok[a], (__builtin_convertvector(cd, v8f) + 0.5f) * k->q[a],
+                              zero + IMP_SL_INVALID_COORD);
+                sg[a] = SEL8(ok[a], SEL8(wb[a], zero + k->sw[a], zero + k->ss[a]), zero);
+        }
+        v8f conf = SEL8(ok[0], SEL8(one < ca[0], one, ca[0]), one);
+        conf = SEL8(ok[1], SEL8(conf < ca[1], conf, ca[1]), conf);
+        conf = SEL8(ok[0] | ok[1], conf, zero);
+        const v8f os = SEL8(sg[0] > sg[1], sg[0], sg[1]);
+        const v8i sat = LD8(in->hi + x) >= k->sat;
+        const v8i f = BIT8(shadow, IMP_SL_SHADOW) | BIT8(sat, IMP_SL_SATURATED) |
+                      BIT8(und[0] | und[1], IMP_SL_UNDECODABLE) | BIT8(wb[0] | wb[1], IMP_SL_WEAK_BIT) |
+                      BIT8(oor[0] | oor[1], IMP_SL_OUT_OF_RANGE) | BIT8(ok[0], IMP_SL_VALID_X) |
+                      BIT8(ok[1], IMP_SL_VALID_Y) |
+                      BIT8((ok[0] & k->rej[0]) | (ok[1] & k->rej[1]), IMP_SL_PHASE_REJECTED);
+        const v8s f16 = __builtin_convertvector(f, v8s);
+        memcpy(o->ox + x, &pos[0], sizeof pos[0]);
+        memcpy(o->oy + x, &pos[1], sizeof pos[1]);
+        memcpy(o->oc + x, &conf, sizeof conf);
+        memcpy(o->os + x, &os, sizeof os);
+        memcpy(o->of + x, &f16, sizeof f16);
+        cnt[0] += ok[0];
+        cnt[1] += ok[1];
+        cnt[2] += ok[0] & ok[1];
+        cnt[3] += shadow;
+        cnt[4] += sat;
+        cnt[5] += wb[0] | wb[1];
+}
+
+/* Pixels [0, n) of a block; the last n % 8 through zero-padded copies of their inputs. */
+static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void combine_u8_block(
+                const struct comb_in *inp, const struct comb_k *kp, int n, const struct comb_out *op,
+                size_t counts[8]) {
+        /* local copies: gcc then keeps the pointers and constants in registers instead of
+         * reloading them after every store */
+        const struct comb_in lin = *inp, *in = &lin;
+        const struct comb_k lk = *kp, *k = &lk;
+        const struct comb_out lo = *op, *o = &lo;
+        v8i cnt[6] = { { 0 } };
+        int x = 0;
+        for (; x + 8 <= n; x += 8)
+                comb8(in, k, x, o, cnt);
+        if (x < n) {
+                const size_t m = (size_t) (n - x);
+                uint8_t bw[8] = { 0 }, bb[8] = { 0 }, bh[8] = { 0 }, bc[2][8] = { { 0 } }, bk[2][8] = { { 0 } };
+                uint16_t bd[2][8] = { { 0 } }, tf[8];
+                float bl[8] = { 0 }, tx[8], ty[8], tc[8], ts[8];
+                memcpy(bw, in->w + x, m);
+                memcpy(bb, in->b + x, m);
+                memcpy(bh, in->hi + x, m);
+                memcpy(bl, in->ld + x, m * sizeof *bl);
+                for (int a = 0; a < 2; a++) {
+                        memcpy(bc[a], in->cm[a] + x, m);
+                        memcpy(bk[a], in->wk[a] + x, m);
+                        memcpy(bd[a], in->cd[a] + x, m * sizeof **bd);
+                }
+                const struct comb_in t = { bw, bb, bh, { bc[0], bc[1] }, { bk[0], bk[1] }, { bd[0], bd[1] }, bl };
+                const struct comb_out to = { tx, ty, tc, ts, tf };
+                v8i tcnt[6] = { { 0 } };
+                comb8(&t, k, 0, &to, tcnt);
+                memcpy(o->ox + x, tx, m * sizeof *tx);
+                memcpy(o->oy + x, ty, m * sizeof *ty);
+                memcpy(o->oc + x, tc, m * sizeof *tc);
+                memcpy(o->os + x, ts, m * sizeof *ts);
+                memcpy(o->of + x, tf, m * sizeof *tf);
+                for (int i = 0; i < 6; i++)     /* only the m lanes that are pixels */
+                        for (size_t l = 0; l < m; l++)
+                                cnt[i][l] += tcnt[i][l];
+        }
+        for (int i = 0; i < 6; i++) {
+                int32_t s = 0;
+                for (int l = 0; l < 8; l++)
+                        s -= cnt[i][l];
+                counts[i] += (size_t) s;
+        }
+}
+
+/* The constants of combine_u8_block for this decode. */
+static struct comb_k comb_constants(const struct ctx *c) {
+        const struct plan *pl = c->pl;
+        const float thr = (float) c->p->shadow_threshold;
+        struct comb_k k = {
+                .thr = !(thr < 1000.0f) ? 1000 : !(thr > -1000.0f) ? -1000 : (int32_t) floorf(thr),
+                .sat = int_ceil_clamp(c->sat, -INT16_MAX, INT16_MAX),
+                .minc_d = (float) c->p->min_direct, .ob = 1 - c->b,
+                .robust = c->p->robust ? -1 : 0,
+        };
+        for (int a = 0; a < 2; a++) {
+                k.ext[a] = pl->ax[a].ncodes;
+                k.q[a] = pl->ax[a].quantum;
+                k.sw[a] = WEAK_SIGMA * pl->ax[a].quantum;
+                k.ss[a] = INV_SQRT12 * pl->ax[a].quantum;
+                k.rej[a] = (c->rejected >> a & 1) ? -1 : 0;
+        }
+        return k;
+}
+
+/* Whether a row's combine step runs in gray_u8_row (combine_u8_block): a Gray-only byte-lane
+ * row with both axes. */
+static bool u8_combines(const struct plan *pl) {
+        return pl->ax[0].nbits && pl->ax[1].nbits && !pl->ax[0].nphase && !pl->ax[1].nphase;
+}
+
+/* counts NULL: the block's results into the combine step's rows (R_CODE, R_WEAK, R_CMIN, R_HI,
+ * R_WHITE, R_BLACK); else (u8_combines) combined into o (row y's maps) and counts. */
 static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void gray_u8_row(
-                const struct ctx *c, int y, float **R, int w) {
+                const struct ctx *c, int y, float **R, int w, const struct comb_out *o, size_t counts[8]) {
         const struct plan *pl = c->pl;
         const struct imp_image *const *im = c->in->images;
         const struct u8_lim lim = u8_limits((int16_t) int_ceil_clamp((float) c->p->min_bit_contrast, 0, INT16_MAX),
                                             (int16_t) int_ceil_clamp(c->sat, -INT16_MAX, INT16_MAX));
         const float b = c->b, k1 = 1.0f / (1.0f - b), k2 = 2.0f / (1.0f - b * b);
         const uint8_t always = c->p->robust ? 0 : 1;
+        const struct comb_k ck = comb_constants(c);
+#ifdef U8_SIMD
+        const int vw = u8_kernels().vw;
+#else
+        const int vw = 0;
+#endif
         for (int x0 = 0; x0 < w; x0 += IBLK) {
-                const int n = IMP_MIN(IBLK, w - x0);
+                const int n = IMP_MIN(IBLK, w - x0), nv = vw ? n - n % vw : 0;
                 uint8_t mx[IBLK], mn[IBLK], td8[IBLK], tg8[IBLK], tgok[IBLK], alw8[IBLK], hi8[IBLK];
-                uint8_t g8[2][IBLK], wk8[IBLK], cm8[IBLK];
-                const uint8_t *wr = (const uint8_t *) imp_image_row(im[pl->white], y) + x0;
-                const uint8_t *br = (const uint8_t *) imp_image_row(im[pl->black], y) + x0;
-                const uint8_t *p0 = (const uint8_t *) imp_image_row(im[pl->dg[0]], y) + x0;
-                SIMD
-                for (int x = 0; x < n; x++) {
-                        mx[x] = mn[x] = p0[x];
-                        hi8[x] = wr[x];         /* the black frame never counted here */
-                }
-                for (int i = 1; i < pl->ndg; i++) {
-                        const uint8_t *pi = (const uint8_t *) imp_image_row(im[pl->dg[i]], y) + x0;
-                        SIMD
-                        for (int x = 0; x < n; x++) {
-                                mx[x] = mx[x] > pi[x] ? mx[x] : pi[x];
-                                mn[x] = mn[x] < pi[x] ? mn[x] : pi[x];
-                        }
-                }
+                uint8_t g8[2][IBLK], wk8[2][IBLK], cm8[2][IBLK];
+                uint16_t cd16[2][IBLK];
+                u8_block_maxima(c, y, x0, n, nv, mx, mn, hi8);
                 u8_thresholds(n, mx, mn, k1, k2, b, always, R[R_LD] + x0, R[R_LG] + x0, td8, tg8, tgok, alw8);
                 for (int a = 0; a < 2; a++) {
                         const struct axis_plan *ax = &pl->ax[a];
                         if (!ax->nbits)
                                 continue;
-                        SIMD
-                        for (int x = 0; x < n; x++) {
-                                g8[0][x] = g8[1][x] = wk8[x] = 0;
-                                cm8[x] = 255;
-                        }
-                        gray_u8_planes(im, ax, y, x0, n, td8, tg8, alw8, tgok, lim, g8, wk8, cm8, hi8);
-                        u8_axis_out(n, ax->nbits, g8[0], g8[1], wk8, cm8,
-                                    (uint32_t *) R[R_CODE0 + a] + x0, (uint32_t *) R[R_WEAK0 + a] + x0,
-                                    R[R_CMIN0 + a] + x0);
+                        u8_block_axis(c, ax, y, x0, n, nv, td8, tg8, tgok, alw8, lim, g8, wk8[a], cm8[a], hi8);
+                        u8_axis_code(n, ax->nbits, g8[0], g8[1], cd16[a]);
+                        if (!counts)
+                                u8_axis_out(n, cd16[a], wk8[a], cm8[a], (uint32_t *) R[R_CODE0 + a] + x0,
+                                            (uint32_t *) R[R_WEAK0 + a] + x0, R[R_CMIN0 + a] + x0);
+                }
+                const uint8_t *wr = (const uint8_t *) imp_image_row(im[pl->white], y) + x0;
+                const uint8_t *br = (const uint8_t *) imp_image_row(im[pl->black], y) + x0;
+                if (counts) {
+                        const struct comb_in in = { wr, br, hi8, { cm8[0], cm8[1] }, { wk8[0], wk8[1] },
+                                                    { cd16[0], cd16[1] }, R[R_LD] + x0 };
+                        const struct comb_out ob = { o->ox + x0, o->oy + x0, o->oc + x0, o->os + x0, o->of + x0 };
+                        combine_u8_block(&in, &ck, n, &ob, counts);
+                        continue;
                 }
                 float *restrict hr = R[R_HI] + x0, *restrict wf = R[R_WHITE] + x0, *restrict bf = R[R_BLACK] + x0;
                 SIMD
@@ -1080,14 +1418,38 @@ static void light_maps_row(float *restrict od, float *restrict og, float *restri
  * written in place. */
 #define STREAM_MIN_BYTES (16u << 20)
 
+#ifdef U8_AVX2
+/* 32 bytes a store, unrolled: the copy costs half the instructions of the 16-byte loop. */
+static __attribute__((target("avx2"))) void stream_body_avx2(char *d, const char *s, size_t bytes) {
+        for (; bytes >= 64; d += 64, s += 64, bytes -= 64) {
+                __m256i a = _mm256_loadu_si256((const __m256i *) (const void *) s);
+                __m256i b = _mm256_loadu_si256((const __m256i *) (const void *) (s + 32));
+                _mm256_stream_si256((__m256i *) (void *) d, a);
+                _mm256_stream_si256((__m256i *) (void *) (d + 32), b);
+        }
+        memcpy(d, s, bytes);    /* < 64 bytes; whole rows of 1280 px have none */
+}
+#endif
+
 static void stream_row(void *dst, const void *src, size_t bytes) {
 #if defined(__SSE2__)
         char *d = dst;
         const char *s = src;
         size_t head = (size_t) (-(uintptr_t) d & 15);
+#ifdef U8_AVX2
+        const bool avx2 = __builtin_cpu_supports("avx2");
+        if (avx2)
+                head = (size_t) (-(uintptr_t) d & 31);
+#endif
         head = head < bytes ? head : bytes;
         memcpy(d, s, head);
         d += head, s += head, bytes -= head;
+#ifdef U8_AVX2
+        if (avx2) {
+                stream_body_avx2(d, s, bytes);
+                return;
+        }
+#endif
         for (; bytes >= 16; d += 16, s += 16, bytes -= 16)
                 _mm_stream_si128((__m128i *) (void *) d, _mm_loadu_si128((const __m128i *) (const void *) s));
         memcpy(d, s, bytes);
@@ -1111,8 +1473,9 @@ static void stream_zero(void *dst, size_t bytes) {
 #endif
 }
 
-/* Row y's maps from R_O* to the result (c->stream). */
-static void stream_gray_row(const struct ctx *c, int y, float **R, int w) {
+/* Row y's maps from R_O* to the result (c->stream); light: direct and global from R_LD, R_LG
+ * as they are (finite: gray_u8_row's), else from R_OD, R_OG (light_maps_row). */
+static void stream_gray_row(const struct ctx *c, int y, float **R, int w, bool light) {
         struct imp_sl_result *res = c->res;
         const size_t off = (size_t) y * w, fb = (size_t) w * sizeof(float);
         stream_row(res->proj_x + off, R[R_OX], fb);
@@ -1121,15 +1484,15 @@ static void stream_gray_row(const struct ctx *c, int y, float **R, int w) {
         stream_row(res->sigma_px + off, R[R_OS], fb);
         stream_row(res->flags + off, R[R_OF], (size_t) w * sizeof(uint16_t));
         if (res->direct)
-                stream_row(res->direct + off, R[R_OD], fb);
+                stream_row(res->direct + off, R[light ? R_LD : R_OD], fb);
         if (res->global) {
-                stream_row(res->global + off, R[R_OG], fb);
+                stream_row(res->global + off, R[light ? R_LG : R_OG], fb);
                 stream_zero(res->modulation + off, fb);
         }
 }
 
 __attribute__((optimize("no-trapping-math"), CLONES))
-static void combine_gray_row(const struct ctx *c, int y, float **R, int w, size_t counts[8]) {
+static void combine_gray_row(const struct ctx *c, int y, float **R, int w, bool light, size_t counts[8]) {
         const struct plan *pl = c->pl;
         const struct imp_sl_params *p = c->p;
         const size_t off = (size_t) y * w;
@@ -1199,7 +1562,7 @@ static void combine_gray_row(const struct ctx *c, int y, float **R, int w, size_
         counts[3] += nsh;
         counts[4] += nsat;
         counts[5] += nwk;
-        if (res->direct)
+        if (res->direct && !(st && light))
                 light_maps_row(st ? R[R_OD] : res->direct + off,
                                !res->global ? NULL : st ? R[R_OG] : res->global + off,
                                st ? NULL : res->modulation + off, ld, lg, w);
@@ -1527,24 +1890,44 @@ static void gray_row_saturation(const struct ctx *c, int y, float **R, int w, si
                 }
 }
 
+/* Where a Gray-only row's maps go: the R_O* rows when streamed, else the result's row y. */
+static struct comb_out gray_row_out(const struct ctx *c, int y, float **R) {
+        struct imp_sl_result *res = c->res;
+        const size_t off = (size_t) y * res->width;
+        if (c->stream)
+                return (struct comb_out) { R[R_OX], R[R_OY], R[R_OC], R[R_OS], (uint16_t *) R[R_OF] };
+        return (struct comb_out) { res->proj_x + off, res->proj_y + off, res->confidence + off,
+                                   res->sigma_px + off, res->flags + off };
+}
+
 static void decode_row(const struct ctx *c, int y, float **R, size_t counts[8]) {
         const struct plan *pl = c->pl;
         const int w = pl->width;
-        if (c->int_path == IMP_PIX_U8 && u8_row_applies(pl))
-                gray_u8_row(c, y, R, w);
-        else if (c->int_path == IMP_PIX_U8)
+        /* gray_u8_row's L_d, L_g are finite: the light maps as they are */
+        const bool bytes = c->int_path == IMP_PIX_U8 && u8_row_applies(pl), comb = bytes && u8_combines(pl);
+        if (bytes) {
+                const struct comb_out o = gray_row_out(c, y, R);
+                gray_u8_row(c, y, R, w, &o, comb ? counts : NULL);
+        } else if (c->int_path == IMP_PIX_U8) {
                 gray_int_u8(c, y, R, w);
-        else if (c->int_path == IMP_PIX_U16)
+        } else if (c->int_path == IMP_PIX_U16) {
                 gray_int_u16(c, y, R, w);
-        else
+        } else {
                 float_gray_row(c, y, R, w);
+        }
         bool have_satm = saturation_row(c, y, R, w);
         if (!pl->ax[0].nphase && !pl->ax[1].nphase) {
-                combine_gray_row(c, y, R, w, counts);
+                struct imp_sl_result *res = c->res;
+                const size_t off = (size_t) y * w;
+                if (!comb)
+                        combine_gray_row(c, y, R, w, bytes, counts);
+                else if (res->direct && !c->stream)
+                        light_maps_row(res->direct + off, res->global ? res->global + off : NULL,
+                                       res->global ? res->modulation + off : NULL, R[R_LD], R[R_LG], w);
                 if (have_satm)
                         gray_row_saturation(c, y, R, w, counts);
                 if (c->stream)
-                        stream_gray_row(c, y, R, w);
+                        stream_gray_row(c, y, R, w, bytes);
                 return;
         }
         for (int a = 0; a < 2; a++)
