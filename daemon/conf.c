@@ -107,7 +107,7 @@ static int conf_apply(struct daemon *d, struct imp_conf *c, struct imp_error *er
             (r = imp_conf_get_int(c, g, "hook_timeout_s", false, 1, 3600, &timeout, err)) < 0 ||
             (r = imp_conf_get_int(c, g, "disk_low_mib", false, 0, 1LL << 40, &low, err)) < 0 ||
             (r = imp_conf_get_int(c, g, "min_free_mib", false, 0, 1LL << 40, &minfree, err)) < 0 ||
-            (r = imp_conf_get_int(c, g, "job_attempts", false, 1, 10000, &attempts, err)) < 0 ||
+            (r = imp_conf_get_int(c, g, "job_attempts", false, 1, IMP_JOB_MAX_ATTEMPTS_LIMIT, &attempts, err)) < 0 ||
             (r = imp_conf_get_int(c, g, "retries", false, 1, 10000, &retries, err)) < 0 ||
             (r = imp_conf_get_bool(c, g, "spawn_workers", false, &d->spawn_workers, err)) < 0)
                 return r;

@@ -27,7 +27,8 @@
 
 /* The connection limits of docs/security.md, with their defaults (impastod options). */
 #define DAEMON_MAX_CLIENTS 32                   /* --max-clients */
-#define DAEMON_ATTEMPTS_MAX 10000               /* --job-attempts, --retries; a job's or calibration's max_attempts */
+#define DAEMON_ATTEMPTS_MAX 10000               /* --retries; a calibration's max_attempts; a job file's, read back
+                                                   (--job-attempts: IMP_JOB_MAX_ATTEMPTS_LIMIT, the worker's) */
 #define DAEMON_MAX_CLIENTS_PER_UID 8            /* --max-clients-per-uid: an observer uid's connections */
 #define DAEMON_RESERVED_SLOTS 4                 /* --reserved-slots: of max-clients, for operators only */
 #define DAEMON_IDLE_TIMEOUT_S 300               /* --idle-timeout-s: no request, no event subscription */

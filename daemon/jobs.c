@@ -131,8 +131,8 @@ static void job_sanitize(struct job *j) {
 
 /* The counters a hand-edited or damaged file may hold out of range: read as they are, -5
  * attempts or a max_attempts of 2^31 would retry a failing job without end, and a value past
- * an int would be cut to another number. (max_attempts up to --job-attempts' bound: the
- * daemon writes what it was given, though the worker takes at most 100.) */
+ * an int would be cut to another number. (--job-attempts takes at most the worker's 100; a
+ * file of an older daemon may hold up to 10000, read back here and refused by the worker.) */
 static int job_check_counts(const json_t *doc, const char *p, struct imp_error *e) {
         static const struct {
                 const char *key;

@@ -50,7 +50,7 @@ static void help(void) {
                "  --device-probe-interval-s N  an operator's `devices` reopens devices at most once per\n"
                "                         N s (default 10)\n"
                "  --retries N            attempts per capture step before pausing (default 3)\n"
-               "  --job-attempts N       worker runs per job before it fails (default 3)\n"
+               "  --job-attempts N       worker runs per job before it fails (1 to 100, default 3)\n"
                "  --device-timeout-ms N  timeout of a device connection (default 3000)\n"
                "  --min-free-bytes N     free space kept on the store; below it capture pauses (default 256 MiB)\n"
                "  --plan-dir DIR         plans named by clients must lie below DIR (repeatable; also where\n"
@@ -187,7 +187,7 @@ static int parse_args(int argc, char **argv, struct daemon *d) {
                 {},
         };
         int c;
-        uint64_t v;
+        uint64_t v, max;
         while ((c = getopt_long(argc, argv, "vh", opts, NULL)) >= 0) {
                 switch (c) {
                 case ARG_RIG: d->rig_config = optarg; break;
@@ -209,10 +209,12 @@ static int parse_args(int argc, char **argv, struct daemon *d) {
                 case ARG_MAXC:
                 case ARG_RETRIES:
                 case ARG_JOBS:
-                        if (parse_u64(optarg, &v) < 0 || v < 1 || v > DAEMON_ATTEMPTS_MAX) {
-                                log_error("--%s: expected an integer from 1 to %d, got \"%s\"",
+                        /* a job's attempts are the worker's to count: it refuses more than its limit */
+                        max = c == ARG_JOBS ? IMP_JOB_MAX_ATTEMPTS_LIMIT : DAEMON_ATTEMPTS_MAX;
+                        if (parse_u64(optarg, &v) < 0 || v < 1 || v > max) {
+                                log_error("--%s: expected an integer from 1 to %llu, got \"%s\"",
                                           c == ARG_MAXC ? "max-clients" : c == ARG_RETRIES ? "retries" : "job-attempts",
-                                          DAEMON_ATTEMPTS_MAX, optarg);
+                                          (unsigned long long) max, optarg);
                                 return -EINVAL;
                         }
                         *(c == ARG_MAXC ? &d->max_clients : c == ARG_RETRIES ? &d->retries : &d->job_attempts) =

@@ -29,6 +29,12 @@ if [ -x "$impastod" ]; then
   run dversion "$impastod" --version
   check "impastod --version exits 0 (without a rig config)" [ "$(rc dversion)" = 0 ]
   check "impastod --version prints 'impastod X.Y.Z'" grep -Eq '^impastod [0-9]+\.[0-9]+\.[0-9]+' "$tmp/dversion.out"
+  # a job's attempts are counted by impasto-worker, which refuses more than 100: impastod must
+  # not accept a --job-attempts that would make every job it writes fail to load
+  run dattempts timeout 20 "$impastod" --job-attempts 101 --socket "$tmp/no.sock"
+  check "impastod --job-attempts 101: refused at start, naming the worker's bound, exit 2" \
+    sh -c '[ "$(cat "$0")" = 2 ] && grep -qF -- "--job-attempts: expected an integer from 1 to 100, got \"101\"" "$1"' \
+    "$tmp/dattempts.rc" "$tmp/dattempts.err"
 fi
 
 for cmd in scan jobs status process; do
