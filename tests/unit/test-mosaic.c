@@ -11,6 +11,7 @@
 #include "copy-load.h"
 #include "image.h"
 #include "json-util.h"
+#include "mosaic-edit.h"
 #include "mosaic.h"
 #include "test.h"
 
@@ -114,26 +115,6 @@ static void check_coverage(const char *out) {
         CHECK_INT_EQ(unmasked, 0);
         free(seen);
         json_decref(j);
-}
-
-/* Reads tile 0's copy, lets edit() change one channel (index c) and writes it back. */
-static void edit_tile0(const char *dir, const char *channel, void (*edit)(struct imp_image *img, int c)) {
-        char path[700];
-        snprintf(path, sizeof path, "%s/copies/0000/heightfield.exr", dir);
-        struct imp_image *img = NULL;
-        char **names = NULL;
-        struct imp_error err = { 0 };
-        int r = imp_exr_read(path, &img, &names, &err);
-        CHECK_MSG(r == 0, "%s", err.msg);
-        if (r < 0)
-                return;
-        int c = imp_image_channel_index(names, channel);     /* EXR keeps channels sorted by name */
-        CHECK_GE(c, 0);
-        if (c >= 0)
-                edit(img, c);
-        CHECK_OK(imp_exr_write(path, img, (const char *const *) names, false, &err));
-        imp_strv_free(names);
-        imp_image_free(img);
 }
 
 /* A defect in one tile's overlap: 40 × 50 texels (35 % of its overlap with the next tile)
