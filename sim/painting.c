@@ -117,9 +117,10 @@ double imp_checker_black_fraction(const struct imp_checker *ck, double u, double
         return IMP_CLAMP(ex * ey + ox * oy, 0.0, 1.0);   /* black where i + j is even */
 }
 
-/* Where the sampled surface lies on the painting: painting (x, y) = R(θ)·world (x, y) +
- * offset, and the canvas in the painting frame. Identity for a scene that samples its whole
- * canvas; a tile's window on a gantry otherwise (imp_painting_place). */
+/* Where the sampled surface lies on the painting: painting (x, y) = R(θ)·(x, y) + offset,
+ * (x, y) where the sample sits (imp_sim_surface_sample_xy), and the canvas in the painting
+ * frame. Identity for a scene that samples its whole canvas and for a tile's window on the
+ * painting's own lattice (a placed surface); else as `place` says. */
 struct grid {
         const struct imp_sim_surface *s;
         double c, sn, t[2];
@@ -173,7 +174,9 @@ static void grid_range(const struct grid *g, double xlo, double xhi, double ylo,
         for (int j = rg_[2]; j <= rg_[3]; j++) for (int i = rg_[0]; i <= rg_[1]; i++) { \
                 size_t k = (size_t) j * s_->nx + i; \
                 if (s_->is_frame[k]) continue; \
-                double wx_ = s_->origin_mm[0] + i * s_->pitch_mm, wy_ = s_->origin_mm[1] + j * s_->pitch_mm; \
+                double w_[2]; \
+                imp_sim_surface_sample_xy(s_, i, j, w_); \
+                double wx_ = w_[0], wy_ = w_[1]; \
                 double x = (g)->c * wx_ - (g)->sn * wy_ + (g)->t[0], y = (g)->sn * wx_ + (g)->c * wy_ + (g)->t[1]; \
                 if (x < (g)->cmin[0] - 1e-9 || x > (g)->cmax[0] + 1e-9 || y < (g)->cmin[1] - 1e-9 || y > (g)->cmax[1] + 1e-9) continue; \
                 (void) x; (void) y; __VA_ARGS__; } } while (0)

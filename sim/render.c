@@ -127,6 +127,15 @@ static bool inside_grid(const struct imp_sim_surface *s, double x, double y) {
         return fx >= 0 && fy >= 0 && fx <= s->nx - 1 && fy <= s->ny - 1;
 }
 
+/* A world ray in the frame of the samples (the painting's, for a placed surface). */
+static void ray_to_lattice(const struct imp_sim_surface *s, const double O[3], const double D[3], double ret_o[3],
+                           double ret_d[3]) {
+        imp_sim_surface_to_lattice(s, O, ret_o);
+        imp_sim_surface_dir_to_lattice(s, D, ret_d);
+        ret_o[2] = O[2];
+        ret_d[2] = D[2];
+}
+
 /* First intersection of O + t·D with the heightfield: linear search with steps of at most
  * half a sample horizontally, then bisection. False when the ray misses the sampled area. */
 static bool march_view(const struct imp_render *r, const double O[3], const double D[3], double ret_p[3]) {
@@ -170,9 +179,14 @@ static bool march_view(const struct imp_render *r, const double O[3], const doub
 
 /* Is the segment from surface point p towards `target` blocked by the relief? Steps of half
  * a sample, whole blocks skipped while the ray is above their maximum. */
-static bool occluded(const struct imp_render *r, const float pf[3], const double target[3], uint64_t *steps) {
+static bool occluded(const struct imp_render *r, const float pf[3], const double target_w[3], uint64_t *steps) {
         const struct imp_sim_surface *s = r->surf;
-        double p[3] = { pf[0], pf[1], pf[2] };
+        double p[3] = { pf[0], pf[1], pf[2] }, target[3] = { target_w[0], target_w[1], target_w[2] };
+        if (s->placed) {        /* the segment in the frame of the samples */
+                imp_sim_surface_to_lattice(s, target_w, target);
+                double w[2] = { p[0], p[1] };
+                imp_sim_surface_to_lattice(s, w, p);
+        }
         double d[3] = { target[0] - p[0], target[1] - p[1], target[2] - p[2] };
         double dist = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
         if (!(dist > 0))
@@ -285,7 +299,9 @@ static void build_view(struct imp_render *r, int ci) {
                                 double c = IMP_MAX(0.0, D[0] * axis[0] + D[1] * axis[1] + D[2] * axis[2]);
                                 v->vig = (float) (c * c * c * c);
                         }
-                        if (!march_view(r, O, D, p)) {
+                        double Ol[3], Dl[3];    /* the ray in the frame of the samples */
+                        ray_to_lattice(s, O, D, Ol, Dl);
+                        if (!march_view(r, Ol, Dl, p)) {
                                 v->texel = MISS;
                                 continue;
                         }
@@ -305,6 +321,11 @@ static void build_view(struct imp_render *r, int ci) {
                         len = sqrt(len);
                         for (int c = 0; c < 3; c++)
                                 n[c] = len > 0 ? n[c] / len : (c == 2);
+                        if (s->placed) {        /* hit point and normal back to world */
+                                double l[2] = { p[0], p[1] }, ln[2] = { n[0], n[1] };
+                                imp_sim_surface_to_world(s, l, p);
+                                imp_sim_surface_dir_to_world(s, ln, n);
+                        }
                         imp_local_frame(n, t, b);
                         imp_to_local(t, b, n, vw, vl);
                         for (int c = 0; c < 3; c++) {
@@ -640,7 +661,11 @@ static int ensure_indirect(struct imp_render *r, int li, struct imp_error *err) 
         r->ind = NULL;
         struct imp_indirect_params p;
         imp_scene_indirect_params(r->scene, &p);
-        int q = imp_indirect_build(r->surf, L, &p, &r->ind, &r->cnt);
+        struct imp_rig_light Ll = *L;   /* the light in the frame of the samples */
+        double ax[3];
+        ray_to_lattice(r->surf, L->pos_mm, L->axis, Ll.pos_mm, ax);
+        memcpy(Ll.axis, ax, sizeof ax);
+        int q = imp_indirect_build(r->surf, &Ll, &p, &r->ind, &r->cnt);
         if (q < 0)
                 return imp_error_set(err, q, "light %d: cannot build the interreflection grids", L->id);
         r->ind_light = L->id;
@@ -792,8 +817,10 @@ static int compute_radiance(struct imp_render *r, const struct imp_frame_record 
                                 if (use_proj)
                                         add_projector(&cs->proj[k], pj, &pat, defocus_pat ? profile : NULL, plen, &loc, V);
                                 if (use_ind) {
-                                        double P[3] = { v->p[0], v->p[1], v->p[2] }, N[3] = { v->n[0], v->n[1], v->n[2] };
+                                        double Pw[3] = { v->p[0], v->p[1], v->p[2] }, Nw[3] = { v->n[0], v->n[1], v->n[2] };
+                                        double P[3], N[3];
                                         float rgb[3];
+                                        ray_to_lattice(r->surf, Pw, Nw, P, N);
                                         imp_indirect_eval(r->ind, P, N, rgb, &loc);
                                         for (int c = 0; c < 3; c++)
                                                 V[c] += rgb[c] * b.rho_d[c];

@@ -780,7 +780,9 @@ static void assign_regions(struct imp_scene *s, const struct imp_shape *shapes, 
         for (int j = 0; j < sf->ny; j++)
                 for (int i = 0; i < sf->nx; i++) {
                         size_t k = (size_t) j * sf->nx + i;
-                        double x = sf->origin_mm[0] + i * sf->pitch_mm, y = sf->origin_mm[1] + j * sf->pitch_mm;
+                        double xy[2];
+                        imp_sim_surface_sample_xy(sf, i, j, xy);
+                        double x = xy[0], y = xy[1];
                         if (s->gantry) {        /* the painting frame (identity otherwise) */
                                 double wx = x, wy = y;
                                 x = c * wx - sn * wy + s->place.offset_mm[0];
@@ -969,15 +971,24 @@ static void free_surface(struct imp_scene *s) {
         s->surf.albedo = NULL;
 }
 
-/* The surface over world [w[0], w[2]] × [w[1], w[3]] at `pitch`, all canvas, the layers and
- * regions evaluated in the painting frame of s->place. */
-static int build_window(struct imp_scene *s, const double w[4], double pitch, struct imp_error *err) {
+/* The surface over [w[0], w[2]] × [w[1], w[3]] at `pitch`, all canvas, the layers and
+ * regions evaluated in the painting frame of s->place; `lattice` (or NULL): the window lies
+ * on the painting's lattice, w is in the painting frame (w[0], w[1] on the lattice) and the
+ * pose maps world to it. */
+static int build_window(struct imp_scene *s, const double w[4], double pitch, const struct imp_sim_surface *lattice,
+                        struct imp_error *err) {
         free_surface(s);
         struct imp_sim_surface *sf = &s->surf;
         *sf = (struct imp_sim_surface) { .pitch_mm = pitch, .origin_mm = { w[0], w[1] },
                                          .nx = (int) ceil((w[2] - w[0]) / pitch - 1e-9) + 1,
                                          .ny = (int) ceil((w[3] - w[1]) / pitch - 1e-9) + 1,
                                          .canvas_min_mm = { w[0], w[1] } };
+        if (lattice) {
+                sf->placed = true;
+                memcpy(sf->lattice0, lattice->lattice0, sizeof sf->lattice0);
+                memcpy(sf->rot, lattice->rot, sizeof sf->rot);
+                memcpy(sf->offset_mm, lattice->offset_mm, sizeof sf->offset_mm);
+        }
         sf->canvas_max_mm[0] = w[0] + (sf->nx - 1) * pitch;
         sf->canvas_max_mm[1] = w[1] + (sf->ny - 1) * pitch;
         if ((double) sf->nx * sf->ny > 4e8)
@@ -1034,8 +1045,31 @@ int imp_scene_place(struct imp_scene *s, const struct imp_painting_place *place,
                 return imp_error_set(err, -EINVAL, "scene %s: not a gantry scene (no gantry group)", s ? s->name : "?");
         if (!(isfinite(place->theta_rad) && isfinite(place->offset_mm[0]) && isfinite(place->offset_mm[1])))
                 return imp_error_set(err, -EINVAL, "scene %s: placement: expected finite numbers", s->name);
-        s->place = *place;
-        return build_window(s, s->window_mm, s->pitch_mm, err);
+        /* The painting's own lattice (origin at its origin, its pitch) under the window the rig
+         * sees: the box of the window's corners in the painting frame, one sample beyond. */
+        struct imp_sim_surface pose = { .placed = true, .rot = { cos(place->theta_rad), sin(place->theta_rad) },
+                                        .offset_mm = { place->offset_mm[0], place->offset_mm[1] } };
+        double lo[2] = { INFINITY, INFINITY }, hi[2] = { -INFINITY, -INFINITY }, w[4];
+        for (int k = 0; k < 4; k++) {
+                double c[2] = { s->window_mm[(k & 1) ? 2 : 0], s->window_mm[(k & 2) ? 3 : 1] }, p[2];
+                imp_sim_surface_to_lattice(&pose, c, p);
+                for (int a = 0; a < 2; a++) {
+                        lo[a] = IMP_MIN(lo[a], p[a]);
+                        hi[a] = IMP_MAX(hi[a], p[a]);
+                }
+        }
+        for (int a = 0; a < 2; a++) {
+                double i0 = floor(lo[a] / s->pitch_mm) - 1, i1 = ceil(hi[a] / s->pitch_mm) + 1;
+                if (!(fabs(i0) < 1e9 && fabs(i1) < 1e9))
+                        return imp_error_set(err, -EINVAL, "scene %s: placement: the window lies %g mm off the painting",
+                                             s->name, lo[a]);
+                pose.lattice0[a] = (int) i0;
+                w[a] = i0 * s->pitch_mm;
+                w[2 + a] = i1 * s->pitch_mm;
+        }
+        /* the layers and regions are evaluated at the lattice's own painting-frame points */
+        s->place = (struct imp_painting_place) { .canvas_mm = { s->canvas_mm[0], s->canvas_mm[1] } };
+        return build_window(s, w, s->pitch_mm, &pose, err);
 }
 
 int imp_scene_place_whole(struct imp_scene *s, double pitch_mm, struct imp_error *err) {
@@ -1044,10 +1078,11 @@ int imp_scene_place_whole(struct imp_scene *s, double pitch_mm, struct imp_error
                                      s ? s->name : "?");
         s->place = (struct imp_painting_place) { 0 };
         double w[4] = { 0, 0, s->canvas_mm[0], s->canvas_mm[1] };
-        return build_window(s, w, pitch_mm, err);
+        return build_window(s, w, pitch_mm, NULL, err);
 }
 
 bool imp_scene_is_gantry(const struct imp_scene *s) { return s->gantry; }
+void imp_scene_window(const struct imp_scene *s, double ret_mm[4]) { memcpy(ret_mm, s->window_mm, sizeof s->window_mm); }
 const struct imp_scene_gantry *imp_scene_gantry(const struct imp_scene *s) { return s->gantry ? &s->gantry_params : NULL; }
 const struct imp_stage_error *imp_scene_stage_error(const struct imp_scene *s) {
         return s->fx[IMP_FX_STAGE_ERROR] ? &s->stage_error : NULL;

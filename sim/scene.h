@@ -127,9 +127,12 @@ const struct imp_stage_error *imp_scene_stage_error(const struct imp_scene *s);
 /* The painting's canvas, mm (its frame: [0, W] × [0, H]). */
 void imp_scene_canvas_size(const struct imp_scene *s, double ret_mm[2]);
 /* Gantry scenes: rebuild the surface as the window the rig sees with the painting placed at
- * `place` (its canvas_mm is filled in here). Any renderer of the scene must be rebuilt.
+ * `place`: the painting's own lattice (one surface for every tile) under the window, seen
+ * through the pose (imp_sim_surface.placed). Any renderer of the scene must be rebuilt.
  * -EINVAL for a scene without a gantry group. */
 int imp_scene_place(struct imp_scene *s, const struct imp_painting_place *place, struct imp_error *err);
+/* Gantry scenes: world x0, y0, x1, y1 of the window the rig sees (its tile truth's extent). */
+void imp_scene_window(const struct imp_scene *s, double ret_mm[4]);
 /* Gantry scenes: rebuild the surface as the whole painting in its own frame at pitch_mm
  * (the truth; memory grows with the painting). */
 int imp_scene_place_whole(struct imp_scene *s, double pitch_mm, struct imp_error *err);

@@ -1,6 +1,7 @@
 /* Ground truth of a simulated capture: the sampled painting (heights, normals, canvas
  * mask, per-texel Lafortune parameters), the true calibration and per-camera projector
  * correspondences, in DIR/truth/ (format in render.h and docs/capture-set.md). */
+#include <math.h>
 #include <stdio.h>
 #include <string.h>
 #include "json-util.h"
@@ -14,8 +15,35 @@ static int write_exr(const char *dir, const char *name, const struct imp_image *
         return imp_exr_write(path, img, names, false, err);
 }
 
-static json_t *truth_json(const struct imp_scene *scene) {
+/* The truth's grid: the surface's samples, or for a tile's window on the painting's lattice
+ * (a placed surface) the world grid of the window at the same pitch, whose samples are the
+ * surface's points under them (what `impasto compare` reads in the tile's world frame). */
+struct truth_grid {
+        int nx, ny;
+        double pitch_mm, origin_mm[2], canvas_min_mm[2], canvas_max_mm[2];
+};
+
+static struct truth_grid grid_of(const struct imp_scene *scene) {
         const struct imp_sim_surface *s = imp_scene_surface(scene);
+        struct truth_grid g = { .nx = s->nx, .ny = s->ny, .pitch_mm = s->pitch_mm,
+                                .origin_mm = { s->origin_mm[0], s->origin_mm[1] },
+                                .canvas_min_mm = { s->canvas_min_mm[0], s->canvas_min_mm[1] },
+                                .canvas_max_mm = { s->canvas_max_mm[0], s->canvas_max_mm[1] } };
+        if (!s->placed)
+                return g;
+        double w[4];
+        imp_scene_window(scene, w);
+        g.nx = (int) ceil((w[2] - w[0]) / s->pitch_mm - 1e-9) + 1;
+        g.ny = (int) ceil((w[3] - w[1]) / s->pitch_mm - 1e-9) + 1;
+        for (int a = 0; a < 2; a++) {
+                g.origin_mm[a] = g.canvas_min_mm[a] = w[a];
+                g.canvas_max_mm[a] = w[a] + ((a ? g.ny : g.nx) - 1) * s->pitch_mm;
+        }
+        return g;
+}
+
+static json_t *truth_json(const struct imp_scene *scene) {
+        const struct truth_grid g = grid_of(scene), *s = &g;
         json_t *fx = json_array();
         for (int i = 0; i < IMP_FX_COUNT; i++)
                 if (imp_scene_has_effect(scene, i))
@@ -31,8 +59,48 @@ static json_t *truth_json(const struct imp_scene *scene) {
                          "max_height_mm", imp_scene_max_height_mm(scene));
 }
 
-static int write_painting(const struct imp_scene *scene, const char *dir, struct imp_error *err) {
+/* One truth texel of a placed surface at world (x, y): height, normal and BRDF bilinear in the
+ * four samples around the point (as the renderer shades a hit there), the normal in world. */
+static void placed_texel(const struct imp_scene *scene, double x, double y, float h[5], struct imp_lafortune *ret_b) {
         const struct imp_sim_surface *s = imp_scene_surface(scene);
+        const float *N = imp_scene_normals(scene);
+        double w[2] = { x, y }, l[2];
+        imp_sim_surface_to_lattice(s, w, l);
+        double fx = IMP_CLAMP((l[0] - s->origin_mm[0]) / s->pitch_mm, 0, s->nx - 1);
+        double fy = IMP_CLAMP((l[1] - s->origin_mm[1]) / s->pitch_mm, 0, s->ny - 1);
+        int i0 = (int) fx, j0 = (int) fy, i1 = IMP_MIN(i0 + 1, s->nx - 1), j1 = IMP_MIN(j0 + 1, s->ny - 1);
+        double ax = fx - i0, ay = fy - j0;
+        size_t k[4] = { (size_t) j0 * s->nx + i0, (size_t) j0 * s->nx + i1, (size_t) j1 * s->nx + i0,
+                        (size_t) j1 * s->nx + i1 };
+        double wt[4] = { (1 - ax) * (1 - ay), ax * (1 - ay), (1 - ax) * ay, ax * ay }, n[3] = { 0, 0, 0 }, frame = 0;
+        struct imp_lafortune b = { 0 };
+        for (int q = 0; q < 4; q++) {
+                struct imp_lafortune bq;
+                imp_scene_texel_brdf(scene, k[q], &bq);
+                for (int c = 0; c < 3; c++) {
+                        n[c] += wt[q] * N[3 * k[q] + c];
+                        b.rho_d[c] += (float) (wt[q] * bq.rho_d[c]);
+                        b.rho_s[c] += (float) (wt[q] * bq.rho_s[c]);
+                }
+                b.cx += (float) (wt[q] * bq.cx);
+                b.cy += (float) (wt[q] * bq.cy);
+                b.cz += (float) (wt[q] * bq.cz);
+                b.k += (float) (wt[q] * bq.k);
+                frame = IMP_MAX(frame, s->is_frame[k[q]] ? wt[q] : 0);
+        }
+        double len = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]), nl[2] = { n[0], n[1] }, nw[2];
+        imp_sim_surface_dir_to_world(s, nl, nw);
+        h[0] = (float) imp_sim_surface_height(s, l[0], l[1]);
+        h[1] = (float) (len > 0 ? nw[0] / len : 0);
+        h[2] = (float) (len > 0 ? nw[1] / len : 0);
+        h[3] = (float) (len > 0 ? n[2] / len : 1);
+        h[4] = frame >= 0.5 ? 0.f : 1.f;
+        *ret_b = b;
+}
+
+static int write_painting(const struct imp_scene *scene, const char *dir, struct imp_error *err) {
+        const struct truth_grid g = grid_of(scene), *s = &g;
+        const struct imp_sim_surface *sf = imp_scene_surface(scene);
         const float *N = imp_scene_normals(scene);
         _cleanup_image_ struct imp_image *hf = NULL, *rd = NULL, *rs = NULL, *lobe = NULL;
         int r;
@@ -45,13 +113,18 @@ static int write_painting(const struct imp_scene *scene, const char *dir, struct
                 for (int x = 0; x < s->nx; x++) {
                         size_t k = (size_t) y * s->nx + x;
                         float *h = imp_image_f32(hf, x, y);
-                        h[0] = s->height_mm[k];
-                        h[1] = N[3 * k];
-                        h[2] = N[3 * k + 1];
-                        h[3] = N[3 * k + 2];
-                        h[4] = s->is_frame[k] ? 0.f : 1.f;
                         struct imp_lafortune b;
-                        imp_scene_texel_brdf(scene, k, &b);
+                        if (sf->placed) {
+                                placed_texel(scene, s->origin_mm[0] + x * s->pitch_mm, s->origin_mm[1] + y * s->pitch_mm,
+                                             h, &b);
+                        } else {
+                                h[0] = sf->height_mm[k];
+                                h[1] = N[3 * k];
+                                h[2] = N[3 * k + 1];
+                                h[3] = N[3 * k + 2];
+                                h[4] = sf->is_frame[k] ? 0.f : 1.f;
+                                imp_scene_texel_brdf(scene, k, &b);
+                        }
                         float *d = imp_image_f32(rd, x, y), *sp = imp_image_f32(rs, x, y), *l = imp_image_f32(lobe, x, y);
                         for (int c = 0; c < 3; c++) {
                                 d[c] = b.rho_d[c];

@@ -1,6 +1,8 @@
 # Whole paintings: the plan's painting group, the simulated gantry (sim/gantry.c), stage
 # errors, tile windows, painting.json and the painting-frame truth.
 impasto_test(test-painting LABELS unit LIBS impasto_sim)
+# Two tiles landed with different stage errors see one painting surface (sim/scene.c, render.c).
+impasto_test(test-sim-painting-lattice LABELS unit LIBS impasto_sim)
 # `plan estimate` of a painting plan: whole-painting figures, and a plan that cannot fit any
 # disk (141 TB) refused with exit 3 and a message naming the bytes and the directory.
 add_test(NAME test-painting-estimate COMMAND sh -c "\
