@@ -586,7 +586,7 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
                        tp.ys[1] < b->y0 + b->rows;
 
         struct light_geo lg;
-        float hs[IMP_BTF_HORIZON_OCTANTS];
+        float hs[4];
         bool hz = imp_btf_horizon_texel(sc->hz, u, v, hs);
         for (int j = 0; j < cap->n_lights; j++) {
                 int k = j % LIGHT_CHUNK;
@@ -602,7 +602,8 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
                 if (!(e_cos >= p->min_e_cos))
                         continue;
                 /* imp_btf_horizon_clear() */
-                bool clear = hz && wl[2] > 0.0 && wl[2] >= (double) hs[imp_btf_horizon_octant(wl)] * lg.run[k];
+                int q = (wl[0] < 0.0) | (wl[1] < 0.0) << 1;
+                bool clear = hz && wl[2] > 0.0 && wl[2] >= (double) hs[q] * lg.run[k];
                 if (!clear && march(hf, p, sc->py, sc->hmax, P, wl, lg.r[k], NULL)) {
                         shadowed++;
                         continue;

@@ -5,7 +5,6 @@
  * The fit's parameterisation, bounds, initial guesses, stopping rule and flags are in
  * docs/btf-fit.md. Library code: no logging; errors are negative errno. */
 #pragma once
-#include <math.h>
 #include <stdbool.h>
 #include <stdint.h>
 #include "image.h"
@@ -133,7 +132,7 @@ int imp_btf_hf_pyramid_new(const struct imp_btf_heightfield *hf, struct imp_btf_
 void imp_btf_hf_pyramid_free(struct imp_btf_hf_pyramid *py);
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_btf_hf_pyramid *, imp_btf_hf_pyramid_free);
 
-/* A conservative horizon (btf-horizon.c): per texel and octant of azimuth, an upper
+/* A conservative horizon (btf-horizon.c): per texel and quadrant of azimuth, an upper
  * bound on the slope at which a ray leaving the texel can still pass below the surface
  * by more than bias_mm. Built once per heightfield (O(texels · log size)) for every light
  * and the camera: imp_btf_hf_pyramid_new() builds one for bias 0 (valid for any bias ≥ 0)
@@ -143,22 +142,16 @@ struct imp_btf_horizon;
 int imp_btf_horizon_new(const struct imp_btf_heightfield *hf, double bias_mm, struct imp_btf_horizon **ret);
 void imp_btf_horizon_free(struct imp_btf_horizon *hz);
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_btf_horizon *, imp_btf_horizon_free);
-/* The octant of a direction's azimuth: its quadrant (du < 0) | (dv < 0)·2, plus 4 when
- * its major axis is v (|dv| > |du|). */
-#define IMP_BTF_HORIZON_OCTANTS 8
-static inline int imp_btf_horizon_octant(const double d[3]) {
-        return (d[0] < 0.0) | (d[1] < 0.0) << 1 | (fabs(d[1]) > fabs(d[0])) << 2;
-}
 /* True when the ray from texel (u, v) (on the surface) along unit direction d cannot be
  * blocked: imp_btf_heightfield_ray() with the same bias would then find no hit. False
  * says nothing (march it). */
 bool imp_btf_horizon_clear(const struct imp_btf_horizon *hz, int u, int v, const double d[3]);
-/* The bound itself (rise over run) at texel (u, v) for octant o (imp_btf_horizon_octant()). */
-double imp_btf_horizon_slope(const struct imp_btf_horizon *hz, int u, int v, int o);
-/* The eight bounds of texel (u, v) (o = 0..7) into ret, for a caller testing many rays of
- * one texel: imp_btf_horizon_clear() is d[2] > 0 && d[2] ≥ ret[o] · √(d[0]² + d[1]²) in
- * double, o = imp_btf_horizon_octant(d). False (ret untouched) when hz is NULL. */
-bool imp_btf_horizon_texel(const struct imp_btf_horizon *hz, int u, int v, float ret[IMP_BTF_HORIZON_OCTANTS]);
+/* The bound itself (rise over run) at texel (u, v) for quadrant q = (du < 0) | (dv < 0)·2. */
+double imp_btf_horizon_slope(const struct imp_btf_horizon *hz, int u, int v, int q);
+/* The four bounds of texel (u, v) (q = 0..3) into ret, for a caller testing many rays of
+ * one texel: imp_btf_horizon_clear() is d[2] > 0 && d[2] ≥ ret[q] · √(d[0]² + d[1]²) in
+ * double. False (ret untouched) when hz is NULL. */
+bool imp_btf_horizon_texel(const struct imp_btf_horizon *hz, int u, int v, float ret[4]);
 
 /* imp_btf_samples_extract() with a pyramid built once for many tiles (the plain call
  * builds one per call). -EINVAL also when py was built from another heightfield. */
