@@ -318,6 +318,10 @@ struct geometry_out {
         json_t *stages;
         bool refused;                 /* no plausible canvas: copy.json says why, nothing else */
         struct imp_image *maps[4];    /* rho_d, rho_s, lobe, fit flags: NULL without a BTF fit */
+        /* normal-trust's reading of the mask and normals at the height fusion, read again by
+         * the final normal_trust(): neither changes in between (the fit and flag_edges
+         * change σ_n and the flags only) */
+        struct imp_normal_trust_cache nt_cache;
 };
 
 static void geometry_out_done(struct geometry_out *g) {
@@ -326,6 +330,7 @@ static void geometry_out_done(struct geometry_out *g) {
         imp_heightfield_done(&g->hf);
         for (int m = 0; m < 4; m++)
                 imp_image_free(g->maps[m]);
+        imp_normal_trust_cache_done(&g->nt_cache);
 }
 
 /* Relief boxes of the final heightfield (seed §4.3), into g->boxes and stages.boxes. */
@@ -363,8 +368,9 @@ static int fuse_heights(const struct process_opts *o, struct geometry_out *g, co
         memcpy(row_sigma, normal_sigma_deg, n_tex * sizeof(float));
         memcpy(row_flags, hf->texel_flags, n_tex * sizeof(uint16_t));
         struct imp_normal_trust_stats nts = {};
-        bool trusted = fp->row_weight_max > 1 && imp_normal_trust(hf->nx, hf->ny, hf->mask, hf->nx_, hf->ny_, row_sigma,
-                                                                  row_flags, &o->opt->normal_trust, &nts) >= 0;
+        bool trusted = fp->row_weight_max > 1 &&
+                       imp_normal_trust_cached(hf->nx, hf->ny, hf->mask, hf->nx_, hf->ny_, row_sigma, row_flags,
+                                               &o->opt->normal_trust, &g->nt_cache, &nts) >= 0;
         struct imp_fuse_texels ft = { normal_sigma_deg, hf->sigma_mm, hf->texel_flags, trusted ? row_sigma : NULL };
         _cleanup_free_ float *measured = malloc(n_tex * sizeof(float));
         if (!measured)
@@ -1116,8 +1122,9 @@ void imp_process_options_default(struct imp_process_options *o) {
 static int normal_trust(const struct process_opts *o, struct geometry_out *g) {
         struct imp_heightfield *hf = &g->hf;
         struct imp_normal_trust_stats st = {};
-        int r = imp_normal_trust(hf->nx, hf->ny, hf->mask, hf->nx_, hf->ny_, hf->sigma_n_deg, hf->texel_flags,
-                                 &o->opt->normal_trust, &st);
+        int r = imp_normal_trust_cached(hf->nx, hf->ny, hf->mask, hf->nx_, hf->ny_, hf->sigma_n_deg, hf->texel_flags,
+                                        &o->opt->normal_trust, &g->nt_cache, &st);
+        imp_normal_trust_cache_done(&g->nt_cache);
         if (r >= 0)
                 json_object_set_new(g->stages, "normal_trust", json_pack("{s:f,s:b,s:f,s:I,s:I,s:I}",
                         "rough_k", o->opt->normal_trust.rough_k, "edge", o->opt->normal_trust.edge,

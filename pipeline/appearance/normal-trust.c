@@ -158,21 +158,27 @@ static float edge_sigma(int nx, int ny, const uint8_t *mask, const uint16_t *fla
         return s;
 }
 
-int imp_normal_trust(int nx, int ny, const uint8_t *mask, const float *nx_, const float *ny_, float *sigma_n_deg,
-                     uint16_t *texel_flags, const struct imp_normal_trust_params *p,
-                     struct imp_normal_trust_stats *ret_stats) {
-        if (nx <= 0 || ny <= 0 || !mask || !nx_ || !ny_ || !sigma_n_deg || !texel_flags || !p ||
-            !(p->rough_k >= 0) || !isfinite(p->rough_k) || !(p->fine_k >= 0) || !isfinite(p->fine_k) ||
-            p->fine_radius < 0 || p->fine_radius > 16)
-                return -EINVAL;
+void imp_normal_trust_cache_done(struct imp_normal_trust_cache *c) {
+        if (!c)
+                return;
+        free(c->angle_max);
+        free(c->fine_rms);
+        *c = (struct imp_normal_trust_cache) {};
+}
+
+/* Rules 1 and 3's reading of the mask and normals into c: the largest neighbour angle of
+ * every texel, and with fine the window rms of the fine bends. */
+static int trust_geometry(int nx, int ny, const uint8_t *mask, const float *nx_, const float *ny_, int R, bool fine,
+                          struct imp_normal_trust_cache *c) {
         size_t n = (size_t) nx * ny;
-        _cleanup_free_ float *sigma1 = malloc(n * sizeof *sigma1), *bend = malloc(n * sizeof *bend),
-                             *fineb = malloc(n * sizeof *fineb), *cv = malloc(n * sizeof *cv);
-        _cleanup_free_ uint16_t *flags0 = malloc(n * sizeof *flags0);
-        if (!sigma1 || !flags0 || !bend || !fineb || !cv)
+        _cleanup_free_ float *bend = malloc(n * sizeof *bend), *fineb = malloc(n * sizeof *fineb);
+        *c = (struct imp_normal_trust_cache) { nx, ny, R, malloc(n * sizeof *c->angle_max),
+                                               fine ? malloc(n * sizeof *c->fine_rms) : NULL };
+        if (!bend || !fineb || !c->angle_max || (fine && !c->fine_rms)) {
+                imp_normal_trust_cache_done(c);
                 return -ENOMEM;
-        memcpy(flags0, texel_flags, n * sizeof *flags0);
-        long cnt = 0, rough = 0, fine = 0, edge = 0;
+        }
+        float *cv = c->angle_max;
 #pragma omp parallel for schedule(dynamic, 16)
         for (int j = 0; j < ny; j++)
                 for (int i = 0; i < nx; i++) {
@@ -182,20 +188,64 @@ int imp_normal_trust(int nx, int ny, const uint8_t *mask, const float *nx_, cons
                         if (mask[t])
                                 neighbour_angles(nx, ny, mask, nx_, ny_, i, j, &cv[t], &bend[t], &fineb[t]);
                 }
+        if (!fine)
+                return 0;
+#pragma omp parallel for schedule(dynamic, 16)
+        for (int j = 0; j < ny; j++)
+                for (int i = 0; i < nx; i++) {
+                        size_t t = (size_t) j * nx + i;
+                        c->fine_rms[t] = mask[t] ? window_rms(nx, ny, mask, fineb, bend, R, i, j) : 0;
+                }
+        return 0;
+}
+
+int imp_normal_trust(int nx, int ny, const uint8_t *mask, const float *nx_, const float *ny_, float *sigma_n_deg,
+                     uint16_t *texel_flags, const struct imp_normal_trust_params *p,
+                     struct imp_normal_trust_stats *ret_stats) {
+        return imp_normal_trust_cached(nx, ny, mask, nx_, ny_, sigma_n_deg, texel_flags, p, NULL, ret_stats);
+}
+
+int imp_normal_trust_cached(int nx, int ny, const uint8_t *mask, const float *nx_, const float *ny_,
+                            float *sigma_n_deg, uint16_t *texel_flags, const struct imp_normal_trust_params *p,
+                            struct imp_normal_trust_cache *cache, struct imp_normal_trust_stats *ret_stats) {
+        if (nx <= 0 || ny <= 0 || !mask || !nx_ || !ny_ || !sigma_n_deg || !texel_flags || !p ||
+            !(p->rough_k >= 0) || !isfinite(p->rough_k) || !(p->fine_k >= 0) || !isfinite(p->fine_k) ||
+            p->fine_radius < 0 || p->fine_radius > 16)
+                return -EINVAL;
+        size_t n = (size_t) nx * ny;
+        struct imp_normal_trust_cache own = {};
+        bool fine_on = p->fine_k > 0;
+        if (!cache || !cache->angle_max || cache->nx != nx || cache->ny != ny || cache->fine_radius != p->fine_radius ||
+            (fine_on && !cache->fine_rms)) {
+                imp_normal_trust_cache_done(cache);
+                int r = trust_geometry(nx, ny, mask, nx_, ny_, p->fine_radius, fine_on, cache ? cache : &own);
+                if (r < 0)
+                        return r;
+        }
+        const struct imp_normal_trust_cache *geo = cache ? cache : &own;
+        _cleanup_free_ float *sigma1 = malloc(n * sizeof *sigma1), *sigma_r = malloc(n * sizeof *sigma_r);
+        _cleanup_free_ uint16_t *flags0 = malloc(n * sizeof *flags0);
+        if (!sigma1 || !flags0 || !sigma_r) {
+                imp_normal_trust_cache_done(&own);
+                return -ENOMEM;
+        }
+        memcpy(flags0, texel_flags, n * sizeof *flags0);
+        long cnt = 0, rough = 0, fine = 0, edge = 0;
+        const float *cv = geo->angle_max;
         /* rules 1 and 3 everywhere first; rule 2 reads the neighbours' σ after rule 1
          * (sigma_r, in cv's place): rule 3's window already spreads its own σ, and its rims
          * flagged too cost the demo 7 % more flagged texels for nothing it needed */
-        float *sigma_r = cv;
 #pragma omp parallel for schedule(dynamic, 16) reduction(+ : cnt, rough, fine)
         for (int j = 0; j < ny; j++)
                 for (int i = 0; i < nx; i++) {
                         size_t t = (size_t) j * nx + i;
                         sigma1[t] = sigma_n_deg[t];
+                        sigma_r[t] = 0;
                         if (!mask[t])
                                 continue;
                         cnt++;
                         double s_rough = hypot(sigma_n_deg[t], p->rough_k * cv[t]);
-                        double fw = p->fine_k > 0 ? p->fine_k * window_rms(nx, ny, mask, fineb, bend, p->fine_radius, i, j) : 0;
+                        double fw = fine_on ? p->fine_k * geo->fine_rms[t] : 0;
                         sigma1[t] = (float) fmin(180.0, hypot(s_rough, fw));
                         sigma_r[t] = (float) fmin(180.0, s_rough);
                         bool was_ok = sigma_n_deg[t] <= IMP_TEXEL_NORMAL_SIGMA_MAX_DEG &&
@@ -221,5 +271,6 @@ int imp_normal_trust(int nx, int ny, const uint8_t *mask, const float *nx_, cons
         if (ret_stats)
                 *ret_stats = (struct imp_normal_trust_stats) { .n_texels = cnt, .n_rough_flagged = rough,
                                                                .n_fine_flagged = fine, .n_edge_flagged = edge };
+        imp_normal_trust_cache_done(&own);
         return 0;
 }

@@ -58,3 +58,20 @@ struct imp_normal_trust_stats {
 int imp_normal_trust(int nx, int ny, const uint8_t *mask, const float *nx_, const float *ny_, float *sigma_n_deg,
                      uint16_t *texel_flags, const struct imp_normal_trust_params *p,
                      struct imp_normal_trust_stats *ret_stats);
+
+/* Rules 1 and 3 read only the mask and the normals (the neighbour angles and the window's
+ * rms fine bend); a caller running imp_normal_trust() twice on the same mask and normals
+ * with other σ_n or flags keeps them here: the first call with a cache computes them, the
+ * next ones read them. The caller promises that mask, nx_ and ny_ did not change between
+ * the calls (the cache checks the size and the rule-3 radius only). Free with
+ * imp_normal_trust_cache_done(). */
+struct imp_normal_trust_cache {
+        int nx, ny, fine_radius;
+        float *angle_max;             /* rule 1's largest neighbour angle (degrees) */
+        double *fine_rms;             /* rule 3's window rms (degrees); NULL when not computed */
+};
+void imp_normal_trust_cache_done(struct imp_normal_trust_cache *c);
+/* imp_normal_trust() with cache (NULL: none); the same results as without. */
+int imp_normal_trust_cached(int nx, int ny, const uint8_t *mask, const float *nx_, const float *ny_,
+                            float *sigma_n_deg, uint16_t *texel_flags, const struct imp_normal_trust_params *p,
+                            struct imp_normal_trust_cache *cache, struct imp_normal_trust_stats *ret_stats);

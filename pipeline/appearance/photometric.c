@@ -95,6 +95,9 @@ struct pn_rows {
         double a[IMP_BTF_MAX_SAMPLES][3], y[IMP_BTF_MAX_SAMPLES], vv[IMP_BTF_MAX_SAMPLES][3];
         double w[IMP_BTF_MAX_SAMPLES], res[IMP_BTF_MAX_SAMPLES], tmp[IMP_BTF_MAX_SAMPLES];
         double vl[IMP_BTF_MAX_SAMPLES];   /* v·l, for takes_part */
+        /* takes_part() of each row for the state's current normal and cone, once per
+         * normal: the solve, the model check and the mean read it (valid when part_ok) */
+        bool part[IMP_BTF_MAX_SAMPLES], part_ok;
         int m;
 };
 
@@ -119,6 +122,7 @@ static void load_rows(const struct imp_btf_sample *s, int n, struct pn_rows *R) 
                 m++;
         }
         R->m = m;
+        R->part_ok = false;
 }
 
 /* Whether sample i takes part for normal nc: not near the mirror direction, not in
@@ -176,8 +180,13 @@ struct pn_state {
 static uint16_t solve_pass(struct pn_rows *R, const struct imp_photometric_params *p, struct pn_state *S) {
         double A[9] = {}, b[3] = {};
         S->used = 0;
+        if (!R->part_ok) {
+                for (int i = 0; i < R->m; i++)
+                        R->part[i] = takes_part(R, i, S->nc, S->cone, p->min_cos);
+                R->part_ok = true;
+        }
         for (int i = 0; i < R->m; i++) {
-                double wi = takes_part(R, i, S->nc, S->cone, p->min_cos) ? R->w[i] : 0.0;
+                double wi = R->part[i] ? R->w[i] : 0.0;
                 if (wi <= 0)
                         continue;
                 S->used++;
@@ -214,7 +223,8 @@ static uint16_t solve_pass(struct pn_rows *R, const struct imp_photometric_param
 
 /* Residuals over every sample (an excluded one may come back), the robust σ (MAD) and
  * weighted RMS of those taking part for normal nn, and the Huber (and cast-shadow) weights
- * for the next solve when reweight. */
+ * for the next solve when reweight. R->part is then nn's: the caller makes nn the state's
+ * normal. */
 static void residuals(struct pn_rows *R, const struct imp_photometric_params *p, const double nn[3],
                       struct pn_state *S, bool reweight) {
         const double *g = S->g;
@@ -222,12 +232,14 @@ static void residuals(struct pn_rows *R, const struct imp_photometric_params *p,
         double ss = 0, sw = 0, mad[IMP_BTF_MAX_SAMPLES];
         for (int i = 0; i < R->m; i++) {
                 R->res[i] = R->y[i] - (g[0] * R->a[i][0] + g[1] * R->a[i][1] + g[2] * R->a[i][2]);
-                if (takes_part(R, i, nn, S->cone, p->min_cos)) {
+                R->part[i] = takes_part(R, i, nn, S->cone, p->min_cos);
+                if (R->part[i]) {
                         R->tmp[k2++] = fabs(R->res[i]);
                         ss += R->w[i] * R->res[i] * R->res[i];
                         sw += R->w[i];
                 }
         }
+        R->part_ok = true;
         S->sigma = fmax(p->sigma_floor, 1.4826 * median_small(R->tmp, k2, mad));
         S->rms = sqrt(ss / fmax(sw, 1e-30));
         if (!reweight)
@@ -256,9 +268,12 @@ static bool ambient_check(const struct pn_rows *R, const struct imp_photometric_
                           double *ret_shift_deg) {
         double M[4][5] = {}, yy = 0, sw = 0;
         int cnt = 0;
-        for (int i = 0; i < R->m; i++) {
+        bool in[IMP_BTF_MAX_SAMPLES];
+        for (int i = 0; i < R->m; i++)
                 /* all_lit: the samples near the mirror direction too (no cone) */
-                if (!takes_part(R, i, S->nc, all_lit ? 2.0 : S->cone, p->min_cos) || !(R->w[i] > 0))
+                in[i] = (all_lit ? takes_part(R, i, S->nc, 2.0, p->min_cos) : R->part[i]) && R->w[i] > 0;
+        for (int i = 0; i < R->m; i++) {
+                if (!in[i])
                         continue;
                 yy += R->w[i] * R->y[i] * R->y[i];
                 sw += R->w[i];
@@ -311,7 +326,7 @@ static bool ambient_check(const struct pn_rows *R, const struct imp_photometric_
          * recomputed from the rows below. */
         double ss = yy, bx = 0;
         for (int i = 0; i < R->m; i++) {
-                if (!takes_part(R, i, S->nc, all_lit ? 2.0 : S->cone, p->min_cos) || !(R->w[i] > 0))
+                if (!in[i])
                         continue;
                 double f = g4[0] * R->a[i][0] + g4[1] * R->a[i][1] + g4[2] * R->a[i][2] + *ret_c;
                 bx += R->w[i] * R->y[i] * f;
@@ -363,7 +378,7 @@ static void finish_texel(const struct pn_rows *R, const struct imp_photometric_p
                 c = sc = shift = 0;
         double ysum = 0, wsum = 0;
         for (int i = 0; i < R->m; i++)
-                if (R->w[i] > 0 && takes_part(R, i, S->nc, S->cone, p->min_cos)) {
+                if (R->w[i] > 0 && R->part[i]) {
                         ysum += R->w[i] * R->y[i];
                         wsum += R->w[i];
                 }

@@ -8,10 +8,15 @@
  *     and NORMAL_UNCERTAIN to its 8 neighbours and no further; frame_adjacent does not.
  *  3. Grooves: aliased ones (2.3 texels per period) must be flagged by rule 3, resolved
  *     ones (8–10 texels per period, bending up to 24° between neighbours) must not.
- *  4. Bad arguments. */
+ *  4. Bad arguments.
+ *  5. The cache of rules 1 and 3's reading (imp_normal_trust_cached): two calls on the
+ *     same mask and normals with other σ_n and flags, the second reading the first's
+ *     cache, give bit for bit what two uncached calls give; a cache filled from other
+ *     normals changes the result (the second call reads it instead of recomputing). */
 #include <errno.h>
 #include <stdbool.h>
 #include <stdint.h>
+#include <string.h>
 #include "normal-trust.h"
 #include "quality.h"
 #include "test.h"
@@ -218,7 +223,56 @@ static void test_args(void) {
         CHECK_NEAR(s, 1.0, 1e-6);
 }
 
+/* Random normals (bends up to ~20° between neighbours), a hole in the mask, σ_n and flags
+ * drawn per call. */
+static void random_field(unsigned seed, float *nx, float *ny, uint8_t *mask, float *sig, uint16_t *fl) {
+        for (int t = 0; t < N * N; t++) {
+                seed = seed * 1103515245u + 12345u;
+                double a = ((seed >> 8) & 0xffff) / 65536.0, b = ((seed >> 4) & 0xfff) / 4096.0;
+                nx[t] = (float) (0.35 * sin(0.7 * (t % N) + 3 * a));
+                ny[t] = (float) (0.35 * cos(0.5 * (t / N)) * b);
+                mask[t] = !(t % N > 10 && t % N < 14 && t / N > 5 && t / N < 30);
+                sig[t] = (float) (0.5 + 4 * a);
+                fl[t] = b < 0.05 ? IMP_TEXEL_PHOTOMETRIC_REJECTED : 0;
+        }
+}
+
+static void test_cache(void) {
+        static float nx[N * N], ny[N * N], other[N * N], s1[N * N], s2[N * N], c1[N * N], c2[N * N];
+        static uint16_t f1[N * N], f2[N * N], g1[N * N], g2[N * N];
+        static uint8_t mask[N * N];
+        struct imp_normal_trust_params p;
+        imp_normal_trust_params_default(&p);
+        random_field(7, nx, ny, mask, s1, f1);
+        random_field(8, other, other, mask, s2, f2);   /* σ_n and flags of a second call */
+        random_field(7, nx, ny, mask, s1, f1);
+        memcpy(c1, s1, sizeof s1), memcpy(g1, f1, sizeof f1);
+        memcpy(c2, s2, sizeof s2), memcpy(g2, f2, sizeof f2);
+        struct imp_normal_trust_stats a1, a2, b1, b2;
+        CHECK_OK(imp_normal_trust(N, N, mask, nx, ny, s1, f1, &p, &a1));
+        CHECK_OK(imp_normal_trust(N, N, mask, nx, ny, s2, f2, &p, &a2));
+        struct imp_normal_trust_cache cache = {};
+        CHECK_OK(imp_normal_trust_cached(N, N, mask, nx, ny, c1, g1, &p, &cache, &b1));
+        CHECK(cache.angle_max != NULL && cache.fine_rms != NULL);
+        CHECK_OK(imp_normal_trust_cached(N, N, mask, nx, ny, c2, g2, &p, &cache, &b2));
+        CHECK(memcmp(s1, c1, sizeof s1) == 0 && memcmp(f1, g1, sizeof f1) == 0);
+        CHECK(memcmp(s2, c2, sizeof s2) == 0 && memcmp(f2, g2, sizeof f2) == 0);
+        CHECK(memcmp(&a1, &b1, sizeof a1) == 0 && memcmp(&a2, &b2, sizeof a2) == 0);
+        CHECK(a2.n_rough_flagged + a2.n_fine_flagged > 0);   /* the rules did something */
+        /* a cache of other normals is read, not recomputed: the result moves */
+        imp_normal_trust_cache_done(&cache);
+        for (int t = 0; t < N * N; t++)
+                other[t] = 0.5f * nx[t];
+        random_field(8, c2, c2, mask, c2, g2);
+        CHECK_OK(imp_normal_trust_cached(N, N, mask, other, ny, c1, g1, &p, &cache, NULL));
+        CHECK_OK(imp_normal_trust_cached(N, N, mask, nx, ny, c2, g2, &p, &cache, NULL));
+        CHECK(memcmp(s2, c2, sizeof s2) != 0);
+        imp_normal_trust_cache_done(&cache);
+        CHECK(cache.angle_max == NULL && cache.fine_rms == NULL);
+}
+
 int main(void) {
+        test_cache();
         test_roof();
         test_edge();
         test_grooves();
