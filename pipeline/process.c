@@ -971,8 +971,15 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
                                        (const struct imp_image *const *) d.valid };
         if (o->opt->photometric_normals && d.n_used >= 8)
                 r = photometric_stage(o, g, &bh, &cap, normal, err);
-        else
+        else {
                 drop_fill(g, NULL);
+                /* too few lights for a photometric normal anywhere: the texels keep the
+                 * geometric one for want of samples, as the photometric stage flags a texel
+                 * with too few (hard-one-light's verdict blamed the relief) */
+                for (size_t i = 0; o->opt->photometric_normals && i < (size_t) hf->nx * hf->ny; i++)
+                        if (hf->mask[i])
+                                hf->texel_flags[i] |= IMP_TEXEL_FEW_SAMPLES;
+        }
         if (r >= 0)
                 r = btf_stage(o, g, &bh, &cap, &d, err);
 out:

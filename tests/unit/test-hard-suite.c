@@ -202,6 +202,12 @@ static void check_verdict(const char *name, const char *copy) {
         }
         /* The appearance fitted on few texels (stages.btf): the verdict says so. */
         json_t *btf = json_object_get(json_object_get(j, "stages"), "btf");
+        /* Fewer than 8 lights: no photometric normal anywhere, and the texels say why. */
+        double lights = json_number_value(json_object_get(btf, "lights"));
+        if (btf && lights > 0 && lights < 8)
+                CHECK_MSG(json_number_value(json_object_get(flags, "few_samples")) >= 0.99, "%s: %.0f lights, but "
+                          "few_samples on %.0f %% of the texels", name, lights,
+                          100 * json_number_value(json_object_get(flags, "few_samples")));
         double texels = (double) json_integer_value(json_object_get(q, "texels"));
         if (btf && texels > 0 && json_number_value(json_object_get(btf, "few_samples")) > 0.25 * texels) {
                 bool said = false;
