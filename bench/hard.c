@@ -30,7 +30,8 @@ extern char **environ;
 struct hard_row {
         char name[64];
         int render_rc, process_rc, compare_rc;
-        char message[256];            /* the loader's or the process's first error line */
+        char message[256];            /* the loader's or the process's first error line, or the
+                                         verdict's first reason */
         char verdict[16];
         double seconds;
         json_t *cmp;                  /* compare --json, NULL when not compared */
@@ -130,6 +131,9 @@ static void run_scene(const char *repo, const char *out, const char *name, struc
                 snprintf(row->verdict, sizeof row->verdict, "%s",
                          json_string_value(json_object_get(q, "verdict")) ?: "?");
                 row->flagged = json_number_value(json_object_get(q, "flagged_fraction"));
+                const char *why = json_string_value(json_array_get(json_object_get(q, "reasons"), 0));
+                if (row->process_rc == 0 && why)   /* a degraded copy: why (the flag behind it) */
+                        snprintf(row->message, sizeof row->message, "%s", why);
         } else
                 snprintf(row->verdict, sizeof row->verdict, "none");
         snprintf(path, sizeof path, "%s/%s.json", out, name);
@@ -174,29 +178,33 @@ static int write_report(const char *repo, const struct hard_row *rows, size_t n,
                    "when ≤ %.0f°); *frame* = fraction of the copy's canvas texels that lie on the truth frame;\n"
                    "*>3σ h* and *>3σ n* = fraction of the unflagged texels whose height error exceeds 3σ\n"
                    "(after the median offset) and whose normal error exceeds 3σ_n; *max n* = largest normal\n"
-                   "error of an unflagged texel and *>10°* how many exceed 10°; *flagged* = fraction of\n"
+                   "error of an unflagged texel and *>10°* how many exceed 10°; *>3σ h prom.* = the same\n"
+                   "height figure over the measured texels without a height flag (saturated, filled,\n"
+                   "frame_adjacent, phase_rejected) whatever their normal flags; *flagged* = fraction of\n"
                    "the compared texels with a flag; *rc* = exit code of `impasto process` (6: unusable);\n"
-                   "– where there is nothing to measure (no unflagged texel, or no copy).\n\n",
+                   "– where there is nothing to measure (no unflagged texel, or no copy); *note* = the\n"
+                   "refusal, or the verdict's first reason.\n\n",
                 HARD_PLACEMENT_MAX_DEG);
-        fprintf(f, "| scene | rc | verdict | placement | frame | >3σ h | >3σ n | max n | >10° | flagged | s | note |\n"
-                   "|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+        fprintf(f, "| scene | rc | verdict | placement | frame | >3σ h | >3σ n | max n | >10° | >3σ h prom. | flagged | s "
+                   "| note |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
         for (size_t i = 0; i < n; i++) {
                 const struct hard_row *r = &rows[i];
                 fprintf(f, "| %s | %d | %s |", r->name + 5, r->render_rc ? r->render_rc : r->process_rc, r->verdict);
                 if (r->cmp) {
                         double pl = num(r->cmp, "placement_deg");
                         bool none = json_integer_value(json_object_get(r->cmp, "n_unflagged")) == 0;
-                        char b[4][32];
+                        char b[5][32];
                         /* with every texel flagged there is no unflagged figure to give */
-                        fprintf(f, " %.2f° (%s) | %.4f | %s | %s | %s | %s | %.3f |", pl,
+                        fprintf(f, " %.2f° (%s) | %.4f | %s | %s | %s | %s | %s | %.3f |", pl,
                                 pl <= HARD_PLACEMENT_MAX_DEG ? "right" : "WRONG", num(r->cmp, "frame_texel_fraction"),
                                 none ? "–" : fig(r->cmp, "beyond_3sigma_height", 4, "", b[0], sizeof b[0]),
                                 none ? "–" : fig(r->cmp, "beyond_3sigma_normal", 4, "", b[1], sizeof b[1]),
                                 none ? "–" : fig(r->cmp, "unflagged_normal_err_deg_max", 1, "°", b[2], sizeof b[2]),
                                 none ? "–" : fig(r->cmp, "unflagged_normal_over_10deg", 0, "", b[3], sizeof b[3]),
+                                fig(r->cmp, "beyond_3sigma_height_promised", 4, "", b[4], sizeof b[4]),
                                 num(r->cmp, "flagged_fraction"));
                 } else
-                        fprintf(f, " – | – | – | – | – | – | – |");
+                        fprintf(f, " – | – | – | – | – | – | – | – |");
                 fprintf(f, " %.0f | %s |\n", r->seconds, r->message);
         }
         fprintf(f, "\n%zu scenes in %.0f s.\n", n, total_s);

@@ -537,6 +537,36 @@ static int sl_range(const struct process_opts *o, const struct imp_rig *rig, str
         return 0;
 }
 
+/* Why a refused heightfield found no canvas, when the decode says so: the middle of the
+ * view (where the canvas is expected: half the width and height) with range at fewer than
+ * REFUSAL_CENTRE_RANGE of its pixels, and what its other pixels lack. Empty otherwise.
+ * (hard-ambient-dark: the dark paint under ambient light gives the projector no
+ * modulation; hard-defocus: a blurred projector leaves the Gray code undecided.) */
+#define REFUSAL_CENTRE_RANGE 0.6
+static void refusal_cause(const struct imp_range_image *range, const struct imp_sl_result *sl, char *buf,
+                          size_t size) {
+        size_t n = 0, valid = 0, shadow = 0, undecided = 0, disagree = 0;
+        buf[0] = 0;
+        if (sl->width != range->width || sl->height != range->height)
+                return;
+        for (int y = range->height / 4; y < 3 * range->height / 4; y++)
+                for (int x = range->width / 4; x < 3 * range->width / 4; x++) {
+                        size_t i = (size_t) y * range->width + x;
+                        uint16_t fl = sl->flags[i];
+                        n++;
+                        valid += range->valid[i] != 0;
+                        shadow += (fl & IMP_SL_SHADOW) != 0;
+                        undecided += !(fl & IMP_SL_SHADOW) && (fl & (IMP_SL_UNDECODABLE | IMP_SL_WEAK_BIT));
+                        disagree += !(fl & IMP_SL_SHADOW) && (fl & IMP_SL_DISAGREE);
+                }
+        if (!n || valid >= REFUSAL_CENTRE_RANGE * n)
+                return;
+        snprintf(buf, size, "; range at only %.0f %% of the middle of the view: %.0f %% without projector light (dark "
+                 "paint, ambient light or a dim projector: brighter projector or longer exposures), %.0f %% with "
+                 "Gray bits undecided and %.0f %% with phase and Gray code disagreeing (projector focus)",
+                 100.0 * valid / n, 100.0 * shadow / n, 100.0 * undecided / n, 100.0 * disagree / n);
+}
+
 /* Canvas extraction and the heightfield (seed §4.2); a refusal marks g->refused. */
 static int heightfield_stage(const struct process_opts *o, const struct imp_range_image *range,
                              const struct imp_sl_result *sl, struct geometry_out *g, struct imp_error *err) {
@@ -546,9 +576,11 @@ static int heightfield_stage(const struct process_opts *o, const struct imp_rang
                 ho.shadow_fill_px = 0;   /* the fill needs normals to shape it */
         int r = imp_heightfield_extract(range, &ho, &g->hf, err);
         if (r == -ENODATA) {
+                char why[400];
+                refusal_cause(range, sl, why, sizeof why);
                 g->refused = true;
-                return imp_error_prefix(err, "%s: heightfield refused (%zu triangulated points): ", o->capture,
-                                        range->n_valid);
+                return imp_error_prefix(err, "%s: heightfield refused (%zu triangulated points%s): ", o->capture,
+                                        range->n_valid, why);
         }
         if (r < 0)
                 return imp_error_set(err, r, "%s: heightfield failed: %s", o->capture, strerror(-r));
@@ -945,8 +977,15 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
                                        (const struct imp_image *const *) d.valid };
         if (o->opt->photometric_normals && d.n_used >= 8)
                 r = photometric_stage(o, g, &bh, &cap, normal, err);
-        else
+        else {
                 drop_fill(g, NULL);
+                /* too few lights for a photometric normal anywhere: the texels keep the
+                 * geometric one for want of samples, as the photometric stage flags a texel
+                 * with too few (hard-one-light's verdict blamed the relief) */
+                for (size_t i = 0; o->opt->photometric_normals && i < (size_t) hf->nx * hf->ny; i++)
+                        if (hf->mask[i])
+                                hf->texel_flags[i] |= IMP_TEXEL_FEW_SAMPLES;
+        }
         if (r >= 0)
                 r = btf_stage(o, g, &bh, &cap, &d, err);
 out:
@@ -974,7 +1013,54 @@ static void reason(json_t *reasons, enum imp_verdict *v, enum imp_verdict at_lea
                 *v = at_least;
 }
 
-static json_t *quality_json(const struct geometry_out *g, const char *refusal) {
+/* The flags that follow from others: a texel whose photometric normal was not kept (few
+ * samples, saturation, shadow, ...) keeps the geometric one and is normal_uncertain or
+ * photometric_rejected because of that. */
+#define QUALITY_CONSEQUENCE_FLAGS (IMP_TEXEL_PHOTOMETRIC_REJECTED | IMP_TEXEL_NORMAL_UNCERTAIN | IMP_TEXEL_FIT_FAILED)
+#define QUALITY_CAUSE_SHARE 0.5  /* a cause flag on at least this share of the top flag's count is named */
+
+/* "X % flagged, T % TOP (advice)": the flag behind most of it and what would lift it. When
+ * that flag is a consequence and a cause flag covers most as many texels (hard-deep-frame:
+ * every texel normal_uncertain and photometric_rejected because the frame walls hide the
+ * dome's lights: few_samples), the cause is named with its advice instead of the
+ * consequence's (which told to change the lens or the paint). */
+static void flagged_reason(json_t *reasons, enum imp_verdict *v, const size_t per[IMP_TEXEL_FLAG_COUNT],
+                           double den, double flagged) {
+        unsigned top = 0, cause = IMP_TEXEL_FLAG_COUNT;
+        for (unsigned k = 1; k < IMP_TEXEL_FLAG_COUNT; k++)
+                if (per[k] > per[top])
+                        top = k;
+        for (unsigned k = 0; k < IMP_TEXEL_FLAG_COUNT; k++)
+                if (!((QUALITY_CONSEQUENCE_FLAGS | IMP_TEXEL_FRAME_ADJACENT) & (1u << k)) &&
+                    (cause == IMP_TEXEL_FLAG_COUNT || per[k] > per[cause]))
+                        cause = k;
+        if ((QUALITY_CONSEQUENCE_FLAGS & (1u << top)) && cause < IMP_TEXEL_FLAG_COUNT && per[cause] > 0 &&
+            per[cause] >= QUALITY_CAUSE_SHARE * per[top])
+                reason(reasons, v, IMP_VERDICT_DEGRADED, "%.0f %% of the canvas texels are flagged, %.0f %% %s "
+                       "after %.0f %% %s (%s)", 100 * flagged, 100.0 * per[top] / den, imp_texel_flag_name(top),
+                       100.0 * per[cause] / den, imp_texel_flag_name(cause), imp_texel_flag_advice(cause));
+        else
+                reason(reasons, v, IMP_VERDICT_DEGRADED, "%.0f %% of the canvas texels are flagged, %.0f %% %s (%s)",
+                       100 * flagged, 100.0 * per[top] / den, imp_texel_flag_name(top), imp_texel_flag_advice(top));
+}
+
+/* The appearance fitted on too few texels (stages.btf, NULL without the stage): its flags
+ * live in fit-flags.exr, not among the texel flags, so the verdict says it (hard-grazing-
+ * dome: the frame hid every light from every texel, ρd 0 on the whole canvas, and the copy
+ * was degraded only for its normals). */
+#define QUALITY_APPEARANCE_UNFIT 0.25  /* fraction of the canvas texels the fit lacked samples for */
+static void appearance_reason(json_t *reasons, enum imp_verdict *v, const json_t *btf, double den) {
+        double few = json_number_value(json_object_get(btf, "few_samples"));
+        double filled = json_number_value(json_object_get(btf, "filled"));
+        if (!btf || !(few > QUALITY_APPEARANCE_UNFIT * den))
+                return;
+        reason(reasons, v, IMP_VERDICT_DEGRADED, "the appearance (rho_d, rho_s, lobe) was fitted on only %.0f %% "
+               "of the canvas texels: %.0f %% filled from neighbours, %.0f %% left unmeasured (rho_d 0); "
+               "few_samples in fit-flags.exr (%s)", 100 * fmax(0, 1 - few / den), 100 * filled / den,
+               100 * fmax(0, few - filled) / den, imp_texel_flag_advice((unsigned) __builtin_ctz(IMP_TEXEL_FEW_SAMPLES)));
+}
+
+static json_t *quality_json(const struct geometry_out *g, const char *refusal, const json_t *btf) {
         enum imp_verdict v = IMP_VERDICT_OK;
         json_t *reasons = json_array(), *flags = json_object();
         const struct imp_heightfield *hf = &g->hf;
@@ -993,15 +1079,8 @@ static json_t *quality_json(const struct geometry_out *g, const char *refusal) {
         if (refusal)
                 reason(reasons, &v, IMP_VERDICT_UNUSABLE, "%s", refusal);
         else {
-                if (flagged > QUALITY_FLAGGED_DEGRADED) {
-                        unsigned top = 0;       /* the flag behind most of it, and what would lift it */
-                        for (unsigned k = 1; k < IMP_TEXEL_FLAG_COUNT; k++)
-                                if (per[k] > per[top])
-                                        top = k;
-                        reason(reasons, &v, IMP_VERDICT_DEGRADED, "%.0f %% of the canvas texels are flagged, "
-                               "%.0f %% %s (%s)", 100 * flagged, 100.0 * per[top] / den, imp_texel_flag_name(top),
-                               imp_texel_flag_advice(top));
-                }
+                if (flagged > QUALITY_FLAGGED_DEGRADED)
+                        flagged_reason(reasons, &v, per, den, flagged);
                 if (hf->n_filled_texels > QUALITY_FILLED_DEGRADED * den)
                         reason(reasons, &v, IMP_VERDICT_DEGRADED, "%.0f %% of the canvas was filled from normals",
                                100.0 * hf->n_filled_texels / den);
@@ -1013,6 +1092,7 @@ static json_t *quality_json(const struct geometry_out *g, const char *refusal) {
                 if (hf->plane_view_deg > QUALITY_VIEW_DEGRADED)
                         reason(reasons, &v, IMP_VERDICT_DEGRADED, "canvas seen %.0f° off its normal",
                                hf->plane_view_deg);
+                appearance_reason(reasons, &v, btf, den);
                 if (n_mask < QUALITY_MIN_TEXELS)
                         reason(reasons, &v, IMP_VERDICT_DEGRADED, "only %zu canvas texels", n_mask);
         }
@@ -1033,7 +1113,7 @@ static int write_copy_json(const struct process_opts *o, const struct geometry_o
                 "pitch_mm", hf->pitch_mm, "nx", hf->nx, "ny", hf->ny, "canvas_to_world", m,
                 "provenance", "software", "impasto " IMPASTO_VERSION_STRING, "capture", o->capture,
                               "seconds", seconds, "peak_rss_kib", (json_int_t) ru.ru_maxrss,
-                "stages", stages, "quality", quality_json(g, refusal));
+                "stages", stages, "quality", quality_json(g, refusal, json_object_get(stages, "btf")));
         if (!j)
                 return imp_error_set(err, -ENOMEM, "copy.json: out of memory");
         if (o->incomplete)

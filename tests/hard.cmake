@@ -1,17 +1,21 @@
 # The hard-case suite (docs/hard-cases.md, docs/copy-quality.md): right, honestly
-# uncertain, or refused. The fast part: the deep and the oblique frame (geometry only) and
-# the refusals (invalid parameters at load, an implausible placement); the whole suite with
+# uncertain, or refused. The fast part: the deep and the oblique frame and the camera rolled
+# 37° (geometry only) and the refusals (invalid parameters at load, an implausible placement,
+# a defocused projector, whose reason must name the Gray code); the whole suite with
 # every stage under `slow` (`impasto bench hard` writes the table).
 impasto_test(test-hard-fast SOURCE unit/test-hard-suite.c LABELS stability TIMEOUT 900
-             ARGS --no-btf --plan hard-geometry deep-frame oblique-frame invalid-k0 invalid-rho
-                  invalid-dark-dome tilted-55!)
+             ARGS --no-btf --plan hard-geometry deep-frame oblique-frame rotated-37 invalid-k0 invalid-rho
+                  invalid-dark-dome tilted-55! defocus!Gray)
 # --all: every config/scenes/hard-*.cfg must be listed here.
 impasto_test(test-hard-suite LABELS stability slow TIMEOUT 3600
              ARGS --all ambient ambient-weak black-glossy dark-paint deep-frame deep-frame-8mm distortion dropped-frames
                   flush-frame flush-frame-pale grazing-dome high-gain hot-pixels interreflection
                   invalid-dark-dome invalid-dark-projector invalid-k0 invalid-rho oblique-deep oblique-frame
                   oblique-frame-35 oblique-shallow-30 one-light overexposed shallow-frame tilted-10 tilted-25
-                  tilted-55! tiny-coverage)
+                  tilted-55! tiny-coverage
+                  ambient-dark!projector defocus!Gray distortion-oblique featureless high-relief hot-rotated-37
+                  low-relief mirror-gloss off-centre overexposed-grazing rotated-90 rotated-180 rotated-37
+                  tilted-ambient)
 if(TARGET impasto)
   add_dependencies(test-hard-fast impasto)
   add_dependencies(test-hard-suite impasto)

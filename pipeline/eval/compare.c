@@ -5,6 +5,7 @@
 #include "image.h"
 #include "json-util.h"
 #include "numerics.h"
+#include "quality.h"
 #include "rig.h"
 
 #define CMP_FIXED_POINT_ITER 4
@@ -320,14 +321,27 @@ static double frame_texels(const struct imp_image *cimg, int cm, const struct tr
 }
 
 /* The honesty figures over the compared texels: d the height differences, sg per texel
- * (σ_h or −1 when flagged, σ_n or −1 when unknown, normal error in degrees). */
+ * (σ_h or −1 when flagged, σ_n or −1 when unknown, normal error in degrees, σ_h or −1
+ * when a height flag excuses it: HEIGHT_FLAGS). */
 #define CMP_NORMAL_BAD_DEG 10.0
+/* The flags that excuse a texel's height from its σ_h (docs/copy-quality.md): the others
+ * (normal_uncertain, photometric_rejected, fit_failed, ...) speak of its normal or its
+ * appearance, and its height must still lie within 3σ_h. */
+#define HEIGHT_FLAGS (IMP_TEXEL_SATURATED | IMP_TEXEL_FILLED | IMP_TEXEL_FRAME_ADJACENT | IMP_TEXEL_PHASE_REJECTED)
 static void honesty(struct imp_compare_result *res, const double *d, const float *sg, size_t n, double med,
                     bool has_sigma_n) {
-        size_t nu = 0, bh = 0, bn = 0, over = 0, sn_known = 0;
+        size_t nu = 0, bh = 0, bn = 0, over = 0, sn_known = 0, nh = 0, bhh = 0, na = 0, bna = 0;
         double mx = 0;
         for (size_t k = 0; k < n; k++) {
-                const float *q = sg + 3 * k;
+                const float *q = sg + 4 * k;
+                if (q[1] >= 0) {
+                        na++;
+                        bna += q[2] > 3 * q[1];
+                }
+                if (q[3] >= 0) {
+                        nh++;
+                        bhh += fabs(d[k] - med) > 3 * q[3];
+                }
                 if (q[0] < 0)
                         continue;
                 nu++;
@@ -345,6 +359,9 @@ static void honesty(struct imp_compare_result *res, const double *d, const float
         res->beyond_3sigma_normal = sn_known ? (double) bn / sn_known : has_sigma_n ? 0 : -1;
         res->unflagged_normal_err_deg_max = mx;
         res->unflagged_normal_over_10deg = over;
+        res->n_height_promised = nh;
+        res->beyond_3sigma_height_promised = nh ? (double) bhh / nh : 0;
+        res->beyond_3sigma_normal_all = na ? (double) bna / na : -1;
 }
 
 /* Height RMSE about the median offset, split by mask value, and the mean normal errors;
@@ -461,7 +478,7 @@ int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_com
         size_t n_tex = (size_t) cimg->width * cimg->height;
         _cleanup_free_ double *diff = malloc((n_tex ? n_tex : 1) * sizeof(double) * 2);
         _cleanup_free_ uint8_t *filled = malloc(n_tex ? n_tex : 1);
-        _cleanup_free_ float *tex_sig = malloc((n_tex ? n_tex : 1) * sizeof(float) * 3);
+        _cleanup_free_ float *tex_sig = malloc((n_tex ? n_tex : 1) * sizeof(float) * 4);
         double sum_ang_f = 0;
         if (!diff || !filled || !tex_sig)
                 return imp_error_set(err, -ENOMEM, "compare: out of memory");
@@ -494,11 +511,15 @@ int imp_compare_dirs(const char *copy_dir, const char *truth_dir, struct imp_com
                         double ang = acos(IMP_CLAMP(nw[0] * tn[0] + nw[1] * tn[1] + nw[2] * tn[2], -1.0, 1.0)) * 180.0 / M_PI;
                         sum_ang += ang;
                         sum_ang_f += filled[n - 1] ? ang : 0;
-                        /* σ_h, σ_n, angle; a flagged texel gets σ_h = −1 */
+                        /* σ_h, σ_n, angle, σ_h promised; a flagged texel gets σ_h = −1, one
+                         * with a height flag or filled σ_h promised = −1 */
                         bool flagged = cfl >= 0 && p[cfl] != 0;
-                        tex_sig[3 * (n - 1)] = flagged ? -1.0f : csig >= 0 ? p[csig] : 0.0f;
-                        tex_sig[3 * (n - 1) + 1] = csn >= 0 ? p[csn] : -1.0f;
-                        tex_sig[3 * (n - 1) + 2] = (float) ang;
+                        bool h_excused = filled[n - 1] || (cfl >= 0 && ((unsigned) p[cfl] & HEIGHT_FLAGS));
+                        float sh = csig >= 0 ? p[csig] : 0.0f;
+                        tex_sig[4 * (n - 1)] = flagged ? -1.0f : sh;
+                        tex_sig[4 * (n - 1) + 1] = csn >= 0 ? p[csn] : -1.0f;
+                        tex_sig[4 * (n - 1) + 2] = (float) ang;
+                        tex_sig[4 * (n - 1) + 3] = h_excused ? -1.0f : sh;
                         sum_ang_bl += acos(IMP_CLAMP(nw[0] * tb[0] + nw[1] * tb[1] + nw[2] * tb[2], -1.0, 1.0)) * 180.0 / M_PI;
                 }
         res.n_compared = n;
@@ -526,7 +547,7 @@ static json_t *figure_over(double v, size_t n) {
 json_t *imp_compare_result_to_json(const struct imp_compare_result *r) {
         /* mask_iou_observable and beyond_3sigma_normal are -1 when not measurable: null; the
          * figures of the filled and of the unflagged texels are null when there are none */
-        return json_pack("{s:f,s:f,s:f,s:f,s:f,s:f,s:o,s:I,s:I,s:I,s:o,s:o,s:f,s:f,s:f,s:f,s:I,s:o,s:o,s:o,s:I,s:f}",
+        return json_pack("{s:f,s:f,s:f,s:f,s:f,s:f,s:o,s:I,s:I,s:I,s:o,s:o,s:f,s:f,s:f,s:f,s:I,s:o,s:o,s:o,s:I,s:f,s:I,s:o,s:o}",
                          "height_rmse_um", r->height_rmse_um,
                          "height_offset_mm", r->height_offset_mm,
                          "height_max_abs_um", r->height_max_abs_um,
@@ -547,5 +568,9 @@ json_t *imp_compare_result_to_json(const struct imp_compare_result *r) {
                          "beyond_3sigma_normal", r->n_unflagged ? imp_json_figure(r->beyond_3sigma_normal) : json_null(),
                          "unflagged_normal_err_deg_max", figure_over(r->unflagged_normal_err_deg_max, r->n_unflagged),
                          "unflagged_normal_over_10deg", (json_int_t) r->unflagged_normal_over_10deg,
-                         "flagged_fraction", r->flagged_fraction);
+                         "flagged_fraction", r->flagged_fraction,
+                         "n_height_promised", (json_int_t) r->n_height_promised,
+                         "beyond_3sigma_height_promised",
+                         figure_over(r->beyond_3sigma_height_promised, r->n_height_promised),
+                         "beyond_3sigma_normal_all", imp_json_figure(r->beyond_3sigma_normal_all));
 }

@@ -62,6 +62,16 @@ struct imp_compare_result {
         double unflagged_normal_err_deg_max;
         size_t unflagged_normal_over_10deg;
         double flagged_fraction;
+        /* The heights promised: over the measured texels (mask 1) without a height flag
+         * (saturated, filled, frame_adjacent, phase_rejected), whatever their other flags
+         * (a normal_uncertain texel's height is still within its σ_h), the fraction whose
+         * height error (after the median offset) exceeds 3 σ_h (0 when there is none). */
+        size_t n_height_promised;
+        double beyond_3sigma_height_promised;
+        /* Over every compared texel with a σ_n, flagged or not: the fraction whose normal
+         * error exceeds 3 σ_n (−1 without sigma_n_deg): what σ_n says where no normal is
+         * promised. */
+        double beyond_3sigma_normal_all;
 };
 
 /* Reads COPY_DIR/{copy.json,heightfield.exr} and TRUTH_DIR/{truth.json,heightfield.exr}.

@@ -14,7 +14,8 @@ static const char *const flag_advice[IMP_TEXEL_FLAG_COUNT] = {
         "indirect light suspected: mask or darken what surrounds the canvas",
         "the paint does not follow the reflectance model there (gloss, translucency, varnish)",
         "no position measured, the shape integrated from normals",
-        "fewer light samples than the fit needs: more lights in the plan",
+        "fewer light samples than the fit needs (lights hidden by a deep frame or the relief, or too few "
+        "in the plan): more lights, at higher elevations",
         "next to the frame or the canvas edge",
         "the structured-light code is inconsistent: projector focus and exposure",
         "the BTF fit did not converge",
