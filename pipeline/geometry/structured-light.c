@@ -1020,8 +1020,9 @@ static __attribute__((noinline, CLONES)) void u8_axis_out(
  * first, p ≤ t_d ≤ t_g ≤ p̄, cannot hold, nor the second with p < p̄), and L_d > L_g (or
  * !robust: every bit classified) becomes t_d = 255, t_g = 0, which always hold. Unsigned
  * byte comparisons as min/max and equality (SSE2 has no unsigned compare); the bit p > p̄ as
- * min(p − min(p, p̄), 1). Instantiated for AVX2 (32 lanes) and SSE2 (16), chosen by the
- * CPU at run time (IMPASTO_SL_NO_CLONES: SSE2 alone). */
+ * min(p − min(p, p̄), 1). Instantiated for AVX-512BW (64 lanes), AVX2 (32) and SSE2 (16),
+ * chosen by the CPU at run time (IMPASTO_SL_NO_CLONES: SSE2 alone); integer operations
+ * only, so every width gives the same bytes. */
 #if defined(__x86_64__) && defined(__SSE2__) && defined(__GNUC__)
 #define U8_SIMD 1
 #include <immintrin.h>
@@ -1102,9 +1103,18 @@ DEFINE_U8_BLOCK(avx2, __attribute__((target("avx2"))), __m256i, 32, _mm256_loadu
                 _mm256_storeu_si256, _mm256_min_epu8, _mm256_max_epu8, _mm256_sub_epi8,
                 _mm256_subs_epu8, _mm256_add_epi8, _mm256_or_si256, _mm256_andnot_si256,
                 _mm256_cmpeq_epi8, _mm256_set1_epi8)
+/* AVX-512BW: 64 lanes; its byte compare gives a mask, made a vector again. */
+#define U8_AVX512 1
+static inline __attribute__((target("avx512bw"), always_inline)) __m512i cmpeq512(__m512i a, __m512i b) {
+        return _mm512_movm_epi8(_mm512_cmpeq_epi8_mask(a, b));
+}
+DEFINE_U8_BLOCK(avx512, __attribute__((target("avx512bw"))), __m512i, 64, _mm512_loadu_si512,
+                _mm512_storeu_si512, _mm512_min_epu8, _mm512_max_epu8, _mm512_sub_epi8,
+                _mm512_subs_epu8, _mm512_add_epi8, _mm512_or_si512, _mm512_andnot_si512,
+                cmpeq512, _mm512_set1_epi8)
 #endif
 
-/* The vector width in use and its kernels: AVX2 where the CPU has it. */
+/* The vector width in use and its kernels: AVX-512BW, else AVX2, where the CPU has it. */
 struct u8_kernels {
         int vw;
         void (*maxima)(const uint8_t *const *, int, int, uint8_t *, uint8_t *);
@@ -1115,6 +1125,10 @@ struct u8_kernels {
 };
 
 static struct u8_kernels u8_kernels(void) {
+#ifdef U8_AVX512
+        if (__builtin_cpu_supports("avx512bw"))
+                return (struct u8_kernels) { 64, u8_maxima_avx512, u8_axis_avx512 };
+#endif
 #ifdef U8_AVX2
         if (__builtin_cpu_supports("avx2"))
                 return (struct u8_kernels) { 32, u8_maxima_avx2, u8_axis_avx2 };
@@ -1122,6 +1136,62 @@ static struct u8_kernels u8_kernels(void) {
         return (struct u8_kernels) { 16, u8_maxima_sse2, u8_axis_sse2 };
 }
 #endif
+
+/* ---- row bands -----------------------------------------------------------------------
+ * A thread decodes rows in bands of BAND_ROWS and knows the band it decodes next (claimed
+ * when it starts the current one). While it decodes the current band, the next band's frame
+ * rows are prefetched frame by frame: chunk i of the next band (nframes × rows of them, one
+ * frame row each, frame-major) is frame i / rows, row i % rows, and row j of the current
+ * band prefetches its share of the chunks. The 40 Gray frames then arrive as a few frames'
+ * consecutive rows at a time instead of one row of each of 42 frames (the read pattern of
+ * a row-by-row decode, 42 interleaved streams). */
+#define BAND_ROWS 8
+
+struct band {
+        int next0, next_rows;   /* the thread's next band: first row, rows (0: none) */
+        int j, rows;            /* the row of the current band being decoded, of rows */
+};
+
+/* The frames a byte-lane row reads, in the order their chunks are prefetched: the Gray
+ * planes and their inverses (axis 0, then 1: the kernels' prefetch slots), white, black. */
+static int band_frames(const struct plan *pl, int *f) {
+        int n = 0;
+        for (int a = 0; a < 2; a++)
+                for (int k = 0; k < pl->ax[a].nbits; k++) {
+                        f[n++] = pl->ax[a].p[k];
+                        f[n++] = pl->ax[a].q[k];
+                }
+        f[n++] = pl->white;
+        f[n++] = pl->black;
+        return n;
+}
+
+/* Row j's share of the next band's chunks: the first ns into slot[] (row pointers, for the
+ * kernels to prefetch as they go; slots past the share repeat its last chunk), the rest
+ * prefetched here. Returns false when there is nothing to prefetch (no next band). */
+static bool band_slots(const struct ctx *c, const struct band *bd, const uint8_t **slot, int ns) {
+        if (!bd || !bd->next_rows)
+                return false;
+        const struct imp_image *const *im = c->in->images;
+        int f[4 * MAX_BITS + 2];
+        const int nf = band_frames(c->pl, f), total = nf * bd->next_rows;
+        const int i0 = (int) ((long) total * bd->j / bd->rows), i1 = (int) ((long) total * (bd->j + 1) / bd->rows);
+        if (i1 <= i0)
+                return false;
+        const size_t w = (size_t) c->pl->width;
+        for (int s = 0, i = i0; i < i1 || s < ns; i++) {
+                const int ii = IMP_MIN(i, i1 - 1);
+                const uint8_t *row = (const uint8_t *) imp_image_row(im[f[ii / bd->next_rows]],
+                                                                     bd->next0 + ii % bd->next_rows);
+                if (s < ns) {
+                        slot[s++] = row;
+                        continue;
+                }
+                for (size_t x = 0; x < w; x += 64)
+                        __builtin_prefetch(row + x);
+        }
+        return true;
+}
 
 /* L_max / L_min (mx, mn) over the frames giving them, and hi8 = white, for n pixels from x0:
  * the first nv (a multiple of the vector width) in explicit vectors. */
@@ -1151,20 +1221,23 @@ static void u8_block_maxima(const struct ctx *c, int y, int x0, int n, int nv, u
  * first nv in explicit vectors, the rest by gray_u8_plane. */
 static void u8_block_axis(const struct ctx *c, const struct axis_plan *ax, int y, int x0, int n, int nv,
                           const uint8_t *td8, const uint8_t *tg8, const uint8_t *tgok, const uint8_t *alw8,
-                          struct u8_lim lim, uint8_t (*g8)[IBLK], uint8_t *wk8, uint8_t *cm8, uint8_t *hi8) {
+                          struct u8_lim lim, const uint8_t *const *slot, uint8_t (*g8)[IBLK], uint8_t *wk8,
+                          uint8_t *cm8, uint8_t *hi8) {
         const struct imp_image *const *im = c->in->images;
 #ifdef U8_SIMD
         if (nv) {
-                /* the next row's lines are prefetched as the kernel goes (Pn, Qn) */
+                /* the next band's chunks (slot: 2 rows a plane, band_slots) are prefetched as
+                 * the kernel goes (Pn, Qn) */
                 const uint8_t *P[MAX_BITS], *Q[MAX_BITS], *Pn[MAX_BITS], *Qn[MAX_BITS];
-                const bool next = y + 1 < im[0]->height;
                 for (int k = 0; k < ax->nbits; k++) {
                         P[k] = (const uint8_t *) imp_image_row(im[ax->p[k]], y) + x0;
                         Q[k] = (const uint8_t *) imp_image_row(im[ax->q[k]], y) + x0;
-                        Pn[k] = next ? (const uint8_t *) imp_image_row(im[ax->p[k]], y + 1) + x0 : NULL;
-                        Qn[k] = next ? (const uint8_t *) imp_image_row(im[ax->q[k]], y + 1) + x0 : NULL;
+                        if (slot) {
+                                Pn[k] = slot[2 * k] + x0;
+                                Qn[k] = slot[2 * k + 1] + x0;
+                        }
                 }
-                u8_kernels().axis(P, Q, next ? Pn : NULL, next ? Qn : NULL, ax->nbits, nv, td8, tg8, tgok,
+                u8_kernels().axis(P, Q, slot ? Pn : NULL, slot ? Qn : NULL, ax->nbits, nv, td8, tg8, tgok,
                                   alw8, lim, g8[0], g8[1], wk8, cm8, hi8);
         }
         if (nv < n)
@@ -1336,9 +1409,12 @@ static bool u8_combines(const struct plan *pl) {
 /* counts NULL: the block's results into the combine step's rows (R_CODE, R_WEAK, R_CMIN, R_HI,
  * R_WHITE, R_BLACK); else (u8_combines) combined into o (row y's maps) and counts. */
 static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void gray_u8_row(
-                const struct ctx *c, int y, float **R, int w, const struct comb_out *o, size_t counts[8]) {
+                const struct ctx *c, int y, float **R, int w, const struct comb_out *o, size_t counts[8],
+                const struct band *bd) {
         const struct plan *pl = c->pl;
         const struct imp_image *const *im = c->in->images;
+        const uint8_t *slot[4 * MAX_BITS];
+        const bool pf = band_slots(c, bd, slot, 2 * (pl->ax[0].nbits + pl->ax[1].nbits));
         const struct u8_lim lim = u8_limits((int16_t) int_ceil_clamp((float) c->p->min_bit_contrast, 0, INT16_MAX),
                                             (int16_t) int_ceil_clamp(c->sat, -INT16_MAX, INT16_MAX));
         const float b = c->b, k1 = 1.0f / (1.0f - b), k2 = 2.0f / (1.0f - b * b);
@@ -1360,7 +1436,8 @@ static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void gray
                         const struct axis_plan *ax = &pl->ax[a];
                         if (!ax->nbits)
                                 continue;
-                        u8_block_axis(c, ax, y, x0, n, nv, td8, tg8, tgok, alw8, lim, g8, wk8[a], cm8[a], hi8);
+                        u8_block_axis(c, ax, y, x0, n, nv, td8, tg8, tgok, alw8, lim,
+                                      pf ? slot + (a ? 2 * pl->ax[0].nbits : 0) : NULL, g8, wk8[a], cm8[a], hi8);
                         u8_axis_code(n, ax->nbits, g8[0], g8[1], cd16[a]);
                         if (!counts)
                                 u8_axis_out(n, cd16[a], wk8[a], cm8[a], (uint32_t *) R[R_CODE0 + a] + x0,
@@ -1900,14 +1977,14 @@ static struct comb_out gray_row_out(const struct ctx *c, int y, float **R) {
                                    res->sigma_px + off, res->flags + off };
 }
 
-static void decode_row(const struct ctx *c, int y, float **R, size_t counts[8]) {
+static void decode_row(const struct ctx *c, int y, float **R, size_t counts[8], const struct band *bd) {
         const struct plan *pl = c->pl;
         const int w = pl->width;
         /* gray_u8_row's L_d, L_g are finite: the light maps as they are */
         const bool bytes = c->int_path == IMP_PIX_U8 && u8_row_applies(pl), comb = bytes && u8_combines(pl);
         if (bytes) {
                 const struct comb_out o = gray_row_out(c, y, R);
-                gray_u8_row(c, y, R, w, &o, comb ? counts : NULL);
+                gray_u8_row(c, y, R, w, &o, comb ? counts : NULL, bd);
         } else if (c->int_path == IMP_PIX_U8) {
                 gray_int_u8(c, y, R, w);
         } else if (c->int_path == IMP_PIX_U16) {
@@ -1999,7 +2076,8 @@ static void decode_pass(const struct ctx *c, int nthreads, float *scratch, size_
                         double st[4]) {
         size_t c0 = 0, c1 = 0, c2 = 0, c3 = 0, c4 = 0, c5 = 0, c6 = 0;
         double s0 = 0, s1 = 0, s2 = 0, s3 = 0;
-        int height = c->pl->height;
+        const int height = c->pl->height, nbands = (height + BAND_ROWS - 1) / BAND_ROWS;
+        int claimed = 0;
 #pragma omp parallel num_threads(nthreads) reduction(+ : c0, c1, c2, c3, c4, c5, c6, s0, s1, s2, s3)
         {
                 int t = 0;
@@ -2009,16 +2087,28 @@ static void decode_pass(const struct ctx *c, int nthreads, float *scratch, size_
                 float *R[R_NROWS];
                 for (int i = 0; i < R_NROWS; i++)
                         R[i] = scratch + ((size_t) t * R_NROWS + i) * wpad;
-#pragma omp for schedule(dynamic, 8) nowait
-                for (int y = 0; y < height; y++) {
-                        size_t cnt[8] = { 0 };
-                        decode_row(c, y, R, cnt);
-                        c0 += cnt[0]; c1 += cnt[1]; c2 += cnt[2]; c3 += cnt[3];
-                        c4 += cnt[4]; c5 += cnt[5]; c6 += cnt[6];
-                        if (st) {
-                                double row[4] = { 0 };
-                                phase_stats_row(c, y, R, row);
-                                s0 += row[0]; s1 += row[1]; s2 += row[2]; s3 += row[3];
+                /* bands claimed one ahead: the next one is prefetched during the current */
+                int next;
+#pragma omp atomic capture
+                next = claimed++;
+                while (next < nbands) {
+                        const int cur = next;
+#pragma omp atomic capture
+                        next = claimed++;
+                        struct band bd = { .next0 = next * BAND_ROWS,
+                                           .next_rows = next < nbands ? IMP_MIN(BAND_ROWS, height - next * BAND_ROWS) : 0,
+                                           .rows = IMP_MIN(BAND_ROWS, height - cur * BAND_ROWS) };
+                        for (bd.j = 0; bd.j < bd.rows; bd.j++) {
+                                const int y = cur * BAND_ROWS + bd.j;
+                                size_t cnt[8] = { 0 };
+                                decode_row(c, y, R, cnt, &bd);
+                                c0 += cnt[0]; c1 += cnt[1]; c2 += cnt[2]; c3 += cnt[3];
+                                c4 += cnt[4]; c5 += cnt[5]; c6 += cnt[6];
+                                if (st) {
+                                        double row[4] = { 0 };
+                                        phase_stats_row(c, y, R, row);
+                                        s0 += row[0]; s1 += row[1]; s2 += row[2]; s3 += row[3];
+                                }
                         }
                 }
 #if defined(__SSE2__)
