@@ -1283,102 +1283,118 @@ struct comb_out {
 #define LD8(p) ((v8i) { (p)[0], (p)[1], (p)[2], (p)[3], (p)[4], (p)[5], (p)[6], (p)[7] })
 #define BIT8(m, f) ((m) & (int32_t) (f))
 
-/* Pixels [x, x + 8); cnt: −(count) per lane (masks are −1), in the order of counts[]. */
-static inline __attribute__((always_inline)) void comb8(const struct comb_in *in, const struct comb_k *k,
-                                                         int x, const struct comb_out *o, v8i cnt[6]) {
-        const v8f zero = { 0 }, one = zero + 1.0f;
-        v8f ld;
-        memcpy(&ld, in->ld + x, sizeof ld);
-        const v8i shadow = (LD8(in->w + x) - LD8(in->b + x) <= k->thr) | ((ld < k->minc_d) & k->robust);
-        const v8f span = ld * k->ob;
-        const v8f sd = SEL8(span > zero, span, zero + INFINITY);
-        v8i ok[2], und[2], wb[2], oor[2];
-        v8f ca[2], pos[2], sg[2];
-#pragma GCC unroll 2
-        for (int a = 0; a < 2; a++) {
-                const v8i wk = LD8(in->wk[a] + x), cd = LD8(in->cd[a] + x);
-                und[a] = wk > GRAY_WEAK_ALLOWED;
-                wb[a] = wk == 1;
-                oor[a] = cd >= k->ext[a];
-                ok[a] = ~(shadow | und[a] | oor[a]);
-                const v8f v = __builtin_convertvector(LD8(in->cm[a] + x), v8f) / sd;
-                const v8f t = SEL8(v > zero, v, zero);
-                ca[a] = SEL8(wb[a], zero + 0.5f, one) * SEL8(t < one, t, one);
-                pos[a] = SEL8(ok[a], (__builtin_convertvector(cd, v8f) + 0.5f) * k->q[a],
-                              zero + IMP_SL_INVALID_COORD);
-                sg[a] = SEL8(ok[a], SEL8(wb[a], zero + k->sw[a], zero + k->ss[a]), zero);
-        }
-        v8f conf = SEL8(ok[0], SEL8(one < ca[0], one, ca[0]), one);
-        conf = SEL8(ok[1], SEL8(conf < ca[1], conf, ca[1]), conf);
-        conf = SEL8(ok[0] | ok[1], conf, zero);
-        const v8f os = SEL8(sg[0] > sg[1], sg[0], sg[1]);
-        const v8i sat = LD8(in->hi + x) >= k->sat;
-        const v8i f = BIT8(shadow, IMP_SL_SHADOW) | BIT8(sat, IMP_SL_SATURATED) |
-                      BIT8(und[0] | und[1], IMP_SL_UNDECODABLE) | BIT8(wb[0] | wb[1], IMP_SL_WEAK_BIT) |
-                      BIT8(oor[0] | oor[1], IMP_SL_OUT_OF_RANGE) | BIT8(ok[0], IMP_SL_VALID_X) |
-                      BIT8(ok[1], IMP_SL_VALID_Y) |
-                      BIT8((ok[0] & k->rej[0]) | (ok[1] & k->rej[1]), IMP_SL_PHASE_REJECTED);
-        const v8s f16 = __builtin_convertvector(f, v8s);
-        memcpy(o->ox + x, &pos[0], sizeof pos[0]);
-        memcpy(o->oy + x, &pos[1], sizeof pos[1]);
-        memcpy(o->oc + x, &conf, sizeof conf);
-        memcpy(o->os + x, &os, sizeof os);
-        memcpy(o->of + x, &f16, sizeof f16);
-        cnt[0] += ok[0];
-        cnt[1] += ok[1];
-        cnt[2] += ok[0] & ok[1];
-        cnt[3] += shadow;
-        cnt[4] += sat;
-        cnt[5] += wb[0] | wb[1];
-}
+/* The combine step N pixels a step in GCC's generic vectors VF, VI (N floats, int32) and VS (N
+ * uint16): comb##SFX and combine_u8_block##SFX, built with ATTR. Every operation lane by
+ * lane, so every width gives the same values. */
+#define DEFINE_COMB(SFX, ATTR, IATTR, N, VF, VI, VS, LD, SEL) \
+/* Pixels [x, x + N); cnt: −(count) per lane (masks are −1), in the order of counts[]. */                \
+static inline __attribute__((always_inline)) IATTR void comb##SFX(const struct comb_in *in, const struct comb_k *k, \
+                                                         int x, const struct comb_out *o, VI cnt[6]) {   \
+        const VF zero = { 0 }, one = zero + 1.0f;                                                        \
+        VF ld;                                                                                           \
+        memcpy(&ld, in->ld + x, sizeof ld);                                                              \
+        const VI shadow = (LD(in->w + x) - LD(in->b + x) <= k->thr) | ((ld < k->minc_d) & k->robust);    \
+        const VF span = ld * k->ob;                                                                      \
+        const VF sd = SEL(span > zero, span, zero + INFINITY);                                           \
+        VI ok[2], und[2], wb[2], oor[2];                                                                 \
+        VF ca[2], pos[2], sg[2];                                                                         \
+_Pragma("GCC unroll 2")                                                                                     \
+        for (int a = 0; a < 2; a++) {                                                                    \
+                const VI wk = LD(in->wk[a] + x), cd = LD(in->cd[a] + x);                                 \
+                und[a] = wk > GRAY_WEAK_ALLOWED;                                                         \
+                wb[a] = wk == 1;                                                                         \
+                oor[a] = cd >= k->ext[a];                                                                \
+                ok[a] = ~(shadow | und[a] | oor[a]);                                                     \
+                const VF v = __builtin_convertvector(LD(in->cm[a] + x), VF) / sd;                        \
+                const VF t = SEL(v > zero, v, zero);                                                     \
+                ca[a] = SEL(wb[a], zero + 0.5f, one) * SEL(t < one, t, one);                             \
+                pos[a] = SEL(ok[a], (__builtin_convertvector(cd, VF) + 0.5f) * k->q[a],                  \
+                              zero + IMP_SL_INVALID_COORD);                                              \
+                sg[a] = SEL(ok[a], SEL(wb[a], zero + k->sw[a], zero + k->ss[a]), zero);                  \
+        }                                                                                                \
+        VF conf = SEL(ok[0], SEL(one < ca[0], one, ca[0]), one);                                         \
+        conf = SEL(ok[1], SEL(conf < ca[1], conf, ca[1]), conf);                                         \
+        conf = SEL(ok[0] | ok[1], conf, zero);                                                           \
+        const VF os = SEL(sg[0] > sg[1], sg[0], sg[1]);                                                  \
+        const VI sat = LD(in->hi + x) >= k->sat;                                                         \
+        const VI f = BIT8(shadow, IMP_SL_SHADOW) | BIT8(sat, IMP_SL_SATURATED) |                         \
+                      BIT8(und[0] | und[1], IMP_SL_UNDECODABLE) | BIT8(wb[0] | wb[1], IMP_SL_WEAK_BIT) | \
+                      BIT8(oor[0] | oor[1], IMP_SL_OUT_OF_RANGE) | BIT8(ok[0], IMP_SL_VALID_X) |         \
+                      BIT8(ok[1], IMP_SL_VALID_Y) |                                                      \
+                      BIT8((ok[0] & k->rej[0]) | (ok[1] & k->rej[1]), IMP_SL_PHASE_REJECTED);            \
+        const VS f16 = __builtin_convertvector(f, VS);                                                   \
+        memcpy(o->ox + x, &pos[0], sizeof pos[0]);                                                       \
+        memcpy(o->oy + x, &pos[1], sizeof pos[1]);                                                       \
+        memcpy(o->oc + x, &conf, sizeof conf);                                                           \
+        memcpy(o->os + x, &os, sizeof os);                                                               \
+        memcpy(o->of + x, &f16, sizeof f16);                                                             \
+        cnt[0] += ok[0];                                                                                 \
+        cnt[1] += ok[1];                                                                                 \
+        cnt[2] += ok[0] & ok[1];                                                                         \
+        cnt[3] += shadow;                                                                                \
+        cnt[4] += sat;                                                                                   \
+        cnt[5] += wb[0] | wb[1];                                                                         \
+}                                                                                                        \
+                                                                                                         \
+/* Pixels [0, n) of a block; the last n % N through zero-padded copies of their inputs. */               \
+static __attribute__((noinline, optimize("no-trapping-math"))) ATTR void combine_u8_block##SFX(          \
+                const struct comb_in *inp, const struct comb_k *kp, int n, const struct comb_out *op,    \
+                size_t counts[8]) {                                                                      \
+        /* local copies: gcc then keeps the pointers and constants in registers instead of               \
+         * reloading them after every store */                                                           \
+        const struct comb_in lin = *inp, *in = &lin;                                                     \
+        const struct comb_k lk = *kp, *k = &lk;                                                          \
+        const struct comb_out lo = *op, *o = &lo;                                                        \
+        VI cnt[6] = { { 0 } };                                                                           \
+        int x = 0;                                                                                       \
+        for (; x + N <= n; x += N)                                                                       \
+                comb##SFX(in, k, x, o, cnt);                                                             \
+        if (x < n) {                                                                                     \
+                const size_t m = (size_t) (n - x);                                                       \
+                uint8_t bw[N] = { 0 }, bb[N] = { 0 }, bh[N] = { 0 }, bc[2][N] = { { 0 } }, bk[2][N] = { { 0 } }; \
+                uint16_t bd[2][N] = { { 0 } }, tf[N];                                                    \
+                float bl[N] = { 0 }, tx[N], ty[N], tc[N], ts[N];                                         \
+                memcpy(bw, in->w + x, m);                                                                \
+                memcpy(bb, in->b + x, m);                                                                \
+                memcpy(bh, in->hi + x, m);                                                               \
+                memcpy(bl, in->ld + x, m * sizeof *bl);                                                  \
+                for (int a = 0; a < 2; a++) {                                                            \
+                        memcpy(bc[a], in->cm[a] + x, m);                                                 \
+                        memcpy(bk[a], in->wk[a] + x, m);                                                 \
+                        memcpy(bd[a], in->cd[a] + x, m * sizeof **bd);                                   \
+                }                                                                                        \
+                const struct comb_in t = { bw, bb, bh, { bc[0], bc[1] }, { bk[0], bk[1] }, { bd[0], bd[1] }, bl }; \
+                const struct comb_out to = { tx, ty, tc, ts, tf };                                       \
+                VI tcnt[6] = { { 0 } };                                                                  \
+                comb##SFX(&t, k, 0, &to, tcnt);                                                          \
+                memcpy(o->ox + x, tx, m * sizeof *tx);                                                   \
+                memcpy(o->oy + x, ty, m * sizeof *ty);                                                   \
+                memcpy(o->oc + x, tc, m * sizeof *tc);                                                   \
+                memcpy(o->os + x, ts, m * sizeof *ts);                                                   \
+                memcpy(o->of + x, tf, m * sizeof *tf);                                                   \
+                for (int i = 0; i < 6; i++)     /* only the m lanes that are pixels */                   \
+                        for (size_t l = 0; l < m; l++)                                                   \
+                                cnt[i][l] += tcnt[i][l];                                                 \
+        }                                                                                                \
+        for (int i = 0; i < 6; i++) {                                                                    \
+                int32_t s = 0;                                                                           \
+                for (int l = 0; l < N; l++)                                                              \
+                        s -= cnt[i][l];                                                                  \
+                counts[i] += (size_t) s;                                                                 \
+        }                                                                                                \
+}                                                                                                       
 
-/* Pixels [0, n) of a block; the last n % 8 through zero-padded copies of their inputs. */
-static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void combine_u8_block(
-                const struct comb_in *inp, const struct comb_k *kp, int n, const struct comb_out *op,
-                size_t counts[8]) {
-        /* local copies: gcc then keeps the pointers and constants in registers instead of
-         * reloading them after every store */
-        const struct comb_in lin = *inp, *in = &lin;
-        const struct comb_k lk = *kp, *k = &lk;
-        const struct comb_out lo = *op, *o = &lo;
-        v8i cnt[6] = { { 0 } };
-        int x = 0;
-        for (; x + 8 <= n; x += 8)
-                comb8(in, k, x, o, cnt);
-        if (x < n) {
-                const size_t m = (size_t) (n - x);
-                uint8_t bw[8] = { 0 }, bb[8] = { 0 }, bh[8] = { 0 }, bc[2][8] = { { 0 } }, bk[2][8] = { { 0 } };
-                uint16_t bd[2][8] = { { 0 } }, tf[8];
-                float bl[8] = { 0 }, tx[8], ty[8], tc[8], ts[8];
-                memcpy(bw, in->w + x, m);
-                memcpy(bb, in->b + x, m);
-                memcpy(bh, in->hi + x, m);
-                memcpy(bl, in->ld + x, m * sizeof *bl);
-                for (int a = 0; a < 2; a++) {
-                        memcpy(bc[a], in->cm[a] + x, m);
-                        memcpy(bk[a], in->wk[a] + x, m);
-                        memcpy(bd[a], in->cd[a] + x, m * sizeof **bd);
-                }
-                const struct comb_in t = { bw, bb, bh, { bc[0], bc[1] }, { bk[0], bk[1] }, { bd[0], bd[1] }, bl };
-                const struct comb_out to = { tx, ty, tc, ts, tf };
-                v8i tcnt[6] = { { 0 } };
-                comb8(&t, k, 0, &to, tcnt);
-                memcpy(o->ox + x, tx, m * sizeof *tx);
-                memcpy(o->oy + x, ty, m * sizeof *ty);
-                memcpy(o->oc + x, tc, m * sizeof *tc);
-                memcpy(o->os + x, ts, m * sizeof *ts);
-                memcpy(o->of + x, tf, m * sizeof *tf);
-                for (int i = 0; i < 6; i++)     /* only the m lanes that are pixels */
-                        for (size_t l = 0; l < m; l++)
-                                cnt[i][l] += tcnt[i][l];
-        }
-        for (int i = 0; i < 6; i++) {
-                int32_t s = 0;
-                for (int l = 0; l < 8; l++)
-                        s -= cnt[i][l];
-                counts[i] += (size_t) s;
-        }
-}
+DEFINE_COMB(_v8, __attribute__((CLONES)), , 8, v8f, v8i, v8s, LD8, SEL8)
+#ifdef U8_AVX512
+/* AVX-512 (not FMA: no contraction): 16 pixels a step */
+typedef float v16f __attribute__((vector_size(64)));
+typedef int32_t v16i __attribute__((vector_size(64)));
+typedef uint16_t v16s __attribute__((vector_size(32)));
+#define LD16(p) ((v16i) { (p)[0], (p)[1], (p)[2], (p)[3], (p)[4], (p)[5], (p)[6], (p)[7], (p)[8], (p)[9], \
+                          (p)[10], (p)[11], (p)[12], (p)[13], (p)[14], (p)[15] })
+#define SEL16(m, a, b) ((v16f) (((v16i) (a) & (m)) | ((v16i) (b) & ~(m))))
+DEFINE_COMB(_v16, __attribute__((target("avx512bw"))), __attribute__((target("avx512bw"))), 16, v16f, v16i, v16s, LD16, SEL16)
+#endif
 
 /* The constants of combine_u8_block for this decode. */
 static struct comb_k comb_constants(const struct ctx *c) {
@@ -1449,7 +1465,12 @@ static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void gray
                         const struct comb_in in = { wr, br, hi8, { cm8[0], cm8[1] }, { wk8[0], wk8[1] },
                                                     { cd16[0], cd16[1] }, R[R_LD] + x0 };
                         const struct comb_out ob = { o->ox + x0, o->oy + x0, o->oc + x0, o->os + x0, o->of + x0 };
-                        combine_u8_block(&in, &ck, n, &ob, counts);
+#ifdef U8_AVX512
+                        if (vw == 64)
+                                combine_u8_block_v16(&in, &ck, n, &ob, counts);
+                        else
+#endif
+                                combine_u8_block_v8(&in, &ck, n, &ob, counts);
                         continue;
                 }
                 float *restrict hr = R[R_HI] + x0, *restrict wf = R[R_WHITE] + x0, *restrict bf = R[R_BLACK] + x0;
