@@ -916,58 +916,64 @@ typedef int32_t v8i __attribute__((vector_size(32)));
 /* m ? a : b lane by lane, m a comparison's −1 / 0 (a macro: a 32-byte vector argument
  * would change the ABI of the SSE2 clone) */
 #define SEL8(m, a, b) ((v8f) (((v8i) (a) & (m)) | ((v8i) (b) & ~(m))))
+/* 8 bytes as int lanes, element by element (see thr##SFX) */
+#define LD8(p) ((v8i) { (p)[0], (p)[1], (p)[2], (p)[3], (p)[4], (p)[5], (p)[6], (p)[7] })
 
-static inline __attribute__((always_inline)) void thr8(
-                const uint8_t *mx, const uint8_t *mn, float k1, float k2, float b, uint8_t always,
-                float *ld, float *lg, int32_t *ti, int32_t *gi, int32_t *ai) {
-        /* Bytes → int lanes element by element: gcc 12 turns this into one pmovzxbd (AVX2) or
-         * two unpacks, but converts a loaded 8-byte vector (v8b) lane by lane in scalar code. */
-        const v8i ix = { mx[0], mx[1], mx[2], mx[3], mx[4], mx[5], mx[6], mx[7] };
-        const v8i in = { mn[0], mn[1], mn[2], mn[3], mn[4], mn[5], mn[6], mn[7] };
-        const v8f lmax = __builtin_convertvector(ix, v8f), lmin = __builtin_convertvector(in, v8f);
-        const v8f zero = { 0 }, c255 = zero + 255.0f, c256 = zero + 256.0f;
-        v8f d = (zero + k1) * (lmax - lmin), e = (zero + k2) * (lmin - (zero + b) * lmax);
-        d = SEL8(d > zero, d, zero);
-        e = SEL8(e > zero, e, zero);
-        memcpy(ld, &d, sizeof d);
-        memcpy(lg, &e, sizeof e);
-        const v8f dc = SEL8(d < c255, d, c255), ec = SEL8(e < c256, e, c256);
-        const v8i s = __builtin_convertvector(dc, v8i), t = __builtin_convertvector(ec, v8i);
-        /* comparisons give −1 where true: s − [s > dc], t + [t < ec] */
-        const v8i tiv = s + (__builtin_convertvector(s, v8f) > dc);
-        const v8i giv = t - (__builtin_convertvector(t, v8f) < ec);
-        const v8i aiv = ((d > e) & 1) | (int32_t) always;
-        memcpy(ti, &tiv, sizeof tiv);
-        memcpy(gi, &giv, sizeof giv);
-        memcpy(ai, &aiv, sizeof aiv);
-}
+/* thr##SFX and u8_thresholds##SFX, N lanes (VF, VI; LD: N bytes as int lanes), built with ATTR
+ * (IATTR: the inlined helper's). */
+#define DEFINE_THR(SFX, ATTR, IATTR, N, VF, VI, LD, SEL) \
+static inline __attribute__((always_inline)) IATTR void thr##SFX(                                        \
+                const uint8_t *mx, const uint8_t *mn, float k1, float k2, float b, uint8_t always,       \
+                float *ld, float *lg, int32_t *ti, int32_t *gi, int32_t *ai) {                           \
+        /* Bytes → int lanes element by element: gcc 12 turns this into one pmovzxbd (AVX2) or           \
+         * two unpacks, but converts a loaded 8-byte vector (v8b) lane by lane in scalar code. */        \
+        const VI ix = LD(mx), in = LD(mn);                                                               \
+        const VF lmax = __builtin_convertvector(ix, VF), lmin = __builtin_convertvector(in, VF);         \
+        const VF zero = { 0 }, c255 = zero + 255.0f, c256 = zero + 256.0f;                               \
+        VF d = (zero + k1) * (lmax - lmin), e = (zero + k2) * (lmin - (zero + b) * lmax);                \
+        d = SEL(d > zero, d, zero);                                                                      \
+        e = SEL(e > zero, e, zero);                                                                      \
+        memcpy(ld, &d, sizeof d);                                                                        \
+        memcpy(lg, &e, sizeof e);                                                                        \
+        const VF dc = SEL(d < c255, d, c255), ec = SEL(e < c256, e, c256);                               \
+        const VI s = __builtin_convertvector(dc, VI), t = __builtin_convertvector(ec, VI);               \
+        /* comparisons give −1 where true: s − [s > dc], t + [t < ec] */                                 \
+        const VI tiv = s + (__builtin_convertvector(s, VF) > dc);                                        \
+        const VI giv = t - (__builtin_convertvector(t, VF) < ec);                                        \
+        const VI aiv = ((d > e) & 1) | (int32_t) always;                                                 \
+        memcpy(ti, &tiv, sizeof tiv);                                                                    \
+        memcpy(gi, &giv, sizeof giv);                                                                    \
+        memcpy(ai, &aiv, sizeof aiv);                                                                    \
+}                                                                                                        \
+                                                                                                         \
+static __attribute__((noinline)) ATTR void u8_thresholds##SFX(                                           \
+                int n, const uint8_t *restrict mx, const uint8_t *restrict mn, float k1, float k2,       \
+                float b, uint8_t always, float *restrict ld, float *restrict lg, uint8_t *restrict td8,  \
+                uint8_t *restrict tg8, uint8_t *restrict tgok, uint8_t *restrict alw8) {                 \
+        /* in 32-bit lanes first: float → byte conversions in one loop stay scalar in gcc 12 */          \
+        int32_t ti[IBLK + N], gi[IBLK + N], ai[IBLK + N];     /* + the tail's padding lanes */           \
+        int x = 0;                                                                                       \
+        for (; x + N <= n; x += N)                                                                       \
+                thr##SFX(mx + x, mn + x, k1, k2, b, always, ld + x, lg + x, ti + x, gi + x, ai + x);     \
+        if (x < n) {            /* the tail through zero-padded lanes */                                 \
+                uint8_t px[N] = { 0 }, pn[N] = { 0 };                                                    \
+                float pd[N], pg[N];                                                                      \
+                memcpy(px, mx + x, (size_t) (n - x));                                                    \
+                memcpy(pn, mn + x, (size_t) (n - x));                                                    \
+                thr##SFX(px, pn, k1, k2, b, always, pd, pg, ti + x, gi + x, ai + x);                     \
+                memcpy(ld + x, pd, (size_t) (n - x) * sizeof *pd);                                       \
+                memcpy(lg + x, pg, (size_t) (n - x) * sizeof *pg);                                       \
+        }                                                                                                \
+        SIMD                                                                                             \
+        for (x = 0; x < n; x++) {                                                                        \
+                td8[x] = (uint8_t) ti[x];                                                                \
+                tg8[x] = (uint8_t) (gi[x] > 255 ? 255 : gi[x]);                                          \
+                tgok[x] = gi[x] <= 255;                                                                  \
+                alw8[x] = (uint8_t) ai[x];                                                               \
+        }                                                                                                \
+}                                                                                                       
 
-static __attribute__((noinline, CLONES)) void u8_thresholds(
-                int n, const uint8_t *restrict mx, const uint8_t *restrict mn, float k1, float k2,
-                float b, uint8_t always, float *restrict ld, float *restrict lg, uint8_t *restrict td8,
-                uint8_t *restrict tg8, uint8_t *restrict tgok, uint8_t *restrict alw8) {
-        /* in 32-bit lanes first: float → byte conversions in one loop stay scalar in gcc 12 */
-        int32_t ti[IBLK + 8], gi[IBLK + 8], ai[IBLK + 8];     /* + the tail's padding lanes */
-        int x = 0;
-        for (; x + 8 <= n; x += 8)
-                thr8(mx + x, mn + x, k1, k2, b, always, ld + x, lg + x, ti + x, gi + x, ai + x);
-        if (x < n) {            /* the tail through zero-padded lanes */
-                uint8_t px[8] = { 0 }, pn[8] = { 0 };
-                float pd[8], pg[8];
-                memcpy(px, mx + x, (size_t) (n - x));
-                memcpy(pn, mn + x, (size_t) (n - x));
-                thr8(px, pn, k1, k2, b, always, pd, pg, ti + x, gi + x, ai + x);
-                memcpy(ld + x, pd, (size_t) (n - x) * sizeof *pd);
-                memcpy(lg + x, pg, (size_t) (n - x) * sizeof *pg);
-        }
-        SIMD
-        for (x = 0; x < n; x++) {
-                td8[x] = (uint8_t) ti[x];
-                tg8[x] = (uint8_t) (gi[x] > 255 ? 255 : gi[x]);
-                tgok[x] = gi[x] <= 255;
-                alw8[x] = (uint8_t) ai[x];
-        }
-}
+DEFINE_THR(_v8, __attribute__((CLONES)), , 8, v8f, v8i, LD8, SEL8)
 
 /* Axis a's block code: Gray → binary on the 16-bit code (g ^ g>>1 ^ g>>2 …), planes 0–7 in
  * g0, 8–15 in g1. This loop and u8_thresholds are functions of their own: inlined into the
@@ -1280,7 +1286,6 @@ struct comb_out {
         uint16_t *of;
 };
 
-#define LD8(p) ((v8i) { (p)[0], (p)[1], (p)[2], (p)[3], (p)[4], (p)[5], (p)[6], (p)[7] })
 #define BIT8(m, f) ((m) & (int32_t) (f))
 
 /* The combine step N pixels a step in GCC's generic vectors VF, VI (N floats, int32) and VS (N
@@ -1386,14 +1391,17 @@ static __attribute__((noinline, optimize("no-trapping-math"))) ATTR void combine
 
 DEFINE_COMB(_v8, __attribute__((CLONES)), , 8, v8f, v8i, v8s, LD8, SEL8)
 #ifdef U8_AVX512
-/* AVX-512 (not FMA: no contraction): 16 pixels a step */
+/* AVX-512: 16 pixels a step. Its target brings FMA, and gcc contracts a·b + c by default:
+ * fp-contract=off keeps every product and sum rounded on its own, as in the other widths. */
+#define AVX512_ATTR __attribute__((target("avx512bw"), optimize("fp-contract=off")))
 typedef float v16f __attribute__((vector_size(64)));
 typedef int32_t v16i __attribute__((vector_size(64)));
 typedef uint16_t v16s __attribute__((vector_size(32)));
 #define LD16(p) ((v16i) { (p)[0], (p)[1], (p)[2], (p)[3], (p)[4], (p)[5], (p)[6], (p)[7], (p)[8], (p)[9], \
                           (p)[10], (p)[11], (p)[12], (p)[13], (p)[14], (p)[15] })
 #define SEL16(m, a, b) ((v16f) (((v16i) (a) & (m)) | ((v16i) (b) & ~(m))))
-DEFINE_COMB(_v16, __attribute__((target("avx512bw"))), __attribute__((target("avx512bw"))), 16, v16f, v16i, v16s, LD16, SEL16)
+DEFINE_COMB(_v16, AVX512_ATTR, AVX512_ATTR, 16, v16f, v16i, v16s, LD16, SEL16)
+DEFINE_THR(_v16, AVX512_ATTR, AVX512_ATTR, 16, v16f, v16i, LD16, SEL16)
 #endif
 
 /* The constants of combine_u8_block for this decode. */
@@ -1447,7 +1455,14 @@ static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void gray
                 uint8_t g8[2][IBLK], wk8[2][IBLK], cm8[2][IBLK];
                 uint16_t cd16[2][IBLK];
                 u8_block_maxima(c, y, x0, n, nv, mx, mn, hi8);
-                u8_thresholds(n, mx, mn, k1, k2, b, always, R[R_LD] + x0, R[R_LG] + x0, td8, tg8, tgok, alw8);
+#ifdef U8_AVX512
+                if (vw == 64)
+                        u8_thresholds_v16(n, mx, mn, k1, k2, b, always, R[R_LD] + x0, R[R_LG] + x0, td8, tg8, tgok,
+                                          alw8);
+                else
+#endif
+                        u8_thresholds_v8(n, mx, mn, k1, k2, b, always, R[R_LD] + x0, R[R_LG] + x0, td8, tg8, tgok,
+                                         alw8);
                 for (int a = 0; a < 2; a++) {
                         const struct axis_plan *ax = &pl->ax[a];
                         if (!ax->nbits)
