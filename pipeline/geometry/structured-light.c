@@ -971,7 +971,7 @@ static __attribute__((noinline)) ATTR void u8_thresholds##SFX(                  
                 tgok[x] = gi[x] <= 255;                                                                  \
                 alw8[x] = (uint8_t) ai[x];                                                               \
         }                                                                                                \
-}                                                                                                       
+}
 
 DEFINE_THR(_v8, __attribute__((CLONES)), , 8, v8f, v8i, LD8, SEL8)
 
@@ -1387,7 +1387,7 @@ static __attribute__((noinline, optimize("no-trapping-math"))) ATTR void combine
                         s -= cnt[i][l];                                                                  \
                 counts[i] += (size_t) s;                                                                 \
         }                                                                                                \
-}                                                                                                       
+}
 
 DEFINE_COMB(_v8, __attribute__((CLONES)), , 8, v8f, v8i, v8s, LD8, SEL8)
 #ifdef U8_AVX512
