@@ -916,58 +916,64 @@ typedef int32_t v8i __attribute__((vector_size(32)));
 /* m ? a : b lane by lane, m a comparison's −1 / 0 (a macro: a 32-byte vector argument
  * would change the ABI of the SSE2 clone) */
 #define SEL8(m, a, b) ((v8f) (((v8i) (a) & (m)) | ((v8i) (b) & ~(m))))
+/* 8 bytes as int lanes, element by element (see thr##SFX) */
+#define LD8(p) ((v8i) { (p)[0], (p)[1], (p)[2], (p)[3], (p)[4], (p)[5], (p)[6], (p)[7] })
 
-static inline __attribute__((always_inline)) void thr8(
-                const uint8_t *mx, const uint8_t *mn, float k1, float k2, float b, uint8_t always,
-                float *ld, float *lg, int32_t *ti, int32_t *gi, int32_t *ai) {
-        /* Bytes → int lanes element by element: gcc 12 turns this into one pmovzxbd (AVX2) or
-         * two unpacks, but converts a loaded 8-byte vector (v8b) lane by lane in scalar code. */
-        const v8i ix = { mx[0], mx[1], mx[2], mx[3], mx[4], mx[5], mx[6], mx[7] };
-        const v8i in = { mn[0], mn[1], mn[2], mn[3], mn[4], mn[5], mn[6], mn[7] };
-        const v8f lmax = __builtin_convertvector(ix, v8f), lmin = __builtin_convertvector(in, v8f);
-        const v8f zero = { 0 }, c255 = zero + 255.0f, c256 = zero + 256.0f;
-        v8f d = (zero + k1) * (lmax - lmin), e = (zero + k2) * (lmin - (zero + b) * lmax);
-        d = SEL8(d > zero, d, zero);
-        e = SEL8(e > zero, e, zero);
-        memcpy(ld, &d, sizeof d);
-        memcpy(lg, &e, sizeof e);
-        const v8f dc = SEL8(d < c255, d, c255), ec = SEL8(e < c256, e, c256);
-        const v8i s = __builtin_convertvector(dc, v8i), t = __builtin_convertvector(ec, v8i);
-        /* comparisons give −1 where true: s − [s > dc], t + [t < ec] */
-        const v8i tiv = s + (__builtin_convertvector(s, v8f) > dc);
-        const v8i giv = t - (__builtin_convertvector(t, v8f) < ec);
-        const v8i aiv = ((d > e) & 1) | (int32_t) always;
-        memcpy(ti, &tiv, sizeof tiv);
-        memcpy(gi, &giv, sizeof giv);
-        memcpy(ai, &aiv, sizeof aiv);
+/* thr##SFX and u8_thresholds##SFX, N lanes (VF, VI; LD: N bytes as int lanes), built with ATTR
+ * (IATTR: the inlined helper's). */
+#define DEFINE_THR(SFX, ATTR, IATTR, N, VF, VI, LD, SEL) \
+static inline __attribute__((always_inline)) IATTR void thr##SFX(                                        \
+                const uint8_t *mx, const uint8_t *mn, float k1, float k2, float b, uint8_t always,       \
+                float *ld, float *lg, int32_t *ti, int32_t *gi, int32_t *ai) {                           \
+        /* Bytes → int lanes element by element: gcc 12 turns this into one pmovzxbd (AVX2) or           \
+         * two unpacks, but converts a loaded 8-byte vector (v8b) lane by lane in scalar code. */        \
+        const VI ix = LD(mx), in = LD(mn);                                                               \
+        const VF lmax = __builtin_convertvector(ix, VF), lmin = __builtin_convertvector(in, VF);         \
+        const VF zero = { 0 }, c255 = zero + 255.0f, c256 = zero + 256.0f;                               \
+        VF d = (zero + k1) * (lmax - lmin), e = (zero + k2) * (lmin - (zero + b) * lmax);                \
+        d = SEL(d > zero, d, zero);                                                                      \
+        e = SEL(e > zero, e, zero);                                                                      \
+        memcpy(ld, &d, sizeof d);                                                                        \
+        memcpy(lg, &e, sizeof e);                                                                        \
+        const VF dc = SEL(d < c255, d, c255), ec = SEL(e < c256, e, c256);                               \
+        const VI s = __builtin_convertvector(dc, VI), t = __builtin_convertvector(ec, VI);               \
+        /* comparisons give −1 where true: s − [s > dc], t + [t < ec] */                                 \
+        const VI tiv = s + (__builtin_convertvector(s, VF) > dc);                                        \
+        const VI giv = t - (__builtin_convertvector(t, VF) < ec);                                        \
+        const VI aiv = ((d > e) & 1) | (int32_t) always;                                                 \
+        memcpy(ti, &tiv, sizeof tiv);                                                                    \
+        memcpy(gi, &giv, sizeof giv);                                                                    \
+        memcpy(ai, &aiv, sizeof aiv);                                                                    \
+}                                                                                                        \
+                                                                                                         \
+static __attribute__((noinline)) ATTR void u8_thresholds##SFX(                                           \
+                int n, const uint8_t *restrict mx, const uint8_t *restrict mn, float k1, float k2,       \
+                float b, uint8_t always, float *restrict ld, float *restrict lg, uint8_t *restrict td8,  \
+                uint8_t *restrict tg8, uint8_t *restrict tgok, uint8_t *restrict alw8) {                 \
+        /* in 32-bit lanes first: float → byte conversions in one loop stay scalar in gcc 12 */          \
+        int32_t ti[IBLK + N], gi[IBLK + N], ai[IBLK + N];     /* + the tail's padding lanes */           \
+        int x = 0;                                                                                       \
+        for (; x + N <= n; x += N)                                                                       \
+                thr##SFX(mx + x, mn + x, k1, k2, b, always, ld + x, lg + x, ti + x, gi + x, ai + x);     \
+        if (x < n) {            /* the tail through zero-padded lanes */                                 \
+                uint8_t px[N] = { 0 }, pn[N] = { 0 };                                                    \
+                float pd[N], pg[N];                                                                      \
+                memcpy(px, mx + x, (size_t) (n - x));                                                    \
+                memcpy(pn, mn + x, (size_t) (n - x));                                                    \
+                thr##SFX(px, pn, k1, k2, b, always, pd, pg, ti + x, gi + x, ai + x);                     \
+                memcpy(ld + x, pd, (size_t) (n - x) * sizeof *pd);                                       \
+                memcpy(lg + x, pg, (size_t) (n - x) * sizeof *pg);                                       \
+        }                                                                                                \
+        SIMD                                                                                             \
+        for (x = 0; x < n; x++) {                                                                        \
+                td8[x] = (uint8_t) ti[x];                                                                \
+                tg8[x] = (uint8_t) (gi[x] > 255 ? 255 : gi[x]);                                          \
+                tgok[x] = gi[x] <= 255;                                                                  \
+                alw8[x] = (uint8_t) ai[x];                                                               \
+        }                                                                                                \
 }
 
-static __attribute__((noinline, CLONES)) void u8_thresholds(
-                int n, const uint8_t *restrict mx, const uint8_t *restrict mn, float k1, float k2,
-                float b, uint8_t always, float *restrict ld, float *restrict lg, uint8_t *restrict td8,
-                uint8_t *restrict tg8, uint8_t *restrict tgok, uint8_t *restrict alw8) {
-        /* in 32-bit lanes first: float → byte conversions in one loop stay scalar in gcc 12 */
-        int32_t ti[IBLK + 8], gi[IBLK + 8], ai[IBLK + 8];     /* + the tail's padding lanes */
-        int x = 0;
-        for (; x + 8 <= n; x += 8)
-                thr8(mx + x, mn + x, k1, k2, b, always, ld + x, lg + x, ti + x, gi + x, ai + x);
-        if (x < n) {            /* the tail through zero-padded lanes */
-                uint8_t px[8] = { 0 }, pn[8] = { 0 };
-                float pd[8], pg[8];
-                memcpy(px, mx + x, (size_t) (n - x));
-                memcpy(pn, mn + x, (size_t) (n - x));
-                thr8(px, pn, k1, k2, b, always, pd, pg, ti + x, gi + x, ai + x);
-                memcpy(ld + x, pd, (size_t) (n - x) * sizeof *pd);
-                memcpy(lg + x, pg, (size_t) (n - x) * sizeof *pg);
-        }
-        SIMD
-        for (x = 0; x < n; x++) {
-                td8[x] = (uint8_t) ti[x];
-                tg8[x] = (uint8_t) (gi[x] > 255 ? 255 : gi[x]);
-                tgok[x] = gi[x] <= 255;
-                alw8[x] = (uint8_t) ai[x];
-        }
-}
+DEFINE_THR(_v8, __attribute__((CLONES)), , 8, v8f, v8i, LD8, SEL8)
 
 /* Axis a's block code: Gray → binary on the 16-bit code (g ^ g>>1 ^ g>>2 …), planes 0–7 in
  * g0, 8–15 in g1. This loop and u8_thresholds are functions of their own: inlined into the
@@ -1020,8 +1026,9 @@ static __attribute__((noinline, CLONES)) void u8_axis_out(
  * first, p ≤ t_d ≤ t_g ≤ p̄, cannot hold, nor the second with p < p̄), and L_d > L_g (or
  * !robust: every bit classified) becomes t_d = 255, t_g = 0, which always hold. Unsigned
  * byte comparisons as min/max and equality (SSE2 has no unsigned compare); the bit p > p̄ as
- * min(p − min(p, p̄), 1). Instantiated for AVX2 (32 lanes) and SSE2 (16), chosen by the
- * CPU at run time (IMPASTO_SL_NO_CLONES: SSE2 alone). */
+ * min(p − min(p, p̄), 1). Instantiated for AVX-512BW (64 lanes), AVX2 (32) and SSE2 (16),
+ * chosen by the CPU at run time (IMPASTO_SL_NO_CLONES: SSE2 alone); integer operations
+ * only, so every width gives the same bytes. */
 #if defined(__x86_64__) && defined(__SSE2__) && defined(__GNUC__)
 #define U8_SIMD 1
 #include <immintrin.h>
@@ -1102,9 +1109,18 @@ DEFINE_U8_BLOCK(avx2, __attribute__((target("avx2"))), __m256i, 32, _mm256_loadu
                 _mm256_storeu_si256, _mm256_min_epu8, _mm256_max_epu8, _mm256_sub_epi8,
                 _mm256_subs_epu8, _mm256_add_epi8, _mm256_or_si256, _mm256_andnot_si256,
                 _mm256_cmpeq_epi8, _mm256_set1_epi8)
+/* AVX-512BW: 64 lanes; its byte compare gives a mask, made a vector again. */
+#define U8_AVX512 1
+static inline __attribute__((target("avx512bw"), always_inline)) __m512i cmpeq512(__m512i a, __m512i b) {
+        return _mm512_movm_epi8(_mm512_cmpeq_epi8_mask(a, b));
+}
+DEFINE_U8_BLOCK(avx512, __attribute__((target("avx512bw"))), __m512i, 64, _mm512_loadu_si512,
+                _mm512_storeu_si512, _mm512_min_epu8, _mm512_max_epu8, _mm512_sub_epi8,
+                _mm512_subs_epu8, _mm512_add_epi8, _mm512_or_si512, _mm512_andnot_si512,
+                cmpeq512, _mm512_set1_epi8)
 #endif
 
-/* The vector width in use and its kernels: AVX2 where the CPU has it. */
+/* The vector width in use and its kernels: AVX-512BW, else AVX2, where the CPU has it. */
 struct u8_kernels {
         int vw;
         void (*maxima)(const uint8_t *const *, int, int, uint8_t *, uint8_t *);
@@ -1115,6 +1131,10 @@ struct u8_kernels {
 };
 
 static struct u8_kernels u8_kernels(void) {
+#ifdef U8_AVX512
+        if (__builtin_cpu_supports("avx512bw"))
+                return (struct u8_kernels) { 64, u8_maxima_avx512, u8_axis_avx512 };
+#endif
 #ifdef U8_AVX2
         if (__builtin_cpu_supports("avx2"))
                 return (struct u8_kernels) { 32, u8_maxima_avx2, u8_axis_avx2 };
@@ -1122,6 +1142,62 @@ static struct u8_kernels u8_kernels(void) {
         return (struct u8_kernels) { 16, u8_maxima_sse2, u8_axis_sse2 };
 }
 #endif
+
+/* ---- row bands -----------------------------------------------------------------------
+ * A thread decodes rows in bands of BAND_ROWS and knows the band it decodes next (claimed
+ * when it starts the current one). While it decodes the current band, the next band's frame
+ * rows are prefetched frame by frame: chunk i of the next band (nframes × rows of them, one
+ * frame row each, frame-major) is frame i / rows, row i % rows, and row j of the current
+ * band prefetches its share of the chunks. The 40 Gray frames then arrive as a few frames'
+ * consecutive rows at a time instead of one row of each of 42 frames (the read pattern of
+ * a row-by-row decode, 42 interleaved streams). */
+#define BAND_ROWS 8
+
+struct band {
+        int next0, next_rows;   /* the thread's next band: first row, rows (0: none) */
+        int j, rows;            /* the row of the current band being decoded, of rows */
+};
+
+/* The frames a byte-lane row reads, in the order their chunks are prefetched: the Gray
+ * planes and their inverses (axis 0, then 1: the kernels' prefetch slots), white, black. */
+static int band_frames(const struct plan *pl, int *f) {
+        int n = 0;
+        for (int a = 0; a < 2; a++)
+                for (int k = 0; k < pl->ax[a].nbits; k++) {
+                        f[n++] = pl->ax[a].p[k];
+                        f[n++] = pl->ax[a].q[k];
+                }
+        f[n++] = pl->white;
+        f[n++] = pl->black;
+        return n;
+}
+
+/* Row j's share of the next band's chunks: the first ns into slot[] (row pointers, for the
+ * kernels to prefetch as they go; slots past the share repeat its last chunk), the rest
+ * prefetched here. Returns false when there is nothing to prefetch (no next band). */
+static bool band_slots(const struct ctx *c, const struct band *bd, const uint8_t **slot, int ns) {
+        if (!bd || !bd->next_rows)
+                return false;
+        const struct imp_image *const *im = c->in->images;
+        int f[4 * MAX_BITS + 2];
+        const int nf = band_frames(c->pl, f), total = nf * bd->next_rows;
+        const int i0 = (int) ((long) total * bd->j / bd->rows), i1 = (int) ((long) total * (bd->j + 1) / bd->rows);
+        if (i1 <= i0)
+                return false;
+        const size_t w = (size_t) c->pl->width;
+        for (int s = 0, i = i0; i < i1 || s < ns; i++) {
+                const int ii = IMP_MIN(i, i1 - 1);
+                const uint8_t *row = (const uint8_t *) imp_image_row(im[f[ii / bd->next_rows]],
+                                                                     bd->next0 + ii % bd->next_rows);
+                if (s < ns) {
+                        slot[s++] = row;
+                        continue;
+                }
+                for (size_t x = 0; x < w; x += 64)
+                        __builtin_prefetch(row + x);
+        }
+        return true;
+}
 
 /* L_max / L_min (mx, mn) over the frames giving them, and hi8 = white, for n pixels from x0:
  * the first nv (a multiple of the vector width) in explicit vectors. */
@@ -1151,20 +1227,23 @@ static void u8_block_maxima(const struct ctx *c, int y, int x0, int n, int nv, u
  * first nv in explicit vectors, the rest by gray_u8_plane. */
 static void u8_block_axis(const struct ctx *c, const struct axis_plan *ax, int y, int x0, int n, int nv,
                           const uint8_t *td8, const uint8_t *tg8, const uint8_t *tgok, const uint8_t *alw8,
-                          struct u8_lim lim, uint8_t (*g8)[IBLK], uint8_t *wk8, uint8_t *cm8, uint8_t *hi8) {
+                          struct u8_lim lim, const uint8_t *const *slot, uint8_t (*g8)[IBLK], uint8_t *wk8,
+                          uint8_t *cm8, uint8_t *hi8) {
         const struct imp_image *const *im = c->in->images;
 #ifdef U8_SIMD
         if (nv) {
-                /* the next row's lines are prefetched as the kernel goes (Pn, Qn) */
+                /* the next band's chunks (slot: 2 rows a plane, band_slots) are prefetched as
+                 * the kernel goes (Pn, Qn) */
                 const uint8_t *P[MAX_BITS], *Q[MAX_BITS], *Pn[MAX_BITS], *Qn[MAX_BITS];
-                const bool next = y + 1 < im[0]->height;
                 for (int k = 0; k < ax->nbits; k++) {
                         P[k] = (const uint8_t *) imp_image_row(im[ax->p[k]], y) + x0;
                         Q[k] = (const uint8_t *) imp_image_row(im[ax->q[k]], y) + x0;
-                        Pn[k] = next ? (const uint8_t *) imp_image_row(im[ax->p[k]], y + 1) + x0 : NULL;
-                        Qn[k] = next ? (const uint8_t *) imp_image_row(im[ax->q[k]], y + 1) + x0 : NULL;
+                        if (slot) {
+                                Pn[k] = slot[2 * k] + x0;
+                                Qn[k] = slot[2 * k + 1] + x0;
+                        }
                 }
-                u8_kernels().axis(P, Q, next ? Pn : NULL, next ? Qn : NULL, ax->nbits, nv, td8, tg8, tgok,
+                u8_kernels().axis(P, Q, slot ? Pn : NULL, slot ? Qn : NULL, ax->nbits, nv, td8, tg8, tgok,
                                   alw8, lim, g8[0], g8[1], wk8, cm8, hi8);
         }
         if (nv < n)
@@ -1207,105 +1286,123 @@ struct comb_out {
         uint16_t *of;
 };
 
-#define LD8(p) ((v8i) { (p)[0], (p)[1], (p)[2], (p)[3], (p)[4], (p)[5], (p)[6], (p)[7] })
 #define BIT8(m, f) ((m) & (int32_t) (f))
 
-/* Pixels [x, x + 8); cnt: −(count) per lane (masks are −1), in the order of counts[]. */
-static inline __attribute__((always_inline)) void comb8(const struct comb_in *in, const struct comb_k *k,
-                                                         int x, const struct comb_out *o, v8i cnt[6]) {
-        const v8f zero = { 0 }, one = zero + 1.0f;
-        v8f ld;
-        memcpy(&ld, in->ld + x, sizeof ld);
-        const v8i shadow = (LD8(in->w + x) - LD8(in->b + x) <= k->thr) | ((ld < k->minc_d) & k->robust);
-        const v8f span = ld * k->ob;
-        const v8f sd = SEL8(span > zero, span, zero + INFINITY);
-        v8i ok[2], und[2], wb[2], oor[2];
-        v8f ca[2], pos[2], sg[2];
-#pragma GCC unroll 2
-        for (int a = 0; a < 2; a++) {
-                const v8i wk = LD8(in->wk[a] + x), cd = LD8(in->cd[a] + x);
-                und[a] = wk > GRAY_WEAK_ALLOWED;
-                wb[a] = wk == 1;
-                oor[a] = cd >= k->ext[a];
-                ok[a] = ~(shadow | und[a] | oor[a]);
-                const v8f v = __builtin_convertvector(LD8(in->cm[a] + x), v8f) / sd;
-                const v8f t = SEL8(v > zero, v, zero);
-                ca[a] = SEL8(wb[a], zero + 0.5f, one) * SEL8(t < one, t, one);
-                pos[a] = SEL8(ok[a], (__builtin_convertvector(cd, v8f) + 0.5f) * k->q[a],
-                              zero + IMP_SL_INVALID_COORD);
-                sg[a] = SEL8(ok[a], SEL8(wb[a], zero + k->sw[a], zero + k->ss[a]), zero);
-        }
-        v8f conf = SEL8(ok[0], SEL8(one < ca[0], one, ca[0]), one);
-        conf = SEL8(ok[1], SEL8(conf < ca[1], conf, ca[1]), conf);
-        conf = SEL8(ok[0] | ok[1], conf, zero);
-        const v8f os = SEL8(sg[0] > sg[1], sg[0], sg[1]);
-        const v8i sat = LD8(in->hi + x) >= k->sat;
-        const v8i f = BIT8(shadow, IMP_SL_SHADOW) | BIT8(sat, IMP_SL_SATURATED) |
-                      BIT8(und[0] | und[1], IMP_SL_UNDECODABLE) | BIT8(wb[0] | wb[1], IMP_SL_WEAK_BIT) |
-                      BIT8(oor[0] | oor[1], IMP_SL_OUT_OF_RANGE) | BIT8(ok[0], IMP_SL_VALID_X) |
-                      BIT8(ok[1], IMP_SL_VALID_Y) |
-                      BIT8((ok[0] & k->rej[0]) | (ok[1] & k->rej[1]), IMP_SL_PHASE_REJECTED);
-        const v8s f16 = __builtin_convertvector(f, v8s);
-        memcpy(o->ox + x, &pos[0], sizeof pos[0]);
-        memcpy(o->oy + x, &pos[1], sizeof pos[1]);
-        memcpy(o->oc + x, &conf, sizeof conf);
-        memcpy(o->os + x, &os, sizeof os);
-        memcpy(o->of + x, &f16, sizeof f16);
-        cnt[0] += ok[0];
-        cnt[1] += ok[1];
-        cnt[2] += ok[0] & ok[1];
-        cnt[3] += shadow;
-        cnt[4] += sat;
-        cnt[5] += wb[0] | wb[1];
+/* The combine step N pixels a step in GCC's generic vectors VF, VI (N floats, int32) and VS (N
+ * uint16): comb##SFX and combine_u8_block##SFX, built with ATTR. Every operation lane by
+ * lane, so every width gives the same values. */
+#define DEFINE_COMB(SFX, ATTR, IATTR, N, VF, VI, VS, LD, SEL) \
+/* Pixels [x, x + N); cnt: −(count) per lane (masks are −1), in the order of counts[]. */                \
+static inline __attribute__((always_inline)) IATTR void comb##SFX(const struct comb_in *in, const struct comb_k *k, \
+                                                         int x, const struct comb_out *o, VI cnt[6]) {   \
+        const VF zero = { 0 }, one = zero + 1.0f;                                                        \
+        VF ld;                                                                                           \
+        memcpy(&ld, in->ld + x, sizeof ld);                                                              \
+        const VI shadow = (LD(in->w + x) - LD(in->b + x) <= k->thr) | ((ld < k->minc_d) & k->robust);    \
+        const VF span = ld * k->ob;                                                                      \
+        const VF sd = SEL(span > zero, span, zero + INFINITY);                                           \
+        VI ok[2], und[2], wb[2], oor[2];                                                                 \
+        VF ca[2], pos[2], sg[2];                                                                         \
+_Pragma("GCC unroll 2")                                                                                     \
+        for (int a = 0; a < 2; a++) {                                                                    \
+                const VI wk = LD(in->wk[a] + x), cd = LD(in->cd[a] + x);                                 \
+                und[a] = wk > GRAY_WEAK_ALLOWED;                                                         \
+                wb[a] = wk == 1;                                                                         \
+                oor[a] = cd >= k->ext[a];                                                                \
+                ok[a] = ~(shadow | und[a] | oor[a]);                                                     \
+                const VF v = __builtin_convertvector(LD(in->cm[a] + x), VF) / sd;                        \
+                const VF t = SEL(v > zero, v, zero);                                                     \
+                ca[a] = SEL(wb[a], zero + 0.5f, one) * SEL(t < one, t, one);                             \
+                pos[a] = SEL(ok[a], (__builtin_convertvector(cd, VF) + 0.5f) * k->q[a],                  \
+                              zero + IMP_SL_INVALID_COORD);                                              \
+                sg[a] = SEL(ok[a], SEL(wb[a], zero + k->sw[a], zero + k->ss[a]), zero);                  \
+        }                                                                                                \
+        VF conf = SEL(ok[0], SEL(one < ca[0], one, ca[0]), one);                                         \
+        conf = SEL(ok[1], SEL(conf < ca[1], conf, ca[1]), conf);                                         \
+        conf = SEL(ok[0] | ok[1], conf, zero);                                                           \
+        const VF os = SEL(sg[0] > sg[1], sg[0], sg[1]);                                                  \
+        const VI sat = LD(in->hi + x) >= k->sat;                                                         \
+        const VI f = BIT8(shadow, IMP_SL_SHADOW) | BIT8(sat, IMP_SL_SATURATED) |                         \
+                      BIT8(und[0] | und[1], IMP_SL_UNDECODABLE) | BIT8(wb[0] | wb[1], IMP_SL_WEAK_BIT) | \
+                      BIT8(oor[0] | oor[1], IMP_SL_OUT_OF_RANGE) | BIT8(ok[0], IMP_SL_VALID_X) |         \
+                      BIT8(ok[1], IMP_SL_VALID_Y) |                                                      \
+                      BIT8((ok[0] & k->rej[0]) | (ok[1] & k->rej[1]), IMP_SL_PHASE_REJECTED);            \
+        const VS f16 = __builtin_convertvector(f, VS);                                                   \
+        memcpy(o->ox + x, &pos[0], sizeof pos[0]);                                                       \
+        memcpy(o->oy + x, &pos[1], sizeof pos[1]);                                                       \
+        memcpy(o->oc + x, &conf, sizeof conf);                                                           \
+        memcpy(o->os + x, &os, sizeof os);                                                               \
+        memcpy(o->of + x, &f16, sizeof f16);                                                             \
+        cnt[0] += ok[0];                                                                                 \
+        cnt[1] += ok[1];                                                                                 \
+        cnt[2] += ok[0] & ok[1];                                                                         \
+        cnt[3] += shadow;                                                                                \
+        cnt[4] += sat;                                                                                   \
+        cnt[5] += wb[0] | wb[1];                                                                         \
+}                                                                                                        \
+                                                                                                         \
+/* Pixels [0, n) of a block; the last n % N through zero-padded copies of their inputs. */               \
+static __attribute__((noinline, optimize("no-trapping-math"))) ATTR void combine_u8_block##SFX(          \
+                const struct comb_in *inp, const struct comb_k *kp, int n, const struct comb_out *op,    \
+                size_t counts[8]) {                                                                      \
+        /* local copies: gcc then keeps the pointers and constants in registers instead of               \
+         * reloading them after every store */                                                           \
+        const struct comb_in lin = *inp, *in = &lin;                                                     \
+        const struct comb_k lk = *kp, *k = &lk;                                                          \
+        const struct comb_out lo = *op, *o = &lo;                                                        \
+        VI cnt[6] = { { 0 } };                                                                           \
+        int x = 0;                                                                                       \
+        for (; x + N <= n; x += N)                                                                       \
+                comb##SFX(in, k, x, o, cnt);                                                             \
+        if (x < n) {                                                                                     \
+                const size_t m = (size_t) (n - x);                                                       \
+                uint8_t bw[N] = { 0 }, bb[N] = { 0 }, bh[N] = { 0 }, bc[2][N] = { { 0 } }, bk[2][N] = { { 0 } }; \
+                uint16_t bd[2][N] = { { 0 } }, tf[N];                                                    \
+                float bl[N] = { 0 }, tx[N], ty[N], tc[N], ts[N];                                         \
+                memcpy(bw, in->w + x, m);                                                                \
+                memcpy(bb, in->b + x, m);                                                                \
+                memcpy(bh, in->hi + x, m);                                                               \
+                memcpy(bl, in->ld + x, m * sizeof *bl);                                                  \
+                for (int a = 0; a < 2; a++) {                                                            \
+                        memcpy(bc[a], in->cm[a] + x, m);                                                 \
+                        memcpy(bk[a], in->wk[a] + x, m);                                                 \
+                        memcpy(bd[a], in->cd[a] + x, m * sizeof **bd);                                   \
+                }                                                                                        \
+                const struct comb_in t = { bw, bb, bh, { bc[0], bc[1] }, { bk[0], bk[1] }, { bd[0], bd[1] }, bl }; \
+                const struct comb_out to = { tx, ty, tc, ts, tf };                                       \
+                VI tcnt[6] = { { 0 } };                                                                  \
+                comb##SFX(&t, k, 0, &to, tcnt);                                                          \
+                memcpy(o->ox + x, tx, m * sizeof *tx);                                                   \
+                memcpy(o->oy + x, ty, m * sizeof *ty);                                                   \
+                memcpy(o->oc + x, tc, m * sizeof *tc);                                                   \
+                memcpy(o->os + x, ts, m * sizeof *ts);                                                   \
+                memcpy(o->of + x, tf, m * sizeof *tf);                                                   \
+                for (int i = 0; i < 6; i++)     /* only the m lanes that are pixels */                   \
+                        for (size_t l = 0; l < m; l++)                                                   \
+                                cnt[i][l] += tcnt[i][l];                                                 \
+        }                                                                                                \
+        for (int i = 0; i < 6; i++) {                                                                    \
+                int32_t s = 0;                                                                           \
+                for (int l = 0; l < N; l++)                                                              \
+                        s -= cnt[i][l];                                                                  \
+                counts[i] += (size_t) s;                                                                 \
+        }                                                                                                \
 }
 
-/* Pixels [0, n) of a block; the last n % 8 through zero-padded copies of their inputs. */
-static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void combine_u8_block(
-                const struct comb_in *inp, const struct comb_k *kp, int n, const struct comb_out *op,
-                size_t counts[8]) {
-        /* local copies: gcc then keeps the pointers and constants in registers instead of
-         * reloading them after every store */
-        const struct comb_in lin = *inp, *in = &lin;
-        const struct comb_k lk = *kp, *k = &lk;
-        const struct comb_out lo = *op, *o = &lo;
-        v8i cnt[6] = { { 0 } };
-        int x = 0;
-        for (; x + 8 <= n; x += 8)
-                comb8(in, k, x, o, cnt);
-        if (x < n) {
-                const size_t m = (size_t) (n - x);
-                uint8_t bw[8] = { 0 }, bb[8] = { 0 }, bh[8] = { 0 }, bc[2][8] = { { 0 } }, bk[2][8] = { { 0 } };
-                uint16_t bd[2][8] = { { 0 } }, tf[8];
-                float bl[8] = { 0 }, tx[8], ty[8], tc[8], ts[8];
-                memcpy(bw, in->w + x, m);
-                memcpy(bb, in->b + x, m);
-                memcpy(bh, in->hi + x, m);
-                memcpy(bl, in->ld + x, m * sizeof *bl);
-                for (int a = 0; a < 2; a++) {
-                        memcpy(bc[a], in->cm[a] + x, m);
-                        memcpy(bk[a], in->wk[a] + x, m);
-                        memcpy(bd[a], in->cd[a] + x, m * sizeof **bd);
-                }
-                const struct comb_in t = { bw, bb, bh, { bc[0], bc[1] }, { bk[0], bk[1] }, { bd[0], bd[1] }, bl };
-                const struct comb_out to = { tx, ty, tc, ts, tf };
-                v8i tcnt[6] = { { 0 } };
-                comb8(&t, k, 0, &to, tcnt);
-                memcpy(o->ox + x, tx, m * sizeof *tx);
-                memcpy(o->oy + x, ty, m * sizeof *ty);
-                memcpy(o->oc + x, tc, m * sizeof *tc);
-                memcpy(o->os + x, ts, m * sizeof *ts);
-                memcpy(o->of + x, tf, m * sizeof *tf);
-                for (int i = 0; i < 6; i++)     /* only the m lanes that are pixels */
-                        for (size_t l = 0; l < m; l++)
-                                cnt[i][l] += tcnt[i][l];
-        }
-        for (int i = 0; i < 6; i++) {
-                int32_t s = 0;
-                for (int l = 0; l < 8; l++)
-                        s -= cnt[i][l];
-                counts[i] += (size_t) s;
-        }
-}
+DEFINE_COMB(_v8, __attribute__((CLONES)), , 8, v8f, v8i, v8s, LD8, SEL8)
+#ifdef U8_AVX512
+/* AVX-512: 16 pixels a step. Its target brings FMA, and gcc contracts a·b + c by default:
+ * fp-contract=off keeps every product and sum rounded on its own, as in the other widths. */
+#define AVX512_ATTR __attribute__((target("avx512bw"), optimize("fp-contract=off")))
+typedef float v16f __attribute__((vector_size(64)));
+typedef int32_t v16i __attribute__((vector_size(64)));
+typedef uint16_t v16s __attribute__((vector_size(32)));
+#define LD16(p) ((v16i) { (p)[0], (p)[1], (p)[2], (p)[3], (p)[4], (p)[5], (p)[6], (p)[7], (p)[8], (p)[9], \
+                          (p)[10], (p)[11], (p)[12], (p)[13], (p)[14], (p)[15] })
+#define SEL16(m, a, b) ((v16f) (((v16i) (a) & (m)) | ((v16i) (b) & ~(m))))
+DEFINE_COMB(_v16, AVX512_ATTR, AVX512_ATTR, 16, v16f, v16i, v16s, LD16, SEL16)
+DEFINE_THR(_v16, AVX512_ATTR, AVX512_ATTR, 16, v16f, v16i, LD16, SEL16)
+#endif
 
 /* The constants of combine_u8_block for this decode. */
 static struct comb_k comb_constants(const struct ctx *c) {
@@ -1336,9 +1433,12 @@ static bool u8_combines(const struct plan *pl) {
 /* counts NULL: the block's results into the combine step's rows (R_CODE, R_WEAK, R_CMIN, R_HI,
  * R_WHITE, R_BLACK); else (u8_combines) combined into o (row y's maps) and counts. */
 static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void gray_u8_row(
-                const struct ctx *c, int y, float **R, int w, const struct comb_out *o, size_t counts[8]) {
+                const struct ctx *c, int y, float **R, int w, const struct comb_out *o, size_t counts[8],
+                const struct band *bd) {
         const struct plan *pl = c->pl;
         const struct imp_image *const *im = c->in->images;
+        const uint8_t *slot[4 * MAX_BITS];
+        const bool pf = band_slots(c, bd, slot, 2 * (pl->ax[0].nbits + pl->ax[1].nbits));
         const struct u8_lim lim = u8_limits((int16_t) int_ceil_clamp((float) c->p->min_bit_contrast, 0, INT16_MAX),
                                             (int16_t) int_ceil_clamp(c->sat, -INT16_MAX, INT16_MAX));
         const float b = c->b, k1 = 1.0f / (1.0f - b), k2 = 2.0f / (1.0f - b * b);
@@ -1355,12 +1455,20 @@ static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void gray
                 uint8_t g8[2][IBLK], wk8[2][IBLK], cm8[2][IBLK];
                 uint16_t cd16[2][IBLK];
                 u8_block_maxima(c, y, x0, n, nv, mx, mn, hi8);
-                u8_thresholds(n, mx, mn, k1, k2, b, always, R[R_LD] + x0, R[R_LG] + x0, td8, tg8, tgok, alw8);
+#ifdef U8_AVX512
+                if (vw == 64)
+                        u8_thresholds_v16(n, mx, mn, k1, k2, b, always, R[R_LD] + x0, R[R_LG] + x0, td8, tg8, tgok,
+                                          alw8);
+                else
+#endif
+                        u8_thresholds_v8(n, mx, mn, k1, k2, b, always, R[R_LD] + x0, R[R_LG] + x0, td8, tg8, tgok,
+                                         alw8);
                 for (int a = 0; a < 2; a++) {
                         const struct axis_plan *ax = &pl->ax[a];
                         if (!ax->nbits)
                                 continue;
-                        u8_block_axis(c, ax, y, x0, n, nv, td8, tg8, tgok, alw8, lim, g8, wk8[a], cm8[a], hi8);
+                        u8_block_axis(c, ax, y, x0, n, nv, td8, tg8, tgok, alw8, lim,
+                                      pf ? slot + (a ? 2 * pl->ax[0].nbits : 0) : NULL, g8, wk8[a], cm8[a], hi8);
                         u8_axis_code(n, ax->nbits, g8[0], g8[1], cd16[a]);
                         if (!counts)
                                 u8_axis_out(n, cd16[a], wk8[a], cm8[a], (uint32_t *) R[R_CODE0 + a] + x0,
@@ -1372,7 +1480,12 @@ static __attribute__((noinline, optimize("no-trapping-math"), CLONES)) void gray
                         const struct comb_in in = { wr, br, hi8, { cm8[0], cm8[1] }, { wk8[0], wk8[1] },
                                                     { cd16[0], cd16[1] }, R[R_LD] + x0 };
                         const struct comb_out ob = { o->ox + x0, o->oy + x0, o->oc + x0, o->os + x0, o->of + x0 };
-                        combine_u8_block(&in, &ck, n, &ob, counts);
+#ifdef U8_AVX512
+                        if (vw == 64)
+                                combine_u8_block_v16(&in, &ck, n, &ob, counts);
+                        else
+#endif
+                                combine_u8_block_v8(&in, &ck, n, &ob, counts);
                         continue;
                 }
                 float *restrict hr = R[R_HI] + x0, *restrict wf = R[R_WHITE] + x0, *restrict bf = R[R_BLACK] + x0;
@@ -1900,14 +2013,14 @@ static struct comb_out gray_row_out(const struct ctx *c, int y, float **R) {
                                    res->sigma_px + off, res->flags + off };
 }
 
-static void decode_row(const struct ctx *c, int y, float **R, size_t counts[8]) {
+static void decode_row(const struct ctx *c, int y, float **R, size_t counts[8], const struct band *bd) {
         const struct plan *pl = c->pl;
         const int w = pl->width;
         /* gray_u8_row's L_d, L_g are finite: the light maps as they are */
         const bool bytes = c->int_path == IMP_PIX_U8 && u8_row_applies(pl), comb = bytes && u8_combines(pl);
         if (bytes) {
                 const struct comb_out o = gray_row_out(c, y, R);
-                gray_u8_row(c, y, R, w, &o, comb ? counts : NULL);
+                gray_u8_row(c, y, R, w, &o, comb ? counts : NULL, bd);
         } else if (c->int_path == IMP_PIX_U8) {
                 gray_int_u8(c, y, R, w);
         } else if (c->int_path == IMP_PIX_U16) {
@@ -1999,7 +2112,8 @@ static void decode_pass(const struct ctx *c, int nthreads, float *scratch, size_
                         double st[4]) {
         size_t c0 = 0, c1 = 0, c2 = 0, c3 = 0, c4 = 0, c5 = 0, c6 = 0;
         double s0 = 0, s1 = 0, s2 = 0, s3 = 0;
-        int height = c->pl->height;
+        const int height = c->pl->height, nbands = (height + BAND_ROWS - 1) / BAND_ROWS;
+        int claimed = 0;
 #pragma omp parallel num_threads(nthreads) reduction(+ : c0, c1, c2, c3, c4, c5, c6, s0, s1, s2, s3)
         {
                 int t = 0;
@@ -2009,16 +2123,28 @@ static void decode_pass(const struct ctx *c, int nthreads, float *scratch, size_
                 float *R[R_NROWS];
                 for (int i = 0; i < R_NROWS; i++)
                         R[i] = scratch + ((size_t) t * R_NROWS + i) * wpad;
-#pragma omp for schedule(dynamic, 8) nowait
-                for (int y = 0; y < height; y++) {
-                        size_t cnt[8] = { 0 };
-                        decode_row(c, y, R, cnt);
-                        c0 += cnt[0]; c1 += cnt[1]; c2 += cnt[2]; c3 += cnt[3];
-                        c4 += cnt[4]; c5 += cnt[5]; c6 += cnt[6];
-                        if (st) {
-                                double row[4] = { 0 };
-                                phase_stats_row(c, y, R, row);
-                                s0 += row[0]; s1 += row[1]; s2 += row[2]; s3 += row[3];
+                /* bands claimed one ahead: the next one is prefetched during the current */
+                int next;
+#pragma omp atomic capture
+                next = claimed++;
+                while (next < nbands) {
+                        const int cur = next;
+#pragma omp atomic capture
+                        next = claimed++;
+                        struct band bd = { .next0 = next * BAND_ROWS,
+                                           .next_rows = next < nbands ? IMP_MIN(BAND_ROWS, height - next * BAND_ROWS) : 0,
+                                           .rows = IMP_MIN(BAND_ROWS, height - cur * BAND_ROWS) };
+                        for (bd.j = 0; bd.j < bd.rows; bd.j++) {
+                                const int y = cur * BAND_ROWS + bd.j;
+                                size_t cnt[8] = { 0 };
+                                decode_row(c, y, R, cnt, &bd);
+                                c0 += cnt[0]; c1 += cnt[1]; c2 += cnt[2]; c3 += cnt[3];
+                                c4 += cnt[4]; c5 += cnt[5]; c6 += cnt[6];
+                                if (st) {
+                                        double row[4] = { 0 };
+                                        phase_stats_row(c, y, R, row);
+                                        s0 += row[0]; s1 += row[1]; s2 += row[2]; s3 += row[3];
+                                }
                         }
                 }
 #if defined(__SSE2__)
