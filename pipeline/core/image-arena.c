@@ -116,6 +116,10 @@ static void *arena_alloc(struct imp_image_arena *a, size_t n) {
         return p;
 }
 
+void *imp_image_arena_alloc(struct imp_image_arena *a, size_t n) {
+        return a ? arena_alloc(a, n) : NULL;
+}
+
 int imp_image_new_in(struct imp_image_arena *a, int width, int height, int channels,
                      enum imp_pixel_type type, struct imp_image **ret) {
         if (!a)

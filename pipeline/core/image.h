@@ -55,6 +55,9 @@ void imp_image_arena_free(struct imp_image_arena *a);
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_image_arena *, imp_image_arena_free);
 /* Bytes mapped by the arena so far (its blocks). */
 size_t imp_image_arena_mapped(const struct imp_image_arena *a);
+/* n zeroed bytes (64-byte aligned) from arena a, for a stage's large scratch arrays; freed
+ * with the arena. NULL when out of memory. */
+void *imp_image_arena_alloc(struct imp_image_arena *a, size_t n);
 /* imp_image_new() with the samples in arena a (zeroed, the same layout); a == NULL:
  * imp_image_new(). */
 int imp_image_new_in(struct imp_image_arena *a, int width, int height, int channels,
