@@ -21,7 +21,7 @@
 #endif
 
 #define ARENA_HUGE   ((size_t) 2 << 20)     /* the x86-64 huge page */
-#define ARENA_BLOCK  ((size_t) 64 << 20)    /* a block holds ~11 demo-sized f32 images */
+#define ARENA_BLOCK  ((size_t) 256 << 20)   /* address space only until touched; few blocks, few part-used huge pages */
 #define ARENA_ALIGN  ((size_t) 64)          /* every image starts on a cache line */
 
 struct arena_block {
