@@ -179,10 +179,10 @@ static void keep_spare(struct stack_scratch *sc, struct imp_hdr_result *h) {
         imp_hdr_result_done(h);
 }
 
-/* Loads and merges one stack into linear values (mono: the mean of the channels), in the
- * thread's buffers sc. */
+/* Loads and merges one stack into linear values, in the thread's buffers sc; the values in
+ * arena (NULL: the heap). */
 static int merge_stack(const struct imp_captureset *cs, const struct stack *s,
-                       const struct imp_sensor *sensor, struct stack_scratch *sc,
+                       const struct imp_sensor *sensor, struct stack_scratch *sc, struct imp_image_arena *arena,
                        struct imp_hdr_result *ret, struct imp_error *err) {
         struct imp_hdr_exposure ex[IMP_HDR_MAX_STACK];
         int r = 0;
@@ -198,6 +198,7 @@ static int merge_stack(const struct imp_captureset *cs, const struct stack *s,
         imp_hdr_options_default(&opt);
         opt.demosaic = true;
         opt.recycle = &sc->spare;
+        opt.arena = arena;
         r = imp_hdr_merge(ex, s->n, sensor, &opt, ret);
         if (r < 0)
                 imp_error_set(err, r, "%s: HDR merge of frame %zu failed: %s",
@@ -411,6 +412,7 @@ static void drop_fill(struct geometry_out *g, const uint8_t *drop) {
 /* The structured-light stacks of camera 0, merged to linear mono images (imgs, pats), with
  * the white frame's median level and the saturated / dark sample counts. */
 struct sl_frames {
+        struct imp_image_arena *arena;   /* imgs' and sats' samples, until the decode */
         struct imp_image **imgs;
         struct imp_image **sats;      /* the merge's saturation masks (clipped in every exposure) */
         struct imp_pattern *pats;
@@ -427,6 +429,7 @@ static void sl_frames_done(struct sl_frames *f) {
         free(f->imgs);
         free(f->sats);
         free(f->pats);
+        imp_image_arena_free(f->arena);
         *f = (struct sl_frames) {};
 }
 
@@ -443,7 +446,7 @@ static int sl_merge_one(void *ctx, size_t i, struct stack_scratch *sc, struct im
         const struct sl_merge_ctx *c = ctx;
         struct sl_frames *f = c->f;
         struct imp_hdr_result h = {};
-        int r = merge_stack(c->cs, &c->stacks[i], &c->cam->sensor, sc, &h, err);
+        int r = merge_stack(c->cs, &c->stacks[i], &c->cam->sensor, sc, f->arena, &h, err);
         if (r < 0)
                 return r;
         c->counts[i][0] = h.n_saturated;
@@ -451,7 +454,8 @@ static int sl_merge_one(void *ctx, size_t i, struct stack_scratch *sc, struct im
         f->imgs[i] = TAKE_PTR(h.value);
         r = imp_hdr_saturated_mask(h.flags, &f->sats[i]);
         keep_spare(sc, &h);
-        if (r < 0 || (r = to_mono(&f->imgs[i])) < 0)
+        if (r < 0 || (r = to_mono(&f->imgs[i])) < 0 || (r = imp_image_arena_adopt(f->arena, f->imgs[i])) < 0 ||
+            (r = imp_image_arena_adopt(f->arena, f->sats[i])) < 0)
                 return imp_error_set(err, r, "out of memory");
         f->pats[i] = imp_captureset_record(c->cs, c->stacks[i].first)->pattern;
         return 0;
@@ -477,7 +481,7 @@ static int sl_merge(const struct process_opts *o, const struct imp_captureset *c
         f->imgs = calloc(n_stacks, sizeof *f->imgs);
         f->sats = calloc(n_stacks, sizeof *f->sats);
         f->pats = calloc(n_stacks, sizeof *f->pats);
-        if (!f->imgs || !f->sats || !f->pats)
+        if (!f->imgs || !f->sats || !f->pats || imp_image_arena_new(&f->arena) < 0)
                 return imp_error_set(err, -ENOMEM, "out of memory");
         _cleanup_free_ size_t (*counts)[2] = calloc(n_stacks, sizeof *counts);
         if (!counts)
@@ -524,6 +528,7 @@ static int sl_range(const struct process_opts *o, const struct imp_rig *rig, str
                 imp_image_free(TAKE_PTR(f->imgs[i]));
                 imp_image_free(TAKE_PTR(f->sats[i]));
         }
+        imp_image_arena_free(TAKE_PTR(f->arena));
         progress(o, "decode", 1, 1);
         *ret_t_decoded = now_s();
         struct imp_projector_coords pc;
@@ -698,6 +703,7 @@ fail:
 /* The dome sweep of camera 0, merged: the frames the fit uses and those held out for
  * validation (every holdout_every-th), with their lights and validity masks. */
 struct dome {
+        struct imp_image_arena *arena;   /* the samples of frames, valid, ho_frames, ho_valid */
         struct imp_image **frames, **valid, **ho_frames, **ho_valid;
         struct imp_rig_light *lights, *ho_lights;
         size_t n_stacks, n_used, n_held;
@@ -713,6 +719,7 @@ static void dome_done(struct dome *d) {
         }
         free(d->frames), free(d->valid), free(d->ho_frames), free(d->ho_valid);
         free(d->lights), free(d->ho_lights);
+        imp_image_arena_free(d->arena);
         *d = (struct dome) {};
 }
 
@@ -743,12 +750,14 @@ static int dome_merge_one(void *ctx, size_t i, struct stack_scratch *sc, struct 
                 return imp_error_set(err, -EINVAL, "%s/manifest.jsonl: frame %zu: light %d is not in rig.json",
                                      c->o->capture, c->stacks[i].first, id);
         struct imp_hdr_result h = {};
-        int r = merge_stack(c->cs, &c->stacks[i], &rig->cameras[0].sensor, sc, &h, err);
+        int r = merge_stack(c->cs, &c->stacks[i], &rig->cameras[0].sensor, sc, d->arena, &h, err);
         if (r < 0)
                 return r;
         /* Validity per pixel from the merge flags (any channel). */
         struct imp_image *vimg;
         r = imp_btf_valid_from_hdr(h.flags, &vimg);
+        if (r >= 0 && (r = imp_image_arena_adopt(d->arena, vimg)) < 0)
+                imp_image_free(vimg);
         if (r < 0) {
                 imp_hdr_result_done(&h);
                 return imp_error_set(err, r, "out of memory");
@@ -776,7 +785,8 @@ static int dome_load(const struct process_opts *o, const struct imp_captureset *
         d->frames = calloc(n_stacks, sizeof *d->frames), d->valid = calloc(n_stacks, sizeof *d->valid);
         d->ho_frames = calloc(n_stacks, sizeof *d->ho_frames), d->ho_valid = calloc(n_stacks, sizeof *d->ho_valid);
         d->lights = calloc(n_stacks, sizeof *d->lights), d->ho_lights = calloc(n_stacks, sizeof *d->ho_lights);
-        if (!d->frames || !d->valid || !d->ho_frames || !d->ho_valid || !d->lights || !d->ho_lights)
+        if (!d->frames || !d->valid || !d->ho_frames || !d->ho_valid || !d->lights || !d->ho_lights ||
+            imp_image_arena_new(&d->arena) < 0)
                 return imp_error_set(err, -ENOMEM, "out of memory");
         /* every holdout_every-th stack is held out: stack i's place in either list */
         size_t N = o->opt->holdout_every > 0 ? (size_t) o->opt->holdout_every : 0;

@@ -25,12 +25,12 @@ const char *imp_pixel_type_name(enum imp_pixel_type t) {
         return "invalid";
 }
 
-int imp_image_new(int width, int height, int channels, enum imp_pixel_type type,
-                  struct imp_image **ret) {
+int imp_image_layout(int width, int height, int channels, enum imp_pixel_type type,
+                     size_t *ret_stride, size_t *ret_total) {
         size_t sample_size = imp_pixel_type_size(type);
         size_t stride, total;
 
-        if (!ret || sample_size == 0)
+        if (sample_size == 0)
                 return -EINVAL;
         if (width <= 0 || height <= 0 || width > IMP_IMAGE_MAX_SIDE || height > IMP_IMAGE_MAX_SIDE)
                 return -EINVAL;
@@ -40,6 +40,20 @@ int imp_image_new(int width, int height, int channels, enum imp_pixel_type type,
             __builtin_mul_overflow(stride, (size_t) height, &total) ||
             total > IMP_IMAGE_MAX_BYTES)
                 return -EINVAL;
+        *ret_stride = stride;
+        *ret_total = total;
+        return 0;
+}
+
+int imp_image_new(int width, int height, int channels, enum imp_pixel_type type,
+                  struct imp_image **ret) {
+        size_t stride, total;
+
+        if (!ret)
+                return -EINVAL;
+        int r = imp_image_layout(width, height, channels, type, &stride, &total);
+        if (r < 0)
+                return r;
 
         struct imp_image *img = calloc(1, sizeof *img);
         if (!img)
@@ -61,7 +75,8 @@ int imp_image_new(int width, int height, int channels, enum imp_pixel_type type,
 void imp_image_free(struct imp_image *img) {
         if (!img)
                 return;
-        free(img->data);
+        if (!img->in_arena)
+                free(img->data);
         free(img);
 }
 

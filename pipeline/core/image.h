@@ -21,7 +21,8 @@ struct imp_image {
         int channels;                 /* 1..4 for files; any count in memory */
         enum imp_pixel_type type;
         size_t stride;                /* bytes per row, >= width * channels * sample size */
-        void *data;                   /* owned by the image */
+        void *data;                   /* owned by the image, or by an arena (below) */
+        bool in_arena;                /* data lives in an imp_image_arena: not freed with the image */
 };
 
 size_t imp_pixel_type_size(enum imp_pixel_type t);
@@ -31,10 +32,40 @@ const char *imp_pixel_type_name(enum imp_pixel_type t);
  * -ENOMEM when out of memory. */
 int imp_image_new(int width, int height, int channels, enum imp_pixel_type type,
                   struct imp_image **ret);
+/* The row stride and total bytes of such an image, or -EINVAL (the limits above). */
+int imp_image_layout(int width, int height, int channels, enum imp_pixel_type type,
+                     size_t *ret_stride, size_t *ret_total);
 void imp_image_free(struct imp_image *img);
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_image *, imp_image_free);
 #define _cleanup_image_ _cleanup_(imp_image_freep)
 int imp_image_dup(const struct imp_image *src, struct imp_image **ret);
+
+/* An arena for the images a stage keeps until it ends (e.g. the merged structured-light
+ * values until the decode): their samples are carved from large mappings advised for
+ * transparent huge pages, so faulting them in costs one fault per 2 MiB instead of one per
+ * 4 KiB (about 30x less CPU on the VMs measured), and the whole arena goes back to the system
+ * at once. imp_image_free() of an arena image frees only its header; the samples stay until
+ * imp_image_arena_free(), so an arena suits images that live as long as it does.
+ * Allocation is thread-safe. */
+struct imp_image_arena;
+int imp_image_arena_new(struct imp_image_arena **ret);
+/* Unmaps every block; the arena's images must not be read afterwards (their headers are
+ * still freed with imp_image_free()). NULL: no-op. */
+void imp_image_arena_free(struct imp_image_arena *a);
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_image_arena *, imp_image_arena_free);
+/* Bytes mapped by the arena so far (its blocks). */
+size_t imp_image_arena_mapped(const struct imp_image_arena *a);
+/* n zeroed bytes (64-byte aligned) from arena a, for a stage's large scratch arrays; freed
+ * with the arena. NULL when out of memory. */
+void *imp_image_arena_alloc(struct imp_image_arena *a, size_t n);
+/* imp_image_new() with the samples in arena a (zeroed, the same layout); a == NULL:
+ * imp_image_new(). */
+int imp_image_new_in(struct imp_image_arena *a, int width, int height, int channels,
+                     enum imp_pixel_type type, struct imp_image **ret);
+/* Moves *img's samples into arena a (a copy; the heap block is freed, for the next
+ * allocation of its size to reuse). Nothing happens when a is NULL or *img is in an arena
+ * already. -ENOMEM leaves *img as it was. */
+int imp_image_arena_adopt(struct imp_image_arena *a, struct imp_image *img);
 /* Converts to float (u8/u16 values kept as raw numbers, not normalised). */
 int imp_image_to_f32(const struct imp_image *src, struct imp_image **ret);
 

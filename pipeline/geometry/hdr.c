@@ -433,7 +433,7 @@ int imp_hdr_merge(const struct imp_hdr_exposure *stack, size_t n, const struct i
                 var = recycled(&opt->recycle->variance, w, h, C, IMP_PIX_F32);
                 fl = recycled(&opt->recycle->flags, w, h, C, IMP_PIX_U8);
         }
-        if ((r = imp_image_new(w, h, C, IMP_PIX_F32, &v)) < 0 ||
+        if ((r = imp_image_new_in(bayer ? NULL : opt->arena, w, h, C, IMP_PIX_F32, &v)) < 0 ||
             (!var && (r = imp_image_new(w, h, C, IMP_PIX_F32, &var)) < 0) ||
             (!fl && (r = imp_image_new(w, h, C, IMP_PIX_U8, &fl)) < 0))
                 return r;
@@ -456,7 +456,7 @@ int imp_hdr_merge(const struct imp_hdr_exposure *stack, size_t n, const struct i
 
         if (bayer) {
                 _cleanup_image_ struct imp_image *v3 = NULL, *var3 = NULL, *fl3 = NULL;
-                if ((r = imp_image_new(w, h, 3, IMP_PIX_F32, &v3)) < 0 ||
+                if ((r = imp_image_new_in(opt->arena, w, h, 3, IMP_PIX_F32, &v3)) < 0 ||
                     (r = imp_image_new(w, h, 3, IMP_PIX_F32, &var3)) < 0 ||
                     (r = imp_image_new(w, h, 3, IMP_PIX_U8, &fl3)) < 0)
                         return r;

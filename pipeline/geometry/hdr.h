@@ -66,6 +66,9 @@ struct imp_hdr_options {
          * the result is byte for byte that of a fresh merge. The value image is always new.
          * NULL: allocate. */
         struct imp_hdr_result *recycle;
+        /* The value image is allocated in this arena (image.h) instead of the heap: for a
+         * stage that keeps every merge's values until it ends. NULL: the heap. */
+        struct imp_image_arena *arena;
 };
 
 /* Fills the defaults above (all fields). */

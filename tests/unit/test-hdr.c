@@ -237,6 +237,22 @@ static void junk_spare(struct imp_hdr_result *sp, int w, int h) {
                 }
 }
 
+/* A 3-exposure stack of w x h frames over saturated, dark and ramp bands, with a dark frame. */
+static void band_stack(int w, int h, struct imp_image *f[3], struct imp_image **dark, struct imp_hdr_exposure st[3]) {
+        CHECK_OK(imp_image_new(w, h, 1, IMP_PIX_F32, dark));
+        for (int k = 0; k < 3; k++) {
+                CHECK_OK(imp_image_new(w, h, 1, IMP_PIX_U16, &f[k]));
+                st[k] = (struct imp_hdr_exposure) { .frame = f[k], .exposure_us = EXPOSURES_US[k] };
+        }
+        for (int y = 0; y < h; y++)
+                for (int x = 0; x < w; x++) {
+                        double V = y < 64 ? 1000.0 : y < 128 ? 0.0 : 0.02 * (1 + x);   /* saturated, dark, a ramp */
+                        *imp_image_f32(*dark, x, y) = 60 + (x * 7 + y * 3) % 11;
+                        for (int k = 0; k < 3; k++)
+                                *imp_image_u16(f[k], x, y) = draw_dn(&SENSOR, V, EXPOSURES_US[k], 0, 1, SENSOR.black_level_dn);
+                }
+}
+
 /* options.recycle: the variance and flags of an earlier result (junk-filled here) are
  * written into, taken over (the same images), and the result is byte for byte that of a
  * fresh merge, on the table path and on the dark-frame path; a spare of another layout is
@@ -245,18 +261,7 @@ static void test_recycle(void) {
         int w = 67, h = 64 * 3;
         struct imp_image *f[3], *dark;
         struct imp_hdr_exposure st[3];
-        CHECK_OK(imp_image_new(w, h, 1, IMP_PIX_F32, &dark));
-        for (int k = 0; k < 3; k++) {
-                CHECK_OK(imp_image_new(w, h, 1, IMP_PIX_U16, &f[k]));
-                st[k] = (struct imp_hdr_exposure) { .frame = f[k], .exposure_us = EXPOSURES_US[k] };
-        }
-        for (int y = 0; y < h; y++)
-                for (int x = 0; x < w; x++) {
-                        double V = y < 64 ? 1000.0 : y < 128 ? 0.0 : 0.02 * (1 + x);   /* saturated, dark, a ramp */
-                        *imp_image_f32(dark, x, y) = 60 + (x * 7 + y * 3) % 11;
-                        for (int k = 0; k < 3; k++)
-                                *imp_image_u16(f[k], x, y) = draw_dn(&SENSOR, V, EXPOSURES_US[k], 0, 1, SENSOR.black_level_dn);
-                }
+        band_stack(w, h, f, &dark, st);
         for (int with_dark = 0; with_dark < 2; with_dark++) {
                 struct imp_hdr_options o;
                 imp_hdr_options_default(&o);
@@ -290,11 +295,47 @@ static void test_recycle(void) {
         imp_image_free(dark);
 }
 
+/* options.arena: the value image is allocated in the arena (in_arena, inside its mapped
+ * bytes) and equals a heap merge byte for byte, with and without the dark frame and through
+ * the Bayer demosaic (where the 3-channel result is the arena's); the variance and flags stay
+ * on the heap; the arena is freed as a whole after the result. */
+static void test_arena(void) {
+        struct imp_image *f[3], *dark;
+        struct imp_hdr_exposure st[3];
+        band_stack(67, 64 * 3, f, &dark, st);
+        for (int mode = 0; mode < 3; mode++) {   /* table path, dark-frame path, Bayer */
+                struct imp_sensor s = SENSOR;
+                s.bayer = mode == 2;
+                struct imp_hdr_options o;
+                imp_hdr_options_default(&o);
+                o.dark = mode == 1 ? dark : NULL;
+                struct imp_hdr_result heap = {}, got = {};
+                CHECK_OK(imp_hdr_merge(st, 3, &s, &o, &heap));
+                struct imp_image_arena *a = NULL;
+                CHECK_OK(imp_image_arena_new(&a));
+                o.arena = a;
+                CHECK_OK(imp_hdr_merge(st, 3, &s, &o, &got));
+                CHECK_MSG(got.value && got.value->in_arena && !got.variance->in_arena && !got.flags->in_arena,
+                          "arena (mode %d): the value image is not the arena's", mode);
+                CHECK_MSG(imp_image_arena_mapped(a) > 0, "arena (mode %d): nothing mapped", mode);
+                CHECK_INT_EQ(got.value->channels, mode == 2 ? 3 : 1);
+                CHECK_MSG(same_bytes(heap.value, got.value) && same_bytes(heap.variance, got.variance) &&
+                          same_bytes(heap.flags, got.flags), "arena (mode %d): result differs from a heap merge", mode);
+                imp_hdr_result_done(&got);
+                imp_image_arena_free(a);
+                imp_hdr_result_done(&heap);
+        }
+        for (int k = 0; k < 3; k++)
+                imp_image_free(f[k]);
+        imp_image_free(dark);
+}
+
 int main(void) {
         test_unbiased_and_variance();
         test_dark_flat_gain();
         test_bayer();
         test_errors();
         test_recycle();
+        test_arena();
         return TEST_DONE();
 }
