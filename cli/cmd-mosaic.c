@@ -156,7 +156,7 @@ static int run(int argc, char **argv) {
                         if (parse_channels(optarg, &o.reg_channels) < 0)
                                 return IMP_EXIT_USAGE;
                         break;
-                case 's':       /* σ in texels of the heights' low-pass for registration; 0: none */
+                case 's':       /* σ in texels of the heights' low-pass for registration (0.5); 0: none */
                         if (imp_parse_double("--register-smooth", optarg, 0, 20, &o.reg_smooth_px) < 0)
                                 return IMP_EXIT_USAGE;
                         break;

@@ -8,9 +8,9 @@
  * 13 µm off, s × the 6.4 mm between rows, the coarser relief holds the rest) and the
  * mosaic's registration is off by ~11 µm;
  * registered on heights low-passed below the detail (imp_mosaic_options.reg_smooth_px = 2
- * texels, `impasto mosaic --register-smooth 2`) it does not. Not the default: on the
- * rendered copies the low-passed heights read an expansion larger than the contraction they
- * remove (docs/mosaic.md). */
+ * texels, `impasto mosaic --register-smooth 2`) it does not. The default σ is 0.5: on the
+ * rendered copies a stronger low-pass reads the coarser relief's opposite bias
+ * (docs/mosaic.md). */
 #include <stdlib.h>
 #include <string.h>
 #include "mosaic-edit.h"
