@@ -1,4 +1,5 @@
-/* `impasto mosaic PAINTING_DIR --out DIR [--prior-only] [--register-on WHAT] [--tile-px N] [--cache-mib N]`: one
+/* `impasto mosaic PAINTING_DIR --out DIR [--prior-only] [--register-on WHAT] [--register-smooth PX] [--tile-px N]
+ * [--cache-mib N]`: one
  * copy of a whole painting from its tiles' copies (docs/mosaic.md; pipeline/mosaic/mosaic.h).
  * Prints the registration (per pair: residual before and after, shift, 1σ), the adjustment's
  * change from the stage prior, the seam step and, when the painting has truth (simulator:
@@ -18,7 +19,7 @@
 
 static void usage(FILE *f) {
         fprintf(f, "usage: impasto mosaic PAINTING_DIR --out DIR [--prior-only] [--register-on heights|normals|both]\n"
-                   "                      [--tile-px N] [--cache-mib N]\n");
+                   "                      [--register-smooth PX] [--tile-px N] [--cache-mib N]\n");
 }
 
 static void print_pairs(const struct imp_painting *p, const struct imp_mosaic_pair *pr, size_t n) {
@@ -142,7 +143,8 @@ static int run(int argc, char **argv) {
         static const struct option longopts[] = {
                 { "out", required_argument, NULL, 'o' }, { "prior-only", no_argument, NULL, 'p' },
                 { "tile-px", required_argument, NULL, 't' }, { "cache-mib", required_argument, NULL, 'c' },
-                { "register-on", required_argument, NULL, 'r' }, { "help", no_argument, NULL, 'h' }, {}
+                { "register-on", required_argument, NULL, 'r' }, { "register-smooth", required_argument, NULL, 's' },
+                { "help", no_argument, NULL, 'h' }, {}
         };
         int c;
         long v;
@@ -152,6 +154,10 @@ static int run(int argc, char **argv) {
                 case 'p': o.prior_only = true; break;
                 case 'r':
                         if (parse_channels(optarg, &o.reg_channels) < 0)
+                                return IMP_EXIT_USAGE;
+                        break;
+                case 's':       /* σ in texels of the heights' low-pass for registration (0.5); 0: none */
+                        if (imp_parse_double("--register-smooth", optarg, 0, 20, &o.reg_smooth_px) < 0)
                                 return IMP_EXIT_USAGE;
                         break;
                 case 't':

@@ -11,3 +11,5 @@ impasto_test(test-mosaic-normals LIBS impasto_mosaic TIMEOUT 300)
 impasto_test(test-mosaic-seam LIBS impasto_mosaic TIMEOUT 300)
 # The extent covered to its edges with the plan's edge margin; uncovered texels counted by cause.
 impasto_test(test-mosaic-coverage LIBS impasto_mosaic TIMEOUT 300)
+# Pairs registered on heights low-passed below the detail whose copies depend on the camera's sampling.
+impasto_test(test-mosaic-fine LIBS impasto_mosaic TIMEOUT 300)

@@ -73,6 +73,9 @@ struct imp_mosaic_options {
         unsigned reg_channels;        /* what pairs are registered on: IMP_MOSAIC_REG_*; heights
                                          (the copies' photometric normals are ~2·10⁻⁴ too small
                                          about the field centre: docs/mosaic.md) */
+        double reg_smooth_px;         /* pairs registered on heights low-passed by a Gaussian of
+                                         this σ in texels (masked); 0.5 (the pixel-scale detail's
+                                         bias, docs/mosaic.md); 0: as they are */
 };
 enum { IMP_MOSAIC_REG_HEIGHT = 1 << 0, IMP_MOSAIC_REG_NORMALS = 1 << 1 };
 void imp_mosaic_options_default(struct imp_mosaic_options *o);

@@ -1,13 +1,14 @@
-/* Test helper for the mosaic tests: edit one channel of a synthetic painting's tile 0 copy. */
+/* Test helper for the mosaic tests: edit one channel of a synthetic painting's tile copy. */
 #pragma once
 #include <stdio.h>
 #include "image.h"
 #include "test.h"
 
-/* Reads tile 0's copy, lets edit() change one channel (index c) and writes it back. */
-static inline void edit_tile0(const char *dir, const char *channel, void (*edit)(struct imp_image *img, int c)) {
+/* Reads tile k's copy, lets edit() change one channel (index c; ctx passed on) and writes it back. */
+static inline void edit_tile(const char *dir, unsigned k, const char *channel,
+                             void (*edit)(struct imp_image *img, int c, void *ctx), void *ctx) {
         char path[700];
-        snprintf(path, sizeof path, "%s/copies/0000/heightfield.exr", dir);
+        snprintf(path, sizeof path, "%s/copies/%04u/heightfield.exr", dir, k);
         struct imp_image *img = NULL;
         char **names = NULL;
         struct imp_error err = { 0 };
@@ -18,8 +19,17 @@ static inline void edit_tile0(const char *dir, const char *channel, void (*edit)
         int c = imp_image_channel_index(names, channel);     /* EXR keeps channels sorted by name */
         CHECK_GE(c, 0);
         if (c >= 0)
-                edit(img, c);
+                edit(img, c, ctx);
         CHECK_OK(imp_exr_write(path, img, (const char *const *) names, false, &err));
         imp_strv_free(names);
         imp_image_free(img);
+}
+
+static inline void edit_tile0_call(struct imp_image *img, int c, void *ctx) {
+        (*(void (**)(struct imp_image *, int)) ctx)(img, c);
+}
+
+/* The same for tile 0 with an edit that needs no context. */
+static inline void edit_tile0(const char *dir, const char *channel, void (*edit)(struct imp_image *img, int c)) {
+        edit_tile(dir, 0, channel, edit_tile0_call, &edit);
 }
