@@ -14,7 +14,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include "mosaic-edit.h"
-#include "mosaic.h"
+#include "mosaic-fit.h"
 #include "test.h"
 
 #define SCALE 2e-3
@@ -44,50 +44,14 @@ static void add_fine(struct imp_image *img, int c, void *ctx) {
                 }
 }
 
-struct fit {
-        struct imp_mosaic_reg_error reg;
-        double dy_short_um;             /* mean over vertical neighbour pairs of true − measured dy */
-        size_t ok, n;
-};
-
-/* The true relative y shift of b to a about the overlap centre c (b's correction minus a's). */
-static double true_dy(const struct imp_mosaic_tile *a, const struct imp_mosaic_tile *b, const double c[2]) {
-        double cy[2];
-        const struct imp_mosaic_tile *t[2] = { a, b };
-        for (int k = 0; k < 2; k++)
-                cy[k] = t[k]->truth[1] - t[k]->nominal_mm[1] + t[k]->truth[2] * (c[0] - t[k]->nominal_mm[0]);
-        return cy[1] - cy[0];
-}
-
-static void run(const char *dir, double smooth_px, struct fit *ret) {
-        struct imp_painting p;
-        struct imp_error err = { 0 };
+static void run(const char *dir, double smooth_px, struct mosaic_fit *ret) {
         struct imp_mosaic_options o;
         imp_mosaic_options_default(&o);
         o.reg_smooth_px = smooth_px;
-        memset(ret, 0, sizeof *ret);
-        CHECK_OK(imp_painting_load(dir, &p, &err));
-        CHECK(p.has_truth);
-        struct imp_mosaic_pair *pairs = NULL;
-        CHECK_OK(imp_mosaic_register(&p, &o, &pairs, &ret->n, &err));
-        double s = 0;
-        int nv = 0;
-        for (size_t i = 0; i < ret->n; i++) {
-                const struct imp_mosaic_pair *pr = &pairs[i];
-                ret->ok += pr->ok;
-                const struct imp_mosaic_tile *a = &p.tiles[pr->a], *b = &p.tiles[pr->b];
-                if (pr->ok && a->col == b->col && b->row == a->row + 1)
-                        s += 1e3 * (true_dy(a, b, pr->c_mm) - pr->meas[1]), nv++;
-        }
-        ret->dy_short_um = nv ? s / nv : NAN;
-        struct imp_mosaic_adjust_stats st;
-        CHECK_OK(imp_mosaic_adjust(&p, pairs, ret->n, &st, &err));
-        CHECK_OK(imp_mosaic_registration_error(&p, &ret->reg));
+        mosaic_fit_run(dir, &o, ret);
         fprintf(stderr, "smoothing σ %.1f texels: pairs %zu/%zu, vertical pairs %.2f µm short, registration %.2f µm "
                 "(far corner %.2f, mean %.2f)\n", o.reg_smooth_px, ret->ok, ret->n, ret->dy_short_um, ret->reg.rms_um,
                 ret->reg.far_corner_um, ret->reg.mean_um);
-        free(pairs);
-        imp_painting_done(&p);
 }
 
 int main(void) {
@@ -104,7 +68,7 @@ int main(void) {
                 edit_tile(dir, p.tiles[k].index, "height", add_fine, &p.tiles[k]);
         imp_painting_done(&p);
 
-        struct fit raw, lp;
+        struct mosaic_fit raw, lp;
         run(dir, 0, &raw);
         run(dir, 2, &lp);
         /* Registered on the heights as they are, the displaced detail pulls every pair. */

@@ -6,56 +6,16 @@
  * the normals too the mosaic comes out too small, on heights (the default) it does not. */
 #include <stdlib.h>
 #include <string.h>
-#include "mosaic.h"
-#include "test.h"
+#include "mosaic-fit.h"
 
-struct fit {
-        struct imp_mosaic_reg_error reg;
-        double dy_short_um;             /* mean over vertical neighbour pairs of true − measured dy */
-        size_t ok, n;
-};
-
-/* The true relative shift of b to a about the overlap centre c (b's correction minus a's). */
-static double true_dy(const struct imp_mosaic_tile *a, const struct imp_mosaic_tile *b, const double c[2]) {
-        double cy[2];
-        const struct imp_mosaic_tile *t[2] = { a, b };
-        for (int k = 0; k < 2; k++) {
-                double dt = t[k]->truth[1] - t[k]->nominal_mm[1];
-                cy[k] = dt + t[k]->truth[2] * (c[0] - t[k]->nominal_mm[0]);
-        }
-        return cy[1] - cy[0];
-}
-
-static void run(const char *dir, unsigned channels, struct fit *ret) {
-        struct imp_painting p;
-        struct imp_error err = { 0 };
+static void run(const char *dir, unsigned channels, struct mosaic_fit *ret) {
         struct imp_mosaic_options o;
         imp_mosaic_options_default(&o);
         if (channels)
                 o.reg_channels = channels;
-        memset(ret, 0, sizeof *ret);
-        CHECK_OK(imp_painting_load(dir, &p, &err));
-        CHECK(p.has_truth);
-        struct imp_mosaic_pair *pairs = NULL;
-        CHECK_OK(imp_mosaic_register(&p, &o, &pairs, &ret->n, &err));
-        double s = 0;
-        int nv = 0;
-        for (size_t i = 0; i < ret->n; i++) {
-                const struct imp_mosaic_pair *pr = &pairs[i];
-                ret->ok += pr->ok;
-                const struct imp_mosaic_tile *a = &p.tiles[pr->a], *b = &p.tiles[pr->b];
-                if (!pr->ok || a->col != b->col || b->row != a->row + 1)
-                        continue;
-                s += 1e3 * (true_dy(a, b, pr->c_mm) - pr->meas[1]), nv++;
-        }
-        ret->dy_short_um = nv ? s / nv : NAN;
-        struct imp_mosaic_adjust_stats st;
-        CHECK_OK(imp_mosaic_adjust(&p, pairs, ret->n, &st, &err));
-        CHECK_OK(imp_mosaic_registration_error(&p, &ret->reg));
+        mosaic_fit_run(dir, &o, ret);
         fprintf(stderr, "channels %u: pairs %zu/%zu, vertical pairs %.2f µm short, registration %.2f µm (abs %.2f)\n",
-                channels ? channels : o.reg_channels, ret->ok, ret->n, ret->dy_short_um, ret->reg.rms_um, ret->reg.abs_rms_um);
-        free(pairs);
-        imp_painting_done(&p);
+                o.reg_channels, ret->ok, ret->n, ret->dy_short_um, ret->reg.rms_um, ret->reg.abs_rms_um);
 }
 
 int main(void) {
@@ -68,7 +28,7 @@ int main(void) {
         struct imp_error err = { 0 };
         CHECK_OK(imp_mosaic_synth_write(&synth, dir, &err));
 
-        struct fit both, dflt;
+        struct mosaic_fit both, dflt;
         run(dir, IMP_MOSAIC_REG_HEIGHT | IMP_MOSAIC_REG_NORMALS, &both);
         run(dir, 0, &dflt);
         /* The contracted normals bite when used: pairs short by several µm, registration off. */
