@@ -22,15 +22,17 @@ void imp_copy_done(struct imp_copy *c) {
         free(c->normal_y);
         free(c->sigma);
         free(c->mask);
-        free(c->flags);
+        free(c->texel_flags);
+        free(c->fit_flags);
         free(c->brdf);
         free(c->boxes);
         memset(c, 0, sizeof *c);
 }
 
-/* Reads DIR/FILE and finds channels CHANS; the size must be w×h. */
-static int read_exr(const char *dir, const char *file, const char *const *chans, int n, int w, int h,
-                    struct imp_image **ret, int *ret_c, struct imp_error *err) {
+/* Reads DIR/FILE and finds channels CHANS (and, when ret_opt is not NULL, the optional channel
+ * OPT: *ret_opt −1 when absent); the size must be w×h. */
+static int read_exr_opt(const char *dir, const char *file, const char *const *chans, int n, const char *opt, int w,
+                        int h, struct imp_image **ret, int *ret_c, int *ret_opt, struct imp_error *err) {
         char path[4096];
         snprintf(path, sizeof path, "%s/%s", dir, file);
         char **names = NULL;
@@ -43,12 +45,19 @@ static int read_exr(const char *dir, const char *file, const char *const *chans,
                         imp_strv_free(names);
                         return imp_error_set(err, -EBADMSG, "%s: channel \"%s\" missing", path, chans[i]);
                 }
+        if (ret_opt)
+                *ret_opt = imp_image_channel_index(names, opt);
         imp_strv_free(names);
         if (img->width != w || img->height != h)
                 return imp_error_set(err, -EBADMSG, "%s: %dx%d, copy.json says %dx%d", path, img->width,
                                      img->height, w, h);
         *ret = TAKE_PTR(img);
         return 0;
+}
+
+static int read_exr(const char *dir, const char *file, const char *const *chans, int n, int w, int h,
+                    struct imp_image **ret, int *ret_c, struct imp_error *err) {
+        return read_exr_opt(dir, file, chans, n, NULL, w, h, ret, ret_c, NULL, err);
 }
 
 static float finite_or(double v, float dflt) {
@@ -139,15 +148,22 @@ static int alloc_maps(struct imp_copy *c, struct imp_error *err) {
         c->normal_y = malloc(n * sizeof(float));
         c->sigma = malloc(n * sizeof(float));
         c->mask = calloc(n, 1);
-        c->flags = calloc(n, sizeof *c->flags);
+        c->texel_flags = calloc(n, sizeof *c->texel_flags);
+        c->fit_flags = calloc(n, sizeof *c->fit_flags);
         c->brdf = calloc(n, sizeof *c->brdf);
-        if (!c->height || !c->normal_x || !c->normal_y || !c->sigma || !c->mask || !c->flags || !c->brdf)
+        if (!c->height || !c->normal_x || !c->normal_y || !c->sigma || !c->mask || !c->texel_flags || !c->fit_flags ||
+            !c->brdf)
                 return imp_error_set(err, -ENOMEM, "out of memory for a %dx%d copy", c->nx, c->ny);
         return 0;
 }
 
+/* A flags channel's value as bits: 0 unless a finite positive integer below 2^16. */
+static uint16_t flag_bits(float v) {
+        return isfinite(v) && v > 0 && v < 65536 ? (uint16_t) lrintf(v) : 0;
+}
+
 /* fit-flags.exr is optional: older copies have none. */
-static int load_flags(const char *dir, struct imp_copy *c, struct imp_error *err) {
+static int load_fit_flags(const char *dir, struct imp_copy *c, struct imp_error *err) {
         char path[4096];
         snprintf(path, sizeof path, "%s/fit-flags.exr", dir);
         if (access(path, F_OK) < 0)
@@ -161,9 +177,9 @@ static int load_flags(const char *dir, struct imp_copy *c, struct imp_error *err
         for (int j = 0; j < c->ny; j++)
                 for (int i = 0; i < c->nx; i++) {
                         float v = imp_image_f32(fl, i, j)[cf];
-                        c->flags[(size_t) j * c->nx + i] = isfinite(v) && v > 0 ? (uint32_t) lrintf(v) : 0;
+                        c->fit_flags[(size_t) j * c->nx + i] = flag_bits(v);
                 }
-        c->has_flags = true;
+        c->has_fit_flags = true;
         return 0;
 }
 
@@ -175,13 +191,13 @@ int imp_copy_load(const char *dir, struct imp_copy *c, struct imp_error *err) {
         static const char *const HF[] = { "height", "nx", "ny", "sigma", "mask" }, *const RGB[] = { "R", "G", "B" },
                                  *const LOBE[] = { "cx", "cy", "cz", "k" };
         _cleanup_image_ struct imp_image *hf = NULL, *rd = NULL, *rs = NULL, *lo = NULL;
-        int ch[5], cd[3], cs[3], cl[4];
-        if ((r = read_exr(dir, "heightfield.exr", HF, 5, c->nx, c->ny, &hf, ch, err)) < 0 ||
+        int ch[5], cd[3], cs[3], cl[4], cf;
+        if ((r = read_exr_opt(dir, "heightfield.exr", HF, 5, "flags", c->nx, c->ny, &hf, ch, &cf, err)) < 0 ||
             (r = read_exr(dir, "rho_d.exr", RGB, 3, c->nx, c->ny, &rd, cd, err)) < 0 ||
             (r = read_exr(dir, "rho_s.exr", RGB, 3, c->nx, c->ny, &rs, cs, err)) < 0 ||
             (r = read_exr(dir, "lobe.exr", LOBE, 4, c->nx, c->ny, &lo, cl, err)) < 0 ||
             /* only now: the maps are copy.json's size, so a damaged nx, ny costs no memory */
-            (r = alloc_maps(c, err)) < 0 || (r = load_flags(dir, c, err)) < 0)
+            (r = alloc_maps(c, err)) < 0 || (r = load_fit_flags(dir, c, err)) < 0)
                 return r;
         float plane = (float) c->plane_mm;
         for (int j = 0; j < c->ny; j++)
@@ -195,6 +211,7 @@ int imp_copy_load(const char *dir, struct imp_copy *c, struct imp_error *err) {
                         c->normal_x[k] = in ? finite_or(p[ch[1]], 0) : 0;
                         c->normal_y[k] = in ? finite_or(p[ch[2]], 0) : 0;
                         c->sigma[k] = in ? fmaxf(finite_or(p[ch[3]], 0), 0) : 0;
+                        c->texel_flags[k] = in && cf >= 0 ? flag_bits(p[cf]) : 0;
                         struct imp_lafortune *b = &c->brdf[k];
                         const float *d = imp_image_f32(rd, i, j), *s = imp_image_f32(rs, i, j);
                         const float *l = imp_image_f32(lo, i, j);
@@ -205,6 +222,7 @@ int imp_copy_load(const char *dir, struct imp_copy *c, struct imp_error *err) {
                         b->cx = finite_or(l[cl[0]], -1), b->cy = finite_or(l[cl[1]], -1);
                         b->cz = finite_or(l[cl[2]], 1), b->k = fmaxf(finite_or(l[cl[3]], 1), 0);
                 }
+        c->has_flags = cf >= 0;
         return 0;
 }
 

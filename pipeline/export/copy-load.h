@@ -21,17 +21,20 @@ struct imp_copy {
         float *normal_x, *normal_y;   /* off the mask: 0 */
         float *sigma;                 /* height σ in mm; off the mask: 0 */
         uint8_t *mask;                /* heightfield.exr mask: 0 off, 1 measured, 2 filled */
-        uint32_t *flags;              /* fit-flags.exr (bits of enum imp_texel_flag); zeros
-                                         when the copy has none */
+        uint16_t *texel_flags;        /* heightfield.exr flags: the copy's quality flags (bits of
+                                         enum imp_texel_flag, quality.h); zeros when it has none */
         bool has_flags;
+        uint16_t *fit_flags;          /* fit-flags.exr: the BRDF fit's flags (bits of enum
+                                         imp_btf_flag, btf.h); zeros when the copy has none */
+        bool has_fit_flags;
         struct imp_lafortune *brdf;   /* nx·ny; off the mask: black (ρd = ρs = 0) */
         struct imp_relief_box *boxes; /* n_boxes (from boxes.json) */
         size_t n_boxes;
         size_t n_mask;                /* texels on the mask */
 };
 
-/* Reads COPY_DIR/{copy.json, boxes.json, heightfield.exr, rho_d.exr, rho_s.exr, lobe.exr,
- * fit-flags.exr (optional)}. Errors name the file and the field: a missing file, a missing
+/* Reads COPY_DIR/{copy.json, boxes.json, heightfield.exr (its flags channel optional),
+ * rho_d.exr, rho_s.exr, lobe.exr, fit-flags.exr (optional)}. Errors name the file and the field: a missing file, a missing
  * channel, a size other than copy.json's, a bad box. Returns 0 or a negative errno; *ret
  * is zeroed first and freed with imp_copy_done() in every case. */
 int imp_copy_load(const char *dir, struct imp_copy *ret, struct imp_error *err);

@@ -69,7 +69,7 @@ static void fill_textures(const struct imp_copy *c, uint16_t *d) {
                 float v[IMP_VIEW_PACK_TEXTURES][4] = {
                         { (float) (c->height[k] - c->plane_mm), c->normal_x[k], c->normal_y[k], c->mask[k] },
                         { b->rho_d[0], b->rho_d[1], b->rho_d[2], c->sigma[k] },
-                        { b->rho_s[0], b->rho_s[1], b->rho_s[2], (float) (c->flags[k] & 0x7ffu) },
+                        { b->rho_s[0], b->rho_s[1], b->rho_s[2], (float) c->texel_flags[k] },
                         { b->cx, b->cy, b->cz, b->k },
                 };
                 for (int t = 0; t < IMP_VIEW_PACK_TEXTURES; t++)

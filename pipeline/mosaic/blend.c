@@ -19,7 +19,8 @@
                     IMP_TEXEL_FIT_FAILED | IMP_TEXEL_FRAME_ADJACENT)
 
 void mosaic_out_done(struct mosaic_out *t) {
-        free(t->height), free(t->nx_), free(t->ny_), free(t->sigma), free(t->mask), free(t->flags), free(t->brdf);
+        free(t->height), free(t->nx_), free(t->ny_), free(t->sigma), free(t->mask), free(t->flags), free(t->fit_flags),
+                free(t->brdf);
         memset(t, 0, sizeof *t);
 }
 
@@ -28,14 +29,14 @@ int mosaic_out_alloc(struct mosaic_out *t, int nx, int ny) {
         t->nx = nx, t->ny = ny;
         t->height = calloc(n, sizeof(float)), t->nx_ = calloc(n, sizeof(float)), t->ny_ = calloc(n, sizeof(float));
         t->sigma = calloc(n, sizeof(float)), t->mask = calloc(n, 1), t->flags = calloc(n, sizeof(uint16_t));
-        t->brdf = calloc(n, sizeof *t->brdf);
-        return t->height && t->nx_ && t->ny_ && t->sigma && t->mask && t->flags && t->brdf ? 0 : -ENOMEM;
+        t->fit_flags = calloc(n, sizeof(uint16_t)), t->brdf = calloc(n, sizeof *t->brdf);
+        return t->height && t->nx_ && t->ny_ && t->sigma && t->mask && t->flags && t->fit_flags && t->brdf ? 0 : -ENOMEM;
 }
 
 /* Accumulator of one output texel. */
 struct acc {
         double w, h, n[2], s2, rd[3], rs[3], lobe[4], wmax;
-        uint32_t flags_best;
+        uint16_t flags_best, fit_flags_best;  /* the heaviest contributor's texel and fit flags */
         uint8_t mask;
 };
 
@@ -89,7 +90,7 @@ static void contribute(const struct imp_mosaic_tile *t, const struct imp_copy *c
         for (int q = 0; q < 4; q++)
                 sg += b[q] * c->sigma[k[q]], nx += b[q] * c->normal_x[k[q]], ny += b[q] * c->normal_y[k[q]];
         double w = fallback * fmax(smooth(edge / feather), 1e-4) / (sg * sg + 1e-6);
-        if (c->flags[near] & POOR_FLAGS)
+        if (c->texel_flags[near] & POOR_FLAGS)
                 w *= 0.1;
         double phi = t->pose[2] + atan2(t->c2w[4], t->c2w[0]), cp = cos(phi), sp = sin(phi);
         a->w += w, a->h += w * h, a->s2 += w * w * sg * sg;
@@ -102,7 +103,7 @@ static void contribute(const struct imp_mosaic_tile *t, const struct imp_copy *c
                 a->lobe[0] += wb * L->cx, a->lobe[1] += wb * L->cy, a->lobe[2] += wb * L->cz, a->lobe[3] += wb * L->k;
         }
         if (w > a->wmax)
-                a->wmax = w, a->flags_best = c->flags[near];
+                a->wmax = w, a->flags_best = c->texel_flags[near], a->fit_flags_best = c->fit_flags[near];
         uint8_t m = c->mask[near] ? c->mask[near] : 1;
         a->mask = a->mask ? IMP_MIN(a->mask, m) : m;
 }
@@ -114,7 +115,8 @@ static void finish(const struct acc *a, struct mosaic_out *o, size_t k) {
         o->nx_[k] = (float) (a->n[0] / a->w), o->ny_[k] = (float) (a->n[1] / a->w);
         o->sigma[k] = (float) (sqrt(a->s2) / a->w);
         o->mask[k] = a->mask;
-        o->flags[k] = (uint16_t) a->flags_best;
+        o->flags[k] = a->flags_best;
+        o->fit_flags[k] = a->fit_flags_best;
         struct imp_lafortune *L = &o->brdf[k];
         for (int ch = 0; ch < 3; ch++)
                 L->rho_d[ch] = (float) (a->rd[ch] / a->w), L->rho_s[ch] = (float) (a->rs[ch] / a->w);
@@ -186,7 +188,7 @@ static int write_maps(const struct mosaic_out *o, const char *dir, struct imp_er
                         for (int ch = 0; ch < 3; ch++)
                                 d[ch] = L->rho_d[ch], s[ch] = L->rho_s[ch];
                         l[0] = L->cx, l[1] = L->cy, l[2] = L->cz, l[3] = L->k;
-                        *imp_image_f32(fl, i, j) = o->flags[(size_t) j * o->nx + i];
+                        *imp_image_f32(fl, i, j) = o->fit_flags[(size_t) j * o->nx + i];
                 }
         static const char *const rgb[] = { "R", "G", "B" }, *const lobe[] = { "cx", "cy", "cz", "k" },
                                  *const flags[] = { "flags" };

@@ -18,7 +18,8 @@ struct mosaic_out {
         double origin_mm[2];          /* canvas_to_world translation: texel (0, 0) in the painting */
         float *height, *nx_, *ny_, *sigma;
         uint8_t *mask;
-        uint16_t *flags;
+        uint16_t *flags;              /* texel flags (quality.h): heightfield.exr */
+        uint16_t *fit_flags;          /* the BRDF fit's flags (btf.h): fit-flags.exr */
         struct imp_lafortune *brdf;
         size_t uncovered[IMP_MOSAIC_UNCOVERED_N];   /* texels left off the mask, by cause */
         double edge_depth_mm;         /* farthest of the EDGE ones from the painting's border */

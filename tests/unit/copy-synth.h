@@ -27,7 +27,10 @@ static inline double copy_synth_sigma(int i, int j) { return 0.001 + 0.0001 * i;
 static inline double copy_synth_rho_d(int i, int j, int c) { return 0.2 + 0.015 * i + 0.1 * c + 0.005 * j; }
 static inline double copy_synth_rho_s(int i, int j, int c) { return 0.05 + 0.002 * j; }
 static inline double copy_synth_k(int i, int j) { return 10 + i; }
+/* The texel flags (heightfield.exr, quality.h) and, elsewhere, different fit flags (fit-flags.exr,
+ * btf.h: matte and k at its bound), so a reader that takes one for the other is caught. */
 static inline unsigned copy_synth_flags(int i, int j) { return i == 5 && j == 6 ? (1u << 5) | (1u << 9) : 0; }
+static inline unsigned copy_synth_fit_flags(int i, int j) { return i == 7 && j == 3 ? (1u << 2) | (1u << 7) : 0; }
 
 static inline int copy_synth_write(const char *dir, struct imp_error *err) {
         int r = imp_mkdir_p(dir, 0755);
@@ -35,7 +38,7 @@ static inline int copy_synth_write(const char *dir, struct imp_error *err) {
                 return r;
         const int W = COPY_SYNTH_NX, H = COPY_SYNTH_NY;
         _cleanup_image_ struct imp_image *hf = NULL, *rd = NULL, *rs = NULL, *lo = NULL, *fl = NULL;
-        if ((r = imp_image_new(W, H, 5, IMP_PIX_F32, &hf)) < 0 || (r = imp_image_new(W, H, 3, IMP_PIX_F32, &rd)) < 0 ||
+        if ((r = imp_image_new(W, H, 6, IMP_PIX_F32, &hf)) < 0 || (r = imp_image_new(W, H, 3, IMP_PIX_F32, &rd)) < 0 ||
             (r = imp_image_new(W, H, 3, IMP_PIX_F32, &rs)) < 0 || (r = imp_image_new(W, H, 4, IMP_PIX_F32, &lo)) < 0 ||
             (r = imp_image_new(W, H, 1, IMP_PIX_F32, &fl)) < 0)
                 return r;
@@ -52,15 +55,16 @@ static inline int copy_synth_write(const char *dir, struct imp_error *err) {
                         p[2] = in ? (float) (-gy / nn) : 0;
                         p[3] = in ? (float) copy_synth_sigma(i, j) : 0;
                         p[4] = in;
+                        p[5] = in ? (float) copy_synth_flags(i, j) : 0;
                         for (int c = 0; c < 3; c++) {
                                 imp_image_f32(rd, i, j)[c] = (float) copy_synth_rho_d(i, j, c);
                                 imp_image_f32(rs, i, j)[c] = (float) copy_synth_rho_s(i, j, c);
                         }
                         float *l = imp_image_f32(lo, i, j);
                         l[0] = -1, l[1] = -1, l[2] = 1, l[3] = (float) copy_synth_k(i, j);
-                        *imp_image_f32(fl, i, j) = (float) copy_synth_flags(i, j);
+                        *imp_image_f32(fl, i, j) = (float) copy_synth_fit_flags(i, j);
                 }
-        static const char *const HF[] = { "height", "nx", "ny", "sigma", "mask" }, *const RGB[] = { "R", "G", "B" },
+        static const char *const HF[] = { "height", "nx", "ny", "sigma", "mask", "flags" }, *const RGB[] = { "R", "G", "B" },
                                  *const LO[] = { "cx", "cy", "cz", "k" }, *const FL[] = { "flags" };
         char path[1024];
 #define SYNTH_EXR(name, img, names) \

@@ -11,6 +11,7 @@
 #include "json-util.h"
 #include "mosaic-edit.h"
 #include "mosaic.h"
+#include "quality.h"
 #include "test.h"
 
 /* Blends DIR with every tile at its true pose into OUT. */
@@ -64,6 +65,36 @@ static void check_json(const char *out, const struct imp_mosaic_figures *f) {
         json_decref(j);
 }
 
+/* Marks every texel of a copy's flags channel normal_uncertain (a flag that does not change
+ * the blend's weights). */
+static void mark_flags(struct imp_image *img, int c) {
+        for (int j = 0; j < img->height; j++)
+                for (int i = 0; i < img->width; i++)
+                        imp_image_f32(img, i, j)[c] = (float) IMP_TEXEL_NORMAL_UNCERTAIN;
+}
+
+/* Texels of OUT/tiles/000-000/FILE (the painting's corner, which only tile 0 sees) whose
+ * flags channel has bit. */
+static size_t corner_flagged(const char *out, const char *file, unsigned bit) {
+        char path[700];
+        snprintf(path, sizeof path, "%s/tiles/000-000/%s", out, file);
+        struct imp_image *img = NULL;
+        char **names = NULL;
+        struct imp_error err = { 0 };
+        CHECK_OK(imp_exr_read(path, &img, &names, &err));
+        if (!img)
+                return 0;
+        int c = imp_image_channel_index(names, "flags");
+        CHECK_GE(c, 0);
+        size_t n = 0;
+        for (int j = 0; c >= 0 && j < 8; j++)
+                for (int i = 0; i < 8; i++)
+                        n += ((unsigned) lrintf(imp_image_f32(img, i, j)[c]) & bit) != 0;
+        imp_strv_free(names);
+        imp_image_free(img);
+        return n;
+}
+
 /* A 20 × 20-texel hole in tile 0's mask where only tile 0 sees the painting (painting x 1.5–3.5,
  * y 0.5–2.5 mm with the 1 mm margin). */
 #define HOLE_PX 20
@@ -105,6 +136,14 @@ int main(void) {
         CHECK_INT_EQ(uncovered(&f1), 0);
         CHECK_INT_EQ(f1.texels_doubled, 0);
         check_json(out, &f1);
+
+        /* A copy's texel flags (heightfield.exr) reach the mosaic's texel flags, not its fit flags. */
+        CHECK_INT_EQ(corner_flagged(out, "heightfield.exr", IMP_TEXEL_NORMAL_UNCERTAIN), 0);
+        edit_tile0(margin, "flags", mark_flags);
+        struct imp_mosaic_figures ff;
+        run(margin, out, &ff);
+        CHECK_INT_EQ(corner_flagged(out, "heightfield.exr", IMP_TEXEL_NORMAL_UNCERTAIN), 64);
+        CHECK_INT_EQ(corner_flagged(out, "fit-flags.exr", IMP_TEXEL_NORMAL_UNCERTAIN), 0);
 
         /* A hole in a copy where no other copy sees: counted as a hole, nothing else. */
         edit_tile0(margin, "mask", hole_mask);

@@ -40,6 +40,11 @@ static void test_pack(const char *dir) {
         CHECK_OK(imp_copy_load(dir, &c, &err));
         CHECK_INT_EQ(c.n_boxes, 2);
         CHECK(c.has_flags);
+        CHECK(c.has_fit_flags);
+        /* The texel flags from heightfield.exr, the fit's own from fit-flags.exr, each kept apart. */
+        CHECK_INT_EQ(c.texel_flags[6 * COPY_SYNTH_NX + 5], copy_synth_flags(5, 6));
+        CHECK_INT_EQ(c.fit_flags[3 * COPY_SYNTH_NX + 7], copy_synth_fit_flags(7, 3));
+        CHECK_INT_EQ(c.texel_flags[3 * COPY_SYNTH_NX + 7], 0);
         CHECK_NEAR(c.plane_mm, COPY_SYNTH_HREF + COPY_SYNTH_DELTA0, 1e-12);
         struct imp_view_pack p;
         CHECK_OK(imp_view_pack_build(&c, &p, &err));
