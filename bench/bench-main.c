@@ -5,6 +5,7 @@
 #include <string.h>
 #include "bench-study.h"
 #include "exit-codes.h"
+#include "hugepages.h"
 #include "log.h"
 
 extern const struct imp_bench_study *const __start_imp_bench_studies[] __attribute__((weak));
@@ -24,8 +25,11 @@ int main(int argc, char **argv) {
                 return argc < 2 ? IMP_EXIT_USAGE : IMP_EXIT_OK;
         }
         for (const struct imp_bench_study *const *s = __start_imp_bench_studies; s < __stop_imp_bench_studies; s++)
-                if (!strcmp((*s)->name, argv[1]))
+                if (!strcmp((*s)->name, argv[1])) {
+                        if ((*s)->hugepages)
+                                imp_hugepages_reexec(argv);
                         return (*s)->run(argc - 1, argv + 1);
+                }
         fprintf(stderr, "impasto bench: unknown study '%s'\n", argv[1]);
         usage(stderr);
         return IMP_EXIT_USAGE;

@@ -3,11 +3,14 @@
  * (IMPASTO_BENCH_STUDIES). The registrations gather in one linker section, as systemd
  * gathers its tests, so bench-main.c needs no list of its own. */
 #pragma once
+#include <stdbool.h>
 
 struct imp_bench_study {
         const char *name;             /* `impasto bench NAME` */
         const char *summary;          /* one line for `impasto bench --help`; NULL: an internal step */
         int (*run)(int argc, char **argv);   /* argv[0] is NAME; returns the exit code */
+        bool hugepages;               /* measures processing: malloc in huge pages, as the
+                                       * processing programs run (hugepages.h) */
 };
 
 #define IMP_BENCH_STUDY(id, ...)                                                                  \

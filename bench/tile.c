@@ -192,8 +192,10 @@ static int tile_run(int argc, char **argv) {
         /* libgomp reads the wait policy when it loads: spinning threads cost CPU time on a
          * loaded machine, so the figures say which policy they were taken with */
         const char *wait = getenv("OMP_WAIT_POLICY");
-        printf("tile: %s → %s, %d threads, held-out validation %s, OMP_WAIT_POLICY %s\n", capture, out, threads,
-               holdout > 0 ? "on" : "off", wait && *wait ? wait : "unset (spin, then sleep)");
+        const char *tun = getenv("GLIBC_TUNABLES");
+        printf("tile: %s → %s, %d threads, held-out validation %s, OMP_WAIT_POLICY %s, GLIBC_TUNABLES %s\n", capture,
+               out, threads, holdout > 0 ? "on" : "off", wait && *wait ? wait : "unset (spin, then sleep)",
+               tun && *tun ? tun : "unset");
         printf("  stages (copy.json seconds, wall):\n");
         print_stages(out);
         printf("  between progress reports (wall / CPU of all threads):\n");
@@ -213,4 +215,4 @@ static int tile_run(int argc, char **argv) {
 
 IMP_BENCH_STUDY(tile, .name = "tile",
                 .summary = "one tile processed against its capture estimate (docs/processing-speed.md)",
-                .run = tile_run);
+                .run = tile_run, .hugepages = true);

@@ -180,4 +180,9 @@ static int run(int argc, char **argv) {
         return mosaic(argv[optind], out, &o);
 }
 
-const struct imp_command imp_cmd_mosaic = { "mosaic", "one copy of a whole painting from its tiles' copies", run };
+const struct imp_command imp_cmd_mosaic = {
+        .name = "mosaic",
+        .summary = "one copy of a whole painting from its tiles' copies",
+        .run = run,
+        .hugepages = true,
+};

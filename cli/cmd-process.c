@@ -396,4 +396,5 @@ const struct imp_command imp_cmd_process = {
         .name = "process",
         .summary = "turn a capture set into a digital copy (heightfield, boxes, BTF)",
         .run = run,
+        .hugepages = true,
 };

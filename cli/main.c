@@ -5,6 +5,7 @@
 #include "commands.h"
 #include "exit-codes.h"
 #include "help.h"
+#include "hugepages.h"
 #include "log.h"
 
 /* Subcommands are declared weak so that the client links while a subcommand's module is
@@ -37,7 +38,10 @@ int main(int argc, char **argv) {
         if (r >= 0)
                 return r;
         for (size_t i = 0; i < sizeof commands / sizeof commands[0]; i++)
-                if (commands[i] && !strcmp(commands[i]->name, argv[1]))
+                if (commands[i] && !strcmp(commands[i]->name, argv[1])) {
+                        if (commands[i]->hugepages)
+                                imp_hugepages_reexec(argv);
                         return commands[i]->run(argc - 1, argv + 1);
+                }
         return imp_cli_unknown_command(argv[1], commands, sizeof commands / sizeof commands[0]);
 }

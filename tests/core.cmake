@@ -1,6 +1,7 @@
 # Base pieces: errors, logging, image formats, config, JSON, capture sets, rig model.
 impasto_test(test-error)
 impasto_test(test-numerics)
+impasto_test(test-hugepages)
 
 # The layer rule of docs/layout.md: no lower layer includes a higher layer's header.
 add_test(NAME test-layers COMMAND python3 ${CMAKE_CURRENT_SOURCE_DIR}/layout/check-layers.py ${PROJECT_SOURCE_DIR})

@@ -34,6 +34,7 @@
 #include <time.h>
 #include <unistd.h>
 #include "build-kind.h"
+#include "hugepages.h"
 #include "job.h"
 #include "json-util.h"
 #include "log.h"
@@ -518,6 +519,7 @@ static int batch_task(const struct worker_cmdline *c) {
 
 int main(int argc, char **argv) {
         imp_log_set_ident("impasto-worker");
+        imp_hugepages_reexec(argv);
         struct worker_cmdline c = {};
         int r = parse_cmdline(argc, argv, &c);
         if (r != 0)
