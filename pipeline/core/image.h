@@ -95,6 +95,8 @@ double imp_image_get(const struct imp_image *img, int x, int y, int c);
 
 /* PNG: 8- or 16-bit, 1-4 channels (grey, grey+alpha, RGB, RGBA). Exact round trip. */
 int imp_png_write(const char *path, const struct imp_image *img, struct imp_error *err);
+/* The same pixels coded for speed (zlib level 3, the Sub filter): for previews. */
+int imp_png_write_fast(const char *path, const struct imp_image *img, struct imp_error *err);
 int imp_png_read(const char *path, struct imp_image **ret, struct imp_error *err);
 
 /* TIFF: u8, u16 or f32, 1-4 channels; `description` (may be NULL) goes into the
