@@ -323,6 +323,9 @@ struct geometry_out {
          * the final normal_trust(): neither changes in between (the fit and flag_edges
          * change σ_n and the flags only) */
         struct imp_normal_trust_cache nt_cache;
+        /* the structured-light values' arena, emptied after the decode and kept faulted in:
+         * the dome values reuse its pages (dome_load) instead of faulting in fresh ones */
+        struct imp_image_arena *spare;
 };
 
 static void geometry_out_done(struct geometry_out *g) {
@@ -332,6 +335,7 @@ static void geometry_out_done(struct geometry_out *g) {
         for (int m = 0; m < 4; m++)
                 imp_image_free(g->maps[m]);
         imp_normal_trust_cache_done(&g->nt_cache);
+        imp_image_arena_free(g->spare);
 }
 
 /* Relief boxes of the final heightfield (seed §4.3), into g->boxes and stages.boxes. */
@@ -528,7 +532,7 @@ static int sl_range(const struct process_opts *o, const struct imp_rig *rig, str
                 imp_image_free(TAKE_PTR(f->imgs[i]));
                 imp_image_free(TAKE_PTR(f->sats[i]));
         }
-        imp_image_arena_free(TAKE_PTR(f->arena));
+        imp_image_arena_reset(f->arena);   /* its pages go to the dome values (geometry_out.spare) */
         progress(o, "decode", 1, 1);
         *ret_t_decoded = now_s();
         struct imp_projector_coords pc;
@@ -628,6 +632,8 @@ static int run_geometry(const struct process_opts *o, const struct imp_capturese
                                     json_pack("{s:[f,f],s:[b,b]}", "err_px", sl->phase_err_px[0], sl->phase_err_px[1],
                                               "rejected", sl->phase_rejected[0], sl->phase_rejected[1]));
         }
+        if (r >= 0)
+                g->spare = TAKE_PTR(f.arena);
         sl_frames_done(&f);
         imp_sl_result_free(sl);
         imp_range_image_done(&range);
@@ -786,7 +792,7 @@ static int dome_load(const struct process_opts *o, const struct imp_captureset *
         d->ho_frames = calloc(n_stacks, sizeof *d->ho_frames), d->ho_valid = calloc(n_stacks, sizeof *d->ho_valid);
         d->lights = calloc(n_stacks, sizeof *d->lights), d->ho_lights = calloc(n_stacks, sizeof *d->ho_lights);
         if (!d->frames || !d->valid || !d->ho_frames || !d->ho_valid || !d->lights || !d->ho_lights ||
-            imp_image_arena_new(&d->arena) < 0)
+            (!d->arena && imp_image_arena_new(&d->arena) < 0))
                 return imp_error_set(err, -ENOMEM, "out of memory");
         /* every holdout_every-th stack is held out: stack i's place in either list */
         size_t N = o->opt->holdout_every > 0 ? (size_t) o->opt->holdout_every : 0;
@@ -796,6 +802,7 @@ static int dome_load(const struct process_opts *o, const struct imp_captureset *
         int r = for_each_stack(o, "dome hdr merge", n_stacks, dome_merge_one, &c, err);
         if (r < 0)
                 return r;
+        imp_image_arena_trim(d->arena);   /* the structured-light pages the dome values did not reuse */
         d->seconds = now_s() - t0;
         if (d->n_used == 0)
                 return imp_error_set(err, -EINVAL, "%s: --holdout %d leaves no dome light for the fit",
@@ -971,6 +978,7 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
         _cleanup_free_ float *normal = malloc(nt * 3 * sizeof *normal);
         if (!normal)
                 return imp_error_set(err, -ENOMEM, "out of memory");
+        d.arena = TAKE_PTR(g->spare);
         if ((r = dome_load(o, cs, stacks, IMP_MIN(n_stacks, (size_t) IMP_BTF_MAX_SAMPLES), &d, err)) < 0)
                 goto out;
         for (size_t i = 0; i < nt; i++) {

@@ -264,7 +264,7 @@ int imp_copy_previews(const char *copy_dir, const struct imp_heightfield *hf, co
                 char pk[4200];
                 snprintf(pk, sizeof pk, "%s/%s", dir, names[k]);
                 if (imgs[k])
-                        rk[k] = imp_png_write(pk, imgs[k], &ek[k]);
+                        rk[k] = imp_png_write_fast(pk, imgs[k], &ek[k]);
         }
         for (size_t k = 0; k < ARRAY_SIZE(names) && r >= 0; k++)
                 if ((r = rk[k]) < 0 && err)

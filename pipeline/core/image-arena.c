@@ -28,11 +28,13 @@ struct arena_block {
         struct arena_block *next;
         uint8_t *base;
         size_t size, used;
+        size_t dirty;                        /* bytes from base written before a reset: zeroed when handed out again */
 };
 
 struct imp_image_arena {
         pthread_mutex_t lock;
         struct arena_block *blocks;          /* the newest first: allocations come from it */
+        struct arena_block *spare;           /* blocks a reset emptied, faulted in: used before new ones */
         size_t mapped;
 };
 
@@ -75,31 +77,90 @@ int imp_image_arena_new(struct imp_image_arena **ret) {
         return 0;
 }
 
-void imp_image_arena_free(struct imp_image_arena *a) {
-        if (!a)
-                return;
-        for (struct arena_block *b = a->blocks, *next; b; b = next) {
+static void blocks_unmap(struct arena_block *b) {
+        for (struct arena_block *next; b; b = next) {
                 next = b->next;
                 ASAN_UNPOISON_MEMORY_REGION(b->base, b->size);   /* the range may be mapped again */
                 munmap(b->base, b->size);
                 free(b);
         }
+}
+
+void imp_image_arena_free(struct imp_image_arena *a) {
+        if (!a)
+                return;
+        blocks_unmap(a->blocks);
+        blocks_unmap(a->spare);
         pthread_mutex_destroy(&a->lock);
         free(a);
+}
+
+void imp_image_arena_reset(struct imp_image_arena *a) {
+        if (!a)
+                return;
+        pthread_mutex_lock(&a->lock);
+        struct arena_block **tail = &a->spare;
+        while (*tail)
+                tail = &(*tail)->next;
+        *tail = a->blocks;
+        a->blocks = NULL;
+        for (struct arena_block *b = a->spare; b; b = b->next) {
+                b->dirty = b->used > b->dirty ? b->used : b->dirty;
+                b->used = 0;
+                ASAN_POISON_MEMORY_REGION(b->base, b->size);
+        }
+        pthread_mutex_unlock(&a->lock);
+}
+
+void imp_image_arena_trim(struct imp_image_arena *a) {
+        if (!a)
+                return;
+        pthread_mutex_lock(&a->lock);
+        for (struct arena_block *b = a->spare; b; b = b->next)
+                a->mapped -= b->size;
+        blocks_unmap(TAKE_PTR(a->spare));
+        for (struct arena_block *b = a->blocks; b; b = b->next) {
+                size_t keep = round_up(b->used, ARENA_HUGE);
+                if (b->dirty > keep) {   /* the written pages past the last image go back */
+                        (void) madvise(b->base + keep, b->dirty - keep, MADV_DONTNEED);
+                        b->dirty = keep;
+                }
+        }
+        pthread_mutex_unlock(&a->lock);
 }
 
 size_t imp_image_arena_mapped(const struct imp_image_arena *a) {
         return a ? a->mapped : 0;
 }
 
-/* n zeroed bytes (never handed out before), or NULL. */
+/* A spare block (emptied by a reset) with room for `take` bytes, unlinked; NULL if none. */
+static struct arena_block *spare_take(struct imp_image_arena *a, size_t take) {
+        for (struct arena_block **pb = &a->spare; *pb; pb = &(*pb)->next)
+                if ((*pb)->size >= take) {
+                        struct arena_block *b = *pb;
+                        *pb = b->next;
+                        b->next = NULL;
+                        return b;
+                }
+        return NULL;
+}
+
+/* n zeroed bytes, or NULL: fresh pages are the kernel's zeros, written ones (before a
+ * reset) are cleared here. */
 static void *arena_alloc(struct imp_image_arena *a, size_t n) {
         size_t take = round_up(n + ARENA_REDZONE, ARENA_ALIGN);
         void *p = NULL;
         pthread_mutex_lock(&a->lock);
         struct arena_block *b = a->blocks;
         if (!b || b->size - b->used < take) {
-                struct arena_block *nb = block_new(take);
+                struct arena_block *nb = spare_take(a, take);
+                if (nb) {
+                        nb->next = a->blocks;
+                        a->blocks = b = nb;
+                        nb = NULL;
+                        goto have_block;
+                }
+                nb = block_new(take);
                 if (nb) {
                         nb->next = a->blocks;
                         a->blocks = b = nb;
@@ -107,10 +168,14 @@ static void *arena_alloc(struct imp_image_arena *a, size_t n) {
                 } else
                         b = NULL;
         }
+have_block:
         if (b) {
                 p = b->base + b->used;
+                size_t stale = b->dirty > b->used ? b->dirty - b->used : 0;
                 b->used += take;
                 ASAN_UNPOISON_MEMORY_REGION(p, n);   /* the red zone after it stays poisoned */
+                if (stale)
+                        memset(p, 0, stale < n ? stale : n);
         }
         pthread_mutex_unlock(&a->lock);
         return p;

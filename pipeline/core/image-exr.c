@@ -17,6 +17,8 @@
 #include "image.h"
 
 #define EXR_SAMPLE_BYTES 4      /* we always hand the library 32-bit floats */
+#define EXR_ZIP_LEVEL_FLOAT 1
+#define EXR_ZIP_LEVEL_HALF  4
 
 static _Thread_local char exr_msg[512];
 static _Thread_local int exr_file_errno;   /* errno seen with EXR_ERR_FILE_ACCESS */
@@ -86,6 +88,12 @@ static exr_result_t exr_write_header_for(exr_context_t ctxt, const struct imp_im
         if (rv == EXR_ERR_SUCCESS)
                 rv = exr_initialize_required_attr_simple(ctxt, part, img->width, img->height,
                                                          EXR_COMPRESSION_ZIP);
+        /* zlib's level, not the library's default 6: 32-bit floats' low mantissa bytes are
+         * noise no level compresses (the demo's heightfield.exr: level 1 +0.6 % size, -17 % CPU;
+         * level 9 only -0.3 %), half data gain from a middle level (level 4: +0.5 to +7 %,
+         * -33 % CPU). Any ZIP reader decodes the same pixels. */
+        if (rv == EXR_ERR_SUCCESS)
+                rv = exr_set_zip_compression_level(ctxt, part, half ? EXR_ZIP_LEVEL_HALF : EXR_ZIP_LEVEL_FLOAT);
         for (int c = 0; c < img->channels && rv == EXR_ERR_SUCCESS; c++)
                 rv = exr_add_channel(ctxt, part, names[c], half ? EXR_PIXEL_HALF : EXR_PIXEL_FLOAT,
                                      EXR_PERCEPTUALLY_LOGARITHMIC, 1, 1);

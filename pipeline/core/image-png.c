@@ -147,8 +147,14 @@ int imp_png_read(const char *path, struct imp_image **ret, struct imp_error *err
         return png_read_stream(f, path, ret, err);
 }
 
+/* zlib level and row filter of imp_png_write_fast; -1: libpng's defaults (level 6, the
+ * filter chosen row by row among all five). */
+struct png_coding {
+        int level, filter;
+};
+
 static int png_write_stream(FILE *f, const char *path, const struct imp_image *img,
-                            struct imp_error *err) {
+                            struct png_coding coding, struct imp_error *err) {
         struct png_errctx ctx = { .msg = "" };
         png_structp png;
         png_infop info;
@@ -171,6 +177,10 @@ static int png_write_stream(FILE *f, const char *path, const struct imp_image *i
         png_set_IHDR(png, info, (png_uint_32) img->width, (png_uint_32) img->height, bit_depth,
                      color_type_for_channels(img->channels), PNG_INTERLACE_NONE,
                      PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
+        if (coding.level >= 0)
+                png_set_compression_level(png, coding.level);
+        if (coding.filter >= 0)
+                png_set_filter(png, PNG_FILTER_TYPE_BASE, coding.filter);
         png_write_info(png, info);
         if (bit_depth == 16 && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__)
                 png_set_swap(png);
@@ -181,7 +191,8 @@ static int png_write_stream(FILE *f, const char *path, const struct imp_image *i
         return 0;
 }
 
-int imp_png_write(const char *path, const struct imp_image *img, struct imp_error *err) {
+static int png_write_coded(const char *path, const struct imp_image *img, struct png_coding coding,
+                           struct imp_error *err) {
         int r;
 
         if (!path || !img)
@@ -196,7 +207,7 @@ int imp_png_write(const char *path, const struct imp_image *img, struct imp_erro
                 r = negative_errno();
                 return imp_error_set(err, r, "%s: cannot create PNG file: %s", path, strerror(-r));
         }
-        r = png_write_stream(f, path, img, err);
+        r = png_write_stream(f, path, img, coding, err);
         if (fflush(f) != 0 && r >= 0) {
                 r = negative_errno();
                 imp_error_set(err, r, "%s: cannot write PNG file: %s", path, strerror(-r));
@@ -208,4 +219,14 @@ int imp_png_write(const char *path, const struct imp_image *img, struct imp_erro
         if (r < 0)
                 (void) unlink(path);
         return r;
+}
+
+int imp_png_write(const char *path, const struct imp_image *img, struct imp_error *err) {
+        return png_write_coded(path, img, (struct png_coding) { -1, -1 }, err);
+}
+
+/* zlib level 3 and the Sub filter on every row: on the demo copy's six previews 3.3x less
+ * CPU than libpng's defaults and 1 % smaller (measured in docs/processing-speed.md). */
+int imp_png_write_fast(const char *path, const struct imp_image *img, struct imp_error *err) {
+        return png_write_coded(path, img, (struct png_coding) { 3, PNG_FILTER_SUB }, err);
 }

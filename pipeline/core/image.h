@@ -53,6 +53,13 @@ int imp_image_arena_new(struct imp_image_arena **ret);
  * still freed with imp_image_free()). NULL: no-op. */
 void imp_image_arena_free(struct imp_image_arena *a);
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_image_arena *, imp_image_arena_free);
+/* Empties the arena but keeps its blocks, faulted in: the next allocations reuse them
+ * (zeroed again, at memset speed instead of a page fault per page), e.g. the structured-
+ * light values' pages for the dome values. The arena's images must not be read afterwards. */
+void imp_image_arena_reset(struct imp_image_arena *a);
+/* Gives back what a reset kept and the allocations since have not reused: unmaps the spare
+ * blocks and releases the written pages past the last allocation. */
+void imp_image_arena_trim(struct imp_image_arena *a);
 /* Bytes mapped by the arena so far (its blocks). */
 size_t imp_image_arena_mapped(const struct imp_image_arena *a);
 /* n zeroed bytes (64-byte aligned) from arena a, for a stage's large scratch arrays; freed
@@ -95,6 +102,8 @@ double imp_image_get(const struct imp_image *img, int x, int y, int c);
 
 /* PNG: 8- or 16-bit, 1-4 channels (grey, grey+alpha, RGB, RGBA). Exact round trip. */
 int imp_png_write(const char *path, const struct imp_image *img, struct imp_error *err);
+/* The same pixels coded for speed (zlib level 3, the Sub filter): for previews. */
+int imp_png_write_fast(const char *path, const struct imp_image *img, struct imp_error *err);
 int imp_png_read(const char *path, struct imp_image **ret, struct imp_error *err);
 
 /* TIFF: u8, u16 or f32, 1-4 channels; `description` (may be NULL) goes into the

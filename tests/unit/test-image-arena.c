@@ -141,6 +141,54 @@ static void test_alloc(void) {
         imp_image_arena_free(a);
 }
 
+/* A reset keeps the blocks: the next allocations reuse their addresses (nothing more is
+ * mapped), come back zeroed where they were written before (also when one straddles the end
+ * of what was written), and trim unmaps the blocks not reused and gives back the written
+ * pages past the last allocation (they read zero when handed out again). */
+static void test_reset_reuse(void) {
+        struct imp_image_arena *a = NULL;
+        CHECK_OK(imp_image_arena_new(&a));
+        size_t mb = (size_t) 1 << 20;
+        uint8_t *first = imp_image_arena_alloc(a, 200 * mb);   /* block 1, 3 MB of it written */
+        uint8_t *second = imp_image_arena_alloc(a, 100 * mb);  /* block 2 */
+        CHECK(first && second);
+        if (!first || !second) {
+                imp_image_arena_free(a);
+                return;
+        }
+        memset(first, 0xab, 3 * mb);
+        memset(second, 0xcd, 8 * mb);
+        size_t mapped = imp_image_arena_mapped(a);
+        CHECK(mapped >= 300 * mb);
+        imp_image_arena_reset(a);
+        uint8_t *p = imp_image_arena_alloc(a, 5 * mb);   /* a spare block; 8 MB of it written */
+        CHECK_MSG(p == second || p == first, "after a reset the allocation is not in a kept block");
+        CHECK_INT_EQ(imp_image_arena_mapped(a), mapped);
+        bool zero = p != NULL;
+        for (size_t i = 0; p && i < 5 * mb; i += 511)
+                zero &= p[i] == 0;
+        CHECK_MSG(zero, "reused arena bytes not zeroed");
+        uint8_t *q = imp_image_arena_alloc(a, 6 * mb);   /* straddles the written 8 MB */
+        zero = q != NULL;
+        for (size_t i = 0; q && i < 6 * mb; i += 509)
+                zero &= q[i] == 0;
+        CHECK_MSG(zero, "an allocation straddling the written end not zeroed");
+        if (p && q)
+                memset(p, 0xee, 5 * mb), memset(q, 0xee, 6 * mb);
+        imp_image_arena_trim(a);   /* the other block goes */
+        CHECK_MSG(imp_image_arena_mapped(a) < mapped, "trim kept the unused block (%zu of %zu bytes mapped)",
+                  imp_image_arena_mapped(a), mapped);
+        imp_image_arena_reset(a);
+        uint8_t *r = imp_image_arena_alloc(a, 64);
+        imp_image_arena_trim(a);   /* written pages past the first 2 MiB released */
+        uint8_t *s = imp_image_arena_alloc(a, 10 * mb);
+        zero = r && s && r[0] == 0;
+        for (size_t i = 0; s && i < 10 * mb; i += 509)
+                zero &= s[i] == 0;
+        CHECK_MSG(zero, "pages released by trim not zero when handed out again");
+        imp_image_arena_free(a);
+}
+
 /* Two threads allocating from one arena at once get disjoint images. */
 enum { PER_THREAD = 24 };
 struct worker {
@@ -242,6 +290,7 @@ int main(void) {
         test_layout_and_blocks();
         test_adopt();
         test_alloc();
+        test_reset_reuse();
         test_threads();
         test_huge_page_advice();
 #if defined(__SANITIZE_ADDRESS__)

@@ -4,6 +4,7 @@
 #include <openexr.h>
 #include <png.h>
 #include <tiffio.h>
+#include <zlib.h>
 #include "image.h"
 #include "test.h"
 
@@ -385,6 +386,70 @@ static size_t file_bytes(const char *path, uint8_t **ret) {
         return n;
 }
 
+/* The PNG's IDAT chunks concatenated (the zlib stream); 0 when the file is not a PNG. */
+static size_t png_idat(const uint8_t *buf, size_t n, uint8_t *out, size_t cap) {
+        size_t pos = 8, got = 0;
+        while (pos + 12 <= n) {
+                size_t len = (size_t) buf[pos] << 24 | (size_t) buf[pos + 1] << 16 | (size_t) buf[pos + 2] << 8 | buf[pos + 3];
+                if (pos + 12 + len > n)
+                        return 0;
+                if (!memcmp(buf + pos + 4, "IDAT", 4) && got + len <= cap) {
+                        memcpy(out + got, buf + pos + 8, len);
+                        got += len;
+                }
+                pos += 12 + len;
+        }
+        return got;
+}
+
+/* imp_png_write_fast: the same pixels back (8/16-bit, 1-4 channels), every row Sub-filtered
+ * (filter byte 1) and the zlib stream marked as a fast level (FLEVEL 1: levels 2-5), where
+ * libpng's defaults (imp_png_write) give FLEVEL 2 and mixed filters on this pattern. */
+static void test_png_fast(void) {
+        for (int t = 0; t < 2; t++)
+                for (int ch = 1; ch <= 4; ch++) {
+                        enum imp_pixel_type type = t ? IMP_PIX_U16 : IMP_PIX_U8;
+                        int w = 301, h = 23, row = 1 + w * ch * (t ? 2 : 1);
+                        _cleanup_image_ struct imp_image *a = NULL, *b = NULL;
+                        struct imp_error err = { 0 };
+                        const char *p = tmp_path("fast.png");
+                        CHECK_OK(imp_image_new(w, h, ch, type, &a));
+                        fill_pattern(a, (unsigned) (ch + 3 * t));
+                        for (int y = 0; y < h / 2; y++)   /* smooth rows, where Sub is not what the default picks */
+                                for (int x = 0; x < w; x++)
+                                        for (int c = 0; c < ch; c++) {
+                                                if (t)
+                                                        imp_image_u16(a, x, y)[c] = (uint16_t) (x * 100 + c);
+                                                else
+                                                        imp_image_u8(a, x, y)[c] = (uint8_t) (y * 7 + c);
+                                        }
+                        for (int fast = 0; fast < 2; fast++) {
+                                CHECK_OK(fast ? imp_png_write_fast(p, a, &err) : imp_png_write(p, a, &err));
+                                CHECK_OK(imp_png_read(p, &b, &err));
+                                CHECK_MSG(b && same_pixels(a, b), "PNG (fast %d) %s %d channels differs (%s)", fast,
+                                          imp_pixel_type_name(type), ch, err.msg);
+                                imp_image_free(b);
+                                b = NULL;
+                                _cleanup_free_ uint8_t *file = NULL, *z = malloc(1 << 20), *raw = malloc((size_t) row * h);
+                                size_t n = file_bytes(p, &file), nz = file && z ? png_idat(file, n, z, 1 << 20) : 0;
+                                uLongf n_raw = (uLongf) row * h;
+                                CHECK(nz > 2 && raw && uncompress(raw, &n_raw, z, nz) == Z_OK && n_raw == (uLongf) row * h);
+                                if (!(nz > 2 && raw && n_raw == (uLongf) row * h))
+                                        continue;
+                                int flevel = z[1] >> 6, n_sub = 0;
+                                for (int y = 0; y < h; y++)
+                                        n_sub += raw[(size_t) y * row] == PNG_FILTER_VALUE_SUB;
+                                if (fast) {
+                                        CHECK_MSG(flevel == 1, "fast PNG: zlib FLEVEL %d, expected 1 (levels 2-5)", flevel);
+                                        CHECK_MSG(n_sub == h, "fast PNG: %d of %d rows Sub-filtered", n_sub, h);
+                                } else {   /* the assertions above can tell the two writers apart */
+                                        CHECK_MSG(flevel == 2 && n_sub < h, "default PNG: FLEVEL %d, %d of %d rows Sub",
+                                                  flevel, n_sub, h);
+                                }
+                        }
+                }
+}
+
 /* Chunks compressed on several threads (imp_exr_write_threads) give the very file the
  * single-threaded encoder writes, byte for byte, float and half, with more chunks than the
  * writer keeps in flight (64) and a last chunk of fewer lines; the file reads back. */
@@ -598,6 +663,7 @@ int main(void) {
         test_png_roundtrip();
         test_png_16bit_is_big_endian();
         test_png_palette();
+        test_png_fast();
         test_tiff_roundtrip();
         test_tiff_fast_frame();
         test_tiff_description();
