@@ -770,6 +770,34 @@ static bool cx_cy_separable(const struct work *w, double tau) {
         return gz > 0.0 && lmin >= tau * gz;
 }
 
+/* Multi-start: the mirror lobe C = (-1, -1, 1) over the grid of k; the best evaluation
+ * into *best with w's arrays matching it (LM starts there without evaluating it again).
+ * Each k is exp(log k), as LM computes it; returns that log k. */
+static double multi_start(struct work *w, const struct imp_btf_fit_params *p, struct eval *best) {
+        struct eval e;
+        double lk_best = 0.0;
+        float g_best[IMP_BTF_MAX_SAMPLES];
+        const int last = (int) ARRAY_SIZE(k_grid) - 1;
+        int i_best = last;                           /* w->g is the best's g when the last */
+        double ldmax = lobe_logs(w, -1.0, -1.0);     /* the same lobe shape for every k */
+        *best = (struct eval) { .cost = HUGE_VAL };
+        for (int i = 0; i <= last; i++) {
+                double lk = log(IMP_CLAMP(k_grid[i], p->k_min, p->k_max));
+                lobe_solve(w, exp(lk), ldmax, &e);
+                e.cx = e.cy = -1.0;
+                if (e.cost < best->cost) {
+                        *best = e;
+                        lk_best = lk;
+                        i_best = i;
+                        if (i < last)
+                                memcpy(g_best, w->g, (size_t) w->np * sizeof *g_best);
+                }
+        }
+        if (i_best < last)
+                memcpy(w->g, g_best, (size_t) w->np * sizeof *g_best);
+        return lk_best;
+}
+
 static int fit_texel(const struct imp_btf_sample *samples, int n, const struct imp_btf_fit_params *p,
                      struct imp_btf_texel *ret) {
         if (n < 0 || (n > 0 && !samples) || !p || !ret || !(p->k_min > 0.0) || !(p->k_max >= p->k_min) ||
@@ -793,25 +821,8 @@ static int fit_texel(const struct imp_btf_sample *samples, int n, const struct i
         /* Multi-start: the mirror lobe C = (-1, -1, 1) over a grid of k; LM from the best. */
         struct bounds bd = { p->c_max, log(p->k_min), log(p->k_max),
                              p->sigma_floor * p->sigma_floor / (p->c_prior_sigma * p->c_prior_sigma) };
-        struct eval e, best = { .cost = HUGE_VAL };
-        double lk_best = 0.0;
-        float g_best[IMP_BTF_MAX_SAMPLES];
-        bool g_in_w = false;                         /* w.g holds the best's g */
-        double ldmax = lobe_logs(&w, -1.0, -1.0);    /* the same lobe shape for every k */
-        for (size_t i = 0; i < ARRAY_SIZE(k_grid); i++) {
-                /* k = exp(log k) as LM computes it: the best is LM's start as it stands */
-                double lk = log(IMP_CLAMP(k_grid[i], p->k_min, p->k_max));
-                lobe_solve(&w, exp(lk), ldmax, &e);
-                e.cx = e.cy = -1.0;
-                g_in_w = false;
-                if (e.cost < best.cost) {
-                        best = e;
-                        lk_best = lk;
-                        g_in_w = true;
-                        if (i + 1 < ARRAY_SIZE(k_grid))
-                                memcpy(g_best, w.g, (size_t) w.np * sizeof *g_best);
-                }
-        }
+        struct eval e, best;
+        double lk_best = multi_start(&w, p, &best);
         double spec = fmax(best.rs[0], fmax(best.rs[1], best.rs[2]));
         if (!(best.ldmax > -HUGE_VAL) || spec < p->matte_threshold) {
                 fit_matte(&w, p, &t);
@@ -819,9 +830,6 @@ static int fit_texel(const struct imp_btf_sample *samples, int n, const struct i
                 *ret = t;
                 return 0;
         }
-        /* LM starts from the best evaluation: its g back into w (no evaluation again). */
-        if (!g_in_w)
-                memcpy(w.g, g_best, (size_t) w.np * sizeof *g_best);
         e = best;
         bool cxy = !cx_cy_separable(&w, p->cxy_tau);
         double th[MAXP];
