@@ -41,6 +41,12 @@ static const double k_grid[] = { 2, 5, 12, 30, 80, 200, 500 };
 #define CLONES
 #endif
 
+/* The per-sample arrays are padded to a whole number of VEC_PAD samples (the widest vector,
+ * 16 float lanes) with samples that add exact zeros to every sum (W = 0, y = 0, outside
+ * the lobe): the vector loops of the lobe run without a scalar remainder (the demo's
+ * texels have ≈ 36 samples: two vectors and 4 scalar iterations of the exp). */
+#define VEC_PAD 16
+
 void imp_btf_fit_params_default(struct imp_btf_fit_params *ret) {
         *ret = (struct imp_btf_fit_params) {
                 .min_samples = 6,
@@ -65,7 +71,7 @@ void imp_btf_fit_params_default(struct imp_btf_fit_params *ret) {
  * those of V/E, i.e. cos θl · (y − model) with y = V / (E cos θl). Wy = W·y and the sums
  * that depend on the weights only (sw, sy, syy) are refreshed by set_weights(). */
 struct work {
-        int n;
+        int n, np;                    /* samples; padded to a multiple of VEC_PAD */
         float ax[IMP_BTF_MAX_SAMPLES], ay[IMP_BTF_MAX_SAMPLES], az[IMP_BTF_MAX_SAMPLES];
         float wl[IMP_BTF_MAX_SAMPLES], om[IMP_BTF_MAX_SAMPLES], W[IMP_BTF_MAX_SAMPLES];
         float y[3][IMP_BTF_MAX_SAMPLES], Wy[3][IMP_BTF_MAX_SAMPLES];
@@ -180,7 +186,7 @@ CLONES static void set_weights(struct work *w) {
         const float *restrict WW = w->W, *restrict Y0 = w->y[0], *restrict Y1 = w->y[1], *restrict Y2 = w->y[2];
         float *restrict Wy0 = w->Wy[0], *restrict Wy1 = w->Wy[1], *restrict Wy2 = w->Wy[2];
 #pragma omp simd reduction(+ : sw, sy0, sy1, sy2, syy0, syy1, syy2)
-        for (int i = 0; i < w->n; i++) {
+        for (int i = 0; i < w->np; i++) {
                 double W = WW[i], a = W * Y0[i], b = W * Y1[i], c = W * Y2[i];
                 Wy0[i] = (float) a;
                 Wy1[i] = (float) b;
@@ -208,7 +214,7 @@ CLONES static void set_weights(struct work *w) {
  * vectorised sums of normal_matrix() instead of 0·∞. */
 #define LD_NONE (-1e30f)
 CLONES static double lobe_logs(struct work *w, double cx, double cy) {
-        int n = w->n;
+        int n = w->np;
         float fx = (float) cx, fy = (float) cy, ldmax = LD_NONE;
         float *restrict d = w->d, *restrict ld = w->ld;
         const float *restrict ax = w->ax, *restrict ay = w->ay, *restrict az = w->az;
@@ -247,7 +253,7 @@ static void solve_linear(const struct work *w, double k, double ldmax, double sg
 /* Fills w->g for exponent k (the logs of lobe_logs() with their maximum ldmax) and
  * solves the linear part. */
 CLONES static void lobe_solve(struct work *w, double k, double ldmax, struct eval *e) {
-        int n = w->n;
+        int n = w->np;
         double sg = 0, sgg = 0, sgy0 = 0, sgy1 = 0, sgy2 = 0;
         float kf = (float) k, lm = (float) ldmax;
         float *restrict g = w->g;
@@ -274,7 +280,7 @@ CLONES static void lobe_solve(struct work *w, double k, double ldmax, struct eva
 /* e re-solved after a change of the weights, at the same lobe: w->g (that of e) is
  * kept, only the sums are formed again (the same sums as lobe_solve(), without the exps). */
 CLONES static void lobe_resolve(const struct work *w, struct eval *e) {
-        int n = w->n;
+        int n = w->np;
         double sg = 0, sgg = 0, sgy0 = 0, sgy1 = 0, sgy2 = 0;
         const float *restrict g = w->g, *restrict W = w->W;
         const float *restrict wy0 = w->Wy[0], *restrict wy1 = w->Wy[1], *restrict wy2 = w->Wy[2];
@@ -322,7 +328,7 @@ CLONES static int normal_matrix(const struct work *w, const struct eval *e, bool
         const float *restrict AX = w->ax, *restrict AY = w->ay;
         const float *restrict Y0 = w->y[0], *restrict Y1 = w->y[1], *restrict Y2 = w->y[2];
 #pragma omp simd reduction(+ : s1x, s1y, s1k, s2x, s2y, s2k, bx, by, bk, axx, axy, ayy, akx, aky, akk)
-        for (int i = 0; i < w->n; i++) {
+        for (int i = 0; i < w->np; i++) {
                 double g = G[i], W = WW[i], q = k * g / D[i];
                 double jx = q * AX[i], jy = q * AY[i], jk = k * g * (LD[i] - lm);
                 double R = r0 * Y0[i] + r1 * Y1[i] + r2 * Y2[i] - c0 - css * g;
@@ -703,7 +709,15 @@ CLONES static int load_work(struct work *w, const struct imp_btf_sample *s, int 
                         if (sample_ok(f + SAMPLE_FLOATS * i))
                                 load_sample(w, m++, f + SAMPLE_FLOATS * i);
         }
+        /* Padding: outside the lobe (d = 0), no weight, no value. */
+        int np = (m + VEC_PAD - 1) / VEC_PAD * VEC_PAD;
+        for (int i = m; i < np; i++) {
+                ax[i] = ay[i] = az[i] = 0.0f;
+                w->wl[i] = w->om[i] = w->W[i] = 0.0f;
+                y0[i] = y1[i] = y2[i] = 0.0f;
+        }
         w->n = m;
+        w->np = np;
         set_weights(w);
         return m;
 }
@@ -721,7 +735,7 @@ static void set_default_lobe(const struct imp_btf_fit_params *p, struct imp_btf_
 /* ρd only (ρs = 0): Huber-reweighted weighted mean per channel. */
 static void fit_matte(struct work *w, const struct imp_btf_fit_params *p, struct imp_btf_texel *t) {
         double rd[3] = { 0 }, rs[3] = { 0 };
-        for (int i = 0; i < w->n; i++)
+        for (int i = 0; i < w->np; i++)
                 w->g[i] = 0.0f;
         for (int pass = 0; pass <= p->robust_passes && w->n > 0; pass++) {
                 if (pass > 0)
@@ -756,6 +770,34 @@ static bool cx_cy_separable(const struct work *w, double tau) {
         return gz > 0.0 && lmin >= tau * gz;
 }
 
+/* Multi-start: the mirror lobe C = (-1, -1, 1) over the grid of k; the best evaluation
+ * into *best with w's arrays matching it (LM starts there without evaluating it again).
+ * Each k is exp(log k), as LM computes it; returns that log k. */
+static double multi_start(struct work *w, const struct imp_btf_fit_params *p, struct eval *best) {
+        struct eval e;
+        double lk_best = 0.0;
+        float g_best[IMP_BTF_MAX_SAMPLES];
+        const int last = (int) ARRAY_SIZE(k_grid) - 1;
+        int i_best = last;                           /* w->g is the best's g when the last */
+        double ldmax = lobe_logs(w, -1.0, -1.0);     /* the same lobe shape for every k */
+        *best = (struct eval) { .cost = HUGE_VAL };
+        for (int i = 0; i <= last; i++) {
+                double lk = log(IMP_CLAMP(k_grid[i], p->k_min, p->k_max));
+                lobe_solve(w, exp(lk), ldmax, &e);
+                e.cx = e.cy = -1.0;
+                if (e.cost < best->cost) {
+                        *best = e;
+                        lk_best = lk;
+                        i_best = i;
+                        if (i < last)
+                                memcpy(g_best, w->g, (size_t) w->np * sizeof *g_best);
+                }
+        }
+        if (i_best < last)
+                memcpy(w->g, g_best, (size_t) w->np * sizeof *g_best);
+        return lk_best;
+}
+
 static int fit_texel(const struct imp_btf_sample *samples, int n, const struct imp_btf_fit_params *p,
                      struct imp_btf_texel *ret) {
         if (n < 0 || (n > 0 && !samples) || !p || !ret || !(p->k_min > 0.0) || !(p->k_max >= p->k_min) ||
@@ -779,15 +821,8 @@ static int fit_texel(const struct imp_btf_sample *samples, int n, const struct i
         /* Multi-start: the mirror lobe C = (-1, -1, 1) over a grid of k; LM from the best. */
         struct bounds bd = { p->c_max, log(p->k_min), log(p->k_max),
                              p->sigma_floor * p->sigma_floor / (p->c_prior_sigma * p->c_prior_sigma) };
-        struct eval e, best = { .cost = HUGE_VAL };
-        double ldmax = lobe_logs(&w, -1.0, -1.0);    /* the same lobe shape for every k */
-        for (size_t i = 0; i < ARRAY_SIZE(k_grid); i++) {
-                double k = IMP_CLAMP(k_grid[i], p->k_min, p->k_max);
-                lobe_solve(&w, k, ldmax, &e);
-                e.cx = e.cy = -1.0;
-                if (e.cost < best.cost)
-                        best = e;
-        }
+        struct eval e, best;
+        double lk_best = multi_start(&w, p, &best);
         double spec = fmax(best.rs[0], fmax(best.rs[1], best.rs[2]));
         if (!(best.ldmax > -HUGE_VAL) || spec < p->matte_threshold) {
                 fit_matte(&w, p, &t);
@@ -795,18 +830,16 @@ static int fit_texel(const struct imp_btf_sample *samples, int n, const struct i
                 *ret = t;
                 return 0;
         }
-        /* The start of LM, k = exp(log k) as LM will compute it: w's arrays then match. */
-        lobe_solve(&w, exp(log(best.k)), ldmax, &e);
-        e.cx = e.cy = -1.0;
+        e = best;
         bool cxy = !cx_cy_separable(&w, p->cxy_tau);
         double th[MAXP];
         if (cxy) {
                 th[0] = -1.0;
-                th[1] = log(best.k);
+                th[1] = lk_best;
         } else {
                 th[0] = -1.0;
                 th[1] = -1.0;
-                th[2] = log(best.k);
+                th[2] = lk_best;
         }
         lm(&w, cxy, &bd, p->tol, p->max_iter, th, &e);
         for (int pass = 0; pass < p->robust_passes; pass++) {

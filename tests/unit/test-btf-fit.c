@@ -369,6 +369,48 @@ static void test_unusable_samples_dropped(void) {
         CHECK_INT_GE(fitted, 8);      /* the lobe path ran, not only the matte one */
 }
 
+/* The fit pads a texel's samples to whole vectors with samples that add exact zeros:
+ * a texel fitted right after another with more samples (whose geometry and values are
+ * left in the workspace past this texel's samples) is the texel fitted after another one,
+ * byte for byte, for every sample count modulo 16, per material. */
+static void test_padding_adds_nothing(void) {
+        struct imp_btf_sample s[48], big[2][2 * 48];
+        struct imp_btf_fit_params fp;
+        imp_btf_fit_params_default(&fp);
+        uint64_t rng = 99;
+        const double up[3] = { 0, 0, 1 }, eye2[2][3] = { { -150, 80, 300 }, { 120, 140, 250 } };
+        const double Pb[2][3] = { { 20, -30, 0 }, { -110, 90, 0 } };
+        int nb[2];
+        for (int v = 0; v < 2; v++) {           /* two unlike texels: glossy and bright matte */
+                const struct imp_lafortune *mb = &materials[v ? 0 : 2];
+                nb[v] = synth_samples(Pb[v], up, eye_top, lights, 48, mb, NOISE_REL, &rng, big[v]);
+                nb[v] += synth_samples(Pb[v], up, eye2[v], lights, 48, mb, NOISE_REL, &rng, big[v] + nb[v]);
+                for (int i = 0; i < nb[v]; i++)
+                        for (int c = 0; c < 3; c++)
+                                big[v][i].value[c] *= v ? 3.0f : 0.5f;
+        }
+        int differ = 0, fitted = 0, cases = 0;
+        for (int m = 0; m < 3; m++)
+                for (int rem = 1; rem < 16; rem++) {
+                        const double P[3] = { -90.0 + 12.0 * rem, 30.0 - 5.0 * rem, 0 };
+                        int n = synth_samples(P, up, eye_top, lights, 48, &materials[m], NOISE_REL, &rng, s);
+                        n = IMP_MIN(n, 32 + rem);
+                        if (n % 16 == 0 || n >= nb[0] || n >= nb[1])
+                                continue;
+                        struct imp_btf_texel a, b, poison;
+                        CHECK_OK(imp_btf_fit_texel(big[0], nb[0], &fp, &poison));
+                        CHECK_OK(imp_btf_fit_texel(s, n, &fp, &a));
+                        CHECK_OK(imp_btf_fit_texel(big[1], nb[1], &fp, &poison));
+                        CHECK_OK(imp_btf_fit_texel(s, n, &fp, &b));
+                        differ += memcmp(&a, &b, sizeof a) != 0;
+                        fitted += !(a.flags & (IMP_BTF_MATTE | IMP_BTF_FEW_SAMPLES));
+                        cases++;
+                }
+        CHECK_INT_GE(cases, 30);
+        CHECK_INT_EQ(differ, 0);
+        CHECK_INT_GE(fitted, 10);     /* the lobe path ran, not only the matte one */
+}
+
 int main(void) {
         const double centre[3] = { 0, 0, 0 };
         CHECK_INT_EQ(synth_dome(lights, elev, 3, 16, 500.0, centre, 1.0, 0.0), 48);
@@ -378,5 +420,6 @@ int main(void) {
         test_grid_fused_equals_tiles();
         test_kth_smallest();
         test_unusable_samples_dropped();
+        test_padding_adds_nothing();
         return TEST_DONE();
 }
