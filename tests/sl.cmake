@@ -13,3 +13,5 @@ if(TARGET impasto_cv)
   # Real procam captures decoded by impasto and by OpenCV's GrayCodePattern.
   impasto_test(test-sl-procam LABELS unit LIBS impasto_pipeline impasto_cv)
 endif()
+# The 16-bit confidence and σ maps within their stated bounds (encoders and decoded maps).
+impasto_test(test-sl-narrow LIBS impasto_pipeline)
