@@ -336,14 +336,30 @@ struct timings {
         double t1[MAX_REPS], tn[MAX_REPS], to[MAX_REPS], tc[MAX_REPS];
         double u1[MAX_REPS], uo[MAX_REPS], uc[MAX_REPS], un;
         double ub[MAX_REPS], ubo[MAX_REPS];
+        double bb1[MAX_REPS], bbo[MAX_REPS];   /* the limit run right before and after the 1-thread
+                                                  decodes (every map, coords_only): the slower */
         size_t valid_imp, valid_cv, bw_bytes, bwo_bytes;
         double rss_imp;
 };
 
+/* The 1-thread decode p into *r between two runs of the limit (every map): *ret_bracket the
+ * slower of the two, the memory's speed around the decode (it swings within seconds). */
+static double run_bracketed(const struct imp_sl_params *p, struct imp_sl_result **r, size_t *ret_valid,
+                            double *ret_cpu, double *ret_bracket) {
+        double pre, post;
+        size_t bytes;
+        (void) run_bandwidth(result_px_bytes(kept[0]), &pre, &bytes);
+        double t = run_impasto(p, r, ret_valid, ret_cpu);
+        (void) run_bandwidth(result_px_bytes(kept[0]), &post, &bytes);
+        *ret_bracket = pre > post ? pre : post;
+        return t;
+}
+
 /* The repetitions: the four methods, then the two bandwidth limits. OpenCV comes last in
  * even repetitions (after coords_only) and first in odd ones (before the 1-thread decode):
  * a run next to OpenCV's came out slower, so the two 1-thread impasto runs take turns. p: 1
- * thread, all threads, 1 thread coords_only. */
+ * thread, all threads, 1 thread coords_only. The 1-thread runs are bracketed by the limit
+ * (run_bracketed). */
 static int run_all(const struct imp_sl_params *p, int repeats, bool only_imp, struct timings *T) {
         size_t n = (size_t) img[0][0]->width * img[0][0]->height;
         int32_t *cx = malloc(n * sizeof *cx), *cy = malloc(n * sizeof *cy);
@@ -354,11 +370,11 @@ static int run_all(const struct imp_sl_params *p, int repeats, bool only_imp, st
                         int which = rep % 2 ? (step + 3) % 4 : step;
                         double t;
                         if (which == 0)
-                                t = T->t1[rep] = run_impasto(&p[0], &kept[0], &T->valid_imp, &T->u1[rep]);
+                                t = T->t1[rep] = run_bracketed(&p[0], &kept[0], &T->valid_imp, &T->u1[rep], &T->bb1[rep]);
                         else if (which == 1)
                                 t = T->tn[rep] = run_impasto(&p[1], &kept[1], &T->valid_imp, &T->un);
                         else if (which == 2)
-                                t = T->to[rep] = run_impasto(&p[2], &kept[2], &T->valid_imp, &T->uo[rep]);
+                                t = T->to[rep] = run_bracketed(&p[2], &kept[2], &T->valid_imp, &T->uo[rep], &T->bbo[rep]);
                         else if (!only_imp)
                                 t = T->tc[rep] = run_opencv(cx, cy, cv, &T->valid_cv, &T->uc[rep]);
                         else
@@ -401,24 +417,34 @@ static void print_map_bytes(void) {
 
 /* The ratios where the memory ran at its best: the machine's bandwidth swings (the host takes
  * it away at times), and a decode that waits on memory slows with it while OpenCV, which waits
- * on instructions, hardly does. The repetition whose limit (every map) ran fastest, and the
- * median over the repetitions whose limit took at most 1.25× its best time. */
-static void print_ratio_at_best(const struct timings *T, int repeats) {
+ * on instructions, hardly does. For each 1-thread decode, the repetition whose bracketing
+ * limit (run_bracketed) ran fastest, and the median over the repetitions whose bracket took at
+ * most 1.25× that best time. */
+static void ratio_at_best(const double *bb, const double *u, const double *uc, int repeats, double *at_best,
+                          double *med, int *ret_n, int *ret_best) {
         int best = 0, n = 0;
         for (int i = 1; i < repeats; i++)
-                best = T->ub[i] < T->ub[best] ? i : best;
-        double r1[MAX_REPS], ro[MAX_REPS], m1, mo, lo, hi;
+                best = bb[i] < bb[best] ? i : best;
+        double r[MAX_REPS], lo, hi;
         for (int i = 0; i < repeats; i++)
-                if (T->ub[i] <= 1.25 * T->ub[best]) {
-                        r1[n] = T->uc[i] / T->u1[i];
-                        ro[n++] = T->uc[i] / T->uo[i];
-                }
-        stats(r1, n, &m1, &lo, &hi);
-        stats(ro, n, &mo, &lo, &hi);
-        printf("  at the limit's best repetition (%d, limit %.1f GB/s): OpenCV/impasto CPU %.1fx every map, "
-               "%.1fx coords_only; the %d repetitions with the limit within 1.25x of its best: median "
-               "%.1fx / %.1fx\n", best, T->bw_bytes / T->ub[best] / 1e9, T->uc[best] / T->u1[best],
-               T->uc[best] / T->uo[best], n, m1, mo);
+                if (bb[i] <= 1.25 * bb[best])
+                        r[n++] = uc[i] / u[i];
+        stats(r, n, med, &lo, &hi);
+        *at_best = uc[best] / u[best];
+        *ret_n = n;
+        *ret_best = best;
+}
+
+static void print_ratio_at_best(const struct timings *T, int repeats) {
+        double a1, m1, ao, mo;
+        int n1, no, b1, bo;
+        ratio_at_best(T->bb1, T->u1, T->uc, repeats, &a1, &m1, &n1, &b1);
+        ratio_at_best(T->bbo, T->uo, T->uc, repeats, &ao, &mo, &no, &bo);
+        const double gb = (double) T->bw_bytes / 1e9;
+        printf("  where the memory ran fastest (the limit right before and after the decode): OpenCV/impasto CPU "
+               "every map %.1fx (repetition %d, limit %.1f GB/s, decode %.1f GB/s), median %.1fx over the %d "
+               "repetitions within 1.25x of it; coords_only %.1fx (repetition %d, limit %.1f GB/s), median "
+               "%.1fx over %d\n", a1, b1, gb / T->bb1[b1], gb / T->u1[b1], m1, n1, ao, bo, gb / T->bbo[bo], mo, no);
 }
 
 /* The bytes the 1-thread decode with every map moves (the limit's bytes: every frame read
