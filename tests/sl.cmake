@@ -13,3 +13,8 @@ if(TARGET impasto_cv)
   # Real procam captures decoded by impasto and by OpenCV's GrayCodePattern.
   impasto_test(test-sl-procam LABELS unit LIBS impasto_pipeline impasto_cv)
 endif()
+# The 16-bit confidence and σ maps within their stated bounds (encoders and decoded maps).
+impasto_test(test-sl-narrow LIBS impasto_pipeline)
+impasto_test(test-sl-narrow-sse2 SOURCE unit/test-sl-narrow.c LIBS impasto_pipeline)
+target_sources(test-sl-narrow-sse2 PRIVATE ${PROJECT_SOURCE_DIR}/pipeline/geometry/structured-light.c)
+target_compile_definitions(test-sl-narrow-sse2 PRIVATE IMPASTO_SL_NO_CLONES)

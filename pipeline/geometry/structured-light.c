@@ -1282,8 +1282,8 @@ struct comb_k {                 /* the row's constants */
 };
 
 struct comb_out {
-        float *ox, *oy, *oc, *os;
-        uint16_t *of;
+        float *ox, *oy;
+        uint16_t *oc, *os, *of;        /* confidence, σ: imp_sl_conf16, imp_sl_sigma16 */
 };
 
 #define BIT8(m, f) ((m) & (int32_t) (f))
@@ -1328,10 +1328,15 @@ _Pragma("GCC unroll 2")                                                         
                       BIT8(ok[1], IMP_SL_VALID_Y) |                                                      \
                       BIT8((ok[0] & k->rej[0]) | (ok[1] & k->rej[1]), IMP_SL_PHASE_REJECTED);            \
         const VS f16 = __builtin_convertvector(f, VS);                                                   \
+        /* imp_sl_conf16 (conf ∈ [0, 1] already) and imp_sl_sigma16 (os ≥ 0), lane by lane */            \
+        const VS c16 = __builtin_convertvector(__builtin_convertvector(                                  \
+                conf * (zero + (float) IMP_SL_CONF_ONE) + 0.5f, VI), VS);                                \
+        const VI ub = (VI) os;                                                                           \
+        const VS s16 = __builtin_convertvector((ub + 0x7fff + ((ub >> 16) & 1)) >> 16, VS);              \
         memcpy(o->ox + x, &pos[0], sizeof pos[0]);                                                       \
         memcpy(o->oy + x, &pos[1], sizeof pos[1]);                                                       \
-        memcpy(o->oc + x, &conf, sizeof conf);                                                           \
-        memcpy(o->os + x, &os, sizeof os);                                                               \
+        memcpy(o->oc + x, &c16, sizeof c16);                                                             \
+        memcpy(o->os + x, &s16, sizeof s16);                                                             \
         memcpy(o->of + x, &f16, sizeof f16);                                                             \
         cnt[0] += ok[0];                                                                                 \
         cnt[1] += ok[1];                                                                                 \
@@ -1357,8 +1362,8 @@ static __attribute__((noinline, optimize("no-trapping-math"))) ATTR void combine
         if (x < n) {                                                                                     \
                 const size_t m = (size_t) (n - x);                                                       \
                 uint8_t bw[N] = { 0 }, bb[N] = { 0 }, bh[N] = { 0 }, bc[2][N] = { { 0 } }, bk[2][N] = { { 0 } }; \
-                uint16_t bd[2][N] = { { 0 } }, tf[N];                                                    \
-                float bl[N] = { 0 }, tx[N], ty[N], tc[N], ts[N];                                         \
+                uint16_t bd[2][N] = { { 0 } }, tf[N], tc[N], ts[N];                                      \
+                float bl[N] = { 0 }, tx[N], ty[N];                                                       \
                 memcpy(bw, in->w + x, m);                                                                \
                 memcpy(bb, in->b + x, m);                                                                \
                 memcpy(bh, in->hi + x, m);                                                               \
@@ -1523,10 +1528,10 @@ static void light_maps_row(float *restrict od, float *restrict og, float *restri
 
 /* ---- streamed rows ----------------------------------------------------------------------
  * A result larger than the last-level cache is written to memory anyway: plain stores first
- * read every line they fill (read for ownership), so the 30 bytes a pixel written cost 60 of
+ * read every line they fill (read for ownership), so the 26 bytes a pixel written cost 52 of
  * memory traffic. A Gray row's maps are built in the thread's scratch rows (R_O*, in L2) and
  * copied with non-temporal stores, which fill whole lines without reading them: the same
- * bytes, 30 fewer a pixel over the memory bus (72 instead of 102 with the 42 B a pixel of
+ * bytes, 26 fewer a pixel over the memory bus (68 instead of 94 with the 42 B a pixel of
  * frames read). Below STREAM_MIN_BYTES the result may stay cached for its reader, and is
  * written in place. */
 #define STREAM_MIN_BYTES (16u << 20)
@@ -1593,8 +1598,8 @@ static void stream_gray_row(const struct ctx *c, int y, float **R, int w, bool l
         const size_t off = (size_t) y * w, fb = (size_t) w * sizeof(float);
         stream_row(res->proj_x + off, R[R_OX], fb);
         stream_row(res->proj_y + off, R[R_OY], fb);
-        stream_row(res->confidence + off, R[R_OC], fb);
-        stream_row(res->sigma_px + off, R[R_OS], fb);
+        stream_row(res->confidence + off, R[R_OC], (size_t) w * sizeof(uint16_t));
+        stream_row(res->sigma_px + off, R[R_OS], (size_t) w * sizeof(uint16_t));
         stream_row(res->flags + off, R[R_OF], (size_t) w * sizeof(uint16_t));
         if (res->direct)
                 stream_row(res->direct + off, R[light ? R_LD : R_OD], fb);
@@ -1612,7 +1617,8 @@ static void combine_gray_row(const struct ctx *c, int y, float **R, int w, bool 
         struct imp_sl_result *res = c->res;
         const bool st = c->stream;
         float *restrict ox = st ? R[R_OX] : res->proj_x + off, *restrict oy = st ? R[R_OY] : res->proj_y + off;
-        float *restrict oc = st ? R[R_OC] : res->confidence + off, *restrict os = st ? R[R_OS] : res->sigma_px + off;
+        uint16_t *restrict oc = st ? (uint16_t *) R[R_OC] : res->confidence + off;
+        uint16_t *restrict os = st ? (uint16_t *) R[R_OS] : res->sigma_px + off;
         uint16_t *restrict of = st ? (uint16_t *) R[R_OF] : res->flags + off;
         const float *restrict wr = R[R_WHITE], *restrict br = R[R_BLACK], *restrict hi = R[R_HI];
         const float *restrict ld = R[R_LD], *restrict lg = R[R_LG];
@@ -1656,11 +1662,11 @@ static void combine_gray_row(const struct ctx *c, int y, float **R, int w, bool 
                              ((ok0 & rej0) | (ok1 & rej1) ? IMP_SL_PHASE_REJECTED : 0);
                 ox[x] = ok0 ? ((float) (int32_t) cd0[x] + 0.5f) * q0 : IMP_SL_INVALID_COORD;
                 oy[x] = ok1 ? ((float) (int32_t) cd1[x] + 0.5f) * q1 : IMP_SL_INVALID_COORD;
-                oc[x] = ok0 | ok1 ? conf : 0.0f;
+                oc[x] = imp_sl_conf16(ok0 | ok1 ? conf : 0.0f);
                 /* Gray centres: q/√12, √(1/12 + 1/4)·q with a weak bit (one code off). */
                 float s0 = ok0 ? (wb0 ? WEAK_SIGMA : INV_SQRT12) * q0 : 0.0f;
                 float s1 = ok1 ? (wb1 ? WEAK_SIGMA : INV_SQRT12) * q1 : 0.0f;
-                os[x] = MAXF(s0, s1);
+                os[x] = imp_sl_sigma16(MAXF(s0, s1));
                 of[x] = (uint16_t) f;
                 nx += ok0;
                 ny += ok1;
@@ -1973,8 +1979,8 @@ static void combine_phase_row(const struct ctx *c, int y, float **R, int w, bool
                 }
                 res->proj_x[off + x] = out[0];
                 res->proj_y[off + x] = out[1];
-                res->confidence[off + x] = nvalid ? conf : 0.0f;
-                res->sigma_px[off + x] = nvalid ? sigma : 0.0f;
+                res->confidence[off + x] = imp_sl_conf16(nvalid ? conf : 0.0f);
+                res->sigma_px[off + x] = imp_sl_sigma16(nvalid ? sigma : 0.0f);
                 res->flags[off + x] = (uint16_t) f;
                 if (res->direct)
                         res->direct[off + x] = isfinite(ld[x]) ? ld[x] : 0.0f;
@@ -2008,7 +2014,8 @@ static struct comb_out gray_row_out(const struct ctx *c, int y, float **R) {
         struct imp_sl_result *res = c->res;
         const size_t off = (size_t) y * res->width;
         if (c->stream)
-                return (struct comb_out) { R[R_OX], R[R_OY], R[R_OC], R[R_OS], (uint16_t *) R[R_OF] };
+                return (struct comb_out) { R[R_OX], R[R_OY], (uint16_t *) R[R_OC], (uint16_t *) R[R_OS],
+                                           (uint16_t *) R[R_OF] };
         return (struct comb_out) { res->proj_x + off, res->proj_y + off, res->confidence + off,
                                    res->sigma_px + off, res->flags + off };
 }
@@ -2057,9 +2064,17 @@ void imp_sl_result_free(struct imp_sl_result *r) {
         free(r);
 }
 
-/* Float maps of a result: 4 with coords_only, 5 with direct_only, else 7. */
+/* Float maps of a result: the coordinates (2), direct with direct_only (3), else direct,
+ * global and modulation too (5). Every result has RESULT_NU16 16-bit maps: confidence, σ,
+ * flags. */
+#define RESULT_NU16 3
 static int result_nfloat(const struct imp_sl_params *p) {
-        return p->coords_only ? 4 : p->direct_only ? 5 : 7;
+        return p->coords_only ? 2 : p->direct_only ? 3 : 5;
+}
+
+/* Bytes a pixel of a result: 14 with coords_only, 18 with direct_only, else 26. */
+static size_t result_px_bytes(int nfloat) {
+        return (size_t) nfloat * sizeof(float) + RESULT_NU16 * sizeof(uint16_t);
 }
 
 static int result_new(int w, int h, int nfloat, struct imp_sl_result **ret) {
@@ -2067,11 +2082,11 @@ static int result_new(int w, int h, int nfloat, struct imp_sl_result **ret) {
         _cleanup_free_ struct imp_sl_result *r = calloc(1, sizeof *r);
         if (!r)
                 return -ENOMEM;
-        /* 7 float maps (4 with coords_only, 5 with direct_only) + 1 u16 map; floats first keep alignment. The
-         * block is 30 bytes a pixel, written once: with 4 KiB pages, faulting it in costs
+        /* nfloat float maps, then the 16-bit ones; floats first keep alignment. The block is
+         * 26 bytes a pixel (every map), written once: with 4 KiB pages, faulting it in costs
          * about as much as the Gray decoding itself, so it asks for transparent huge pages
          * (a hint; ignored where THP is off). */
-        size_t bytes = n * (nfloat * sizeof(float) + sizeof(uint16_t));
+        size_t bytes = n * result_px_bytes(nfloat);
         char *blk;
         if (bytes >= RESULT_HUGE_BYTES) {
                 size_t round = (bytes + RESULT_HUGE_BYTES - 1) & ~(size_t) (RESULT_HUGE_BYTES - 1);
@@ -2086,15 +2101,16 @@ static int result_new(int w, int h, int nfloat, struct imp_sl_result **ret) {
         float *fl = (float *) blk;
         r->proj_x = fl;
         r->proj_y = fl + n;
-        r->confidence = fl + 2 * n;
-        r->sigma_px = fl + 3 * n;
-        if (nfloat > 4)
-                r->direct = fl + 4 * n;
-        if (nfloat > 5) {
-                r->global = fl + 5 * n;
-                r->modulation = fl + 6 * n;
+        if (nfloat > 2)
+                r->direct = fl + 2 * n;
+        if (nfloat > 3) {
+                r->global = fl + 3 * n;
+                r->modulation = fl + 4 * n;
         }
-        r->flags = (uint16_t *) (fl + nfloat * n);
+        uint16_t *u16 = (uint16_t *) (fl + nfloat * n);
+        r->confidence = u16;
+        r->sigma_px = u16 + n;
+        r->flags = u16 + 2 * n;
         r->width = w;
         r->height = h;
         *ret = TAKE_PTR(r);
@@ -2171,10 +2187,12 @@ static void raise_phase_sigma(struct imp_sl_result *res) {
         const float e0 = fmaxf(res->phase_err_px[0], 0.0f), e1 = fmaxf(res->phase_err_px[1], 0.0f);
         for (size_t i = 0; i < n; i++) {
                 uint16_t f = res->flags[i];
-                float s = res->sigma_px[i];
+                const float s0 = imp_sl_sigma(res->sigma_px[i]);
+                float s = s0;
                 s = (f & IMP_SL_SUBPIXEL_X) && (f & IMP_SL_VALID_X) ? fmaxf(s, e0) : s;
                 s = (f & IMP_SL_SUBPIXEL_Y) && (f & IMP_SL_VALID_Y) ? fmaxf(s, e1) : s;
-                res->sigma_px[i] = s;
+                if (s != s0)    /* rounded once: a kept σ is not encoded again */
+                        res->sigma_px[i] = imp_sl_sigma16(s);
         }
 }
 
@@ -2213,7 +2231,7 @@ int imp_sl_decode_reuse(const struct imp_sl_frames *in, const struct imp_sl_para
         _cleanup_(imp_sl_result_freep) struct imp_sl_result *fresh = NULL;
         struct imp_sl_result *res = *ret;
         if (!res || res->width != pl->width || res->height != pl->height ||
-            4 + !!res->direct + 2 * !!res->global != result_nfloat(p)) {
+            2 + !!res->direct + 2 * !!res->global != result_nfloat(p)) {
                 r = result_new(pl->width, pl->height, result_nfloat(p), &fresh);
                 if (r < 0)
                         return imp_error_set(err, r, "structured light: out of memory for %dx%d maps",
@@ -2232,8 +2250,7 @@ int imp_sl_decode_reuse(const struct imp_sl_frames *in, const struct imp_sl_para
 
         struct ctx c = { .in = in, .p = p, .pl = pl, .sat = saturation_level(p, pl->type),
                          .b = (float) p->black_level, .res = res, .int_path = -1 };
-        c.stream = (size_t) pl->width * pl->height * (result_nfloat(p) * sizeof(float) + sizeof(uint16_t)) >=
-                   STREAM_MIN_BYTES;
+        c.stream = (size_t) pl->width * pl->height * result_px_bytes(result_nfloat(p)) >= STREAM_MIN_BYTES;
         /* The integer path needs Gray planes (it computes L_d, L_g from them) and, for
          * bytes in 16-bit lanes, a Gray code of at most 16 bits. */
         if (pl->ndg > 0 && pl->type == IMP_PIX_U16)

@@ -77,7 +77,7 @@ struct imp_sl_params {
                                          falls back to the Gray centre; true: keep it */
         bool robust;                  /* Xu & Aliaga classification; false: sign only */
         bool coords_only;             /* true: the result has no direct, global and
-                                         modulation maps (NULL; 12 of its 30 bytes a pixel
+                                         modulation maps (NULL; 12 of its 26 bytes a pixel
                                          neither allocated nor written), for callers that
                                          read only coordinates, flags, confidence and σ
                                          (triangulation). Every other map and count is
@@ -115,7 +115,9 @@ struct imp_sl_result {
         int width, height;            /* camera pixels; maps are row-major, width apart */
         float *proj_x, *proj_y;       /* projector coordinates (see top); INVALID_COORD
                                          where the axis is not valid */
-        float *confidence;            /* 0..1; 0 where neither axis is valid */
+        /* 0..1 in 16-bit fixed point: imp_sl_conf() reads it (within 7.8e-6 of the
+         * decoder's value); 0 where neither axis is valid */
+        uint16_t *confidence;
         uint16_t *flags;              /* IMP_SL_* */
         float *direct, *global;       /* L_d, L_g estimates (input units, ≥ 0); NULL
                                          with coords_only, as is modulation; global and
@@ -127,8 +129,10 @@ struct imp_sl_result {
          * may be wrong); a phase rejected on this pixel: √(q²/12 + d²), d its
          * disagreement with the Gray centre; a phase: phase_err_px of the axis where
          * measured, else 0 (the caller's own model applies, e.g. imp_triangulate's
-         * sigma_proj_px / confidence, which takes the larger of the two). */
-        float *sigma_px;
+         * sigma_proj_px / confidence, which takes the larger of the two).
+         * Stored as bfloat16 (a float's upper half, rounded to nearest even): imp_sl_sigma()
+         * reads it, within 2^-8 of the value relative (0.4 %); 0 stays 0. */
+        uint16_t *sigma_px;
         size_t n_valid_x, n_valid_y, n_valid_xy;
         size_t n_shadow, n_saturated, n_weak, n_disagree;
         /* Per axis (x, y), for axes with Gray code and phase: the phase's error RMS in
@@ -140,6 +144,28 @@ struct imp_sl_result {
         bool phase_rejected[2];
 };
 
+/* The maps' narrow encodings. Confidence c ∈ [0, 1] is stored as ⌊c·65535 + ½⌋ (error ≤
+ * 0.51/65535 with the float product's rounding); σ as bfloat16 (round to nearest even:
+ * relative error ≤ 2^-8; 0 and every value with 8 significant bits exact). */
+#define IMP_SL_CONF_ONE 65535
+static inline float imp_sl_conf(uint16_t c) {
+        return (float) c / (float) IMP_SL_CONF_ONE;
+}
+static inline float imp_sl_sigma(uint16_t s) {
+        union { uint32_t u; float f; } v = { .u = (uint32_t) s << 16 };
+        return v.f;
+}
+/* The encoders the decoder uses (exported for tests and writers of results). c outside
+ * [0, 1] or NaN: clamped (NaN → 0); s ≥ 0 finite. */
+static inline uint16_t imp_sl_conf16(float c) {
+        c = c > 1.0f ? 1.0f : c > 0.0f ? c : 0.0f;
+        return (uint16_t) (int32_t) (c * (float) IMP_SL_CONF_ONE + 0.5f);
+}
+static inline uint16_t imp_sl_sigma16(float s) {
+        union { float f; uint32_t u; } v = { .f = s };
+        return (uint16_t) ((v.u + 0x7fffu + ((v.u >> 16) & 1u)) >> 16);
+}
+
 /* Decodes one view. *ret is allocated here; caller frees with imp_sl_result_free().
  * -EINVAL with a message in err for an inconsistent pattern set (missing or duplicate
  * bit planes or phase steps, N < 3, mismatched images), -ENOMEM. */
@@ -147,7 +173,7 @@ int imp_sl_decode(const struct imp_sl_frames *in, const struct imp_sl_params *p,
                   struct imp_sl_result **ret, struct imp_error *err);
 /* As imp_sl_decode, into *ret when it is a result of the frames' size (from an earlier
  * decode with the same coords_only and direct_only): every map and count is written anew, so a caller
- * decoding view after view saves allocating and faulting in 30 bytes a pixel each time (page
+ * decoding view after view saves allocating and faulting in 26 bytes a pixel each time (page
  * faults and the kernel's zeroing of the fresh pages). Otherwise (NULL, another size, or maps
  * that coords_only or direct_only adds or drops) *ret is freed and replaced by a new result. On error *ret is left as it was (its maps' contents unspecified). */
 int imp_sl_decode_reuse(const struct imp_sl_frames *in, const struct imp_sl_params *p,

@@ -253,7 +253,7 @@ int imp_triangulate(const struct imp_pinhole *cam, const struct imp_pinhole *pro
                         vy = vy && pc->proj_y[i] >= 0 && pc->proj_y[i] <= proj->height;
                         if (!opt->use_both && vx)
                                 vy = false;
-                        double conf = pc->confidence ? pc->confidence[i] : 1.0;
+                        double conf = pc->confidence ? imp_sl_conf(pc->confidence[i]) : 1.0;
                         if ((!vx && !vy) || !(conf >= opt->min_confidence))
                                 continue;
                         int axis = vx && vy ? -1 : vx ? 0 : 1;
@@ -270,8 +270,8 @@ int imp_triangulate(const struct imp_pinhole *cam, const struct imp_pinhole *pro
                         if (!(lv > 0) || fabs(imp_dot3(v, d)) / lv > cos_min)
                                 continue;
                         double sp = opt->sigma_proj_px / fmin(conf, 1.0);
-                        if (pc->sigma_px && pc->sigma_px[i] > sp)
-                                sp = pc->sigma_px[i];
+                        if (pc->sigma_px && imp_sl_sigma(pc->sigma_px[i]) > sp)
+                                sp = imp_sl_sigma(pc->sigma_px[i]);
                         double sigma = sp / sqrt(jj);
                         if (!isfinite(sigma))
                                 continue;

@@ -29,9 +29,10 @@ struct imp_projector_coords {
         const uint8_t *valid_y;       /* likewise for proj_y */
         const uint16_t *sl_flags;     /* if not NULL: the decoder's IMP_SL_VALID_X / _Y bits
                                          decide validity (valid_x / valid_y ignored) */
-        const float *confidence;      /* 0..1, may be NULL (= 1 everywhere) */
-        const float *sigma_px;        /* the decoder's own 1σ of the coordinate (projector px,
-                                         imp_sl_result.sigma_px), may be NULL (= 0) */
+        const uint16_t *confidence;   /* 0..1 as imp_sl_result stores it (imp_sl_conf()),
+                                         may be NULL (= 1 everywhere) */
+        const uint16_t *sigma_px;     /* the decoder's own 1σ of the coordinate (projector px,
+                                         bfloat16: imp_sl_sigma()), may be NULL (= 0) */
 };
 
 struct imp_triangulate_options {

@@ -437,8 +437,8 @@ static bool same_coords(const struct imp_sl_result *ro, const struct imp_sl_resu
         return ro->width == rf->width && ro->height == rf->height &&
                     !memcmp(ro->proj_x, rf->proj_x, np * sizeof(float)) &&
                     !memcmp(ro->proj_y, rf->proj_y, np * sizeof(float)) &&
-                    !memcmp(ro->confidence, rf->confidence, np * sizeof(float)) &&
-                    !memcmp(ro->sigma_px, rf->sigma_px, np * sizeof(float)) &&
+                    !memcmp(ro->confidence, rf->confidence, np * sizeof *rf->confidence) &&
+                    !memcmp(ro->sigma_px, rf->sigma_px, np * sizeof *rf->sigma_px) &&
                     !memcmp(ro->flags, rf->flags, np * sizeof(uint16_t)) &&
                     ro->n_valid_x == rf->n_valid_x && ro->n_valid_y == rf->n_valid_y &&
                     ro->n_valid_xy == rf->n_valid_xy && ro->n_shadow == rf->n_shadow &&
@@ -551,10 +551,10 @@ static void test_u8_equals_float(const struct set *g, int cw) {
                         size_t np = (size_t) cw * CH;
                         bool same = !memcmp(ru->proj_x, rf->proj_x, np * sizeof(float)) &&
                                     !memcmp(ru->proj_y, rf->proj_y, np * sizeof(float)) &&
-                                    !memcmp(ru->confidence, rf->confidence, np * sizeof(float)) &&
+                                    !memcmp(ru->confidence, rf->confidence, np * sizeof *rf->confidence) &&
                                     !memcmp(ru->direct, rf->direct, np * sizeof(float)) &&
                                     !memcmp(ru->global, rf->global, np * sizeof(float)) &&
-                                    !memcmp(ru->sigma_px, rf->sigma_px, np * sizeof(float)) &&
+                                    !memcmp(ru->sigma_px, rf->sigma_px, np * sizeof *rf->sigma_px) &&
                                     !memcmp(ru->flags, rf->flags, np * sizeof(uint16_t)) &&
                                     ru->n_valid_xy == rf->n_valid_xy && ru->n_weak == rf->n_weak &&
                                     ru->n_saturated == rf->n_saturated;
@@ -636,8 +636,8 @@ static void test_streamed(const struct set *g) {
                                 break;
                         size_t o = (size_t) y0s[k] * tw, nb = (size_t) BH * tw, fb4 = nb * sizeof(float);
                         bool same = !memcmp(rb->proj_x + o, rs->proj_x, fb4) && !memcmp(rb->proj_y + o, rs->proj_y, fb4) &&
-                                    !memcmp(rb->confidence + o, rs->confidence, fb4) &&
-                                    !memcmp(rb->sigma_px + o, rs->sigma_px, fb4) &&
+                                    !memcmp(rb->confidence + o, rs->confidence, nb * sizeof *rs->confidence) &&
+                                    !memcmp(rb->sigma_px + o, rs->sigma_px, nb * sizeof *rs->sigma_px) &&
                                     !memcmp(rb->direct + o, rs->direct, fb4) && !memcmp(rb->global + o, rs->global, fb4) &&
                                     !memcmp(rb->modulation + o, rs->modulation, fb4) &&
                                     !memcmp(rb->flags + o, rs->flags, nb * sizeof(uint16_t));

@@ -101,12 +101,12 @@ static struct figures decode(const struct scene *s, bool masks, double margin_px
                         size_t o = (size_t) y * CW + x;
                         uint16_t fl = r->flags[o];
                         f.nonfinite += !isfinite(r->proj_x[o]) + !isfinite(r->proj_y[o]) +
-                                       !isfinite(r->sigma_px[o]) + !isfinite(r->confidence[o]);
+                                       !isfinite(imp_sl_sigma(r->sigma_px[o]));
                         if (!(fl & IMP_SL_VALID_X) || !(fl & IMP_SL_VALID_Y))
                                 continue;
                         f.valid++;
-                        double conf = fmax(r->confidence[o], 1e-6);
-                        double sig = fmax(SIGMA_TRI_PX / fmin(conf, 1.0), r->sigma_px[o]);
+                        double conf = fmax(imp_sl_conf(r->confidence[o]), 1e-6);
+                        double sig = fmax(SIGMA_TRI_PX / fmin(conf, 1.0), imp_sl_sigma(r->sigma_px[o]));
                         double e = fmax(fabs(r->proj_x[o] - true_u(x)), fabs(r->proj_y[o] - true_v(y)));
                         bool flagged = fl & (IMP_SL_PHASE_REJECTED | IMP_SL_SATURATED);
                         bool beyond = e > 3 * sig;

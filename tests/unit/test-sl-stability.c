@@ -64,11 +64,11 @@ static void check_finite(const struct imp_sl_result *r, const char *what) {
         long bad = 0, badconf = 0;
         size_t n = (size_t) r->width * r->height;
         for (size_t o = 0; o < n; o++) {
-                bad += !isfinite(r->proj_x[o]) + !isfinite(r->proj_y[o]) + !isfinite(r->confidence[o]) +
+                bad += !isfinite(r->proj_x[o]) + !isfinite(r->proj_y[o]) + !isfinite(imp_sl_sigma(r->sigma_px[o])) +
                        !isfinite(r->direct[o]) + !isfinite(r->global[o]) + !isfinite(r->modulation[o]);
-                badconf += !(r->confidence[o] >= 0 && r->confidence[o] <= 1);
+                badconf += r->confidence[o] && !(r->flags[o] & (IMP_SL_VALID_X | IMP_SL_VALID_Y));
         }
-        fprintf(stderr, "%s: %ld non-finite outputs, %ld confidences outside [0, 1]\n", what, bad, badconf);
+        fprintf(stderr, "%s: %ld non-finite outputs, %ld nonzero confidences without a valid axis\n", what, bad, badconf);
         CHECK_INT_EQ(bad, 0);
         CHECK_INT_EQ(badconf, 0);
 }

@@ -204,14 +204,14 @@ static void test_masks_and_confidence(void) {
         static struct synth s;
         synthesize(&cam, &proj, 1, 0, &s);
         static uint16_t flags[CW * CH];
-        static float conf[CW * CH];
+        static uint16_t conf[CW * CH];
         size_t expect = 0;
         for (size_t i = 0; i < (size_t) CW * CH; i++) {
                 flags[i] = (i % 3 == 0 ? 0 : IMP_SL_VALID_X) | (i % 5 == 0 ? 0 : IMP_SL_VALID_Y);
                 if (!s.vx[i])
                         flags[i] = IMP_SL_SHADOW;
-                conf[i] = i % 7 == 0 ? 0.01f : 0.5f;
-                expect += (flags[i] & (IMP_SL_VALID_X | IMP_SL_VALID_Y)) && conf[i] >= 0.05f &&
+                conf[i] = imp_sl_conf16(i % 7 == 0 ? 0.01f : 0.5f);
+                expect += (flags[i] & (IMP_SL_VALID_X | IMP_SL_VALID_Y)) && imp_sl_conf(conf[i]) >= 0.05f &&
                           ((flags[i] & IMP_SL_VALID_X) || s.vy[i]);
         }
         struct imp_sl_result sl = { .width = CW, .height = CH, .proj_x = s.px, .proj_y = s.py, .confidence = conf,
@@ -226,7 +226,7 @@ static void test_masks_and_confidence(void) {
                 n_col += r.valid[i] == IMP_RANGE_COLUMN;
                 n_both += r.valid[i] == IMP_RANGE_BOTH;
                 if (r.valid[i]) {
-                        CHECK(conf[i] >= 0.05f);
+                        CHECK(imp_sl_conf(conf[i]) >= 0.05f);
                         CHECK_NEAR(r.sigma_mm[i] > 0, 1, 0);
                 } else {
                         CHECK_NEAR(r.xyz[3 * i + 2], 0, 0);
