@@ -5,8 +5,10 @@
  * read from the frames; each sample's light index names the light it came from; and the
  * BTF fit of the grid (which reads bands for mono frames) equals the fit of the same frames
  * as RGB (which read the frames); values given by the caller replace exactly the bilinear
- * values of their lights' samples (imp_btf_extract_texel_given()); and the per-light
- * geometry computed in vector lanes equals the one-light-at-a-time formulas. */
+ * values of their lights' samples (imp_btf_extract_texel_given()); the per-light
+ * geometry computed in vector lanes equals the one-light-at-a-time formulas; and ray
+ * decisions recorded by one extraction and reused by another (struct imp_btf_rays) give
+ * the marching extraction's samples and fit. */
 #include <errno.h>
 #include <stdlib.h>
 
