@@ -818,7 +818,7 @@ static int dome_load(const struct process_opts *o, const struct imp_captureset *
  * they fit and check (docs/geometry.md). */
 static int photometric_stage(const struct process_opts *o, struct geometry_out *g,
                              const struct imp_btf_heightfield *bh, const struct imp_btf_capture *cap,
-                             float *normal, struct imp_error *err) {
+                             const struct imp_btf_sample_params *sp, float *normal, struct imp_error *err) {
         struct imp_heightfield *hf = &g->hf;
         size_t nt = (size_t) hf->nx * hf->ny;
         double t0 = now_s();
@@ -833,7 +833,7 @@ static int photometric_stage(const struct process_opts *o, struct geometry_out *
                 return imp_error_set(err, -ENOMEM, "out of memory");
         progress(o, "photometric normals", 0, 1);
         struct imp_photometric_out pout = { pn_normal, pn_normal + nt * 3, pn_flags, pn_tflags, pn_sigma };
-        int r = imp_photometric_normals(bh, cap, &o->opt->btf_samples, pp, &pout, &ps);
+        int r = imp_photometric_normals(bh, cap, sp, pp, &pout, &ps);
         if (r < 0)
                 return imp_error_set(err, r, "%s: photometric normals failed: %s", o->capture, strerror(-r));
         /* normal holds the geometric normals until the bilinear reading replaces them */
@@ -917,7 +917,8 @@ static void btf_progress(void *data, long done, long total) {
 
 /* The shadow-aware Lafortune fit (seed 000 §4.4), the held-out validation, the maps. */
 static int btf_stage(const struct process_opts *o, struct geometry_out *g, const struct imp_btf_heightfield *bh,
-                     const struct imp_btf_capture *cap, const struct dome *d, struct imp_error *err) {
+                     const struct imp_btf_capture *cap, const struct imp_btf_sample_params *sp, const struct dome *d,
+                     struct imp_error *err) {
         size_t nt = (size_t) g->hf.nx * g->hf.ny;
         _cleanup_free_ struct imp_btf_texel *tex = calloc(nt, sizeof *tex);
         if (!tex)
@@ -928,7 +929,7 @@ static int btf_stage(const struct process_opts *o, struct geometry_out *g, const
         fp.progress = btf_progress;
         fp.progress_data = (void *) o;
         progress(o, "btf fit", 0, 1);
-        int r = imp_btf_fit_grid(bh, cap, &o->opt->btf_samples, &fp, 64, tex, &st);
+        int r = imp_btf_fit_grid(bh, cap, sp, &fp, 64, tex, &st);
         if (r < 0)
                 return imp_error_set(err, r, "%s: BTF fit failed: %s", o->capture, strerror(-r));
         for (size_t i = 0; i < nt; i++)   /* a non-physical fit is the copy's fit_failed */
@@ -975,6 +976,7 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
         struct imp_heightfield *hf = &g->hf;
         size_t nt = (size_t) hf->nx * hf->ny;
         struct dome d = {};
+        _cleanup_(imp_btf_rays_freep) struct imp_btf_rays *rays = NULL;
         _cleanup_free_ float *normal = malloc(nt * 3 * sizeof *normal);
         if (!normal)
                 return imp_error_set(err, -ENOMEM, "out of memory");
@@ -993,8 +995,17 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
         struct imp_btf_capture cap = { &rig->cameras[0].model, d.lights, (int) d.n_used,
                                        (const struct imp_image *const *) d.frames,
                                        (const struct imp_image *const *) d.valid };
-        if (o->opt->photometric_normals && d.n_used >= 8)
-                r = photometric_stage(o, g, &bh, &cap, normal, err);
+        /* The photometric stage records its shadow and camera-visibility decisions, the fit
+         * takes them instead of marching the rays again (btf.h struct imp_btf_rays): the
+         * fused heights differ from the ones they were marched on by µm (docs/btf-fit.md). */
+        struct imp_btf_sample_params sp = o->opt->btf_samples;
+        bool photometric = o->opt->photometric_normals && d.n_used >= 8;
+        if (photometric && imp_btf_rays_new(hf->nx, hf->ny, (int) d.n_used, &rays) >= 0) {
+                sp.rays = rays;
+                sp.rays_mode = IMP_BTF_RAYS_RECORD;
+        }
+        if (photometric)
+                r = photometric_stage(o, g, &bh, &cap, &sp, normal, err);
         else {
                 drop_fill(g, NULL);
                 /* too few lights for a photometric normal anywhere: the texels keep the
@@ -1004,8 +1015,9 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
                         if (hf->mask[i])
                                 hf->texel_flags[i] |= IMP_TEXEL_FEW_SAMPLES;
         }
+        sp.rays_mode = IMP_BTF_RAYS_REUSE;
         if (r >= 0)
-                r = btf_stage(o, g, &bh, &cap, &d, err);
+                r = btf_stage(o, g, &bh, &cap, &sp, &d, err);
 out:
         dome_done(&d);
         return r;

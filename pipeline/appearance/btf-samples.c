@@ -57,6 +57,35 @@ void imp_btf_samples_free(struct imp_btf_samples *s) {
         free(s);
 }
 
+int imp_btf_rays_new(int width, int height, int n_lights, struct imp_btf_rays **ret) {
+        if (width <= 0 || height <= 0 || n_lights <= 0 || n_lights > IMP_BTF_MAX_SAMPLES || !ret)
+                return -EINVAL;
+        struct imp_btf_rays *r = calloc(1, sizeof *r);
+        if (!r)
+                return -ENOMEM;
+        size_t nt = (size_t) width * height;
+        *r = (struct imp_btf_rays) { .width = width, .height = height, .n_lights = n_lights,
+                                     .words = (n_lights + 63) / 64 };
+        r->known = calloc(nt * r->words, sizeof *r->known);
+        r->blocked = calloc(nt * r->words, sizeof *r->blocked);
+        r->camera = calloc(nt, sizeof *r->camera);
+        if (!r->known || !r->blocked || !r->camera) {
+                imp_btf_rays_free(r);
+                return -ENOMEM;
+        }
+        *ret = r;
+        return 0;
+}
+
+void imp_btf_rays_free(struct imp_btf_rays *r) {
+        if (!r)
+                return;
+        free(r->known);
+        free(r->blocked);
+        free(r->camera);
+        free(r);
+}
+
 double imp_btf_light_irradiance(const struct imp_rig_light *light, const double X[3]) {
         double d[3] = { X[0] - light->pos_mm[0], X[1] - light->pos_mm[1], X[2] - light->pos_mm[2] };
         double r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
@@ -516,6 +545,42 @@ static void light_geometry(const struct scene *sc, int n_lights, int j0, int nj,
         sqrt_lanes(g->rr, g->run, nj);
 }
 
+/* Texel idx's record in p->rays (struct imp_btf_rays): mode OFF when there is none; a
+ * recording starts the texel undecided. */
+struct ray_rec {
+        int mode;
+        uint64_t *known, *blocked;
+        uint8_t *cam;
+};
+
+static void ray_rec_of(const struct imp_btf_sample_params *p, size_t idx, struct ray_rec *rr) {
+        struct imp_btf_rays *r = p->rays;
+        *rr = (struct ray_rec) { .mode = r ? p->rays_mode : IMP_BTF_RAYS_OFF };
+        if (rr->mode == IMP_BTF_RAYS_OFF)
+                return;
+        rr->known = r->known + idx * r->words;
+        rr->blocked = r->blocked + idx * r->words;
+        rr->cam = r->camera + idx;
+        if (rr->mode == IMP_BTF_RAYS_RECORD) {
+                memset(rr->known, 0, r->words * sizeof *rr->known);
+                memset(rr->blocked, 0, r->words * sizeof *rr->blocked);
+                *rr->cam = IMP_BTF_CAM_UNKNOWN;
+        }
+}
+
+/* The camera ray of texel (u, v) from P (direction wv, distance dist_c): blocked? From the
+ * record when it has the decision, else marched (and recorded when recording). */
+static bool camera_blocked(const struct imp_btf_heightfield *hf, const struct imp_btf_sample_params *p,
+                           const struct scene *sc, const struct ray_rec *rr, int u, int v, const double P[3],
+                           const double wv[3], double dist_c) {
+        if (rr->mode == IMP_BTF_RAYS_REUSE && *rr->cam != IMP_BTF_CAM_UNKNOWN)
+                return *rr->cam == IMP_BTF_CAM_BLOCKED;
+        bool blocked = !imp_btf_horizon_clear(sc->hz, u, v, wv) && march(hf, p, sc->py, sc->hmax, P, wv, dist_c, NULL);
+        if (rr->mode == IMP_BTF_RAYS_RECORD)
+                *rr->cam = blocked ? IMP_BTF_CAM_BLOCKED : IMP_BTF_CAM_CLEAR;
+        return blocked;
+}
+
 /* Values given by the caller (imp_btf_extract_texel_given()): value[j] for light j when
  * ok[j]. */
 struct given {
@@ -554,6 +619,8 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
 
         *ret_count = 0;
         *ret_shadowed = 0;
+        struct ray_rec rr;
+        ray_rec_of(p, idx, &rr);
         if ((hf->mask && !hf->mask[idx]) || !isfinite(hf->height_mm[idx]) || !(nl > 0.5 && nl < 2.0)) {
                 *ret_flags = IMP_BTF_MASKED;
                 return;
@@ -576,7 +643,7 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
         mat_apply(sc->R, sc->t, P, Pw);
         if (!(vloc[2] > 0.0) || !imp_pinhole_project(cap->camera, Pw, px) || !(px[0] >= 0.0 && px[1] >= 0.0 &&
             px[0] <= cap->camera->width - 1 && px[1] <= cap->camera->height - 1) ||
-            (!imp_btf_horizon_clear(sc->hz, u, v, wv) && march(hf, p, sc->py, sc->hmax, P, wv, dist_c, NULL))) {
+            camera_blocked(hf, p, sc, &rr, u, v, P, wv, dist_c)) {
                 *ret_flags = IMP_BTF_HIDDEN;
                 return;
         }
@@ -601,10 +668,21 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
                 double e_cos = irr * lloc[2];
                 if (!(e_cos >= p->min_e_cos))
                         continue;
-                /* imp_btf_horizon_clear() */
-                int q = (wl[0] < 0.0) | (wl[1] < 0.0) << 1;
-                bool clear = hz && wl[2] > 0.0 && wl[2] >= (double) hs[q] * lg.run[k];
-                if (!clear && march(hf, p, sc->py, sc->hmax, P, wl, lg.r[k], NULL)) {
+                uint64_t bit = (uint64_t) 1 << (j & 63);
+                bool blocked;
+                if (rr.mode == IMP_BTF_RAYS_REUSE && (rr.known[j >> 6] & bit))
+                        blocked = rr.blocked[j >> 6] & bit;
+                else {
+                        /* imp_btf_horizon_clear() */
+                        int q = (wl[0] < 0.0) | (wl[1] < 0.0) << 1;
+                        bool clear = hz && wl[2] > 0.0 && wl[2] >= (double) hs[q] * lg.run[k];
+                        blocked = !clear && march(hf, p, sc->py, sc->hmax, P, wl, lg.r[k], NULL);
+                        if (rr.mode == IMP_BTF_RAYS_RECORD) {
+                                rr.known[j >> 6] |= bit;
+                                rr.blocked[j >> 6] |= blocked ? bit : 0;
+                        }
+                }
+                if (blocked) {
                         shadowed++;
                         continue;
                 }
@@ -681,6 +759,10 @@ int imp_btf_extractor_new(const struct imp_btf_heightfield *hf, const struct imp
         if (r < 0)
                 return r;
         if (!p || !py || !ret || py->height_mm != hf->height_mm || py->width != hf->width || py->height != hf->height)
+                return -EINVAL;
+        if (p->rays && p->rays_mode != IMP_BTF_RAYS_OFF &&
+            ((p->rays_mode != IMP_BTF_RAYS_RECORD && p->rays_mode != IMP_BTF_RAYS_REUSE) ||
+             p->rays->width != hf->width || p->rays->height != hf->height || p->rays->n_lights != cap->n_lights))
                 return -EINVAL;
         struct imp_btf_extractor *x = calloc(1, sizeof *x);
         if (!x)

@@ -96,8 +96,35 @@ struct imp_btf_sample_params {
         double march_step_texels;     /* linear-search step along the ray, texels (0.5) */
         int march_refine;             /* binary-refinement steps after a hit (8) */
         double shadow_bias_texels;    /* a ray is blocked when it is this far below (0.05) */
+        /* The ray decisions of an earlier extraction (struct imp_btf_rays, below; NULL:
+         * march every ray): rays_mode IMP_BTF_RAYS_RECORD stores each texel's, REUSE takes
+         * them instead of marching. */
+        struct imp_btf_rays *rays;
+        int rays_mode;
 };
 void imp_btf_sample_params_default(struct imp_btf_sample_params *ret);
+
+/* The shadow and camera-visibility decisions of an extraction, per texel: for each light
+ * whether its shadow ray was decided (marched or cleared by the horizon) and whether it
+ * was blocked, and the camera ray's outcome. They depend on the heights alone, not on
+ * the normal or the frames: a second extraction on the same heights (the fit after the
+ * photometric stage) with REUSE gets the same samples without marching a ray the first
+ * one decided; it marches only those the first did not (a light below the horizon of the
+ * other normal, a texel it masked). On heights moved since (the height fusion, µm) the
+ * decisions are those of the recorded heights: docs/btf-fit.md says what that changes.
+ * Recording: each texel's decisions are written by the thread extracting it. */
+enum { IMP_BTF_RAYS_OFF, IMP_BTF_RAYS_RECORD, IMP_BTF_RAYS_REUSE };
+enum { IMP_BTF_CAM_UNKNOWN, IMP_BTF_CAM_CLEAR, IMP_BTF_CAM_BLOCKED };
+struct imp_btf_rays {
+        int width, height, n_lights;
+        int words;                    /* 64-bit words per texel and set: ⌈n_lights / 64⌉ */
+        uint64_t *known, *blocked;    /* [texel][words], bit j: light j */
+        uint8_t *camera;              /* per texel: IMP_BTF_CAM_* */
+};
+/* All undecided. -EINVAL, -ENOMEM. */
+int imp_btf_rays_new(int width, int height, int n_lights, struct imp_btf_rays **ret);
+void imp_btf_rays_free(struct imp_btf_rays *r);
+DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_btf_rays *, imp_btf_rays_free);
 
 /* The samples of one tile of texels. Texel i (row-major in the tile) has its samples at
  * samples[i·max_per_texel .. + count[i]). Caller frees with imp_btf_samples_free(). */

@@ -5,8 +5,11 @@
  * read from the frames; each sample's light index names the light it came from; and the
  * BTF fit of the grid (which reads bands for mono frames) equals the fit of the same frames
  * as RGB (which read the frames); values given by the caller replace exactly the bilinear
- * values of their lights' samples (imp_btf_extract_texel_given()); and the per-light
- * geometry computed in vector lanes equals the one-light-at-a-time formulas. */
+ * values of their lights' samples (imp_btf_extract_texel_given()); the per-light
+ * geometry computed in vector lanes equals the one-light-at-a-time formulas; and ray
+ * decisions recorded by one extraction and reused by another (struct imp_btf_rays) give
+ * the marching extraction's samples and fit. */
+#include <errno.h>
 #include <stdlib.h>
 
 #include "btf.h"
@@ -336,6 +339,107 @@ static void test_fit_grid(const struct imp_btf_heightfield *hf, const struct imp
         imp_btf_band_done(&b);
 }
 
+/* Shared ray decisions (struct imp_btf_rays): recorded by an extraction on the geometric
+ * normals, reused by one on other normals over the same heights (the fit after the
+ * photometric stage), the samples, flags and shadowed counts equal bit for bit those of an
+ * extraction that marches every ray, and so does the grid's fit; the record is what is
+ * read: its shadow bits moved by one light, or its camera outcomes inverted, change the
+ * samples; a record of the wrong size is refused. */
+static void tilted_normals(const float *n0, float *n1) {
+        for (int i = 0; i < W * H; i++) {
+                double a = 0.15 * sin(0.37 * i), b = 0.15 * cos(0.23 * i);   /* up to ≈ 12° */
+                double q[3] = { n0[3 * i] + a, n0[3 * i + 1] + b, n0[3 * i + 2] };
+                double l = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]);
+                for (int k = 0; k < 3; k++)
+                        n1[3 * i + k] = (float) (q[k] / l);
+        }
+}
+
+static long extract_all(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
+                        const struct imp_btf_sample_params *sp, struct texel_out *out) {
+        _cleanup_(imp_btf_hf_pyramid_freep) struct imp_btf_hf_pyramid *py = NULL;
+        _cleanup_(imp_btf_extractor_freep) struct imp_btf_extractor *x = NULL;
+        CHECK_OK(imp_btf_hf_pyramid_new(hf, &py));
+        CHECK_OK(imp_btf_extractor_new(hf, cap, sp, py, &x));
+        long shadowed = 0;
+#pragma omp parallel for schedule(dynamic, 16) reduction(+ : shadowed)
+        for (int i = 0; i < W * H; i++) {
+                extract(x, NULL, i % W, i / W, &out[i]);
+                shadowed += out[i].shadowed;
+        }
+        return shadowed;
+}
+
+static long differing(const struct texel_out *a, const struct texel_out *b) {
+        long d = 0;
+        for (int i = 0; i < W * H; i++)
+                d += !same(&a[i], &b[i]);
+        return d;
+}
+
+static void test_rays(const struct imp_btf_heightfield *hf0, const struct imp_btf_capture *cap,
+                      const struct imp_btf_sample_params *sp0) {
+        _cleanup_free_ struct texel_out *ref = calloc(W * H, sizeof *ref), *got = calloc(W * H, sizeof *got);
+        _cleanup_free_ float *n1 = malloc(3 * W * H * sizeof *n1);
+        _cleanup_(imp_btf_rays_freep) struct imp_btf_rays *rays = NULL;
+        CHECK(ref && got && n1);
+        CHECK_OK(imp_btf_rays_new(W, H, NL, &rays));
+        struct imp_btf_sample_params sp = *sp0;
+        sp.rays = rays;
+        sp.rays_mode = IMP_BTF_RAYS_RECORD;
+        (void) extract_all(hf0, cap, &sp, got);   /* the photometric stage: geometric normals */
+        long known = 0, blocked = 0, cam = 0;
+        for (int i = 0; i < W * H * rays->words; i++) {
+                known += __builtin_popcountll(rays->known[i]);
+                blocked += __builtin_popcountll(rays->blocked[i]);
+        }
+        for (int i = 0; i < W * H; i++)
+                cam += rays->camera[i] != IMP_BTF_CAM_UNKNOWN;
+        struct imp_btf_heightfield hf = *hf0;
+        tilted_normals(hf0->normal, n1);
+        hf.normal = n1;
+        struct imp_btf_sample_params plain = *sp0;
+        long shadowed = extract_all(&hf, cap, &plain, ref);   /* the fit, marching */
+        sp.rays_mode = IMP_BTF_RAYS_REUSE;
+        long d_same = (extract_all(&hf, cap, &sp, got), differing(ref, got));
+        /* the fit of the grid */
+        struct imp_btf_fit_params fp;
+        imp_btf_fit_params_default(&fp);
+        _cleanup_free_ struct imp_btf_texel *ta = calloc(W * H, sizeof *ta), *tb = calloc(W * H, sizeof *tb);
+        struct imp_btf_stats sa, sb;
+        CHECK_OK(imp_btf_fit_grid(&hf, cap, &plain, &fp, 0, ta, &sa));
+        CHECK_OK(imp_btf_fit_grid(&hf, cap, &sp, &fp, 0, tb, &sb));
+        CHECK(!memcmp(ta, tb, (size_t) W * H * sizeof *ta));
+        CHECK(!memcmp(&sa, &sb, sizeof sa));
+        /* off by one light: every texel's shadow bits moved to the next light */
+        for (int i = 0; i < W * H * rays->words; i++)
+                rays->blocked[i] = (rays->blocked[i] << 1) & rays->known[i];
+        long d_shift = (extract_all(&hf, cap, &sp, got), differing(ref, got));
+        for (int i = 0; i < W * H * rays->words; i++)
+                rays->blocked[i] = (rays->blocked[i] >> 1) & rays->known[i];
+        for (int i = 0; i < W * H; i++)
+                rays->camera[i] = rays->camera[i] == IMP_BTF_CAM_CLEAR ? IMP_BTF_CAM_BLOCKED
+                                  : rays->camera[i] == IMP_BTF_CAM_BLOCKED ? IMP_BTF_CAM_CLEAR : IMP_BTF_CAM_UNKNOWN;
+        long d_cam = (extract_all(&hf, cap, &sp, got), differing(ref, got));
+        fprintf(stderr, "rays: %ld decided, %ld blocked, %ld camera rays recorded; reused on tilted normals: "
+                "%ld shadowed, %ld texels differ; bits off by one light: %ld differ, camera inverted: %ld\n",
+                known, blocked, cam, shadowed, d_same, d_shift, d_cam);
+        CHECK_INT_EQ(d_same, 0);
+        CHECK_INT_GE(known, (long) W * H * NL / 3);
+        CHECK_INT_GE(blocked, 1000);
+        CHECK_INT_GE(d_shift, 1000);
+        CHECK_INT_GE(d_cam, (long) W * H / 2);
+        /* a record of another grid or light count is refused */
+        _cleanup_(imp_btf_rays_freep) struct imp_btf_rays *small = NULL;
+        _cleanup_(imp_btf_hf_pyramid_freep) struct imp_btf_hf_pyramid *py = NULL;
+        struct imp_btf_extractor *x = NULL;
+        CHECK_OK(imp_btf_rays_new(W, H, NL - 1, &small));
+        CHECK_OK(imp_btf_hf_pyramid_new(&hf, &py));
+        sp.rays = small;
+        CHECK_INT_EQ(imp_btf_extractor_new(&hf, cap, &sp, py, &x), -EINVAL);
+        CHECK_INT_EQ(imp_btf_rays_new(0, H, NL, &small), -EINVAL);
+}
+
 int main(void) {
         uint64_t rng = 0x9e3779b97f4a7c15ULL;
         const double centre[3] = { 0, 0, 0 }, elev[3] = { 12, 35, 65 };
@@ -356,6 +460,7 @@ int main(void) {
         test_given(&hf, &cap, &sp);
         test_light_geometry(&hf, &cap, &sp);
         test_fit_grid(&hf, &cap, &sp);
+        test_rays(&hf, &cap, &sp);
         for (int j = 0; j < NL; j++) {
                 imp_image_free(mono[j]);
                 imp_image_free(rgb[j]);
