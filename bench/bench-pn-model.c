@@ -13,8 +13,8 @@
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
-#include "pn-model-peer.h"
-#include "pn-model-set.h"
+#include "unit/pn-model-peer.h"
+#include "unit/pn-model-set.h"
 
 typedef int (*texel_fn)(const struct imp_btf_sample *, int, const struct imp_photometric_params *,
                         struct imp_pn_texel *);

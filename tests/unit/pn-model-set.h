@@ -6,8 +6,8 @@
  * shadow-filled texels), dark paint, few lights. */
 #pragma once
 #include <string.h>
-#include "unit/btf-synth.h"
-#include "unit/pn-synth.h"
+#include "btf-synth.h"
+#include "pn-synth.h"
 
 struct pn_set_texel {
         int n, filled;                /* sample count; filled: solve with the filled params */
