@@ -117,24 +117,23 @@ struct pn_rows {
         int m;
 };
 
+/* Branch-free: every sample is written at row m, which advances only for a usable one (its
+ * two divisions then overlap those of the next samples instead of waiting on the tests). */
 static void load_rows(const struct imp_btf_sample *s, int n, struct pn_rows *R) {
         int m = 0;
         for (int i = 0; i < n; i++) {
                 const struct imp_btf_sample *q = &s[i];
                 double V = (q->value[0] + q->value[1] + q->value[2]) / 3.0;
-                if (!(q->e_cos > 0) || !(q->l[2] > 0) || !isfinite(V) || !isfinite(q->l[0]) ||
-                    !isfinite(q->l[1]) || !isfinite(q->v[0]) || !isfinite(q->v[1]) || !isfinite(q->v[2]))
-                        continue;
                 double E = q->e_cos / q->l[2];
-                if (!isfinite(E) || !(E > 0))
-                        continue;
+                const bool ok = (q->e_cos > 0) & (q->l[2] > 0) & isfinite(V) & isfinite(q->l[0]) & isfinite(q->l[1]) &
+                                isfinite(q->v[0]) & isfinite(q->v[1]) & isfinite(q->v[2]) & isfinite(E) & (E > 0);
                 const double lx = q->l[0], ly = q->l[1], lz = q->l[2], vx = q->v[0], vy = q->v[1], vz = q->v[2];
                 R->lx[m] = lx, R->ly[m] = ly, R->lz[m] = lz;
                 R->vx[m] = vx, R->vy[m] = vy, R->vz[m] = vz;
                 R->vl[m] = vx * lx + vy * ly + vz * lz;
                 R->y[m] = V / E;
                 R->w[m] = 1;
-                m++;
+                m += ok;
         }
         R->m = m;
         R->part_ok = false;
