@@ -236,25 +236,26 @@ static uint16_t solve_pass(struct pn_rows *R, const struct imp_photometric_param
                 takes_part(R, S->nc, S->cone, p->min_cos, R->part);
                 R->part_ok = true;
         }
-        /* The sums in registers and without a branch: a row that does not take part adds
-         * +0, which leaves every sum as it was (none is ever −0), so the sums are those of
-         * the rows taking part, in their order. */
+        /* The sums in registers and without a branch: a row that does not take part (or has
+         * weight 0) is weighted 0, and its products ±0 (every row is finite) leave every sum
+         * as it was (none is ever −0), so the sums are those of the rows taking part, in
+         * their order. */
         double a00 = 0, a01 = 0, a02 = 0, a11 = 0, a12 = 0, a22 = 0, b0 = 0, b1 = 0, b2 = 0;
         int used = 0;
         for (int i = 0; i < R->m; i++) {
-                const double wi = R->part[i] ? R->w[i] : 0.0, x = R->lx[i], y = R->ly[i], z = R->lz[i];
-                const double yi = R->y[i];
-                const bool on = wi > 0;
+                const bool on = R->part[i] & (R->w[i] > 0);
+                const double wi = on ? R->w[i] : 0.0, x = R->lx[i], y = R->ly[i], z = R->lz[i];
+                const double yi = R->y[i], wx = wi * x, wy = wi * y, wz = wi * z;
                 used += on;
-                b0 += on ? wi * x * yi : 0.0;
-                a00 += on ? wi * x * x : 0.0;
-                a01 += on ? wi * x * y : 0.0;
-                a02 += on ? wi * x * z : 0.0;
-                b1 += on ? wi * y * yi : 0.0;
-                a11 += on ? wi * y * y : 0.0;
-                a12 += on ? wi * y * z : 0.0;
-                b2 += on ? wi * z * yi : 0.0;
-                a22 += on ? wi * z * z : 0.0;
+                b0 += wx * yi;
+                a00 += wx * x;
+                a01 += wx * y;
+                a02 += wx * z;
+                b1 += wy * yi;
+                a11 += wy * y;
+                a12 += wy * z;
+                b2 += wz * yi;
+                a22 += wz * z;
         }
         S->used = used;
         if (used < p->min_samples)
@@ -335,7 +336,7 @@ static void residuals(struct pn_rows *R, const struct imp_photometric_params *p,
 
 /* The normal equations of the 4-unknown fit over the rows in[]: M = Σ w r rᵀ with
  * r = (l, 1), right-hand side Σ w r y in M[·][4], and Σ w y². In registers and branch-free
- * (+0 for a row left out, as in solve_pass); each entry the same product in the same order
+ * (weight 0 for a row left out, as in solve_pass); each entry the same product in the same order
  * as the plain loop over (j, k) would add (w·r_j)·r_k, so M is not made symmetric: its two
  * triangles differ in their last bits, and the solve reads both. */
 static void ambient_sums(const struct pn_rows *R, const bool *in, double M[4][5], double *ret_yy, double *ret_sw,
