@@ -118,7 +118,7 @@ struct pn_rows {
 };
 
 /* Branch-free: every sample is written at row m, which advances only for a usable one (its
- * two divisions then overlap those of the next samples instead of waiting on the tests). */
+ * divisions then overlap those of the next samples instead of waiting on the tests). */
 static void load_rows(const struct imp_btf_sample *s, int n, struct pn_rows *R) {
         int m = 0;
         for (int i = 0; i < n; i++) {
