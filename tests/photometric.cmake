@@ -12,3 +12,7 @@ impasto_test(test-photometric-reread LIBS impasto_pipeline)
 # Where the normal map puts ridges sharper than a pixel: the re-read's kernel. Renders a
 # scene (8 s of CPU in the release build, 144 s under ASan): integration, not in the ASan set.
 impasto_test(test-photometric-kernel LABELS integration LIBS impasto_pipeline)
+# The photometric texel model against main's copy of it before it was made faster
+# (tests/unit/pn-model-peer.c): the same flags, normals within 1e-6 rad.
+impasto_test(test-photometric-model LIBS impasto_pipeline)
+target_sources(test-photometric-model PRIVATE ${CMAKE_CURRENT_SOURCE_DIR}/unit/pn-model-peer.c)

@@ -58,9 +58,12 @@ static int cmp_double(const void *a, const void *b) {
 
 /* Median of v[0..n) (n ≤ IMP_BTF_MAX_SAMPLES, no NaN): the elements of ranks n/2 and, for
  * an even n, n/2 − 1, the rank of v[i] being the count of smaller elements, ties broken by
- * position (the ranks are a permutation of 0..n−1). Counting in vector lanes stops once both
- * are found; at a texel's sample count it beats qsort's comparator calls several times over
- * and gives the same value. tmp is unused. */
+ * position (the ranks are a permutation of 0..n−1). The rank of a candidate is counted in
+ * vector lanes; each count also brackets the median (a candidate ranked below lo is a lower
+ * bound, above hi an upper one), and the candidates outside the bracket are skipped without
+ * counting: as quickselect's pivots, but nothing moves, so that a few counts find both
+ * ranks. At a texel's sample count this beats qsort's comparator calls and quickselect's
+ * branches several times over, and gives the same value. tmp is unused. */
 PN_CLONES static double median_small(const double *restrict v, int n, double *tmp) {
         (void) tmp;
         if (n <= 0)
@@ -68,8 +71,14 @@ PN_CLONES static double median_small(const double *restrict v, int n, double *tm
         const int hi = n / 2, lo = n & 1 ? hi : hi - 1;
         double a = v[0], b = v[0];
         int found = lo == hi ? 1 : 0;
+        /* (value, index) of the bracket's ends: every element ranked lo..hi lies strictly
+         * between them in the order of the ranks */
+        double lv = -INFINITY, uv = INFINITY;
+        int li = -1, ui = n;
         for (int i = 0; i < n; i++) {
                 const double x = v[i];
+                if (x < lv || (x == lv && i < li) || x > uv || (x == uv && i > ui))
+                        continue;
                 int rank = 0;
 #pragma omp simd reduction(+ : rank)
                 for (int j = 0; j < n; j++)
@@ -80,6 +89,10 @@ PN_CLONES static double median_small(const double *restrict v, int n, double *tm
                         a = x, found++;
                 if (found == 2)
                         break;
+                if (rank < lo)
+                        lv = x, li = i;
+                else if (rank > hi)
+                        uv = x, ui = i;
         }
         return lo == hi ? b : 0.5 * (a + b);
 }
@@ -90,10 +103,13 @@ static void keep_geometric(struct imp_pn_texel *ret, uint16_t flags) {
         ret->flags |= flags;
 }
 
-/* The usable samples of a texel as rows of V/E = g·l (at most IMP_BTF_MAX_SAMPLES). */
+/* The usable samples of a texel as rows of V/E = g·l (at most IMP_BTF_MAX_SAMPLES), one
+ * array per component, so that the per-row loops run in vector lanes. */
 struct pn_rows {
-        double a[IMP_BTF_MAX_SAMPLES][3], y[IMP_BTF_MAX_SAMPLES], vv[IMP_BTF_MAX_SAMPLES][3];
-        double w[IMP_BTF_MAX_SAMPLES], res[IMP_BTF_MAX_SAMPLES], tmp[IMP_BTF_MAX_SAMPLES];
+        double lx[IMP_BTF_MAX_SAMPLES], ly[IMP_BTF_MAX_SAMPLES], lz[IMP_BTF_MAX_SAMPLES];
+        double vx[IMP_BTF_MAX_SAMPLES], vy[IMP_BTF_MAX_SAMPLES], vz[IMP_BTF_MAX_SAMPLES];
+        double y[IMP_BTF_MAX_SAMPLES], w[IMP_BTF_MAX_SAMPLES], res[IMP_BTF_MAX_SAMPLES];
+        double tmp[IMP_BTF_MAX_SAMPLES];
         double vl[IMP_BTF_MAX_SAMPLES];   /* v·l, for takes_part */
         /* takes_part() of each row for the state's current normal and cone, once per
          * normal: the solve, the model check and the mean read it (valid when part_ok) */
@@ -101,47 +117,46 @@ struct pn_rows {
         int m;
 };
 
+/* Branch-free: every sample is written at row m, which advances only for a usable one (its
+ * divisions then overlap those of the next samples instead of waiting on the tests). */
 static void load_rows(const struct imp_btf_sample *s, int n, struct pn_rows *R) {
         int m = 0;
         for (int i = 0; i < n; i++) {
                 const struct imp_btf_sample *q = &s[i];
                 double V = (q->value[0] + q->value[1] + q->value[2]) / 3.0;
-                if (!(q->e_cos > 0) || !(q->l[2] > 0) || !isfinite(V) || !isfinite(q->l[0]) ||
-                    !isfinite(q->l[1]) || !isfinite(q->v[0]) || !isfinite(q->v[1]) || !isfinite(q->v[2]))
-                        continue;
                 double E = q->e_cos / q->l[2];
-                if (!isfinite(E) || !(E > 0))
-                        continue;
-                for (int k = 0; k < 3; k++) {
-                        R->a[m][k] = q->l[k];
-                        R->vv[m][k] = q->v[k];
-                }
-                R->vl[m] = R->vv[m][0] * R->a[m][0] + R->vv[m][1] * R->a[m][1] + R->vv[m][2] * R->a[m][2];
+                const bool ok = (q->e_cos > 0) & (q->l[2] > 0) & isfinite(V) & isfinite(q->l[0]) & isfinite(q->l[1]) &
+                                isfinite(q->v[0]) & isfinite(q->v[1]) & isfinite(q->v[2]) & isfinite(E) & (E > 0);
+                const double lx = q->l[0], ly = q->l[1], lz = q->l[2], vx = q->v[0], vy = q->v[1], vz = q->v[2];
+                R->lx[m] = lx, R->ly[m] = ly, R->lz[m] = lz;
+                R->vx[m] = vx, R->vy[m] = vy, R->vz[m] = vz;
+                R->vl[m] = vx * lx + vy * ly + vz * lz;
                 R->y[m] = V / E;
                 R->w[m] = 1;
-                m++;
+                m += ok;
         }
         R->m = m;
         R->part_ok = false;
 }
 
-/* Whether sample i takes part for normal nc: not near the mirror direction, not in
- * attached shadow. */
-static inline __attribute__((always_inline)) bool takes_part(const struct pn_rows *R, int i, const double nc[3],
-                                                              double cone, double min_cos) {
-        /* r·l with r = 2(n·v)n − v the mirror direction: 2(n·v)(n·l) − v·l */
-        double nv = nc[0] * R->vv[i][0] + nc[1] * R->vv[i][1] + nc[2] * R->vv[i][2];
-        double nl = nc[0] * R->a[i][0] + nc[1] * R->a[i][1] + nc[2] * R->a[i][2];
-        return 2 * nv * nl - R->vl[i] <= cone && nl >= min_cos;
+/* Whether each row takes part for normal nc: not near the mirror direction (cone: the
+ * cosine of the cone's half angle), not in attached shadow. */
+PN_CLONES static void takes_part(const struct pn_rows *restrict R, const double nc[3], double cone, double min_cos,
+                                 bool *restrict ret) {
+        const double n0 = nc[0], n1 = nc[1], n2 = nc[2];
+#pragma omp simd
+        for (int i = 0; i < R->m; i++) {
+                /* r·l with r = 2(n·v)n − v the mirror direction: 2(n·v)(n·l) − v·l */
+                double nv = n0 * R->vx[i] + n1 * R->vy[i] + n2 * R->vz[i];
+                double nl = n0 * R->lx[i] + n1 * R->ly[i] + n2 * R->lz[i];
+                ret[i] = (2 * nv * nl - R->vl[i] <= cone) & (nl >= min_cos);
+        }
 }
 
-/* Condition number (largest / smallest eigenvalue) and inverse of the symmetric 3×3 A in
- * closed form: the eigenvalues by the trigonometric solution of the characteristic cubic
- * (Smith, "Eigenvalues of a symmetric 3×3 matrix", CACM 4(4), 1961), the inverse by the
- * adjugate. False when A is nearly singular (smallest eigenvalue ≤ 1e-6 × the largest),
- * where the cubic's roots lose their relative accuracy: the caller then takes the Jacobi
- * solver. Far cheaper than Jacobi's sweeps; the same figures to rounding. */
-static bool sym3_cond_inverse(const double A[9], double *ret_cond, double Ainv[9]) {
+/* The smallest and largest eigenvalues of the symmetric 3×3 A by the trigonometric solution
+ * of the characteristic cubic (Smith, "Eigenvalues of a symmetric 3×3 matrix", CACM 4(4),
+ * 1961). */
+static void sym3_extremes(const double A[9], double *ret_lmin, double *ret_lmax) {
         double q = (A[0] + A[4] + A[8]) / 3, p1 = A[1] * A[1] + A[2] * A[2] + A[5] * A[5];
         double d0 = A[0] - q, d1 = A[4] - q, d2 = A[8] - q;
         double p = sqrt((d0 * d0 + d1 * d1 + d2 * d2 + 2 * p1) / 6), lmax = q, lmin = q;
@@ -153,12 +168,37 @@ static bool sym3_cond_inverse(const double A[9], double *ret_cond, double Ainv[9
                 lmax = q + 2 * p * cos(phi);
                 lmin = q + 2 * p * cos(phi + 2 * M_PI / 3);
         }
-        if (!(lmin > 1e-6 * lmax) || !isfinite(lmax))
-                return false;
+        *ret_lmin = lmin;
+        *ret_lmax = lmax;
+}
+
+/* Condition number (largest / smallest eigenvalue) and inverse of the symmetric 3×3 A in
+ * closed form: the eigenvalues by sym3_extremes(), the inverse by the adjugate. False when A
+ * is nearly singular (smallest eigenvalue ≤ 1e-6 × the largest), where the cubic's roots
+ * lose their relative accuracy: the caller then takes the Jacobi solver. Far cheaper than
+ * Jacobi's sweeps; the same figures to rounding.
+ * The cubic's trigonometry is the larger part of that; the solve needs the condition number
+ * only to compare it with max_cond, and the texel reports only its last solve's. So when
+ * the bound cond ≤ tr³ / (4 det) (λmax ≤ tr, and the two larger eigenvalues' product is at
+ * most (tr / 2)², so λmin ≥ 4 det / tr²) is below half of max_cond and of 1e6, the test
+ * would pass whatever the rounding: *ret_lazy is set and *ret_cond left for sym3_cond() to
+ * compute from A when it is read, the same bits. */
+static bool sym3_cond_inverse(const double A[9], double max_cond, double *ret_cond, bool *ret_lazy,
+                              double Ainv[9]) {
         double c00 = A[4] * A[8] - A[5] * A[7], c01 = A[5] * A[6] - A[3] * A[8], c02 = A[3] * A[7] - A[4] * A[6];
-        double det = A[0] * c00 + A[1] * c01 + A[2] * c02;
-        if (!(det > 0))
-                return false;
+        double det = A[0] * c00 + A[1] * c01 + A[2] * c02, tr = A[0] + A[4] + A[8];
+        /* A positive definite (Sylvester) and the bound well inside both limits */
+        *ret_lazy = det > 0 && isfinite(det) && A[0] > 0 && A[0] * A[4] - A[1] * A[3] > 0 && A[8] >= 0 &&
+                    tr * tr * tr <= 2 * det * fmin(max_cond, 1e6);
+        if (!*ret_lazy) {
+                double lmin, lmax;
+                sym3_extremes(A, &lmin, &lmax);
+                if (!(lmin > 1e-6 * lmax) || !isfinite(lmax))
+                        return false;
+                if (!(det > 0))
+                        return false;
+                *ret_cond = lmax / lmin;
+        }
         double id = 1 / det;
         Ainv[0] = c00 * id;
         Ainv[1] = Ainv[3] = c01 * id;
@@ -166,40 +206,64 @@ static bool sym3_cond_inverse(const double A[9], double *ret_cond, double Ainv[9
         Ainv[4] = (A[0] * A[8] - A[2] * A[6]) * id;
         Ainv[5] = Ainv[7] = (A[2] * A[3] - A[0] * A[5]) * id;
         Ainv[8] = (A[0] * A[4] - A[1] * A[3]) * id;
-        *ret_cond = lmax / lmin;
         return true;
 }
 
 struct pn_state {
-        double nc[3], g[3], Ainv[9], sigma, rms, cond, cone;
+        double nc[3], g[3], Ainv[9], sigma, rms, cone;
+        double cond;                  /* of the last solve; lazy: still to compute from A */
+        double A[9];
+        bool cond_lazy;
         int used;
 };
+
+/* The condition number of the state's last solve. */
+static double pn_cond(struct pn_state *S) {
+        if (S->cond_lazy) {
+                double lmin, lmax;
+                sym3_extremes(S->A, &lmin, &lmax);
+                S->cond = lmax / lmin;
+                S->cond_lazy = false;
+        }
+        return S->cond;
+}
 
 /* One weighted solve for the current normal: g, A⁻¹, cond. Returns 0 or the flag that
  * keeps the geometric normal. */
 static uint16_t solve_pass(struct pn_rows *R, const struct imp_photometric_params *p, struct pn_state *S) {
-        double A[9] = {}, b[3] = {};
-        S->used = 0;
+        double A[9], b[3];
         if (!R->part_ok) {
-                for (int i = 0; i < R->m; i++)
-                        R->part[i] = takes_part(R, i, S->nc, S->cone, p->min_cos);
+                takes_part(R, S->nc, S->cone, p->min_cos, R->part);
                 R->part_ok = true;
         }
+        /* The sums in registers and without a branch: a row that does not take part (or has
+         * weight 0) is weighted 0, and its products ±0 (every row is finite) leave every sum
+         * as it was (none is ever −0), so the sums are those of the rows taking part, in
+         * their order. */
+        double a00 = 0, a01 = 0, a02 = 0, a11 = 0, a12 = 0, a22 = 0, b0 = 0, b1 = 0, b2 = 0;
+        int used = 0;
         for (int i = 0; i < R->m; i++) {
-                double wi = R->part[i] ? R->w[i] : 0.0;
-                if (wi <= 0)
-                        continue;
-                S->used++;
-                for (int j = 0; j < 3; j++) {
-                        b[j] += wi * R->a[i][j] * R->y[i];
-                        for (int k = j; k < 3; k++)
-                                A[3 * j + k] += wi * R->a[i][j] * R->a[i][k];
-                }
+                const bool on = R->part[i] & (R->w[i] > 0);
+                const double wi = on ? R->w[i] : 0.0, x = R->lx[i], y = R->ly[i], z = R->lz[i];
+                const double yi = R->y[i], wx = wi * x, wy = wi * y, wz = wi * z;
+                used += on;
+                b0 += wx * yi;
+                a00 += wx * x;
+                a01 += wx * y;
+                a02 += wx * z;
+                b1 += wy * yi;
+                a11 += wy * y;
+                a12 += wy * z;
+                b2 += wz * yi;
+                a22 += wz * z;
         }
-        A[3] = A[1], A[6] = A[2], A[7] = A[5];
-        if (S->used < p->min_samples)
+        S->used = used;
+        if (used < p->min_samples)
                 return IMP_PN_FEW_SAMPLES;
-        if (!sym3_cond_inverse(A, &S->cond, S->Ainv)) {
+        A[0] = a00, A[1] = A[3] = a01, A[2] = A[6] = a02, A[4] = a11, A[5] = A[7] = a12, A[8] = a22;
+        b[0] = b0, b[1] = b1, b[2] = b2;
+        memcpy(S->A, A, sizeof A);
+        if (!sym3_cond_inverse(A, p->max_cond, &S->cond, &S->cond_lazy, S->Ainv)) {
                 double lam[3], vec[9];
                 imp_eigen_sym3(A, lam, vec);
                 S->cond = lam[0] > 0 ? lam[2] / lam[0] : 1e12;
@@ -211,7 +275,7 @@ static uint16_t solve_pass(struct pn_rows *R, const struct imp_photometric_param
                         for (int j = 0; j < 3; j++)
                                 for (int k = 0; k < 3; k++)
                                         S->Ainv[3 * j + k] += vec[3 * e + j] * vec[3 * e + k] / lam[e];
-        } else if (!(S->cond <= p->max_cond))
+        } else if (!S->cond_lazy && !(S->cond <= p->max_cond))
                 return IMP_PN_ILL_COND;
         for (int j = 0; j < 3; j++)
                 S->g[j] = S->Ainv[3 * j] * b[0] + S->Ainv[3 * j + 1] * b[1] + S->Ainv[3 * j + 2] * b[2];
@@ -221,23 +285,33 @@ static uint16_t solve_pass(struct pn_rows *R, const struct imp_photometric_param
         return 0;
 }
 
+/* The residuals of every row for fit g, and whether each takes part for normal nn. */
+PN_CLONES static void residuals_part(struct pn_rows *restrict R, const double g[3], const double nn[3], double cone,
+                                     double min_cos) {
+        const double g0 = g[0], g1 = g[1], g2 = g[2];
+#pragma omp simd
+        for (int i = 0; i < R->m; i++)
+                R->res[i] = R->y[i] - (g0 * R->lx[i] + g1 * R->ly[i] + g2 * R->lz[i]);
+        takes_part(R, nn, cone, min_cos, R->part);
+}
+
 /* Residuals over every sample (an excluded one may come back), the robust σ (MAD) and
  * weighted RMS of those taking part for normal nn, and the Huber (and cast-shadow) weights
  * for the next solve when reweight. R->part is then nn's: the caller makes nn the state's
  * normal. */
 static void residuals(struct pn_rows *R, const struct imp_photometric_params *p, const double nn[3],
                       struct pn_state *S, bool reweight) {
-        const double *g = S->g;
+        residuals_part(R, S->g, nn, S->cone, p->min_cos);
         int k2 = 0;
         double ss = 0, sw = 0, mad[IMP_BTF_MAX_SAMPLES];
+        /* branch-free as in solve_pass: +0 for a row that does not take part */
         for (int i = 0; i < R->m; i++) {
-                R->res[i] = R->y[i] - (g[0] * R->a[i][0] + g[1] * R->a[i][1] + g[2] * R->a[i][2]);
-                R->part[i] = takes_part(R, i, nn, S->cone, p->min_cos);
-                if (R->part[i]) {
-                        R->tmp[k2++] = fabs(R->res[i]);
-                        ss += R->w[i] * R->res[i] * R->res[i];
-                        sw += R->w[i];
-                }
+                const bool on = R->part[i];
+                const double r = R->res[i], wi = R->w[i];
+                R->tmp[k2] = fabs(r);
+                k2 += on;
+                ss += on ? wi * r * r : 0.0;
+                sw += on ? wi : 0.0;
         }
         R->part_ok = true;
         S->sigma = fmax(p->sigma_floor, 1.4826 * median_small(R->tmp, k2, mad));
@@ -260,31 +334,64 @@ static void residuals(struct pn_rows *R, const struct imp_photometric_params *p,
                                 R->w[i] = 0;
 }
 
+/* The normal equations of the 4-unknown fit over the rows in[]: M = Σ w r rᵀ with
+ * r = (l, 1), right-hand side Σ w r y in M[·][4], and Σ w y². In registers and branch-free
+ * (weight 0 for a row left out, as in solve_pass); each entry the same product in the same order
+ * as the plain loop over (j, k) would add (w·r_j)·r_k, so M is not made symmetric: its two
+ * triangles differ in their last bits, and the solve reads both. */
+static void ambient_sums(const struct pn_rows *R, const bool *in, double M[4][5], double *ret_yy, double *ret_sw,
+                         int *ret_cnt) {
+        double m00 = 0, m01 = 0, m02 = 0, m10 = 0, m11 = 0, m12 = 0, m20 = 0, m21 = 0, m22 = 0;
+        double m03 = 0, m13 = 0, m23 = 0, m33 = 0, b0 = 0, b1 = 0, b2 = 0, b3 = 0, yy = 0;
+        int cnt = 0;
+        for (int i = 0; i < R->m; i++) {
+                const bool on = in[i];
+                const double w = R->w[i], x = R->lx[i], y = R->ly[i], z = R->lz[i], v = R->y[i];
+                const double wx = w * x, wy = w * y, wz = w * z;
+                cnt += on;
+                yy += on ? w * v * v : 0.0;
+                m00 += on ? wx * x : 0.0;
+                m01 += on ? wx * y : 0.0;
+                m02 += on ? wx * z : 0.0;
+                m03 += on ? wx : 0.0;   /* (w·x)·1, and M[3][0] = (w·1)·x the same */
+                b0 += on ? wx * v : 0.0;
+                m10 += on ? wy * x : 0.0;
+                m11 += on ? wy * y : 0.0;
+                m12 += on ? wy * z : 0.0;
+                m13 += on ? wy : 0.0;
+                b1 += on ? wy * v : 0.0;
+                m20 += on ? wz * x : 0.0;
+                m21 += on ? wz * y : 0.0;
+                m22 += on ? wz * z : 0.0;
+                m23 += on ? wz : 0.0;
+                b2 += on ? wz * v : 0.0;
+                m33 += on ? w : 0.0;
+                b3 += on ? w * v : 0.0;
+        }
+        double rows[4][5] = { { m00, m01, m02, m03, b0 }, { m10, m11, m12, m13, b1 }, { m20, m21, m22, m23, b2 },
+                              { m03, m13, m23, m33, b3 } };
+        memcpy(M, rows, sizeof rows);
+        *ret_yy = yy;
+        *ret_sw = m33;   /* Σ w, in the same order */
+        *ret_cnt = cnt;
+}
+
 /* The model check: the same rows with a 4th unknown, an ambient term c (V/E = g·l + c).
  * Returns c, its σ (residual scale s) and the angle between the two fits' normals. False
  * when the 4×4 system is singular (then nothing is said). */
 static bool ambient_check(const struct pn_rows *R, const struct imp_photometric_params *p,
                           const struct pn_state *S, double s, bool all_lit, double *ret_c, double *ret_sc,
                           double *ret_shift_deg) {
-        double M[4][5] = {}, yy = 0, sw = 0;
-        int cnt = 0;
+        double M[4][5], yy, sw;
+        int cnt;
         bool in[IMP_BTF_MAX_SAMPLES];
+        if (all_lit)   /* the samples near the mirror direction too (no cone) */
+                takes_part(R, S->nc, 2.0, p->min_cos, in);
+        else
+                memcpy(in, R->part, sizeof in[0] * R->m);
         for (int i = 0; i < R->m; i++)
-                /* all_lit: the samples near the mirror direction too (no cone) */
-                in[i] = (all_lit ? takes_part(R, i, S->nc, 2.0, p->min_cos) : R->part[i]) && R->w[i] > 0;
-        for (int i = 0; i < R->m; i++) {
-                if (!in[i])
-                        continue;
-                yy += R->w[i] * R->y[i] * R->y[i];
-                sw += R->w[i];
-                cnt++;
-                double r[4] = { R->a[i][0], R->a[i][1], R->a[i][2], 1 };
-                for (int j = 0; j < 4; j++) {
-                        for (int k = 0; k < 4; k++)
-                                M[j][k] += R->w[i] * r[j] * r[k];
-                        M[j][4] += R->w[i] * r[j] * R->y[i];
-                }
-        }
+                in[i] &= R->w[i] > 0;
+        ambient_sums(R, in, M, &yy, &sw, &cnt);
         /* Gauss–Jordan with partial pivoting on [M | b], carrying the inverse's last column
          * (e₄) for var(c). */
         double inv[4] = { 0, 0, 0, 1 }, scale = M[0][0] + M[1][1] + M[2][2] + M[3][3];
@@ -325,11 +432,10 @@ static bool ambient_check(const struct pn_rows *R, const struct imp_photometric_
          * least-squares solution x = M⁻¹b is Σw y² − xᵀb, b the original right-hand side:
          * recomputed from the rows below. */
         double ss = yy, bx = 0;
+        const double c4 = *ret_c;
         for (int i = 0; i < R->m; i++) {
-                if (!in[i])
-                        continue;
-                double f = g4[0] * R->a[i][0] + g4[1] * R->a[i][1] + g4[2] * R->a[i][2] + *ret_c;
-                bx += R->w[i] * R->y[i] * f;
+                double f = g4[0] * R->lx[i] + g4[1] * R->ly[i] + g4[2] * R->lz[i] + c4;
+                bx += in[i] ? R->w[i] * R->y[i] * f : 0.0;
         }
         ss -= bx;
         double s4 = cnt > 4 && sw > 0 ? sqrt(fmax(0.0, ss) / sw * cnt / (cnt - 4)) : s;
@@ -377,11 +483,11 @@ static void finish_texel(const struct pn_rows *R, const struct imp_photometric_p
         } else
                 c = sc = shift = 0;
         double ysum = 0, wsum = 0;
-        for (int i = 0; i < R->m; i++)
-                if (R->w[i] > 0 && R->part[i]) {
-                        ysum += R->w[i] * R->y[i];
-                        wsum += R->w[i];
-                }
+        for (int i = 0; i < R->m; i++) {   /* branch-free as in solve_pass */
+                const bool on = R->w[i] > 0 && R->part[i];
+                ysum += on ? R->w[i] * R->y[i] : 0.0;
+                wsum += on ? R->w[i] : 0.0;
+        }
         double ymean = wsum > 0 ? ysum / wsum : 0;
         if (S->rms > p->max_rms_ratio * S->sigma || S->rms > p->max_rel_rms * ymean)
                 why |= IMP_PN_RESIDUAL;
@@ -390,7 +496,7 @@ static void finish_texel(const struct pn_rows *R, const struct imp_photometric_p
                 why |= !(sig_noise <= p->max_sigma_deg) && gl < 10 * p->min_albedo ? IMP_PN_DARK : IMP_PN_RESIDUAL;
         ret->albedo = (float) gl;
         ret->rms = (float) S->rms;
-        ret->cond = (float) S->cond;
+        ret->cond = (float) S->cond;   /* pn_cond(): the caller's */
         ret->n_used = (uint16_t) S->used;
         ret->ambient = (float) c;
         ret->sigma_deg = (float) fmin(180.0, sig);
@@ -403,6 +509,17 @@ static void finish_texel(const struct pn_rows *R, const struct imp_photometric_p
         }
         for (int k = 0; k < 3; k++)
                 ret->n[k] = (float) S->nc[k];
+}
+
+/* cos(deg°), remembered per thread for the last two angles asked (slot 0, 1): the texels
+ * of a stage all ask the same two. */
+static double cos_deg_cached(int slot, double deg) {
+        static _Thread_local double key[2] = { NAN, NAN }, val[2];
+        if (!(key[slot] == deg)) {
+                val[slot] = cos(deg * DEG);
+                key[slot] = deg;
+        }
+        return val[slot];
 }
 
 int imp_photometric_texel(const struct imp_btf_sample *s, int n, const struct imp_photometric_params *p,
@@ -432,12 +549,12 @@ int imp_photometric_texel(const struct imp_btf_sample *s, int n, const struct im
                                 R.w[i] = 0;
         }
         struct pn_state S = { .nc = { 0, 0, 1 }, .sigma = p->sigma_floor, .cond = 1e12,
-                              .cone = cos(p->spec_cone_deg * DEG) };
-        const double cos_tol = p->tol_deg > 0 ? cos(p->tol_deg * DEG) : INFINITY;
+                              .cone = cos_deg_cached(0, p->spec_cone_deg) };
+        const double cos_tol = p->tol_deg > 0 ? cos_deg_cached(1, p->tol_deg) : INFINITY;
         for (int pass = 0; pass < p->passes; pass++) {
                 uint16_t fail = solve_pass(&R, p, &S);
                 if (fail) {
-                        ret->cond = (float) fmin(S.cond, 1e12);
+                        ret->cond = (float) fmin(pn_cond(&S), 1e12);
                         ret->n_used = (uint16_t) S.used;
                         keep_geometric(ret, fail);
                         return 0;
@@ -453,6 +570,7 @@ int imp_photometric_texel(const struct imp_btf_sample *s, int n, const struct im
                 if (more && pass > 0 && still)
                         break;
         }
+        pn_cond(&S);
         finish_texel(&R, p, &S, ret);
         return 0;
 }
