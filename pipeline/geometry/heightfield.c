@@ -63,30 +63,55 @@ void imp_heightfield_done(struct imp_heightfield *hf) {
         *hf = (struct imp_heightfield) {};
 }
 
+/* Half of pca_plane()'s sums over the points with use[i] set, each one chain of additions
+ * in point order as one loop would form it. Without m (the centroid's pass): half 0 the sums
+ * of x and y, half 1 of z and the count (in s[2]); with m: half 0 the moments xx, xy, xz,
+ * half 1 yy, yz, zz, about m. */
+static void pca_half(const struct imp_range_image *r, const uint8_t *use, const double *m, int half, double s[3]) {
+        size_t N = (size_t) r->width * r->height;
+        const float *X = r->xyz;
+        double s0 = 0, s1 = 0, s2 = 0;
+        if (!m && half == 0) {
+                for (size_t i = 0; i < N; i++)
+                        if (use[i])
+                                s0 += X[3 * i], s1 += X[3 * i + 1];
+        } else if (!m) {
+                size_t k = 0;
+                for (size_t i = 0; i < N; i++)
+                        if (use[i])
+                                s0 += X[3 * i + 2], k++;
+                s2 = (double) k;
+        } else {
+                int a = half ? 1 : 0;
+                for (size_t i = 0; i < N; i++)
+                        if (use[i]) {
+                                double d[3] = { X[3 * i] - m[0], X[3 * i + 1] - m[1], X[3 * i + 2] - m[2] };
+                                s0 += d[a] * d[a], s1 += d[a] * d[a + 1], s2 += d[a + half] * d[2];
+                        }
+        }
+        s[0] = s0, s[1] = s1, s[2] = s2;
+}
+
 /* PCA of the points selected by sel (or all valid): centroid and normal (smallest axis,
- * turned towards the camera). Returns the point count. */
+ * turned towards the camera). Returns the point count. The sums in two halves side by
+ * side (pca_half()): the same sums as one thread. */
 static size_t pca_plane(const struct imp_range_image *r, const uint8_t *sel, double ret_m[3],
                         double ret_n[3], bool *ret_weak) {
-        size_t N = (size_t) r->width * r->height, cnt = 0;
-        double m[3] = { 0, 0, 0 };
-        for (size_t i = 0; i < N; i++)
-                if (sel ? sel[i] : r->valid[i]) {
-                        for (int c = 0; c < 3; c++)
-                                m[c] += r->xyz[3 * i + c];
-                        cnt++;
-                }
+        const uint8_t *use = sel ? sel : r->valid;
+        double h[2][3];
+        #pragma omp parallel for schedule(static, 1)
+        for (int k = 0; k < 2; k++)
+                pca_half(r, use, NULL, k, h[k]);
+        size_t cnt = (size_t) h[1][2];
         if (cnt == 0)
                 return 0;
+        double m[3] = { h[0][0], h[0][1], h[1][0] };
         for (int c = 0; c < 3; c++)
                 m[c] /= cnt;
-        double A[9] = { 0 };
-        for (size_t i = 0; i < N; i++)
-                if (sel ? sel[i] : r->valid[i]) {
-                        double d[3] = { r->xyz[3 * i] - m[0], r->xyz[3 * i + 1] - m[1], r->xyz[3 * i + 2] - m[2] };
-                        for (int a = 0; a < 3; a++)
-                                for (int b = a; b < 3; b++)
-                                        A[3 * a + b] += d[a] * d[b];
-                }
+        #pragma omp parallel for schedule(static, 1)
+        for (int k = 0; k < 2; k++)
+                pca_half(r, use, m, k, h[k]);
+        double A[9] = { h[0][0], h[0][1], h[0][2], 0, h[1][0], h[1][1], 0, 0, h[1][2] };
         A[3] = A[1], A[6] = A[2], A[7] = A[5];
         double val[3], vec[9];
         imp_eigen_sym3(A, val, vec);
