@@ -3,6 +3,8 @@
 impasto_test(test-hdr LIBS impasto_pipeline)
 impasto_test(test-triangulate LIBS impasto_pipeline)
 impasto_test(test-heightfield LIBS impasto_pipeline)
+# The heightfield's parallel parts (row bands, per-thread sums) against one thread.
+impasto_test(test-heightfield-bands LIBS impasto_pipeline)
 impasto_test(test-boxes LIBS impasto_pipeline)
 impasto_test(test-geometry-stability LABELS stability LIBS impasto_pipeline)
 # Heights from positions and normals (pipeline/geometry/fuse.c, Nehab et al. 2005): synthetic

@@ -16,3 +16,5 @@ impasto_test(test-photometric-kernel LABELS integration LIBS impasto_pipeline)
 # (tests/unit/pn-model-peer.c): the same flags, normals within 1e-6 rad.
 impasto_test(test-photometric-model LIBS impasto_pipeline)
 target_sources(test-photometric-model PRIVATE ${CMAKE_CURRENT_SOURCE_DIR}/unit/pn-model-peer.c)
+# The re-read's Lanczos weights from one sin and one sincos per axis against the kernel.
+impasto_test(test-photometric-lanczos LIBS impasto_pipeline)

@@ -670,7 +670,16 @@ static int kernel_half_width(int k, int a) {
  * order as from the frame, so the same values, the mask read as the NaN it left; the
  * lights side by side in vector lanes (one light's sums are a chain of dependent
  * additions, L chains at once are not). */
-__attribute__((optimize("no-trapping-math")))   /* gcc 12 vectorises float compares only so */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+/* AVX-512 as well (8 lights a vector); GCC's avx512f target enables FMA, which would
+ * round row[l] += w·v once instead of twice: contraction off, so every target sums the
+ * same values as the x86-64 baseline. */
+#define PN_BAND_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
+#else
+#define PN_BAND_CLONES
+#endif
+/* gcc 12 vectorises float compares only with no-trapping-math */
+__attribute__((optimize("no-trapping-math", "fp-contract=off"))) PN_BAND_CLONES
 static void lanczos_band_all(const struct imp_btf_band *b, int bx, int by, int n, float sat, const double *wx,
                              const double *wy, double *acc, uint8_t *ok) {
         const int L = b->L;
@@ -760,6 +769,42 @@ static bool canvas_pixel(const struct resample *rs, const double P[3], double px
         return imp_pinhole_project(rs->cap->camera, Pw, px);
 }
 
+/* The 2a Lanczos weights of the window whose sample lies f ∈ [0, 1) past its pixel a − 1,
+ * at x_k = f + a − 1 − k (k < 2a), into w; false for another kernel or f within 1e-9 of a
+ * pixel (kernel_weight() then). L(x) = a·sin(πx)·sin(πx/a)/(π²x²) (seed: Duchon, "Lanczos
+ * filtering in one and two dimensions", 1979) from one sin and one sincos instead of two
+ * sins per tap: with x = g + m, g = f or f − 1 (|g| ≤ ½, exact) and m an integer,
+ * sin(πx) = (−1)^m·sin(πg) and sin(πx/a) = sin(πg/a)·cos(πm/a) + cos(πg/a)·sin(πm/a).
+ * Within 1e-15 of kernel_weight()'s values (test-photometric-lanczos). */
+#define R2 0.70710678118654752440   /* √2/2 */
+#define R3 0.86602540378443864676   /* √3/2 */
+static const double lanczos_cs[PN_MAX_LANCZOS][2 * PN_MAX_LANCZOS + 1][2] = {   /* cos, sin of πm/a, m = −a … a */
+        { { -1, 0 }, { 1, 0 }, { -1, 0 } },
+        { { -1, 0 }, { 0, -1 }, { 1, 0 }, { 0, 1 }, { -1, 0 } },
+        { { -1, 0 }, { -0.5, -R3 }, { 0.5, -R3 }, { 1, 0 }, { 0.5, R3 }, { -0.5, R3 }, { -1, 0 } },
+        { { -1, 0 }, { -R2, -R2 }, { 0, -1 }, { R2, -R2 }, { 1, 0 }, { R2, R2 }, { 0, 1 }, { -R2, R2 }, { -1, 0 } },
+};
+#undef R2
+#undef R3
+
+static bool lanczos_weights(const struct resample *rs, double f, double *w) {
+        const int a = rs->order;
+        if ((rs->kernel != IMP_PN_KERNEL_LANCZOS && rs->kernel != IMP_PN_KERNEL_LANCZOS_CLAMPED) || rs->a != a ||
+            a > PN_MAX_LANCZOS || !(f >= 1e-9 && f <= 1 - 1e-9))
+                return false;
+        const int up = f > 0.5;
+        const double g = up ? f - 1 : f;
+        double s1 = sin(M_PI * g), sa = sin(M_PI * g / a), ca = cos(M_PI * g / a);   /* gcc: one sincos */
+        for (int k = 0; k < 2 * a; k++) {
+                int m = a - 1 - k + up;
+                const double *cs = lanczos_cs[a - 1][m + a];
+                double x = g + m;
+                double v = a * ((m & 1) ? -s1 : s1) * (sa * cs[0] + ca * cs[1]) / (M_PI * M_PI * x * x);
+                w[k] = rs->kernel == IMP_PN_KERNEL_LANCZOS_CLAMPED ? fmax(0.0, v) : v;
+        }
+        return true;
+}
+
 /* Texel (u, v)'s Lanczos window: its corner (x0, y0) in frame pixels and its normalised
  * weights wx, wy; false when nothing is re-read (a texel the extractor masks or finds
  * outside the frame, re-reading off). */
@@ -778,10 +823,13 @@ static bool texel_window(const struct resample *rs, int u, int v, int *ret_x0, i
                 return false;
         double sx = 0, sy = 0;
         int x0 = (int) floor(px[0]) - rs->a + 1, y0 = (int) floor(px[1]) - rs->a + 1;
-        for (int k = 0; k < 2 * rs->a; k++) {
-                sx += wx[k] = kernel_weight(rs, px[0] - (x0 + k));
-                sy += wy[k] = kernel_weight(rs, px[1] - (y0 + k));
-        }
+        if (!lanczos_weights(rs, px[0] - floor(px[0]), wx) || !lanczos_weights(rs, px[1] - floor(px[1]), wy))
+                for (int k = 0; k < 2 * rs->a; k++) {
+                        wx[k] = kernel_weight(rs, px[0] - (x0 + k));
+                        wy[k] = kernel_weight(rs, px[1] - (y0 + k));
+                }
+        for (int k = 0; k < 2 * rs->a; k++)
+                sx += wx[k], sy += wy[k];
         for (int k = 0; k < 2 * rs->a; k++)
                 wx[k] /= sx, wy[k] /= sy;
         *ret_x0 = x0, *ret_y0 = y0;

@@ -1,7 +1,9 @@
 /* Canvas extraction and heightfield resampling (seed §4.2, §5; see heightfield.h). Works
  * on the range-image grid first (PCA, Sobel, seed fill, erosion, PCA again, vertex
  * normals), then rasterises the range-image mesh into the canvas-frame grid. */
+#include <limits.h>
 #include <math.h>
+#include <omp.h>
 #include <string.h>
 #include <sys/stat.h>
 #include "heightfield.h"
@@ -61,30 +63,55 @@ void imp_heightfield_done(struct imp_heightfield *hf) {
         *hf = (struct imp_heightfield) {};
 }
 
+/* Half of pca_plane()'s sums over the points with use[i] set, each one chain of additions
+ * in point order as one loop would form it. Without m (the centroid's pass): half 0 the sums
+ * of x and y, half 1 of z and the count (in s[2]); with m: half 0 the moments xx, xy, xz,
+ * half 1 yy, yz, zz, about m. */
+static void pca_half(const struct imp_range_image *r, const uint8_t *use, const double *m, int half, double s[3]) {
+        size_t N = (size_t) r->width * r->height;
+        const float *X = r->xyz;
+        double s0 = 0, s1 = 0, s2 = 0;
+        if (!m && half == 0) {
+                for (size_t i = 0; i < N; i++)
+                        if (use[i])
+                                s0 += X[3 * i], s1 += X[3 * i + 1];
+        } else if (!m) {
+                size_t k = 0;
+                for (size_t i = 0; i < N; i++)
+                        if (use[i])
+                                s0 += X[3 * i + 2], k++;
+                s2 = (double) k;
+        } else {
+                int a = half ? 1 : 0;
+                for (size_t i = 0; i < N; i++)
+                        if (use[i]) {
+                                double d[3] = { X[3 * i] - m[0], X[3 * i + 1] - m[1], X[3 * i + 2] - m[2] };
+                                s0 += d[a] * d[a], s1 += d[a] * d[a + 1], s2 += d[a + half] * d[2];
+                        }
+        }
+        s[0] = s0, s[1] = s1, s[2] = s2;
+}
+
 /* PCA of the points selected by sel (or all valid): centroid and normal (smallest axis,
- * turned towards the camera). Returns the point count. */
+ * turned towards the camera). Returns the point count. The sums in two halves side by
+ * side (pca_half()): the same sums as one thread. */
 static size_t pca_plane(const struct imp_range_image *r, const uint8_t *sel, double ret_m[3],
                         double ret_n[3], bool *ret_weak) {
-        size_t N = (size_t) r->width * r->height, cnt = 0;
-        double m[3] = { 0, 0, 0 };
-        for (size_t i = 0; i < N; i++)
-                if (sel ? sel[i] : r->valid[i]) {
-                        for (int c = 0; c < 3; c++)
-                                m[c] += r->xyz[3 * i + c];
-                        cnt++;
-                }
+        const uint8_t *use = sel ? sel : r->valid;
+        double h[2][3];
+        #pragma omp parallel for schedule(static, 1)
+        for (int k = 0; k < 2; k++)
+                pca_half(r, use, NULL, k, h[k]);
+        size_t cnt = (size_t) h[1][2];
         if (cnt == 0)
                 return 0;
+        double m[3] = { h[0][0], h[0][1], h[1][0] };
         for (int c = 0; c < 3; c++)
                 m[c] /= cnt;
-        double A[9] = { 0 };
-        for (size_t i = 0; i < N; i++)
-                if (sel ? sel[i] : r->valid[i]) {
-                        double d[3] = { r->xyz[3 * i] - m[0], r->xyz[3 * i + 1] - m[1], r->xyz[3 * i + 2] - m[2] };
-                        for (int a = 0; a < 3; a++)
-                                for (int b = a; b < 3; b++)
-                                        A[3 * a + b] += d[a] * d[b];
-                }
+        #pragma omp parallel for schedule(static, 1)
+        for (int k = 0; k < 2; k++)
+                pca_half(r, use, m, k, h[k]);
+        double A[9] = { h[0][0], h[0][1], h[0][2], 0, h[1][0], h[1][1], 0, 0, h[1][2] };
         A[3] = A[1], A[6] = A[2], A[7] = A[5];
         double val[3], vec[9];
         imp_eigen_sym3(A, val, vec);
@@ -100,17 +127,23 @@ static size_t pca_plane(const struct imp_range_image *r, const uint8_t *sel, dou
         return cnt;
 }
 
-/* Percentile p (0..100) of n values (copied). */
-static int percentile(const float *v, size_t n, double p, float *ret) {
+/* Percentiles p_lo ≤ p_hi (0..100) of the n values v (reordered: every caller's own
+ * scratch), nearest rank: the order statistics, whatever the order of v. The second select
+ * runs above the first's rank only (quickselect leaves v[k] with no larger value below it
+ * and no smaller one above). */
+static int percentiles(float *v, size_t n, double p_lo, double p_hi, float *ret_lo, float *ret_hi) {
         if (n == 0)
                 return -ENODATA;
-        _cleanup_free_ float *tmp = malloc(n * sizeof(float));
-        if (!tmp)
-                return -ENOMEM;
-        memcpy(tmp, v, n * sizeof(float));
-        size_t k = (size_t) llround(p / 100.0 * (double) (n - 1));
-        *ret = imp_select_kth_float(tmp, n, k);
+        size_t k_lo = (size_t) llround(p_lo / 100.0 * (double) (n - 1));
+        size_t k_hi = (size_t) llround(p_hi / 100.0 * (double) (n - 1));
+        *ret_lo = imp_select_kth_float(v, n, k_lo);
+        if (ret_hi)
+                *ret_hi = k_hi > k_lo ? imp_select_kth_float(v + k_lo + 1, n - k_lo - 1, k_hi - k_lo - 1) : *ret_lo;
         return 0;
+}
+
+static int percentile(float *v, size_t n, double p, float *ret) {
+        return percentiles(v, n, p, p, ret, NULL);
 }
 
 /* Sobel magnitude of h on the valid pixels (normalised by 1/8: height change per pixel);
@@ -416,9 +449,9 @@ static int pool_sigma_n(struct hf_ctx *c) {
         return 0;
 }
 
-/* Rasterise triangle (a, b, c) of range pixels into the grid. */
+/* Rasterise triangle (a, b, c) of range pixels into the grid rows [band0, band1). */
 static void raster_tri(const struct hf_ctx *c, size_t a, size_t b, size_t d, struct imp_heightfield *hf,
-                       double umin, double vmin) {
+                       double umin, double vmin, int band0, int band1) {
         double p = hf->pitch_mm;
         double X[3], Y[3], e2max = 0;
         size_t id[3] = { a, b, d };
@@ -441,7 +474,7 @@ static void raster_tri(const struct hf_ctx *c, size_t a, size_t b, size_t d, str
                 return;
         int i0 = (int) ceil(fmin(X[0], fmin(X[1], X[2])) - 1e-9), i1 = (int) floor(fmax(X[0], fmax(X[1], X[2])) + 1e-9);
         int j0 = (int) ceil(fmin(Y[0], fmin(Y[1], Y[2])) - 1e-9), j1 = (int) floor(fmax(Y[0], fmax(Y[1], Y[2])) + 1e-9);
-        i0 = IMP_MAX(i0, 0), j0 = IMP_MAX(j0, 0), i1 = IMP_MIN(i1, hf->nx - 1), j1 = IMP_MIN(j1, hf->ny - 1);
+        i0 = IMP_MAX(i0, 0), j0 = IMP_MAX(j0, band0), i1 = IMP_MIN(i1, hf->nx - 1), j1 = IMP_MIN(j1, band1 - 1);
         const double eps = -1e-9;
         for (int j = j0; j <= j1; j++)
                 for (int i = i0; i <= i1; i++) {
@@ -469,6 +502,56 @@ static void raster_tri(const struct hf_ctx *c, size_t a, size_t b, size_t d, str
                         hf->texel_flags[t] = tri_flags;
                         hf->mask[t] = 1;
                 }
+}
+
+/* Grid rows that the triangles of range row y (its points and row y + 1's) can reach, one
+ * more each side: [ret_lo[y], ret_hi[y]]; empty (lo > hi) without canvas points. */
+static void row_reach(const struct hf_ctx *c, double vmin, double p, int *ret_lo, int *ret_hi) {
+        int w = c->r->width, h = c->r->height;
+        #pragma omp parallel for schedule(static)
+        for (int y = 0; y < h - 1; y++) {
+                double lo = INFINITY, hi = -INFINITY;
+                for (size_t i = (size_t) y * w; i < (size_t) (y + 2) * w; i++)
+                        if (c->canvas[i]) {
+                                double Y = (c->uvh[3 * i + 1] - vmin) / p;   /* as raster_tri() */
+                                lo = fmin(lo, Y), hi = fmax(hi, Y);
+                        }
+                ret_lo[y] = lo <= hi ? (int) ceil(lo - 1e-9) - 1 : INT_MAX;
+                ret_hi[y] = lo <= hi ? (int) floor(hi + 1e-9) + 1 : INT_MIN;
+        }
+}
+
+/* The range mesh (two triangles a pixel quad, edges checked) rasterised into the grid in
+ * bands of grid rows, one a thread: each thread takes every triangle that reaches its band,
+ * in the serial order, and writes only its rows, so a texel two triangles cover keeps the
+ * later one's values as in one pass (test-heightfield-bands). */
+static int raster_mesh(const struct hf_ctx *c, double umin, double vmin, struct imp_heightfield *hf) {
+        int w = c->r->width, h = c->r->height;
+        const uint8_t *canvas = c->canvas;
+        size_t nh = (size_t) IMP_MAX(h, 1);
+        _cleanup_free_ int *lo = malloc(nh * sizeof(int)), *hi = malloc(nh * sizeof(int));
+        if (!lo || !hi)
+                return -ENOMEM;
+        row_reach(c, vmin, hf->pitch_mm, lo, hi);
+        #pragma omp parallel
+        {
+                int nt = omp_get_num_threads(), t = omp_get_thread_num();
+                int band0 = (int) ((long) hf->ny * t / nt), band1 = (int) ((long) hf->ny * (t + 1) / nt);
+                for (int y = 0; y + 1 < h; y++) {
+                        if (hi[y] < band0 || lo[y] >= band1)
+                                continue;
+                        for (int x = 0; x + 1 < w; x++) {
+                                size_t a = (size_t) y * w + x, b = a + 1, d = a + w, e = d + 1;
+                                if (canvas[a] && canvas[b] && canvas[d] && edge_ok(c, a, b) && edge_ok(c, a, d) &&
+                                    edge_ok(c, b, d))
+                                        raster_tri(c, a, b, d, hf, umin, vmin, band0, band1);
+                                if (canvas[b] && canvas[e] && canvas[d] && edge_ok(c, b, e) && edge_ok(c, e, d) &&
+                                    edge_ok(c, b, d))
+                                        raster_tri(c, b, e, d, hf, umin, vmin, band0, band1);
+                        }
+                }
+        }
+        return 0;
 }
 
 /* Replaces the texel normals by the normal of the least-squares plane h = a + b·u + c·v
@@ -903,37 +986,62 @@ static bool ray_on_plane(const struct imp_range_image *r, size_t i, const double
         return true;
 }
 
+/* The pairs of row y (dir 0: (x, x + 1); dir 1: (x, x + w)) into dist and dp from their
+ * start; returns their counts in ret_nd, ret_np. */
+static void footprint_row(const struct imp_range_image *range, const uint8_t *canvas, const double m[3],
+                          const double n[3], int dir, int y, float *dist, float *dp, size_t *ret_nd, size_t *ret_np) {
+        int w = range->width;
+        size_t nd = 0, np = 0;
+        for (int x = 0; x + 1 - dir < w; x++) {
+                size_t i = (size_t) y * w + x, j = dir ? i + w : i + 1;
+                if (!canvas[i] || !canvas[j])
+                        continue;
+                double s2 = 0, pi[3], pj[3];
+                for (int q = 0; q < 3; q++) {
+                        double dd = range->xyz[3 * i + q] - range->xyz[3 * j + q];
+                        s2 += dd * dd;
+                }
+                dist[nd++] = (float) sqrt(s2);
+                if (ray_on_plane(range, i, m, n, pi) && ray_on_plane(range, j, m, n, pj))
+                        dp[np++] = (float) sqrt(pow(pi[0] - pj[0], 2) + pow(pi[1] - pj[1], 2) + pow(pi[2] - pj[2], 2));
+        }
+        *ret_nd = nd, *ret_np = np;
+}
+
+/* Rows in parallel, each into its own w slots, then packed: the medians are order
+ * statistics, the same in any order. */
 static int footprint_mm(const struct imp_range_image *range, const uint8_t *canvas, const double m[3],
                         const double n[3], double *ret_3d, double *ret_plane) {
         int w = range->width, h = range->height;
         size_t N = (size_t) w * h;
         _cleanup_free_ float *dist = malloc(N * sizeof(float)), *dp = malloc(N * sizeof(float));
-        if (!dist || !dp)
+        _cleanup_free_ size_t *cnt = malloc((size_t) IMP_MAX(h, 1) * 2 * sizeof(size_t));
+        if (!dist || !dp || !cnt)
                 return -ENOMEM;
         size_t nd = 0, np = 0;
-        for (int dir = 0; dir < 2 && nd == 0; dir++)
-                for (int y = 0; y + dir < h; y++)
-                        for (int x = 0; x + 1 - dir < w; x++) {
-                                size_t i = (size_t) y * w + x, j = dir ? i + w : i + 1;
-                                if (!canvas[i] || !canvas[j])
-                                        continue;
-                                double s2 = 0, pi[3], pj[3];
-                                for (int q = 0; q < 3; q++) {
-                                        double dd = range->xyz[3 * i + q] - range->xyz[3 * j + q];
-                                        s2 += dd * dd;
-                                }
-                                dist[nd++] = (float) sqrt(s2);
-                                if (ray_on_plane(range, i, m, n, pi) && ray_on_plane(range, j, m, n, pj))
-                                        dp[np++] = (float) sqrt(pow(pi[0] - pj[0], 2) + pow(pi[1] - pj[1], 2) +
-                                                                pow(pi[2] - pj[2], 2));
-                        }
+        for (int dir = 0; dir < 2 && nd == 0; dir++) {
+                #pragma omp parallel for schedule(static)
+                for (int y = 0; y < h - dir; y++)
+                        footprint_row(range, canvas, m, n, dir, y, dist + (size_t) y * w, dp + (size_t) y * w,
+                                      &cnt[2 * y], &cnt[2 * y + 1]);
+                for (int y = 0; y < h - dir; y++) {
+                        memmove(dist + nd, dist + (size_t) y * w, cnt[2 * y] * sizeof(float));
+                        memmove(dp + np, dp + (size_t) y * w, cnt[2 * y + 1] * sizeof(float));
+                        nd += cnt[2 * y], np += cnt[2 * y + 1];
+                }
+        }
         float med = 0, medp = 0;
-        int r = nd ? percentile(dist, nd, 50, &med) : 0;
-        if (r >= 0 && np)
-                r = percentile(dp, np, 50, &medp);
+        int r = 0, rp = 0;
+        #pragma omp parallel sections
+        {
+                #pragma omp section
+                r = nd ? percentile(dist, nd, 50, &med) : 0;
+                #pragma omp section
+                rp = np ? percentile(dp, np, 50, &medp) : 0;
+        }
         *ret_3d = med;
         *ret_plane = np ? medp : med;
-        return r;
+        return r < 0 ? r : rp;
 }
 
 /* A flush frame cut off the seed fill by its albedo step (frame-edge.h); bins of two
@@ -974,7 +1082,7 @@ static int canvas_mask(const struct imp_range_image *range, const struct imp_hei
                 h1[i] = hv[k++] = (float) imp_dot3(d, n1);
         }
         float p1, p99;
-        if ((r = percentile(hv, k, 1, &p1)) < 0 || (r = percentile(hv, k, 99, &p99)) < 0)
+        if ((r = percentiles(hv, k, 1, 99, &p1, &p99)) < 0)
                 return r;
         float T = (float) fmax(opt->gradient_rel * (p99 - p1), opt->gradient_floor_mm);
         hf->gradient_threshold_mm = T;
@@ -1126,10 +1234,11 @@ static int project_canvas(const struct imp_range_image *range, const struct imp_
                           struct imp_heightfield *hf) {
         size_t N = (size_t) range->width * range->height, k = 0;
         double ss = 0;
-        f->umin = f->vmin = INFINITY, f->umax = f->vmax = -INFINITY;
         _cleanup_free_ float *hv = malloc(hf->n_canvas_points * sizeof(float));
         if (!hv)
                 return -ENOMEM;
+        double umin = INFINITY, vmin = INFINITY, umax = -INFINITY, vmax = -INFINITY;
+        #pragma omp parallel for schedule(static) reduction(min: umin, vmin) reduction(max: umax, vmax)
         for (size_t i = 0; i < N; i++) {
                 if (!canvas[i])
                         continue;
@@ -1137,20 +1246,28 @@ static int project_canvas(const struct imp_range_image *range, const struct imp_
                 double d[3] = { X[0] - f->m[0], X[1] - f->m[1], X[2] - f->m[2] };
                 double u = imp_dot3(d, f->ex), v = imp_dot3(d, f->ey), hh = imp_dot3(d, f->ez);
                 uvh[3 * i] = (float) u, uvh[3 * i + 1] = (float) v, uvh[3 * i + 2] = (float) hh;
-                hv[k++] = (float) hh;
                 double ray[3] = { X[0] - range->camera_centre_mm[0], X[1] - range->camera_centre_mm[1],
                                   X[2] - range->camera_centre_mm[2] };
                 double cosr = imp_normalize3(ray) ? fabs(imp_dot3(ray, f->ez)) : 1.0;
                 sig[i] = range->sigma_mm ? (float) (range->sigma_mm[i] * cosr) : 0.0f;
-                f->umin = fmin(f->umin, u), f->umax = fmax(f->umax, u);
-                f->vmin = fmin(f->vmin, v), f->vmax = fmax(f->vmax, v);
+                umin = fmin(umin, u), umax = fmax(umax, u);
+                vmin = fmin(vmin, v), vmax = fmax(vmax, v);
+        }
+        f->umin = umin, f->vmin = vmin, f->umax = umax, f->vmax = vmax;
+        for (size_t i = 0; i < N; i++) {   /* the sum in one order: the rms the same every run */
+                if (!canvas[i])
+                        continue;
+                const float *X = range->xyz + 3 * i;
+                double d[3] = { X[0] - f->m[0], X[1] - f->m[1], X[2] - f->m[2] };
+                double hh = imp_dot3(d, f->ez);
+                hv[k++] = (float) hh;
                 ss += hh * hh;
         }
         hf->plane_rms_mm = sqrt(ss / hf->n_canvas_points);
         if (opt->shadow_fill_px > 0 && !opt->skip_extraction && !opt->whole_field) {   /* frame threshold: h99 + (h99 − h1) */
                 float c1, c99;
                 int r;
-                if ((r = percentile(hv, k, 1, &c1)) < 0 || (r = percentile(hv, k, 99, &c99)) < 0)
+                if ((r = percentiles(hv, k, 1, 99, &c1, &c99)) < 0)
                         return r;
                 hf->frame_height_mm = c99 + fmax((double) c99 - c1, opt->step_min_mm);
         }
@@ -1174,7 +1291,7 @@ static int alloc_grid(struct imp_heightfield *hf) {
  * padded for it and cropped to the mask again). */
 static int rasterise(const struct imp_range_image *range, const struct imp_heightfield_options *opt,
                      const uint8_t *canvas, struct frame_pts *f, struct hf_ctx *c, struct imp_heightfield *hf) {
-        int w = range->width, h = range->height, r;
+        int r;
         bool fill = opt->shadow_fill_px > 0 && !opt->skip_extraction && !opt->whole_field;   /* no frame */
         if (fill) {   /* room for the fill; cropped again below */
                 double pad = opt->shadow_fill_px * hf->pitch_mm;
@@ -1190,16 +1307,8 @@ static int rasterise(const struct imp_range_image *range, const struct imp_heigh
         vertex_normals(c);
         if ((r = pool_sigma_n(c)) < 0)
                 return r;
-        for (int y = 0; y + 1 < h; y++)
-                for (int x = 0; x + 1 < w; x++) {
-                        size_t a = (size_t) y * w + x, b = a + 1, d = a + w, e = d + 1;
-                        if (canvas[a] && canvas[b] && canvas[d] && edge_ok(c, a, b) && edge_ok(c, a, d) &&
-                            edge_ok(c, b, d))
-                                raster_tri(c, a, b, d, hf, f->umin, f->vmin);
-                        if (canvas[b] && canvas[e] && canvas[d] && edge_ok(c, b, e) && edge_ok(c, e, d) &&
-                            edge_ok(c, b, d))
-                                raster_tri(c, b, e, d, hf, f->umin, f->vmin);
-                }
+        if ((r = raster_mesh(c, f->umin, f->vmin, hf)) < 0)
+                return r;
         if (opt->normal_radius > 0 && (r = plane_normals(hf, opt->normal_radius)) < 0)
                 return r;
         if (fill) {
