@@ -105,7 +105,12 @@ static void keep_geometric(struct imp_pn_texel *ret, uint16_t flags) {
 
 /* The usable samples of a texel as rows of V/E = g·l (at most IMP_BTF_MAX_SAMPLES), one
  * array per component, so that the per-row loops run in vector lanes. */
+typedef double pn_v4 __attribute__((vector_size(32)));
+
 struct pn_rows {
+        /* (l, V/E) of each row again as one vector: the solve's and the ambient check's
+         * sums add each row's products in vector lanes across the sums (below) */
+        pn_v4 q[IMP_BTF_MAX_SAMPLES];
         double lx[IMP_BTF_MAX_SAMPLES], ly[IMP_BTF_MAX_SAMPLES], lz[IMP_BTF_MAX_SAMPLES];
         double vx[IMP_BTF_MAX_SAMPLES], vy[IMP_BTF_MAX_SAMPLES], vz[IMP_BTF_MAX_SAMPLES];
         double y[IMP_BTF_MAX_SAMPLES], w[IMP_BTF_MAX_SAMPLES], res[IMP_BTF_MAX_SAMPLES];
@@ -132,6 +137,7 @@ static void load_rows(const struct imp_btf_sample *s, int n, struct pn_rows *R) 
                 R->vx[m] = vx, R->vy[m] = vy, R->vz[m] = vz;
                 R->vl[m] = vx * lx + vy * ly + vz * lz;
                 R->y[m] = V / E;
+                R->q[m] = (pn_v4) { lx, ly, lz, R->y[m] };
                 R->w[m] = 1;
                 m += ok;
         }
@@ -228,6 +234,30 @@ static double pn_cond(struct pn_state *S) {
         return S->cond;
 }
 
+/* The solve's normal equations over the rows taking part: c[j] = Σ w l_j (l, y), so
+ * (A row j | b_j) but for the lower triangle. In registers and without a branch: a row that
+ * does not take part (or has weight 0) is weighted 0, and its products ±0 (every row is
+ * finite) leave every sum as it was (none is ever −0), so the sums are those of the rows
+ * taking part, in their order. The lanes run across the sums, not the rows: each sum adds
+ * the same products (w·l_j)·l_k in the same order as a scalar sum per entry, the same bits,
+ * but one vector add a row instead of a dependent chain of nine scalar ones. Returns the
+ * rows' count. */
+PN_CLONES static int solve_sums(const struct pn_rows *restrict R, pn_v4 c[3]) {
+        pn_v4 c0 = { 0 }, c1 = { 0 }, c2 = { 0 };
+        int used = 0;
+        for (int i = 0; i < R->m; i++) {
+                const bool on = R->part[i] & (R->w[i] > 0);
+                const double wi = on ? R->w[i] : 0.0;
+                const pn_v4 r = R->q[i], wr = wi * r;
+                used += on;
+                c0 += wr[0] * r;
+                c1 += wr[1] * r;
+                c2 += wr[2] * r;
+        }
+        c[0] = c0, c[1] = c1, c[2] = c2;
+        return used;
+}
+
 /* One weighted solve for the current normal: g, A⁻¹, cond. Returns 0 or the flag that
  * keeps the geometric normal. */
 static uint16_t solve_pass(struct pn_rows *R, const struct imp_photometric_params *p, struct pn_state *S) {
@@ -236,32 +266,13 @@ static uint16_t solve_pass(struct pn_rows *R, const struct imp_photometric_param
                 takes_part(R, S->nc, S->cone, p->min_cos, R->part);
                 R->part_ok = true;
         }
-        /* The sums in registers and without a branch: a row that does not take part (or has
-         * weight 0) is weighted 0, and its products ±0 (every row is finite) leave every sum
-         * as it was (none is ever −0), so the sums are those of the rows taking part, in
-         * their order. */
-        double a00 = 0, a01 = 0, a02 = 0, a11 = 0, a12 = 0, a22 = 0, b0 = 0, b1 = 0, b2 = 0;
-        int used = 0;
-        for (int i = 0; i < R->m; i++) {
-                const bool on = R->part[i] & (R->w[i] > 0);
-                const double wi = on ? R->w[i] : 0.0, x = R->lx[i], y = R->ly[i], z = R->lz[i];
-                const double yi = R->y[i], wx = wi * x, wy = wi * y, wz = wi * z;
-                used += on;
-                b0 += wx * yi;
-                a00 += wx * x;
-                a01 += wx * y;
-                a02 += wx * z;
-                b1 += wy * yi;
-                a11 += wy * y;
-                a12 += wy * z;
-                b2 += wz * yi;
-                a22 += wz * z;
-        }
-        S->used = used;
-        if (used < p->min_samples)
+        pn_v4 c[3];
+        S->used = solve_sums(R, c);
+        if (S->used < p->min_samples)
                 return IMP_PN_FEW_SAMPLES;
-        A[0] = a00, A[1] = A[3] = a01, A[2] = A[6] = a02, A[4] = a11, A[5] = A[7] = a12, A[8] = a22;
-        b[0] = b0, b[1] = b1, b[2] = b2;
+        A[0] = c[0][0], A[1] = A[3] = c[0][1], A[2] = A[6] = c[0][2], A[4] = c[1][1], A[5] = A[7] = c[1][2];
+        A[8] = c[2][2];
+        b[0] = c[0][3], b[1] = c[1][3], b[2] = c[2][3];
         memcpy(S->A, A, sizeof A);
         if (!sym3_cond_inverse(A, p->max_cond, &S->cond, &S->cond_lazy, S->Ainv)) {
                 double lam[3], vec[9];
