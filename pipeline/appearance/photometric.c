@@ -347,40 +347,28 @@ static void residuals(struct pn_rows *R, const struct imp_photometric_params *p,
 
 /* The normal equations of the 4-unknown fit over the rows in[]: M = Σ w r rᵀ with
  * r = (l, 1), right-hand side Σ w r y in M[·][4], and Σ w y². In registers and branch-free
- * (weight 0 for a row left out, as in solve_pass); each entry the same product in the same order
- * as the plain loop over (j, k) would add (w·r_j)·r_k, so M is not made symmetric: its two
- * triangles differ in their last bits, and the solve reads both. */
-static void ambient_sums(const struct pn_rows *R, const bool *in, double M[4][5], double *ret_yy, double *ret_sw,
-                         int *ret_cnt) {
-        double m00 = 0, m01 = 0, m02 = 0, m10 = 0, m11 = 0, m12 = 0, m20 = 0, m21 = 0, m22 = 0;
-        double m03 = 0, m13 = 0, m23 = 0, m33 = 0, b0 = 0, b1 = 0, b2 = 0, b3 = 0, yy = 0;
+ * (weight 0 for a row left out, lanes across the sums, as in solve_sums); each entry the same
+ * product in the same order as the plain loop over (j, k) would add (w·r_j)·r_k, so M is not
+ * made symmetric: its two triangles differ in their last bits, and the solve reads both. */
+PN_CLONES static void ambient_sums(const struct pn_rows *restrict R, const bool *restrict in, double M[4][5],
+                                   double *ret_yy, double *ret_sw, int *ret_cnt) {
+        pn_v4 c0 = { 0 }, c1 = { 0 }, c2 = { 0 }, c3 = { 0 };
+        double m33 = 0, yy = 0;
         int cnt = 0;
         for (int i = 0; i < R->m; i++) {
                 const bool on = in[i];
-                const double w = R->w[i], x = R->lx[i], y = R->ly[i], z = R->lz[i], v = R->y[i];
-                const double wx = w * x, wy = w * y, wz = w * z;
+                const double w = on ? R->w[i] : 0.0;
+                const pn_v4 r = R->q[i], wr = w * r;   /* (w·x, w·y, w·z, w·v) */
                 cnt += on;
-                yy += on ? w * v * v : 0.0;
-                m00 += on ? wx * x : 0.0;
-                m01 += on ? wx * y : 0.0;
-                m02 += on ? wx * z : 0.0;
-                m03 += on ? wx : 0.0;   /* (w·x)·1, and M[3][0] = (w·1)·x the same */
-                b0 += on ? wx * v : 0.0;
-                m10 += on ? wy * x : 0.0;
-                m11 += on ? wy * y : 0.0;
-                m12 += on ? wy * z : 0.0;
-                m13 += on ? wy : 0.0;
-                b1 += on ? wy * v : 0.0;
-                m20 += on ? wz * x : 0.0;
-                m21 += on ? wz * y : 0.0;
-                m22 += on ? wz * z : 0.0;
-                m23 += on ? wz : 0.0;
-                b2 += on ? wz * v : 0.0;
-                m33 += on ? w : 0.0;
-                b3 += on ? w * v : 0.0;
+                c0 += wr[0] * r;   /* (M[0][0..2], b0): (w·x)·(x, y, z, v) */
+                c1 += wr[1] * r;
+                c2 += wr[2] * r;
+                c3 += wr;          /* (M[0..2][3], b3): (w·r_j)·1 and w·v */
+                m33 += w;
+                yy += wr[3] * r[3];   /* w·v·v */
         }
-        double rows[4][5] = { { m00, m01, m02, m03, b0 }, { m10, m11, m12, m13, b1 }, { m20, m21, m22, m23, b2 },
-                              { m03, m13, m23, m33, b3 } };
+        double rows[4][5] = { { c0[0], c0[1], c0[2], c3[0], c0[3] }, { c1[0], c1[1], c1[2], c3[1], c1[3] },
+                              { c2[0], c2[1], c2[2], c3[2], c2[3] }, { c3[0], c3[1], c3[2], m33, c3[3] } };
         memcpy(M, rows, sizeof rows);
         *ret_yy = yy;
         *ret_sw = m33;   /* Σ w, in the same order */
