@@ -329,6 +329,17 @@ PN_CLONES static void residuals_part(struct pn_rows *restrict R, const double g[
         takes_part(R, nn, cone, min_cos, R->part);
 }
 
+/* Huber: min(1, δ/u) with u = |r|/σ, which is 1 exactly where u ≤ δ; branch-free, so that
+ * the two divisions run in vector lanes (as a clone: the divider takes four lanes in the
+ * time of one or two). */
+PN_CLONES static void huber_weights(struct pn_rows *restrict R, double sigma, double delta) {
+#pragma omp simd
+        for (int i = 0; i < R->m; i++) {
+                double q = delta / (fabs(R->res[i]) / sigma);
+                R->w[i] = isless(q, 1.0) ? q : 1.0;
+        }
+}
+
 /* Residuals over every sample (an excluded one may come back), the robust σ (MAD) and
  * weighted RMS of those taking part for normal nn, and the Huber (and cast-shadow) weights
  * for the next solve when reweight. R->part is then nn's: the caller makes nn the state's
@@ -352,14 +363,7 @@ static void residuals(struct pn_rows *R, const struct imp_photometric_params *p,
         S->rms = sqrt(ss / fmax(sw, 1e-30));
         if (!reweight)
                 return;
-        const double sigma = S->sigma, delta = p->huber_delta;
-        /* Huber: min(1, δ/u) with u = |r|/σ, which is 1 exactly where u ≤ δ; branch-free,
-         * so that the two divisions run in vector lanes */
-#pragma omp simd
-        for (int i = 0; i < R->m; i++) {
-                double q = delta / (fabs(R->res[i]) / sigma);
-                R->w[i] = isless(q, 1.0) ? q : 1.0;
-        }
+        huber_weights(R, S->sigma, p->huber_delta);
         if (p->shadow_trim_sigma > 0)
                 for (int i = 0; i < R->m; i++)
                         /* cast shadow: far below the fit and under half of it */
