@@ -403,11 +403,13 @@ PN_CLONES static void ambient_sums(const struct pn_rows *restrict R, const bool 
 }
 
 /* The model check: the same rows with a 4th unknown, an ambient term c (V/E = g·l + c).
- * Returns c, its σ (residual scale s) and the angle between the two fits' normals. False
- * when the 4×4 system is singular (then nothing is said). */
+ * Returns c, its σ (residual scale s) and the cosine of the angle between the two fits'
+ * normals (clamped to [−1, 1]; 2 when the 4-unknown fit has no normal): the caller takes
+ * its acos only where it reads the angle. False when the 4×4 system is singular (then
+ * nothing is said). */
 static bool ambient_check(const struct pn_rows *R, const struct imp_photometric_params *p,
                           const struct pn_state *S, double s, bool all_lit, double *ret_c, double *ret_sc,
-                          double *ret_shift_deg) {
+                          double *ret_shift_cos) {
         double M[4][5], yy, sw;
         int cnt;
         bool in[IMP_BTF_MAX_SAMPLES];
@@ -467,7 +469,7 @@ static bool ambient_check(const struct pn_rows *R, const struct imp_photometric_
         double s4 = cnt > 4 && sw > 0 ? sqrt(fmax(0.0, ss) / sw * cnt / (cnt - 4)) : s;
         s4 = fmin(s, fmax(p->sigma_floor, s4));
         *ret_sc = s4 * sqrt(fmax(inv[3] / M[3][3], 0));   /* (M⁻¹)₃₃ = e₄ᵀ M⁻¹ e₄ */
-        *ret_shift_deg = gl > 0 ? acos(fmax(-1.0, fmin(1.0, dot / gl))) / DEG : 90;
+        *ret_shift_cos = gl > 0 ? fmax(-1.0, fmin(1.0, dot / gl)) : 2;
         return isfinite(*ret_c) && isfinite(*ret_sc);
 }
 
@@ -488,22 +490,22 @@ static void finish_texel(const struct pn_rows *R, const struct imp_photometric_p
          * the Gaussian one (1.7 at 6 samples, 1.03 at 40). */
         double nu = S->used - 3;
         double sig_noise = s * sqrt(var_t) / gl / DEG * (nu > 2 ? sqrt(nu / (nu - 2)) : 1e3);
-        double c = 0, sc = 0, shift = 0;
+        double c = 0, sc = 0, shift = 0, shift_cos;
         uint16_t why = 0;
         /* The check over the samples taking part has the power to see a term that matters
          * (max_ambient_rel·|g|) only when its σ is below that / ambient_sigma. */
-        bool powered = ambient_check(R, p, S, s, false, &c, &sc, &shift) &&
+        bool powered = ambient_check(R, p, S, s, false, &c, &sc, &shift_cos) &&
                        p->ambient_sigma * sc < p->max_ambient_rel * gl;
         if (powered) {
+                shift = shift_cos <= 1 ? acos(shift_cos) / DEG : 90;
                 if (fabs(c) > p->ambient_sigma * sc && fabs(c) > p->max_ambient_rel * gl)
                         why |= IMP_PN_AMBIENT;
-        } else if (ambient_check(R, p, S, s, true, &c, &sc, &shift)) {
+        } else if (ambient_check(R, p, S, s, true, &c, &sc, &shift_cos)) {
                 /* The samples taking part cannot tell an ambient term from the normal's z (all
                  * lights at one elevation, or the other ring only at the cone's edge: it would
                  * tilt every normal towards the view unseen). The lit samples near the mirror
                  * direction can; a specular lobe there gives a negative term, so only added
-                 * light counts. The shift is not the normal's. */
-                shift = 0;
+                 * light counts. The shift is not the normal's (shift stays 0). */
                 if (c > p->ambient_sigma * sc && c > p->max_ambient_rel * gl)
                         why |= IMP_PN_AMBIENT;
         } else
