@@ -6,6 +6,7 @@
 #include "heightfield.h"
 #include "numerics.h"
 #include "photometric.h"
+#include "pn-median.h"
 #include "macro.h"
 #include "quality.h"
 
@@ -56,68 +57,10 @@ static int cmp_double(const void *a, const void *b) {
 #define PN_CLONES
 #endif
 
-typedef double pn_v8 __attribute__((vector_size(64)));
-typedef long long pn_v8l __attribute__((vector_size(64)));
-
-/* The counts of a[0..n) below and at or below each lane of *c. */
-static inline __attribute__((always_inline)) void median_counts(const double *a, int n, const pn_v8 *c,
-                                                                pn_v8l *ret_lt, pn_v8l *ret_le) {
-        pn_v8l lt = { 0 }, le = { 0 };
-        for (int j = 0; j < n; j++) {
-                lt -= a[j] < *c;   /* a true lane is −1 */
-                le -= a[j] <= *c;
-        }
-        *ret_lt = lt, *ret_le = le;
-}
-
-/* Median of v[0..n) (n ≤ IMP_BTF_MAX_SAMPLES, no NaN; tmp holds n + 8): the values of sorted
- * ranks n/2 and, for an even n, n/2 − 1. The value of rank k is the x with lt(x) ≤ k < le(x)
- * (the counts below x and at or below it), whatever the ties. Eight elements spread over v
- * are counted at once in vector lanes as pivots: the largest pivot c with le(c) ≤ lo and
- * the smallest with lt(c) > hi bracket both ranks, which are then ranks k − le(c) among the
- * elements strictly inside the bracket (2n/9 of them on average), and those are counted
- * among themselves eight at a time. No branch on the data but the loops' lengths; the
- * comparisons only, so that every clone gives the same value (also for ±0: the shadow
- * trim compares with the median, equal either way). At a texel's ~40 residuals 1.5× the
- * rank counts with quickselect's bracket before it (bench-pn-model) and several times
- * qsort. */
+/* The median of v[0..n) (pn-median.h; tmp holds n + 8 values) */
 __attribute__((target_clones("avx512f", "avx2", "default"))) static double median_small(const double *restrict v, int n,
                                                                                       double *restrict tmp) {
-        if (n <= 0)
-                return 0;
-        const int hi = n / 2, lo = n & 1 ? hi : hi - 1;
-        pn_v8 c;
-        for (int l = 0; l < 8; l++)
-                c[l] = v[l * n / 8];
-        pn_v8l lt, le;
-        median_counts(v, n, &c, &lt, &le);
-        double lv = -INFINITY, uv = INFINITY;
-        int base = 0;   /* le(lv), le being monotonic in the value */
-        for (int l = 0; l < 8; l++) {
-                const bool below = le[l] <= lo, above = lt[l] > hi;
-                lv = below && c[l] > lv ? c[l] : lv;
-                base = below && le[l] > base ? (int) le[l] : base;
-                uv = above && c[l] < uv ? c[l] : uv;
-        }
-        int s = 0;
-        for (int i = 0; i < n; i++) {
-                tmp[s] = v[i];
-                s += (lv < v[i]) & (v[i] < uv);
-        }
-        for (int i = s; i < s + 8; i++)   /* NaN: counted in no lane, found in none */
-                tmp[i] = NAN;
-        const int klo = lo - base, khi = hi - base;
-        double a = 0, b = 0;
-        for (int i = 0; i < s; i += 8) {
-                pn_v8 w;
-                memcpy(&w, tmp + i, sizeof w);
-                median_counts(tmp, s, &w, &lt, &le);
-                for (int l = 0; l < 8; l++) {
-                        a = lt[l] <= klo && klo < le[l] ? w[l] : a;
-                        b = lt[l] <= khi && khi < le[l] ? w[l] : b;
-                }
-        }
-        return lo == hi ? b : 0.5 * (a + b);
+        return imp_pn_median_small(v, n, tmp);
 }
 
 static void keep_geometric(struct imp_pn_texel *ret, uint16_t flags) {
