@@ -42,13 +42,18 @@ static inline __attribute__((always_inline)) double imp_pn_median_small(const do
                 c[l] = v[l * n / 8];
         imp_pn_v8l lt, le;
         imp_pn_median_counts(v, n, &c, &lt, &le);
+        /* the bracket, without a branch: lanes outside it masked to ∓∞ (lv, uv) and 0 (base) */
+        const imp_pn_v8l below = le <= lo, above = lt > hi;
+        const imp_pn_v8 inf = { INFINITY, INFINITY, INFINITY, INFINITY, INFINITY, INFINITY, INFINITY, INFINITY };
+        const imp_pn_v8 cb = (imp_pn_v8) (((imp_pn_v8l) c & below) | ((imp_pn_v8l) -inf & ~below));
+        const imp_pn_v8 ca = (imp_pn_v8) (((imp_pn_v8l) c & above) | ((imp_pn_v8l) inf & ~above));
+        const imp_pn_v8l lb = le & below;
         double lv = -INFINITY, uv = INFINITY;
-        int base = 0;   /* le(lv), le being monotonic in the value */
+        long long base = 0;   /* le(lv), le being monotonic in the value */
         for (int l = 0; l < 8; l++) {
-                const bool below = le[l] <= lo, above = lt[l] > hi;
-                lv = below && c[l] > lv ? c[l] : lv;
-                base = below && le[l] > base ? (int) le[l] : base;
-                uv = above && c[l] < uv ? c[l] : uv;
+                lv = cb[l] > lv ? cb[l] : lv;
+                uv = ca[l] < uv ? ca[l] : uv;
+                base = lb[l] > base ? lb[l] : base;
         }
         int s = 0;
         for (int i = 0; i < n; i++) {
@@ -57,16 +62,21 @@ static inline __attribute__((always_inline)) double imp_pn_median_small(const do
         }
         for (int i = s; i < s + 8; i++)   /* NaN: counted in no lane, found in none */
                 tmp[i] = NAN;
-        const int klo = lo - base, khi = hi - base;
-        double a = 0, b = 0;
+        const long long klo = lo - base, khi = hi - base;
+        /* the lanes holding ranks klo and khi, ORed in: one value each (ties: the same bits) */
+        imp_pn_v8l fa = { 0 }, fb = { 0 };
         for (int i = 0; i < s; i += 8) {
                 imp_pn_v8 w;
                 memcpy(&w, tmp + i, sizeof w);
                 imp_pn_median_counts(tmp, s, &w, &lt, &le);
-                for (int l = 0; l < 8; l++) {
-                        a = lt[l] <= klo && klo < le[l] ? w[l] : a;
-                        b = lt[l] <= khi && khi < le[l] ? w[l] : b;
-                }
+                fa |= (imp_pn_v8l) w & ((lt <= klo) & (le > klo));
+                fb |= (imp_pn_v8l) w & ((lt <= khi) & (le > khi));
         }
+        long long ba = 0, bb = 0;
+        for (int l = 0; l < 8; l++)
+                ba |= fa[l], bb |= fb[l];
+        double a, b;
+        memcpy(&a, &ba, sizeof a);
+        memcpy(&b, &bb, sizeof b);
         return lo == hi ? b : 0.5 * (a + b);
 }
