@@ -53,13 +53,15 @@ static int cmp_double(const void *a, const void *b) {
  * load time; no FMA, so that the results do not depend on the machine. */
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 #define PN_CLONES __attribute__((target_clones("avx2", "default")))
+/* comparisons only (pn-median.h): AVX-512 gives the same values too */
+#define PN_CLONES_CMP __attribute__((target_clones("avx512f", "avx2", "default")))
 #else
 #define PN_CLONES
+#define PN_CLONES_CMP
 #endif
 
 /* The median of v[0..n) (pn-median.h; tmp holds n + 8 values) */
-__attribute__((target_clones("avx512f", "avx2", "default"))) static double median_small(const double *restrict v, int n,
-                                                                                      double *restrict tmp) {
+PN_CLONES_CMP static double median_small(const double *restrict v, int n, double *restrict tmp) {
         return imp_pn_median_small(v, n, tmp);
 }
 
