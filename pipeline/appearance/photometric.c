@@ -71,10 +71,10 @@ static void keep_geometric(struct imp_pn_texel *ret, uint16_t flags) {
         ret->flags |= flags;
 }
 
-/* The usable samples of a texel as rows of V/E = g·l (at most IMP_BTF_MAX_SAMPLES), one
- * array per component, so that the per-row loops run in vector lanes. */
 typedef double pn_v4 __attribute__((vector_size(32)));
 
+/* The usable samples of a texel as rows of V/E = g·l (at most IMP_BTF_MAX_SAMPLES), one
+ * array per component, so that the per-row loops run in vector lanes. */
 struct pn_rows {
         /* (l, V/E) of each row again as one vector: the solve's and the ambient check's
          * sums add each row's products in vector lanes across the sums (below) */
