@@ -6,6 +6,7 @@
 #include "heightfield.h"
 #include "numerics.h"
 #include "photometric.h"
+#include "pn-median.h"
 #include "macro.h"
 #include "quality.h"
 
@@ -52,49 +53,16 @@ static int cmp_double(const void *a, const void *b) {
  * load time; no FMA, so that the results do not depend on the machine. */
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 #define PN_CLONES __attribute__((target_clones("avx2", "default")))
+/* comparisons only (pn-median.h): AVX-512 gives the same values too */
+#define PN_CLONES_CMP __attribute__((target_clones("avx512f", "avx2", "default")))
 #else
 #define PN_CLONES
+#define PN_CLONES_CMP
 #endif
 
-/* Median of v[0..n) (n ≤ IMP_BTF_MAX_SAMPLES, no NaN): the elements of ranks n/2 and, for
- * an even n, n/2 − 1, the rank of v[i] being the count of smaller elements, ties broken by
- * position (the ranks are a permutation of 0..n−1). The rank of a candidate is counted in
- * vector lanes; each count also brackets the median (a candidate ranked below lo is a lower
- * bound, above hi an upper one), and the candidates outside the bracket are skipped without
- * counting: as quickselect's pivots, but nothing moves, so that a few counts find both
- * ranks. At a texel's sample count this beats qsort's comparator calls and quickselect's
- * branches several times over, and gives the same value. tmp is unused. */
-PN_CLONES static double median_small(const double *restrict v, int n, double *tmp) {
-        (void) tmp;
-        if (n <= 0)
-                return 0;
-        const int hi = n / 2, lo = n & 1 ? hi : hi - 1;
-        double a = v[0], b = v[0];
-        int found = lo == hi ? 1 : 0;
-        /* (value, index) of the bracket's ends: every element ranked lo..hi lies strictly
-         * between them in the order of the ranks */
-        double lv = -INFINITY, uv = INFINITY;
-        int li = -1, ui = n;
-        for (int i = 0; i < n; i++) {
-                const double x = v[i];
-                if (x < lv || (x == lv && i < li) || x > uv || (x == uv && i > ui))
-                        continue;
-                int rank = 0;
-#pragma omp simd reduction(+ : rank)
-                for (int j = 0; j < n; j++)
-                        rank += (v[j] < x) | ((v[j] == x) & (j < i));
-                if (rank == hi)
-                        b = x, found++;
-                if (rank == lo && lo != hi)
-                        a = x, found++;
-                if (found == 2)
-                        break;
-                if (rank < lo)
-                        lv = x, li = i;
-                else if (rank > hi)
-                        uv = x, ui = i;
-        }
-        return lo == hi ? b : 0.5 * (a + b);
+/* The median of v[0..n) (pn-median.h; tmp holds n + 8 values) */
+PN_CLONES_CMP static double median_small(const double *restrict v, int n, double *restrict tmp) {
+        return imp_pn_median_small(v, n, tmp);
 }
 
 static void keep_geometric(struct imp_pn_texel *ret, uint16_t flags) {
@@ -103,13 +71,18 @@ static void keep_geometric(struct imp_pn_texel *ret, uint16_t flags) {
         ret->flags |= flags;
 }
 
+typedef double pn_v4 __attribute__((vector_size(32)));
+
 /* The usable samples of a texel as rows of V/E = g·l (at most IMP_BTF_MAX_SAMPLES), one
  * array per component, so that the per-row loops run in vector lanes. */
 struct pn_rows {
+        /* (l, V/E) of each row again as one vector: the solve's and the ambient check's
+         * sums add each row's products in vector lanes across the sums (below) */
+        pn_v4 q[IMP_BTF_MAX_SAMPLES];
         double lx[IMP_BTF_MAX_SAMPLES], ly[IMP_BTF_MAX_SAMPLES], lz[IMP_BTF_MAX_SAMPLES];
         double vx[IMP_BTF_MAX_SAMPLES], vy[IMP_BTF_MAX_SAMPLES], vz[IMP_BTF_MAX_SAMPLES];
         double y[IMP_BTF_MAX_SAMPLES], w[IMP_BTF_MAX_SAMPLES], res[IMP_BTF_MAX_SAMPLES];
-        double tmp[IMP_BTF_MAX_SAMPLES];
+        double tmp[IMP_BTF_MAX_SAMPLES + 8];   /* median_small's */
         double vl[IMP_BTF_MAX_SAMPLES];   /* v·l, for takes_part */
         /* takes_part() of each row for the state's current normal and cone, once per
          * normal: the solve, the model check and the mean read it (valid when part_ok) */
@@ -132,6 +105,7 @@ static void load_rows(const struct imp_btf_sample *s, int n, struct pn_rows *R) 
                 R->vx[m] = vx, R->vy[m] = vy, R->vz[m] = vz;
                 R->vl[m] = vx * lx + vy * ly + vz * lz;
                 R->y[m] = V / E;
+                R->q[m] = (pn_v4) { lx, ly, lz, R->y[m] };
                 R->w[m] = 1;
                 m += ok;
         }
@@ -228,6 +202,30 @@ static double pn_cond(struct pn_state *S) {
         return S->cond;
 }
 
+/* The solve's normal equations over the rows taking part: c[j] = Σ w l_j (l, y), so
+ * (A row j | b_j) but for the lower triangle. In registers and without a branch: a row that
+ * does not take part (or has weight 0) is weighted 0, and its products ±0 (every row is
+ * finite) leave every sum as it was (none is ever −0), so the sums are those of the rows
+ * taking part, in their order. The lanes run across the sums, not the rows: each sum adds
+ * the same products (w·l_j)·l_k in the same order as a scalar sum per entry, the same bits,
+ * but one vector add a row instead of a dependent chain of nine scalar ones. Returns the
+ * rows' count. */
+PN_CLONES static int solve_sums(const struct pn_rows *restrict R, pn_v4 c[3]) {
+        pn_v4 c0 = { 0 }, c1 = { 0 }, c2 = { 0 };
+        int used = 0;
+        for (int i = 0; i < R->m; i++) {
+                const bool on = R->part[i] & (R->w[i] > 0);
+                const double wi = on ? R->w[i] : 0.0;
+                const pn_v4 r = R->q[i], wr = wi * r;
+                used += on;
+                c0 += wr[0] * r;
+                c1 += wr[1] * r;
+                c2 += wr[2] * r;
+        }
+        c[0] = c0, c[1] = c1, c[2] = c2;
+        return used;
+}
+
 /* One weighted solve for the current normal: g, A⁻¹, cond. Returns 0 or the flag that
  * keeps the geometric normal. */
 static uint16_t solve_pass(struct pn_rows *R, const struct imp_photometric_params *p, struct pn_state *S) {
@@ -236,32 +234,13 @@ static uint16_t solve_pass(struct pn_rows *R, const struct imp_photometric_param
                 takes_part(R, S->nc, S->cone, p->min_cos, R->part);
                 R->part_ok = true;
         }
-        /* The sums in registers and without a branch: a row that does not take part (or has
-         * weight 0) is weighted 0, and its products ±0 (every row is finite) leave every sum
-         * as it was (none is ever −0), so the sums are those of the rows taking part, in
-         * their order. */
-        double a00 = 0, a01 = 0, a02 = 0, a11 = 0, a12 = 0, a22 = 0, b0 = 0, b1 = 0, b2 = 0;
-        int used = 0;
-        for (int i = 0; i < R->m; i++) {
-                const bool on = R->part[i] & (R->w[i] > 0);
-                const double wi = on ? R->w[i] : 0.0, x = R->lx[i], y = R->ly[i], z = R->lz[i];
-                const double yi = R->y[i], wx = wi * x, wy = wi * y, wz = wi * z;
-                used += on;
-                b0 += wx * yi;
-                a00 += wx * x;
-                a01 += wx * y;
-                a02 += wx * z;
-                b1 += wy * yi;
-                a11 += wy * y;
-                a12 += wy * z;
-                b2 += wz * yi;
-                a22 += wz * z;
-        }
-        S->used = used;
-        if (used < p->min_samples)
+        pn_v4 c[3];
+        S->used = solve_sums(R, c);
+        if (S->used < p->min_samples)
                 return IMP_PN_FEW_SAMPLES;
-        A[0] = a00, A[1] = A[3] = a01, A[2] = A[6] = a02, A[4] = a11, A[5] = A[7] = a12, A[8] = a22;
-        b[0] = b0, b[1] = b1, b[2] = b2;
+        A[0] = c[0][0], A[1] = A[3] = c[0][1], A[2] = A[6] = c[0][2], A[4] = c[1][1], A[5] = A[7] = c[1][2];
+        A[8] = c[2][2];
+        b[0] = c[0][3], b[1] = c[1][3], b[2] = c[2][3];
         memcpy(S->A, A, sizeof A);
         if (!sym3_cond_inverse(A, p->max_cond, &S->cond, &S->cond_lazy, S->Ainv)) {
                 double lam[3], vec[9];
@@ -295,6 +274,17 @@ PN_CLONES static void residuals_part(struct pn_rows *restrict R, const double g[
         takes_part(R, nn, cone, min_cos, R->part);
 }
 
+/* Huber: min(1, δ/u) with u = |r|/σ, which is 1 exactly where u ≤ δ; branch-free, so that
+ * the two divisions run in vector lanes (as a clone: the divider takes four lanes in the
+ * time of one or two). */
+PN_CLONES static void huber_weights(struct pn_rows *restrict R, double sigma, double delta) {
+#pragma omp simd
+        for (int i = 0; i < R->m; i++) {
+                double q = delta / (fabs(R->res[i]) / sigma);
+                R->w[i] = isless(q, 1.0) ? q : 1.0;
+        }
+}
+
 /* Residuals over every sample (an excluded one may come back), the robust σ (MAD) and
  * weighted RMS of those taking part for normal nn, and the Huber (and cast-shadow) weights
  * for the next solve when reweight. R->part is then nn's: the caller makes nn the state's
@@ -303,7 +293,7 @@ static void residuals(struct pn_rows *R, const struct imp_photometric_params *p,
                       struct pn_state *S, bool reweight) {
         residuals_part(R, S->g, nn, S->cone, p->min_cos);
         int k2 = 0;
-        double ss = 0, sw = 0, mad[IMP_BTF_MAX_SAMPLES];
+        double ss = 0, sw = 0, mad[IMP_BTF_MAX_SAMPLES + 8];
         /* branch-free as in solve_pass: +0 for a row that does not take part */
         for (int i = 0; i < R->m; i++) {
                 const bool on = R->part[i];
@@ -318,14 +308,7 @@ static void residuals(struct pn_rows *R, const struct imp_photometric_params *p,
         S->rms = sqrt(ss / fmax(sw, 1e-30));
         if (!reweight)
                 return;
-        const double sigma = S->sigma, delta = p->huber_delta;
-        /* Huber: min(1, δ/u) with u = |r|/σ, which is 1 exactly where u ≤ δ; branch-free,
-         * so that the two divisions run in vector lanes */
-#pragma omp simd
-        for (int i = 0; i < R->m; i++) {
-                double q = delta / (fabs(R->res[i]) / sigma);
-                R->w[i] = isless(q, 1.0) ? q : 1.0;
-        }
+        huber_weights(R, S->sigma, p->huber_delta);
         if (p->shadow_trim_sigma > 0)
                 for (int i = 0; i < R->m; i++)
                         /* cast shadow: far below the fit and under half of it */
@@ -336,40 +319,28 @@ static void residuals(struct pn_rows *R, const struct imp_photometric_params *p,
 
 /* The normal equations of the 4-unknown fit over the rows in[]: M = Σ w r rᵀ with
  * r = (l, 1), right-hand side Σ w r y in M[·][4], and Σ w y². In registers and branch-free
- * (weight 0 for a row left out, as in solve_pass); each entry the same product in the same order
- * as the plain loop over (j, k) would add (w·r_j)·r_k, so M is not made symmetric: its two
- * triangles differ in their last bits, and the solve reads both. */
-static void ambient_sums(const struct pn_rows *R, const bool *in, double M[4][5], double *ret_yy, double *ret_sw,
-                         int *ret_cnt) {
-        double m00 = 0, m01 = 0, m02 = 0, m10 = 0, m11 = 0, m12 = 0, m20 = 0, m21 = 0, m22 = 0;
-        double m03 = 0, m13 = 0, m23 = 0, m33 = 0, b0 = 0, b1 = 0, b2 = 0, b3 = 0, yy = 0;
+ * (weight 0 for a row left out, lanes across the sums, as in solve_sums); each entry the same
+ * product in the same order as the plain loop over (j, k) would add (w·r_j)·r_k, so M is not
+ * made symmetric: its two triangles differ in their last bits, and the solve reads both. */
+PN_CLONES static void ambient_sums(const struct pn_rows *restrict R, const bool *restrict in, double M[4][5],
+                                   double *ret_yy, double *ret_sw, int *ret_cnt) {
+        pn_v4 c0 = { 0 }, c1 = { 0 }, c2 = { 0 }, c3 = { 0 };
+        double m33 = 0, yy = 0;
         int cnt = 0;
         for (int i = 0; i < R->m; i++) {
                 const bool on = in[i];
-                const double w = R->w[i], x = R->lx[i], y = R->ly[i], z = R->lz[i], v = R->y[i];
-                const double wx = w * x, wy = w * y, wz = w * z;
+                const double w = on ? R->w[i] : 0.0;
+                const pn_v4 r = R->q[i], wr = w * r;   /* (w·x, w·y, w·z, w·v) */
                 cnt += on;
-                yy += on ? w * v * v : 0.0;
-                m00 += on ? wx * x : 0.0;
-                m01 += on ? wx * y : 0.0;
-                m02 += on ? wx * z : 0.0;
-                m03 += on ? wx : 0.0;   /* (w·x)·1, and M[3][0] = (w·1)·x the same */
-                b0 += on ? wx * v : 0.0;
-                m10 += on ? wy * x : 0.0;
-                m11 += on ? wy * y : 0.0;
-                m12 += on ? wy * z : 0.0;
-                m13 += on ? wy : 0.0;
-                b1 += on ? wy * v : 0.0;
-                m20 += on ? wz * x : 0.0;
-                m21 += on ? wz * y : 0.0;
-                m22 += on ? wz * z : 0.0;
-                m23 += on ? wz : 0.0;
-                b2 += on ? wz * v : 0.0;
-                m33 += on ? w : 0.0;
-                b3 += on ? w * v : 0.0;
+                c0 += wr[0] * r;   /* (M[0][0..2], b0): (w·x)·(x, y, z, v) */
+                c1 += wr[1] * r;
+                c2 += wr[2] * r;
+                c3 += wr;          /* (M[0..2][3], b3): (w·r_j)·1 and w·v */
+                m33 += w;
+                yy += wr[3] * r[3];   /* w·v·v */
         }
-        double rows[4][5] = { { m00, m01, m02, m03, b0 }, { m10, m11, m12, m13, b1 }, { m20, m21, m22, m23, b2 },
-                              { m03, m13, m23, m33, b3 } };
+        double rows[4][5] = { { c0[0], c0[1], c0[2], c3[0], c0[3] }, { c1[0], c1[1], c1[2], c3[1], c1[3] },
+                              { c2[0], c2[1], c2[2], c3[2], c2[3] }, { c3[0], c3[1], c3[2], m33, c3[3] } };
         memcpy(M, rows, sizeof rows);
         *ret_yy = yy;
         *ret_sw = m33;   /* Σ w, in the same order */
@@ -377,11 +348,13 @@ static void ambient_sums(const struct pn_rows *R, const bool *in, double M[4][5]
 }
 
 /* The model check: the same rows with a 4th unknown, an ambient term c (V/E = g·l + c).
- * Returns c, its σ (residual scale s) and the angle between the two fits' normals. False
- * when the 4×4 system is singular (then nothing is said). */
+ * Returns c, its σ (residual scale s) and the cosine of the angle between the two fits'
+ * normals (clamped to [−1, 1]; 2 when the 4-unknown fit has no normal): the caller takes
+ * its acos only where it reads the angle. False when the 4×4 system is singular (then
+ * nothing is said). */
 static bool ambient_check(const struct pn_rows *R, const struct imp_photometric_params *p,
                           const struct pn_state *S, double s, bool all_lit, double *ret_c, double *ret_sc,
-                          double *ret_shift_deg) {
+                          double *ret_shift_cos) {
         double M[4][5], yy, sw;
         int cnt;
         bool in[IMP_BTF_MAX_SAMPLES];
@@ -441,7 +414,7 @@ static bool ambient_check(const struct pn_rows *R, const struct imp_photometric_
         double s4 = cnt > 4 && sw > 0 ? sqrt(fmax(0.0, ss) / sw * cnt / (cnt - 4)) : s;
         s4 = fmin(s, fmax(p->sigma_floor, s4));
         *ret_sc = s4 * sqrt(fmax(inv[3] / M[3][3], 0));   /* (M⁻¹)₃₃ = e₄ᵀ M⁻¹ e₄ */
-        *ret_shift_deg = gl > 0 ? acos(fmax(-1.0, fmin(1.0, dot / gl))) / DEG : 90;
+        *ret_shift_cos = gl > 0 ? fmax(-1.0, fmin(1.0, dot / gl)) : 2;
         return isfinite(*ret_c) && isfinite(*ret_sc);
 }
 
@@ -462,22 +435,22 @@ static void finish_texel(const struct pn_rows *R, const struct imp_photometric_p
          * the Gaussian one (1.7 at 6 samples, 1.03 at 40). */
         double nu = S->used - 3;
         double sig_noise = s * sqrt(var_t) / gl / DEG * (nu > 2 ? sqrt(nu / (nu - 2)) : 1e3);
-        double c = 0, sc = 0, shift = 0;
+        double c = 0, sc = 0, shift = 0, shift_cos;
         uint16_t why = 0;
         /* The check over the samples taking part has the power to see a term that matters
          * (max_ambient_rel·|g|) only when its σ is below that / ambient_sigma. */
-        bool powered = ambient_check(R, p, S, s, false, &c, &sc, &shift) &&
+        bool powered = ambient_check(R, p, S, s, false, &c, &sc, &shift_cos) &&
                        p->ambient_sigma * sc < p->max_ambient_rel * gl;
         if (powered) {
+                shift = shift_cos <= 1 ? acos(shift_cos) / DEG : 90;
                 if (fabs(c) > p->ambient_sigma * sc && fabs(c) > p->max_ambient_rel * gl)
                         why |= IMP_PN_AMBIENT;
-        } else if (ambient_check(R, p, S, s, true, &c, &sc, &shift)) {
+        } else if (ambient_check(R, p, S, s, true, &c, &sc, &shift_cos)) {
                 /* The samples taking part cannot tell an ambient term from the normal's z (all
                  * lights at one elevation, or the other ring only at the cone's edge: it would
                  * tilt every normal towards the view unseen). The lit samples near the mirror
                  * direction can; a specular lobe there gives a negative term, so only added
-                 * light counts. The shift is not the normal's. */
-                shift = 0;
+                 * light counts. The shift is not the normal's (shift stays 0). */
                 if (c > p->ambient_sigma * sc && c > p->max_ambient_rel * gl)
                         why |= IMP_PN_AMBIENT;
         } else

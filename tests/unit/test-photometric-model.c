@@ -6,12 +6,15 @@
  * must give the same flags and sample counts, normals within 1e-6 rad and every other
  * figure within 1e-6 relative. They are bit-identical today; the tolerances are what a
  * faster model that is not may differ by. The set must reach every flag the model sets,
- * or the comparison would not cover that branch. */
+ * or the comparison would not cover that branch. The model's median (pn-median.h) is built
+ * for AVX-512, AVX2 and the baseline; each build the CPU can run must give a sort's
+ * median, bit for bit. */
 #include <errno.h>
 #include <math.h>
 #include <stdlib.h>
 #include "pn-model-peer.h"
 #include "pn-model-set.h"
+#include "pn-median.h"
 #include "test.h"
 
 #define N_TEXELS 3000
@@ -91,7 +94,74 @@ static void test_bad_rows(const struct imp_photometric_params *p) {
         compare_texel(t.s, 0, p, -1);
 }
 
+static double median_base(const double *v, int n, double *tmp) {
+        return imp_pn_median_small(v, n, tmp);
+}
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+__attribute__((target("avx2"))) static double median_avx2(const double *v, int n, double *tmp) {
+        return imp_pn_median_small(v, n, tmp);
+}
+__attribute__((target("avx512f"))) static double median_avx512(const double *v, int n, double *tmp) {
+        return imp_pn_median_small(v, n, tmp);
+}
+#endif
+
+static int cmp_double(const void *a, const void *b) {
+        double x = *(const double *) a, y = *(const double *) b;
+        return x < y ? -1 : x > y;
+}
+
+/* Values of kind k: uniform, few distinct (ties), sorted up, sorted down, all equal, and
+ * residual-like |N(0, 1)| with a few outliers. */
+static void median_values(int kind, int n, uint64_t *rng, double *v) {
+        for (int i = 0; i < n; i++) {
+                double u = test_urand(rng);
+                switch (kind) {
+                case 0: v[i] = u - 0.5; break;
+                case 1: v[i] = floor(4 * u); break;
+                case 2: v[i] = i + 0.25 * u; break;
+                case 3: v[i] = n - i; break;
+                case 4: v[i] = 1.5; break;
+                default: v[i] = fabs(test_nrand(rng)) * (u < 0.1 ? 30 : 1); break;
+                }
+        }
+}
+
+static void test_median(void) {
+        typedef double (*median_fn)(const double *, int, double *);
+        struct { const char *name; median_fn f; bool ok; } builds[] = {
+                { "baseline", median_base, true },
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+                { "avx2", median_avx2, __builtin_cpu_supports("avx2") },
+                { "avx512f", median_avx512, __builtin_cpu_supports("avx512f") },
+#endif
+        };
+        static double v[IMP_BTF_MAX_SAMPLES], sorted[IMP_BTF_MAX_SAMPLES], tmp[IMP_BTF_MAX_SAMPLES + 8];
+        uint64_t rng = 0x3edULL;
+        long n_checked = 0;
+        for (int n = 1; n <= IMP_BTF_MAX_SAMPLES; n += n < 80 ? 1 : 37)
+                for (int kind = 0; kind < 6; kind++)
+                        for (int rep = 0; rep < 4; rep++) {
+                                median_values(kind, n, &rng, v);
+                                memcpy(sorted, v, sizeof v[0] * n);
+                                qsort(sorted, n, sizeof sorted[0], cmp_double);
+                                double want = n & 1 ? sorted[n / 2] : 0.5 * (sorted[n / 2 - 1] + sorted[n / 2]);
+                                for (size_t b = 0; b < sizeof builds / sizeof builds[0]; b++) {
+                                        if (!builds[b].ok)
+                                                continue;
+                                        double got = builds[b].f(v, n, tmp);
+                                        n_checked++;
+                                        CHECK_MSG(!memcmp(&got, &want, sizeof got), "median %s, n %d, kind %d: %.17g, sort's %.17g",
+                                                  builds[b].name, n, kind, got, want);
+                                }
+                        }
+        for (size_t b = 0; b < sizeof builds / sizeof builds[0]; b++)
+                fprintf(stderr, "median %s: %s\n", builds[b].name, builds[b].ok ? "checked" : "not on this CPU");
+        CHECK(n_checked > 0);
+}
+
 int main(void) {
+        test_median();
         struct imp_photometric_params p, pf;
         imp_photometric_params_default(&p);
         pf = p;
