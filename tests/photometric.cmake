@@ -16,3 +16,6 @@ impasto_test(test-photometric-kernel LABELS integration LIBS impasto_pipeline)
 # (tests/unit/pn-model-peer.c): the same flags, normals within 1e-6 rad.
 impasto_test(test-photometric-model LIBS impasto_pipeline)
 target_sources(test-photometric-model PRIVATE ${CMAKE_CURRENT_SOURCE_DIR}/unit/pn-model-peer.c)
+# The BTF fit's local frames from the photometric model on its own samples (btf.h
+# struct imp_btf_frames, imp_photometric_frames).
+impasto_test(test-btf-frames LIBS impasto_pipeline)
