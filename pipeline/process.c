@@ -813,18 +813,20 @@ static int dome_load(const struct process_opts *o, const struct imp_captureset *
 /* Photometric normals (pipeline/appearance/photometric.h) replace the heightfield's; the
  * shadow fill keeps only texels whose normal the dome determines and that are not steeper
  * than 60°; the heights are fused with the normals. heightfield.exr and the height fusion
- * take the Lanczos re-reading's normals; the fit's local frames and the validation take
- * the bilinear reading's (`normal`, replaced), the way the extractor reads the frames
- * they fit and check (docs/geometry.md). */
+ * take the Lanczos re-reading's normals; the fit estimates its own local frames from the
+ * values it reads (btf_stage), starting from the geometric normals (`normal`, unchanged:
+ * the frame this stage's model ran in, whose rays it recorded). *ret_frames: whether it
+ * should (false when the stage went back to the geometric normals canvas-wide). */
 static int photometric_stage(const struct process_opts *o, struct geometry_out *g,
                              const struct imp_btf_heightfield *bh, const struct imp_btf_capture *cap,
-                             const struct imp_btf_sample_params *sp, float *normal, struct imp_error *err) {
+                             const struct imp_btf_sample_params *sp, float *normal, bool *ret_frames,
+                             struct imp_error *err) {
         struct imp_heightfield *hf = &g->hf;
         size_t nt = (size_t) hf->nx * hf->ny;
         double t0 = now_s();
         const struct imp_photometric_params *pp = &o->opt->photometric;
         struct imp_photometric_stats ps = {};
-        _cleanup_free_ float *pn_normal = malloc(nt * 6 * sizeof *pn_normal);
+        _cleanup_free_ float *pn_normal = malloc(nt * 3 * sizeof *pn_normal);
         _cleanup_free_ uint16_t *pn_flags = malloc(nt * sizeof *pn_flags);
         _cleanup_free_ uint16_t *pn_tflags = malloc(nt * sizeof *pn_tflags);
         _cleanup_free_ float *pn_sigma = malloc(nt * sizeof *pn_sigma);
@@ -832,17 +834,16 @@ static int photometric_stage(const struct process_opts *o, struct geometry_out *
         if (!pn_normal || !pn_flags || !pn_tflags || !pn_sigma || !drop)
                 return imp_error_set(err, -ENOMEM, "out of memory");
         progress(o, "photometric normals", 0, 1);
-        struct imp_photometric_out pout = { pn_normal, pn_normal + nt * 3, pn_flags, pn_tflags, pn_sigma };
+        struct imp_photometric_out pout = { pn_normal, pn_flags, pn_tflags, pn_sigma };
         int r = imp_photometric_normals(bh, cap, sp, pp, &pout, &ps);
         if (r < 0)
                 return imp_error_set(err, r, "%s: photometric normals failed: %s", o->capture, strerror(-r));
-        /* normal holds the geometric normals until the bilinear reading replaces them */
         long disagree = imp_photometric_agreement(hf->nx, hf->ny, hf->mask, pn_flags, pn_normal, normal,
                                                   hf->sigma_n_deg, pp, pn_sigma);
         if (disagree < 0)
                 return imp_error_set(err, (int) disagree, "%s: photometric agreement: %s", o->capture,
                                      strerror((int) -disagree));
-        memcpy(normal, pn_normal + nt * 3, nt * 3 * sizeof *normal);
+        *ret_frames = !ps.ambient_canvas;
         for (size_t i = 0; i < nt; i++)
                 if (!hf->mask || hf->mask[i]) {
                         /* The stage's flags join the heightfield's; a refined normal carries
@@ -915,21 +916,38 @@ static void btf_progress(void *data, long done, long total) {
         progress(data, "btf fit", (size_t) done, (size_t) total);
 }
 
-/* The shadow-aware Lafortune fit (seed 000 §4.4), the held-out validation, the maps. */
+/* The shadow-aware Lafortune fit (seed 000 §4.4), the held-out validation, the maps. With
+ * frames, the fit takes each texel's local frame from the photometric model on the values
+ * it reads (photometric.h imp_photometric_frames()) and the validation reads the held-out
+ * lights in the same frames; without, both take bh->normal's. */
 static int btf_stage(const struct process_opts *o, struct geometry_out *g, const struct imp_btf_heightfield *bh,
                      const struct imp_btf_capture *cap, const struct imp_btf_sample_params *sp, const struct dome *d,
-                     struct imp_error *err) {
+                     bool frames, struct imp_error *err) {
         size_t nt = (size_t) g->hf.nx * g->hf.ny;
         _cleanup_free_ struct imp_btf_texel *tex = calloc(nt, sizeof *tex);
-        if (!tex)
+        _cleanup_free_ float *frame_n = frames ? malloc(nt * 3 * sizeof *frame_n) : NULL;
+        if (!tex || (frames && !frame_n))
                 return imp_error_set(err, -ENOMEM, "out of memory");
         double t0 = now_s();
         struct imp_btf_stats st = {};
         struct imp_btf_fit_params fp = o->opt->btf_fit;
         fp.progress = btf_progress;
         fp.progress_data = (void *) o;
+        struct imp_photometric_frames pf;
+        struct imp_btf_frames bf;
+        struct imp_btf_heightfield bh_fit = *bh;   /* the frames the fit and the validation read in */
+        int r;
+        if (frames) {
+                /* the samples turned, not extracted again: the same figures for less
+                 * (docs/processing-speed.md "The fit's frames estimated by the fit") */
+                if ((r = imp_photometric_frames(bh, &o->opt->photometric, IMP_BTF_FRAMES_ROTATE, frame_n, &pf,
+                                                &bf)) < 0)
+                        return imp_error_set(err, r, "%s: BTF frames: %s", o->capture, strerror(-r));
+                fp.frames = &bf;
+                bh_fit.normal = frame_n;
+        }
         progress(o, "btf fit", 0, 1);
-        int r = imp_btf_fit_grid(bh, cap, sp, &fp, 64, tex, &st);
+        r = imp_btf_fit_grid(bh, cap, sp, &fp, 64, tex, &st);
         if (r < 0)
                 return imp_error_set(err, r, "%s: BTF fit failed: %s", o->capture, strerror(-r));
         for (size_t i = 0; i < nt; i++)   /* a non-physical fit is the copy's fit_failed */
@@ -939,8 +957,8 @@ static int btf_stage(const struct process_opts *o, struct geometry_out *g, const
         json_t *validation = NULL;
         if (d->n_held > 0) {
                 progress(o, "validation", 0, 1);
-                r = validate_holdout(bh, cap->camera, d->ho_lights, d->ho_frames, d->ho_valid, (int) d->n_held, tex,
-                                     &validation);
+                r = validate_holdout(&bh_fit, cap->camera, d->ho_lights, d->ho_frames, d->ho_valid, (int) d->n_held,
+                                     tex, &validation);
                 if (r < 0)
                         return imp_error_set(err, r, "%s: held-out validation failed: %s", o->capture, strerror(-r));
                 json_object_set_new(validation, "seconds", json_real(now_s() - t_fit));
@@ -1004,8 +1022,9 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
                 sp.rays = rays;
                 sp.rays_mode = IMP_BTF_RAYS_RECORD;
         }
+        bool frames = false;
         if (photometric)
-                r = photometric_stage(o, g, &bh, &cap, &sp, normal, err);
+                r = photometric_stage(o, g, &bh, &cap, &sp, normal, &frames, err);
         else {
                 drop_fill(g, NULL);
                 /* too few lights for a photometric normal anywhere: the texels keep the
@@ -1017,7 +1036,7 @@ static int run_appearance(const struct process_opts *o, const struct imp_capture
         }
         sp.rays_mode = IMP_BTF_RAYS_REUSE;
         if (r >= 0)
-                r = btf_stage(o, g, &bh, &cap, &sp, &d, err);
+                r = btf_stage(o, g, &bh, &cap, &sp, &d, frames, err);
 out:
         dome_done(&d);
         return r;

@@ -18,3 +18,7 @@ impasto_test(test-photometric-model LIBS impasto_pipeline)
 target_sources(test-photometric-model PRIVATE ${CMAKE_CURRENT_SOURCE_DIR}/unit/pn-model-peer.c)
 # The re-read's Lanczos weights from one sin and one sincos per axis against the kernel.
 impasto_test(test-photometric-lanczos LIBS impasto_pipeline)
+
+# The BTF fit's local frames from the photometric model on its own samples (btf.h
+# struct imp_btf_frames, imp_photometric_frames).
+impasto_test(test-btf-frames LIBS impasto_pipeline)

@@ -1029,29 +1029,134 @@ int imp_btf_fill(struct imp_btf_texel *texels, int width, int height) {
 
 /* ---- the tiled driver ------------------------------------------------------------- */
 
+/* The samples s[0..n) of a texel, extracted in the frame of unit normal n0, in the frame of
+ * unit normal n1 (both canvas frame, imp_local_frame()): l turned, v (the camera's, the
+ * same for every sample) turned once, e_cos = E·cos θl with the new cos θl; a sample whose
+ * new l[2] < min_cos_l or e_cos < min_e_cos goes, as the extractor drops it. In float,
+ * as the samples are (the extractor's values in the new frame to float rounding). Returns the
+ * samples left (compacted in place); false in *ret_seen when the camera is below the new
+ * frame's horizon (the texel is hidden there). */
+static int rotate_samples(struct imp_btf_sample *s, int n, const float n0[3], const float n1[3],
+                          const struct imp_btf_sample_params *sp, bool *ret_seen) {
+        double a[3] = { n0[0], n0[1], n0[2] }, b[3] = { n1[0], n1[1], n1[2] }, ta[3], ba[3], tb[3], bb[3];
+        imp_local_frame(a, ta, ba);
+        imp_local_frame(b, tb, bb);
+        const double *fa[3] = { ta, ba, a }, *fb[3] = { tb, bb, b };
+        float M[3][3];   /* local a → local b: M[i][k] = fb[i] · fa[k] */
+        for (int i = 0; i < 3; i++)
+                for (int k = 0; k < 3; k++)
+                        M[i][k] = (float) (fb[i][0] * fa[k][0] + fb[i][1] * fa[k][1] + fb[i][2] * fa[k][2]);
+        *ret_seen = true;
+        if (n == 0)
+                return 0;
+        float v[3];
+        for (int i = 0; i < 3; i++)
+                v[i] = M[i][0] * s[0].v[0] + M[i][1] * s[0].v[1] + M[i][2] * s[0].v[2];
+        if (!(v[2] > 0.0f)) {
+                *ret_seen = false;
+                return 0;
+        }
+        const float min_cos = (float) sp->min_cos_l, min_ec = (float) sp->min_e_cos;
+        int m = 0;
+        for (int j = 0; j < n; j++) {
+                const float *l = s[j].l;
+                float l0 = M[0][0] * l[0] + M[0][1] * l[1] + M[0][2] * l[2];
+                float l1 = M[1][0] * l[0] + M[1][1] * l[1] + M[1][2] * l[2];
+                float l2 = M[2][0] * l[0] + M[2][1] * l[1] + M[2][2] * l[2];
+                float ec = s[j].e_cos / l[2] * l2;
+                if (!(l2 >= min_cos) || !(ec >= min_ec))
+                        continue;
+                struct imp_btf_sample *q = &s[m++];
+                q->v[0] = v[0], q->v[1] = v[1], q->v[2] = v[2];
+                q->l[0] = l0, q->l[1] = l1, q->l[2] = l2;
+                q->e_cos = ec;
+                if (q != &s[j])
+                        memcpy(q->value, s[j].value, sizeof q->value);
+        }
+        return m;
+}
+
+/* What imp_btf_fit_grid's texels share: the extractor of hf's frames and, with frames
+ * estimated in EXTRACT mode, the one of the estimated frames (xf: the same heightfield
+ * with normal = frames->normal). */
+struct fit_grid {
+        const struct imp_btf_heightfield *hf;
+        const struct imp_btf_sample_params *sp;
+        const struct imp_btf_fit_params *fp;
+        const struct imp_btf_extractor *x, *xf;
+        struct imp_btf_texel dflt;
+};
+
+/* Texel i (u, v) of the grid: its samples (in its estimated frame with fp->frames), the fit
+ * into *t. Returns the samples taken; *ret_shadowed those rejected as self-shadowed. */
+static int fit_grid_texel(const struct fit_grid *G, const struct imp_btf_band *b, long i, struct imp_btf_sample *smp,
+                          struct imp_btf_texel *t, uint16_t *ret_shadowed) {
+        const struct imp_btf_frames *fr = G->fp->frames;
+        int W = G->hf->width, u = (int) (i % W), v = (int) (i / W);
+        uint16_t sf;
+        int n = imp_btf_extract_texel_band(G->x, b, u, v, smp, NULL, &sf, ret_shadowed);
+        const float *n0 = &G->hf->normal[3 * i];
+        float *nf = fr ? &fr->normal[3 * i] : NULL;
+        if (nf)
+                memcpy(nf, n0, 3 * sizeof *nf);
+        bool seen = !(sf & (IMP_BTF_MASKED | IMP_BTF_HIDDEN));
+        if (seen && nf && fr->estimate(fr->data, i, smp, n, n0, nf)) {
+                if (fr->mode == IMP_BTF_FRAMES_ROTATE)
+                        n = rotate_samples(smp, n, n0, nf, G->sp, &seen);
+                else
+                        n = imp_btf_extract_texel_band(G->xf, b, u, v, smp, NULL, &sf, ret_shadowed);
+                if (!seen)
+                        sf = IMP_BTF_HIDDEN;
+                seen = !(sf & (IMP_BTF_MASKED | IMP_BTF_HIDDEN));
+        }
+        if (!seen) {
+                *t = G->dflt;
+                t->flags = sf;
+                return n;
+        }
+        /* Cannot fail: fp checked by the caller, n ≤ IMP_BTF_MAX_SAMPLES. */
+        (void) imp_btf_fit_texel(smp, n, G->fp, t);
+        t->flags |= sf;
+        return n;
+}
+
 int imp_btf_fit_grid(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
                      const struct imp_btf_sample_params *sp, const struct imp_btf_fit_params *fp,
                      int tile_texels, struct imp_btf_texel *ret_texels, struct imp_btf_stats *ret_stats) {
         if (!hf || !cap || !sp || !fp || !ret_texels || tile_texels < 0)
                 return -EINVAL;
+        const struct imp_btf_frames *fr = fp->frames;
+        if (fr && (!fr->estimate || !fr->normal || fr->normal == hf->normal ||
+                   (fr->mode != IMP_BTF_FRAMES_EXTRACT && fr->mode != IMP_BTF_FRAMES_ROTATE)))
+                return -EINVAL;
         if (cap->n_lights <= 0 || cap->n_lights > IMP_BTF_MAX_SAMPLES)
                 return -E2BIG;
         struct imp_btf_stats st = { 0 };
-        struct imp_btf_texel dflt = { 0 };
-        int r = imp_btf_fit_texel(NULL, 0, fp, &dflt);    /* checks fp */
+        struct fit_grid G = { .hf = hf, .sp = sp, .fp = fp };
+        int r = imp_btf_fit_texel(NULL, 0, fp, &G.dflt);    /* checks fp */
         if (r < 0)
                 return r;
-        dflt = (struct imp_btf_texel) { 0 };
-        set_default_lobe(fp, &dflt);
+        G.dflt = (struct imp_btf_texel) { 0 };
+        set_default_lobe(fp, &G.dflt);
         _cleanup_(imp_btf_hf_pyramid_freep) struct imp_btf_hf_pyramid *py = NULL;
-        _cleanup_(imp_btf_extractor_freep) struct imp_btf_extractor *x = NULL;
-        if ((r = imp_btf_hf_pyramid_new(hf, &py)) < 0 || (r = imp_btf_extractor_new(hf, cap, sp, py, &x)) < 0)
+        _cleanup_(imp_btf_extractor_freep) struct imp_btf_extractor *x = NULL, *xf = NULL;
+        /* the estimated frames' extractor reads the normals each texel's thread writes
+         * before it extracts there */
+        struct imp_btf_heightfield hf_frames = *hf;
+        hf_frames.normal = fr ? fr->normal : NULL;
+        if ((r = imp_btf_hf_pyramid_new(hf, &py)) < 0 || (r = imp_btf_extractor_new(hf, cap, sp, py, &x)) < 0 ||
+            (fr && fr->mode == IMP_BTF_FRAMES_EXTRACT &&
+             (r = imp_btf_extractor_new(&hf_frames, cap, sp, py, &xf)) < 0))
                 return r;
+        G.x = x;
+        G.xf = xf;
 
         /* One parallel loop per band of texel rows: each thread extracts a texel's samples
          * into its own buffer and fits them at once (no tile buffer, no barrier between the
          * two; chunks of consecutive texels keep the heightfield in cache), the taps read
-         * from the band's frames interleaved by light (btf.h, struct imp_btf_band). */
+         * from the band's frames interleaved by light (btf.h, struct imp_btf_band; the
+         * estimated frames' extraction reads the same band: its box depends on the heights
+         * alone). */
         const int W = hf->width;
         const long nt = (long) W * hf->height, chunk = tile_texels > 0 ? tile_texels : 64;
         long n_samples = 0, n_shadowed = 0, n_done = 0, next_report = nt / 50;
@@ -1064,7 +1169,6 @@ int imp_btf_fit_grid(const struct imp_btf_heightfield *hf, const struct imp_btf_
                         struct imp_btf_sample smp[IMP_BTF_MAX_SAMPLES];
 #pragma omp for schedule(dynamic, chunk)
                         for (long i = (long) v0 * W; i < (long) (v0 + rows) * W; i++) {
-                                struct imp_btf_texel *t = &ret_texels[i];
                                 if (fp->progress) {   /* reported by the calling thread alone */
                                         long d = __atomic_add_fetch(&n_done, 1, __ATOMIC_RELAXED);
                                         if (IMP_BTF_THREAD_NUM() == 0 && d >= next_report && d < nt) {
@@ -1072,19 +1176,9 @@ int imp_btf_fit_grid(const struct imp_btf_heightfield *hf, const struct imp_btf_
                                                 fp->progress(fp->progress_data, d, nt);
                                         }
                                 }
-                                uint16_t sf, nsh;
-                                int n = imp_btf_extract_texel_band(x, b, (int) (i % W), (int) (i / W), smp, NULL, &sf,
-                                                                   &nsh);
-                                n_samples += n;
+                                uint16_t nsh;
+                                n_samples += fit_grid_texel(&G, b, i, smp, &ret_texels[i], &nsh);
                                 n_shadowed += nsh;
-                                if (sf & (IMP_BTF_MASKED | IMP_BTF_HIDDEN)) {
-                                        *t = dflt;
-                                        t->flags = sf;
-                                        continue;
-                                }
-                                /* Cannot fail: fp checked above, n ≤ IMP_BTF_MAX_SAMPLES. */
-                                (void) imp_btf_fit_texel(smp, n, fp, t);
-                                t->flags |= sf;
                         }
                 }
         }

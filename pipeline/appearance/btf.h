@@ -261,6 +261,33 @@ double imp_btf_light_irradiance(const struct imp_rig_light *light, const double 
 
 /* ---- fit ------------------------------------------------------------------------- */
 
+/* The fit's local frames estimated from its own samples (imp_btf_fit_params.frames; NULL:
+ * the fit takes every texel's samples in the frame of hf->normal). Per texel, estimate()
+ * gets the samples extracted in the frame of n0 = hf->normal (canvas frame) and returns
+ * true with the texel's frame normal (canvas frame, unit) in ret_n, or false to keep n0
+ * (a model that failed or backed off keeps the incoming normal). The fit then takes the
+ * samples in that frame (mode, below) and fits them there; masked and hidden texels keep
+ * n0. normal (3 floats per texel, not hf->normal) receives the frame every texel was fitted
+ * in, for a caller that reads the frames again in the same frames (the held-out
+ * validation). estimate() runs in the fit's threads (thread-safe, no allocation).
+ * photometric.h imp_photometric_frames() gives the photometric model's normals of the
+ * bilinear reading, the frames whose shading matches the values the fit reads. */
+enum imp_btf_frames_mode {
+        IMP_BTF_FRAMES_EXTRACT,       /* extract the texel again in its frame (the rays of
+                                         the first extraction reused through sp->rays when
+                                         it records or reuses them; the others marched) */
+        IMP_BTF_FRAMES_ROTATE,        /* turn the samples' l, v and e_cos into the new frame:
+                                         no second extraction, but the lights the first
+                                         frame cut (l[2] < min_cos_l) are missing */
+};
+struct imp_btf_frames {
+        bool (*estimate)(const void *data, long texel, const struct imp_btf_sample *samples, int n,
+                         const float n0[3], float ret_n[3]);
+        const void *data;
+        int mode;                     /* enum imp_btf_frames_mode */
+        float *normal;                /* out: width·height·3, canvas frame */
+};
+
 struct imp_btf_fit_params {
         int min_samples;              /* fewer → FEW_SAMPLES, filled from neighbours (6) */
         double k_min, k_max;          /* lobe exponent bounds (1, 1000) */
@@ -284,6 +311,9 @@ struct imp_btf_fit_params {
          * fit, always from the calling thread; the last call has done == total. */
         void (*progress)(void *data, long done, long total);
         void *progress_data;
+        /* imp_btf_fit_grid's frames estimated from the samples (struct imp_btf_frames
+         * above; NULL: hf->normal's frames) */
+        const struct imp_btf_frames *frames;
 };
 void imp_btf_fit_params_default(struct imp_btf_fit_params *ret);
 

@@ -916,6 +916,15 @@ static float refined_sigma_deg(const struct imp_photometric_params *p, const flo
         return (float) fmin(180.0, hypot(sigma_deg, p->interp_sigma_deg + p->interp_sigma_per_deg * tilt));
 }
 
+/* The parameters of the shadow-filled texels (mask value 2): cast-shadow trimming
+ * (photometric.h). */
+static void filled_params(const struct imp_photometric_params *p, struct imp_photometric_params *ret) {
+        *ret = *p;
+        ret->shadow_trim_sigma = p->filled_trim_sigma;
+        ret->passes = IMP_MAX(p->passes, p->filled_passes);
+        ret->max_dev_deg = p->filled_max_dev_deg > 0 ? p->filled_max_dev_deg : p->max_dev_deg;
+}
+
 struct pn_grid {
         const struct imp_btf_heightfield *hf;
         const struct imp_photometric_params *p, *pf;   /* pf: shadow-filled texels */
@@ -940,9 +949,8 @@ static void refine_tile(const struct pn_grid *G, int x0, int y0, int w, int h,
                 float given[IMP_BTF_MAX_SAMPLES][3];
                 uint8_t given_ok[IMP_BTF_MAX_SAMPLES];
                 /* the re-read first (every light's window at once), the extractor then skips the
-                 * bilinear values it replaces; with normal_bilinear asked the bilinear model
-                 * needs them, and off the band the re-read comes after */
-                bool ahead = !out->normal_bilinear && !(hf->mask && !hf->mask[i]) &&
+                 * bilinear values it replaces; off the band the re-read comes after */
+                bool ahead = !(hf->mask && !hf->mask[i]) &&
                              reread_ahead(&G->rs, x0 + k % w, y0 + k / w, given, given_ok);
                 int count = imp_btf_extract_texel_given(G->x, G->rs.band, x0 + k % w, y0 + k / w, ahead ? given : NULL,
                                                         ahead ? given_ok : NULL, ts, light, &sflags, &n_shadowed);
@@ -952,11 +960,6 @@ static void refine_tile(const struct pn_grid *G, int x0, int y0, int w, int h,
                         t = (struct imp_pn_texel) { .n = { 0, 0, 1 }, .sigma_deg = 180, .flags = IMP_PN_MASKED };
                 } else {
                         const struct imp_photometric_params *pt = hf->mask && hf->mask[i] == 2 ? G->pf : G->p;
-                        if (out->normal_bilinear) {
-                                struct imp_pn_texel tb;
-                                imp_photometric_texel(ts, count, pt, &tb);
-                                to_canvas(&hf->normal[3 * i], &tb, pt, &out->normal_bilinear[3 * i]);
-                        }
                         if (ahead)
                                 for (int s = 0; s < count; s++)
                                         res += given_ok[light[s]];
@@ -1041,8 +1044,6 @@ static void ambient_canvas_wide(const struct pn_grid *G, struct imp_photometric_
                 if (!isfinite(G->dev[i]))
                         continue;
                 memcpy(&out->normal[3 * i], &hf->normal[3 * i], 3 * sizeof *out->normal);
-                if (out->normal_bilinear)
-                        memcpy(&out->normal_bilinear[3 * i], &hf->normal[3 * i], 3 * sizeof *out->normal);
                 if (out->flags)
                         out->flags[i] |= IMP_PN_AMBIENT;
                 if (out->texel_flags)
@@ -1052,6 +1053,7 @@ static void ambient_canvas_wide(const struct pn_grid *G, struct imp_photometric_
                 G->dev[i] = G->sig[i] = G->rmsv[i] = NAN;
                 st->n_ambient++;
         }
+        st->ambient_canvas = true;
 }
 
 /* Figures over the refined texels (compacts the finite entries of dev, sig, rmsv). */
@@ -1091,7 +1093,6 @@ int imp_photometric_normals(const struct imp_btf_heightfield *hf, const struct i
                             const struct imp_btf_sample_params *sp, const struct imp_photometric_params *p,
                             const struct imp_photometric_out *out, struct imp_photometric_stats *ret_stats) {
         if (!hf || !cap || !sp || !p || !out || !out->normal || out->normal == hf->normal || !hf->normal ||
-            out->normal_bilinear == hf->normal || out->normal_bilinear == out->normal ||
             hf->width <= 0 || hf->height <= 0)
                 return -EINVAL;
         if (p->lanczos < 0 || p->lanczos > PN_MAX_LANCZOS || kernel_half_width(p->kernel, p->lanczos) < 0)
@@ -1106,11 +1107,8 @@ int imp_photometric_normals(const struct imp_btf_heightfield *hf, const struct i
                               *rmsv = malloc(nt * sizeof *rmsv);
         if (!dev || !sig || !rmsv)
                 return -ENOMEM;
-        /* Shadow-filled texels (mask value 2): cast-shadow trimming (photometric.h). */
-        struct imp_photometric_params pf = *p;
-        pf.shadow_trim_sigma = p->filled_trim_sigma;
-        pf.passes = IMP_MAX(p->passes, p->filled_passes);
-        pf.max_dev_deg = p->filled_max_dev_deg > 0 ? p->filled_max_dev_deg : p->max_dev_deg;
+        struct imp_photometric_params pf;
+        filled_params(p, &pf);
         struct pn_grid G = { .hf = hf, .p = p, .pf = &pf, .out = out, .x = x, .dev = dev, .sig = sig, .rmsv = rmsv,
                              .rs = { .hf = hf, .cap = cap, .sat = sp->saturation_value,
                                      .a = kernel_half_width(p->kernel, p->lanczos), .order = p->lanczos,
@@ -1121,14 +1119,40 @@ int imp_photometric_normals(const struct imp_btf_heightfield *hf, const struct i
                 G.rs.t[i] = hf->canvas_to_world[4 * i + 3];
         }
         memcpy(out->normal, hf->normal, nt * 3 * sizeof *out->normal);
-        if (out->normal_bilinear)
-                memcpy(out->normal_bilinear, hf->normal, nt * 3 * sizeof *out->normal_bilinear);
         struct imp_photometric_stats st = { .n_texels = (long) nt };
         refine_bands(&G, &st);
         ambient_canvas_wide(&G, &st);
         summarise(dev, sig, rmsv, nt, &st);
         if (ret_stats)
                 *ret_stats = st;
+        return 0;
+}
+
+/* imp_btf_frames.estimate of imp_photometric_frames(): the model on the fit's samples. */
+static bool frame_estimate(const void *data, long texel, const struct imp_btf_sample *samples, int n,
+                           const float n0[3], float ret_n[3]) {
+        const struct imp_photometric_frames *f = data;
+        const struct imp_photometric_params *p = f->mask && f->mask[texel] == 2 ? &f->pf : &f->p;
+        struct imp_pn_texel t;
+        if (imp_photometric_texel(samples, n, p, &t) < 0 || (t.flags & IMP_PN_KEPT))
+                return false;
+        memcpy(ret_n, n0, 3 * sizeof *ret_n);
+        to_canvas(n0, &t, p, ret_n);
+        return true;
+}
+
+int imp_photometric_frames(const struct imp_btf_heightfield *hf, const struct imp_photometric_params *p, int mode,
+                           float *normal, struct imp_photometric_frames *f, struct imp_btf_frames *ret) {
+        if (!hf || !p || !normal || !f || !ret || normal == hf->normal ||
+            (mode != IMP_BTF_FRAMES_EXTRACT && mode != IMP_BTF_FRAMES_ROTATE))
+                return -EINVAL;
+        struct imp_pn_texel t;
+        int r = imp_photometric_texel(NULL, 0, p, &t);   /* checks p */
+        if (r < 0)
+                return r;
+        *f = (struct imp_photometric_frames) { .mask = hf->mask, .width = hf->width, .height = hf->height, .p = *p };
+        filled_params(p, &f->pf);
+        *ret = (struct imp_btf_frames) { .estimate = frame_estimate, .data = f, .mode = mode, .normal = normal };
         return 0;
 }
 

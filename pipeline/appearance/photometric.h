@@ -166,15 +166,15 @@ struct imp_photometric_stats {
         long n_resampled;             /* samples whose value was read with the Lanczos kernel
                                          (the others keep the bilinear value: window off the
                                          frame or touching a saturated/invalid pixel) */
+        bool ambient_canvas;          /* the ambient term was found on so many texels that
+                                         every refined normal went back to the geometric one
+                                         (then every texel's normal is the geometric one) */
 };
 
 /* Where imp_photometric_normals() writes (every array nx·ny texels of hf; NULL: not
  * wanted, except normal).
  * normal: 3 floats per texel, canvas frame, unit; the refined normal where refined and
  *   hf->normal elsewhere (may not alias hf->normal).
- * normal_bilinear: the same from the extractor's bilinear values, before the Lanczos
- *   re-reading — the normals whose shading matches frames read bilinearly, as the BTF fit
- *   and its validation read them (may alias neither).
  * flags: enum imp_pn_flag per texel (of normal).
  * texel_flags: quality.h IMP_TEXEL_* bits per texel (imp_photometric_texel_flags()).
  * sigma_deg: 1σ of normal in degrees (RMS angle), finite: for a refined texel its
@@ -183,7 +183,6 @@ struct imp_photometric_stats {
  *   at least geo_min_sigma_deg) or 180 without hf->sigma_mm; 0 off the mask. */
 struct imp_photometric_out {
         float *normal;
-        float *normal_bilinear;
         uint16_t *flags;
         uint16_t *texel_flags;
         float *sigma_deg;
@@ -195,3 +194,21 @@ struct imp_photometric_out {
 int imp_photometric_normals(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
                             const struct imp_btf_sample_params *sp, const struct imp_photometric_params *p,
                             const struct imp_photometric_out *out, struct imp_photometric_stats *ret_stats);
+
+/* The BTF fit's local frames (btf.h struct imp_btf_frames) as this model's normals of the
+ * fit's own samples: the model on the values the fit reads (the extractor's bilinear ones,
+ * not the Lanczos re-read: the fit's ρd needs frames whose shading matches its values,
+ * docs/processing-speed.md "The fit takes the photometric stage's ray decisions"), with
+ * the parameters imp_photometric_normals() uses (those of mask value 2 on shadow-filled
+ * texels), in the frame of the normal the fit extracts with: a texel the model keeps
+ * (IMP_PN_KEPT) keeps that normal. The fit takes its samples in mode (enum
+ * imp_btf_frames_mode) and writes the frames to normal (3 floats per texel of hf). f holds
+ * the parameters and must outlive *ret; hf->mask is read when the fit runs.
+ * -EINVAL on bad arguments. */
+struct imp_photometric_frames {
+        const uint8_t *mask;
+        int width, height;
+        struct imp_photometric_params p, pf;   /* pf: shadow-filled texels */
+};
+int imp_photometric_frames(const struct imp_btf_heightfield *hf, const struct imp_photometric_params *p, int mode,
+                           float *normal, struct imp_photometric_frames *f, struct imp_btf_frames *ret);
