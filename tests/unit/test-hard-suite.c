@@ -14,7 +14,9 @@
  * normal angle (both measured: a copy without σ_n fails); no unflagged normal more than
  * 10° off; the heights of the texels without a height flag within 3σ_h (at most BEYOND_MAX
  * beyond), whatever their normal flags. A scene listed as NAME! must be refused (exit 6), as
- * NAME!WORD with WORD in the reason. With --all, every
+ * NAME!WORD with WORD in the reason; as NAME@IOU it must give a copy whose canvas mask
+ * covers the canvas the rig can measure with at least that IoU (mask_iou_observable: high
+ * impasto cut into pockets lost most of its canvas). With --all, every
  * config/scenes/hard-*.cfg must be among the names (a new scene joins the suite). */
 #include <dirent.h>
 #include <fcntl.h>
@@ -111,7 +113,7 @@ static void check_unusable(const char *name, const char *copy, const char *must_
         json_decref(j);
 }
 
-static void check_copy(const char *name, const char *cmp_path) {
+static void check_copy(const char *name, const char *cmp_path, double min_iou) {
         json_error_t je;
         json_t *c = json_load_file(cmp_path, 0, &je);
         CHECK_MSG(c != NULL, "%s: %s: %s", name, cmp_path, je.text);
@@ -126,6 +128,10 @@ static void check_copy(const char *name, const char *cmp_path) {
                 NUM("beyond_3sigma_height"), NUM("beyond_3sigma_normal"), NUM("unflagged_normal_err_deg_max"), over,
                 NUM("flagged_fraction"), nan);
         CHECK_INT_EQ(nan, 0);
+        fprintf(stderr, "%s: canvas mask IoU %.4f (%.4f over the canvas the rig can measure)\n", name,
+                NUM("mask_iou"), NUM("mask_iou_observable"));
+        CHECK_MSG(!(min_iou > 0) || NUM("mask_iou_observable") >= min_iou, "%s: canvas mask IoU %.4f over the "
+                  "measurable canvas, at least %.2f expected", name, NUM("mask_iou_observable"), min_iou);
         CHECK_MSG(NUM("placement_deg") >= 0 && NUM("placement_deg") <= PLACEMENT_MAX_DEG, "%s: placement %.2f°",
                   name, NUM("placement_deg"));
         CHECK_MSG(NUM("frame_texel_fraction") <= FRAME_MAX, "%s: frame as canvas %.4f", name,
@@ -222,7 +228,7 @@ static void check_verdict(const char *name, const char *copy) {
         json_decref(j);
 }
 
-/* --all: every config/scenes/hard-NAME.cfg is among argv (NAME, or NAME! ). */
+/* --all: every config/scenes/hard-NAME.cfg is among argv (NAME, NAME! or NAME@IOU). */
 static void check_all_listed(int argc, char **argv) {
         char dir[4096];
         snprintf(dir, sizeof dir, "%s/config/scenes", IMPASTO_SOURCE_DIR);
@@ -235,7 +241,7 @@ static void check_all_listed(int argc, char **argv) {
                         continue;
                 bool listed = false;
                 for (int a = 1; a < argc && !listed; a++) {
-                        size_t n = strcspn(argv[a], "!");
+                        size_t n = strcspn(argv[a], "!@");
                         listed = n == len - 9 && !strncmp(argv[a], de->d_name + 5, n);
                 }
                 CHECK_MSG(listed, "%s is not in the suite's list (tests/hard.cmake)", de->d_name);
@@ -267,6 +273,10 @@ int main(int argc, char **argv) {
                 }
                 char name[128], scene[4400], cap[4400], copy[4400], truth[4500], cmp[4400], err_path[4400];
                 snprintf(name, sizeof name, "%s", argv[a]);
+                char *at = strchr(name, '@');
+                double min_iou = at ? atof(at + 1) : 0;
+                if (at)
+                        *at = 0;
                 char *bang = strchr(name, '!');
                 bool must_refuse = bang != NULL;
                 const char *must_say = "";
@@ -293,6 +303,9 @@ int main(int argc, char **argv) {
                 CHECK_MSG(rc == 0 || rc == EXIT_UNUSABLE || rc == EXIT_INVALID, "%s: process exited %d", name, rc);
                 if (must_refuse)
                         CHECK_MSG(rc == EXIT_UNUSABLE, "%s: expected a refusal, process exited %d", name, rc);
+                if (min_iou > 0)   /* a refusal of a canvas the rig can measure is no answer */
+                        CHECK_MSG(rc == 0, "%s: process exited %d, a copy with mask IoU >= %.2f expected", name, rc,
+                                  min_iou);
                 if (rc == EXIT_UNUSABLE) {
                         check_unusable(name, copy, must_say);
                         continue;
@@ -307,7 +320,7 @@ int main(int argc, char **argv) {
                 rc = run(compare, cmp, err_path);
                 CHECK_MSG(rc == 0, "%s: compare exited %d", name, rc);
                 if (rc == 0)
-                        check_copy(name, cmp);
+                        check_copy(name, cmp, min_iou);
                 check_verdict(name, copy);
         }
         return TEST_DONE();
