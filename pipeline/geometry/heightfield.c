@@ -866,7 +866,9 @@ static bool ransac_plane(const struct imp_range_image *r, const struct imp_heigh
                 double pp[3] = { bp[0], bp[1], bp[2] }, pn[3] = { bn[0], bn[1], bn[2] };
                 set.behind_p = pp, set.behind_n = pn;
                 size_t sc = ransac_search(r, opt, &set, central, p, n);
-                if (sc < HF_BEHIND_MIN_SUPPORT * best || angle_deg(n, pn) > HF_BEHIND_MAX_DEG)
+                if (sc < HF_BEHIND_MIN_SUPPORT * best ||
+                    (angle_deg(n, pn) > HF_BEHIND_MAX_DEG &&
+                     !(angle_deg(n, opt->expected_normal) < angle_deg(pn, opt->expected_normal) - HF_BEHIND_MAX_DEG)))
                         break;
                 memcpy(bp, p, sizeof bp);
                 memcpy(bn, n, sizeof bn);
@@ -968,6 +970,8 @@ static int trim_flush_frame(const struct imp_range_image *range, const struct im
 #define HF_POCKET_MIN_PX   20
 #define HF_POCKET_LEVEL_P  10.0    /* a pocket's ground level: this percentile of its heights */
 #define HF_RELIEF_MIN_PX   9       /* a smaller component inside the hull is noise */
+#define HF_IMPASTO_MM      1.0     /* paint this high over the ground ... */
+#define HF_IMPASTO_FRAC    0.05    /* ... on this fraction of the hull's valid points: high relief */
 
 /* Per image row the x interval of the convex hull of the set pixels of sel (Andrew's
  * monotone chain over each row's outermost set pixels); xl > xr on rows it misses. */
@@ -1072,19 +1076,22 @@ static size_t add_components(const struct relief_ctx *c, int w, int h, const uin
  * frame's top larger than the canvas seen)
  * join the canvas, and so does every component of the fill's graph, at any height, inside
  * the convex hull of them all in the image (the canvas seen through its frame is convex;
- * the frame and its walls lie outside it). A frame standing step_min_mm off the canvas is
+ * the frame and its walls lie outside it) — when paint stands HF_IMPASTO_MM over the
+ * ground on HF_IMPASTO_FRAC of the valid points in that hull: range broken up by dark
+ * paint or ambient light, on a canvas with no high relief, is no relief's doing, and its
+ * refusal names the cause (hard-ambient-dark). A frame standing step_min_mm off the canvas is
  * no pocket; a flush one is in the seed fill already (the albedo trim cuts it). graw: the
- * Sobel magnitude without the relief_max_mm exclusion; inside (N) is set to the hull when
- * anything joined, cleared otherwise. */
+ * Sobel magnitude (+inf on invalid pixels) without the relief_max_mm exclusion; inside (N)
+ * is set to the hull when anything joined, cleared otherwise. */
 static int relief_pockets(int w, int h, const float *h1, const float *g, const float *graw, float T,
                           const struct imp_heightfield_options *opt, const struct fill_barrier *b,
                           size_t n_valid, struct imp_heightfield *hf, uint8_t *canvas, uint8_t *inside) {
         size_t N = (size_t) w * h, nr = 0;
         _cleanup_free_ float *hv = malloc(N * sizeof(float));
         _cleanup_free_ uint32_t *queue = malloc(N * sizeof(uint32_t));
-        _cleanup_free_ uint8_t *mark = malloc(N);
+        _cleanup_free_ uint8_t *mark = malloc(N), *sel = malloc(N);
         _cleanup_free_ double *xl = malloc(h * sizeof(double)), *xr = malloc(h * sizeof(double));
-        if (!hv || !queue || !mark || !xl || !xr)
+        if (!hv || !queue || !mark || !sel || !xl || !xr)
                 return -ENOMEM;
         for (size_t i = 0; i < N; i++)
                 if (canvas[i])
@@ -1101,19 +1108,28 @@ static int relief_pockets(int w, int h, const float *h1, const float *g, const f
                                 .b = b, .hv = hv };
         size_t min_px = (size_t) fmax(HF_POCKET_MIN_PX, HF_POCKET_MIN_FRAC * (double) n_valid);
         memcpy(mark, canvas, N);
-        size_t added = add_components(&c, w, h, NULL, min_px, true, mark, queue, canvas);
-        int r = hull_rows(canvas, w, h, xl, xr);
+        memcpy(sel, canvas, N);
+        size_t added = add_components(&c, w, h, NULL, min_px, true, mark, queue, sel);
+        int r = hull_rows(sel, w, h, xl, xr);
         if (r < 0)
                 return r;
+        size_t n_in = 0, n_high = 0;
         for (int y = 0; y < h; y++)
-                for (int x = 0; x < w; x++)
-                        inside[(size_t) y * w + x] = x >= xl[y] - 1e-9 && x <= xr[y] + 1e-9;
+                for (int x = 0; x < w; x++) {
+                        size_t i = (size_t) y * w + x;
+                        inside[i] = x >= xl[y] - 1e-9 && x <= xr[y] + 1e-9;
+                        n_in += inside[i] && isfinite(graw[i]);
+                        n_high += inside[i] && isfinite(graw[i]) && h1[i] - ref > HF_IMPASTO_MM;
+                }
+        if (added == 0 || n_high < HF_IMPASTO_FRAC * n_in) {   /* not the relief's pockets: as before */
+                memset(inside, 0, N);
+                return 0;
+        }
+        memcpy(canvas, sel, N);
         c.g = graw;
         memcpy(mark, canvas, N);
         added += add_components(&c, w, h, inside, HF_RELIEF_MIN_PX, false, mark, queue, canvas);
         hf->n_relief_points = added;
-        if (added == 0)   /* one pocket: the seed fill's canvas and its erosion as they were */
-                memset(inside, 0, N);
         return 0;
 }
 
@@ -1445,6 +1461,23 @@ static int first_plane(const struct imp_range_image *range, const struct imp_hei
         return 0;
 }
 
+/* The texels inside the convex hull of the mask (the canvas's outline as measured): the
+ * holes of a canvas whose relief hides or shadows much of it lie within it. */
+static int outline_texels(struct imp_heightfield *hf) {
+        _cleanup_free_ double *xl = malloc(hf->ny * sizeof(double)), *xr = malloc(hf->ny * sizeof(double));
+        if (!xl || !xr)
+                return -ENOMEM;
+        int r = hull_rows(hf->mask, hf->nx, hf->ny, xl, xr);
+        if (r < 0)
+                return r;
+        hf->n_outline_texels = 0;
+        for (int y = 0; y < hf->ny; y++)
+                if (xr[y] >= xl[y])
+                        hf->n_outline_texels += (size_t) (IMP_MIN(floor(xr[y] + 1e-9), hf->nx - 1.0) -
+                                                          IMP_MAX(ceil(xl[y] - 1e-9), 0.0) + 1);
+        return 0;
+}
+
 int imp_heightfield_extract(const struct imp_range_image *range, const struct imp_heightfield_options *opt,
                             struct imp_heightfield *ret, struct imp_error *err) {
         struct imp_heightfield_options defaults;
@@ -1506,6 +1539,8 @@ int imp_heightfield_extract(const struct imp_range_image *range, const struct im
                 hf.n_mask_texels += hf.mask[t] != 0;
         if (hf.n_mask_texels == 0)
                 return imp_error_set(err, -ENODATA, "no canvas: no texel covered by the range mesh");
+        if ((r = outline_texels(&hf)) < 0)
+                return r;
         double *M = hf.canvas_to_world;
         for (int q = 0; q < 3; q++) {
                 M[4 * q + 0] = f.ex[q];
@@ -1525,7 +1560,7 @@ int imp_heightfield_from_range(const struct imp_range_image *range,
 }
 
 json_t *imp_heightfield_stage_json(const struct imp_heightfield *hf) {
-        return json_pack("{s:I,s:I,s:I,s:I,s:f,s:f,s:f,s:f,s:f,s:f,s:b,s:b,s:b,s:f,s:f,s:f,s:f,s:I,s:b,s:I,s:I,s:b}",
+        return json_pack("{s:I,s:I,s:I,s:I,s:f,s:f,s:f,s:f,s:f,s:f,s:b,s:b,s:b,s:f,s:f,s:f,s:f,s:I,s:b,s:I,s:I,s:I,s:b}",
                          "range_points", (json_int_t) hf->n_range_points,
                          "canvas_points", (json_int_t) hf->n_canvas_points,
                          "mask_texels", (json_int_t) hf->n_mask_texels,
@@ -1546,6 +1581,7 @@ json_t *imp_heightfield_stage_json(const struct imp_heightfield *hf) {
                          "plane_no_consensus", (hf->flags & IMP_HF_PLANE_NO_CONSENSUS) != 0,
                          "frame_trimmed_points", (json_int_t) hf->n_frame_trimmed,
                          "relief_points", (json_int_t) hf->n_relief_points,
+                         "outline_texels", (json_int_t) hf->n_outline_texels,
                          "frame_trimmed", (hf->flags & IMP_HF_FRAME_TRIMMED) != 0);
 }
 

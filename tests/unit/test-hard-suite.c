@@ -206,6 +206,20 @@ static void check_verdict(const char *name, const char *copy) {
                           "\"%s\" does not name it", name, cause ? cause : "",
                           100 * json_number_value(json_object_get(flags, cause ? cause : "")), why ? why : "");
         }
+        /* A canvas with holes over more than a quarter of its outline (high impasto): the
+         * verdict says so. */
+        json_t *hfj = json_object_get(json_object_get(j, "stages"), "heightfield");
+        double outline = (double) json_integer_value(json_object_get(hfj, "outline_texels"));
+        double mask = (double) json_integer_value(json_object_get(hfj, "mask_texels"));
+        if (outline > 0 && mask < 0.75 * outline) {
+                bool said = false;
+                json_t *r;
+                size_t i;
+                json_array_foreach(json_object_get(q, "reasons"), i, r)
+                        said = said || (json_string_value(r) && strstr(json_string_value(r), "within its outline"));
+                CHECK_MSG(said && v && strcmp(v, "ok"), "%s: %.0f %% of the canvas's outline has no texel, verdict %s "
+                          "without a reason saying so", name, 100 * (1 - mask / outline), v ? v : "(none)");
+        }
         /* The appearance fitted on few texels (stages.btf): the verdict says so. */
         json_t *btf = json_object_get(json_object_get(j, "stages"), "btf");
         /* Fewer than 8 lights: no photometric normal anywhere, and the texels say why. */
