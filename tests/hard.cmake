@@ -16,7 +16,7 @@ impasto_test(test-hard-suite LABELS stability slow TIMEOUT 3600
                   oblique-frame-35 oblique-shallow-30 one-light overexposed shallow-frame tilted-10 tilted-25
                   tilted-55! tiny-coverage
                   ambient-dark!projector defocus!Gray distortion-oblique featureless high-relief hot-rotated-37
-                  impasto-2mm@0.65 impasto-3.5mm@0.65
+                  impasto-2mm@0.65 impasto-3.5mm@0.65 impasto-5mm@0.65
                   low-relief mirror-gloss off-centre overexposed-grazing rotated-90 rotated-180 rotated-37
                   tilted-ambient)
 if(TARGET impasto)
