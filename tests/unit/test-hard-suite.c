@@ -166,6 +166,16 @@ static void check_copy(const char *name, const char *cmp_path, double min_iou) {
         json_decref(c);
 }
 
+/* One of the verdict's reasons (quality.reasons) contains word. */
+static bool reason_says(json_t *q, const char *word) {
+        json_t *r;
+        size_t i;
+        json_array_foreach(json_object_get(q, "reasons"), i, r)
+                if (json_string_value(r) && strstr(json_string_value(r), word))
+                        return true;
+        return false;
+}
+
 /* Flags that say why, not what followed (the photometric normal not kept: normal_uncertain,
  * photometric_rejected, fit_failed); frame_adjacent says where. */
 static const char *const cause_flags[] = { "saturated", "dark", "shadowed", "interreflection", "filled",
@@ -211,15 +221,10 @@ static void check_verdict(const char *name, const char *copy) {
         json_t *hfj = json_object_get(json_object_get(j, "stages"), "heightfield");
         double outline = (double) json_integer_value(json_object_get(hfj, "outline_texels"));
         double mask = (double) json_integer_value(json_object_get(hfj, "mask_texels"));
-        if (outline > 0 && mask < 0.75 * outline) {
-                bool said = false;
-                json_t *r;
-                size_t i;
-                json_array_foreach(json_object_get(q, "reasons"), i, r)
-                        said = said || (json_string_value(r) && strstr(json_string_value(r), "within its outline"));
-                CHECK_MSG(said && v && strcmp(v, "ok"), "%s: %.0f %% of the canvas's outline has no texel, verdict %s "
-                          "without a reason saying so", name, 100 * (1 - mask / outline), v ? v : "(none)");
-        }
+        if (outline > 0 && mask < 0.75 * outline)
+                CHECK_MSG(reason_says(q, "within its outline") && v && strcmp(v, "ok"), "%s: %.0f %% of the canvas's "
+                          "outline has no texel, verdict %s without a reason saying so", name,
+                          100 * (1 - mask / outline), v ? v : "(none)");
         /* The appearance fitted on few texels (stages.btf): the verdict says so. */
         json_t *btf = json_object_get(json_object_get(j, "stages"), "btf");
         /* Fewer than 8 lights: no photometric normal anywhere, and the texels say why. */
@@ -229,16 +234,10 @@ static void check_verdict(const char *name, const char *copy) {
                           "few_samples on %.0f %% of the texels", name, lights,
                           100 * json_number_value(json_object_get(flags, "few_samples")));
         double texels = (double) json_integer_value(json_object_get(q, "texels"));
-        if (btf && texels > 0 && json_number_value(json_object_get(btf, "few_samples")) > 0.25 * texels) {
-                bool said = false;
-                json_t *r;
-                size_t i;
-                json_array_foreach(json_object_get(q, "reasons"), i, r)
-                        said = said || (json_string_value(r) && strstr(json_string_value(r), "appearance"));
-                CHECK_MSG(said && v && strcmp(v, "ok"), "%s: the BTF lacked samples on %.0f %% of the texels, "
-                          "verdict %s without a reason naming the appearance", name,
+        if (btf && texels > 0 && json_number_value(json_object_get(btf, "few_samples")) > 0.25 * texels)
+                CHECK_MSG(reason_says(q, "appearance") && v && strcmp(v, "ok"), "%s: the BTF lacked samples on %.0f %% "
+                          "of the texels, verdict %s without a reason naming the appearance", name,
                           100 * json_number_value(json_object_get(btf, "few_samples")) / texels, v ? v : "(none)");
-        }
         json_decref(j);
 }
 
