@@ -1048,6 +1048,7 @@ out:
 #define QUALITY_TILT_DEGRADED    20.0 /* degrees from the rig's canvas normal */
 #define QUALITY_VIEW_DEGRADED    45.0 /* degrees between canvas normal and camera ray */
 #define QUALITY_MIN_TEXELS       5000 /* fewer canvas texels: tiny coverage */
+#define QUALITY_HOLES_DEGRADED   0.25 /* of the texels within the canvas's outline, none */
 
 static void reason(json_t *reasons, enum imp_verdict *v, enum imp_verdict at_least, const char *fmt, ...)
         _printf_(4, 5);
@@ -1144,6 +1145,11 @@ static json_t *quality_json(const struct geometry_out *g, const char *refusal, c
                 appearance_reason(reasons, &v, btf, den);
                 if (n_mask < QUALITY_MIN_TEXELS)
                         reason(reasons, &v, IMP_VERDICT_DEGRADED, "only %zu canvas texels", n_mask);
+                if ((double) n_mask < (1 - QUALITY_HOLES_DEGRADED) * (double) hf->n_outline_texels)
+                        reason(reasons, &v, IMP_VERDICT_DEGRADED, "%.0f %% of the canvas within its outline has "
+                               "no texel (the relief shadows it from the projector or hides it from the camera, "
+                               "or is too steep to decode: high impasto)",
+                               100.0 * (1 - (double) n_mask / (double) hf->n_outline_texels));
         }
         return json_pack("{s:s,s:o,s:f,s:o,s:I}", "verdict", imp_verdict_name(v), "reasons", reasons,
                          "flagged_fraction", flagged, "flags", flags, "texels", (json_int_t) n_mask);

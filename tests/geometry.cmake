@@ -7,6 +7,9 @@ impasto_test(test-heightfield LIBS impasto_pipeline)
 impasto_test(test-heightfield-bands LIBS impasto_pipeline)
 impasto_test(test-boxes LIBS impasto_pipeline)
 impasto_test(test-geometry-stability LABELS stability LIBS impasto_pipeline)
+# The canvas between paint bars 5 mm high that cut the ground into pockets (relief_pockets):
+# kept, with the bars' tops, and no frame (deep or 0.3 mm proud) taken for paint.
+impasto_test(test-canvas-relief LIBS impasto_pipeline)
 # Heights from positions and normals (pipeline/geometry/fuse.c, Nehab et al. 2005): synthetic
 # surfaces with a known answer.
 impasto_test(test-fuse LIBS impasto_pipeline)

@@ -1,10 +1,12 @@
 # The hard-case suite (docs/hard-cases.md, docs/copy-quality.md): right, honestly
 # uncertain, or refused. The fast part: the deep and the oblique frame and the camera rolled
-# 37° (geometry only) and the refusals (invalid parameters at load, an implausible placement,
+# 37° (geometry only), strokes of impasto 3.5 mm high whose canvas must be kept (NAME@IOU:
+# mask IoU over the measurable canvas; main kept 0.32 of it) and the refusals (invalid
+# parameters at load, an implausible placement,
 # a defocused projector, whose reason must name the Gray code); the whole suite with
 # every stage under `slow` (`impasto bench hard` writes the table).
 impasto_test(test-hard-fast SOURCE unit/test-hard-suite.c LABELS stability TIMEOUT 900
-             ARGS --no-btf --plan hard-geometry deep-frame oblique-frame rotated-37 invalid-k0 invalid-rho
+             ARGS --no-btf --plan hard-geometry deep-frame oblique-frame rotated-37 impasto-3.5mm@0.65 invalid-k0 invalid-rho
                   invalid-dark-dome tilted-55! defocus!Gray)
 # --all: every config/scenes/hard-*.cfg must be listed here.
 impasto_test(test-hard-suite LABELS stability slow TIMEOUT 3600
@@ -14,6 +16,7 @@ impasto_test(test-hard-suite LABELS stability slow TIMEOUT 3600
                   oblique-frame-35 oblique-shallow-30 one-light overexposed shallow-frame tilted-10 tilted-25
                   tilted-55! tiny-coverage
                   ambient-dark!projector defocus!Gray distortion-oblique featureless high-relief hot-rotated-37
+                  impasto-2mm@0.65 impasto-3.5mm@0.65 impasto-5mm@0.65
                   low-relief mirror-gloss off-centre overexposed-grazing rotated-90 rotated-180 rotated-37
                   tilted-ambient)
 if(TARGET impasto)

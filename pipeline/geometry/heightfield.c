@@ -200,19 +200,16 @@ static size_t count_set(const uint8_t *v, size_t n) {
         return c;
 }
 
-/* 4-connected fill from seed over pixels with g <= T (g is +inf on invalid pixels, so
- * they stop it), not across barrier steps. */
-static int seed_fill(const float *g, int w, int h, size_t seed, float T, const struct fill_barrier *b,
-                     uint8_t *mask) {
-        size_t N = (size_t) w * h, top = 0;
-        _cleanup_free_ uint32_t *stack = malloc(N * sizeof(uint32_t));
-        if (!stack)
-                return -ENOMEM;
-        memset(mask, 0, N);
-        mask[seed] = 1;
-        stack[top++] = (uint32_t) seed;
-        while (top > 0) {
-                size_t i = stack[--top];
+/* 4-connected fill from seed over the unmarked pixels with g <= T (g is +inf on invalid
+ * pixels, so they stop it) and, with allow, allow set, not across barrier steps: marks
+ * them in mark and lists them in queue (N entries), first the seed. Returns their count. */
+static size_t flood(const float *g, int w, int h, size_t seed, float T, const struct fill_barrier *b,
+                    const uint8_t *allow, uint8_t *mark, uint32_t *queue) {
+        size_t head = 0, tail = 0;
+        mark[seed] = 1;
+        queue[tail++] = (uint32_t) seed;
+        while (head < tail) {
+                size_t i = queue[head++];
                 int x = (int) (i % w), y = (int) (i / w);
                 const int dx[4] = { 1, -1, 0, 0 }, dy[4] = { 0, 0, 1, -1 };
                 for (int k = 0; k < 4; k++) {
@@ -220,12 +217,23 @@ static int seed_fill(const float *g, int w, int h, size_t seed, float T, const s
                         if (xx < 0 || yy < 0 || xx >= w || yy >= h)
                                 continue;
                         size_t j = (size_t) yy * w + xx;
-                        if (!mask[j] && g[j] <= T && fill_crossable(b, i, j)) {
-                                mask[j] = 1;
-                                stack[top++] = (uint32_t) j;
+                        if (!mark[j] && g[j] <= T && (!allow || allow[j]) && fill_crossable(b, i, j)) {
+                                mark[j] = 1;
+                                queue[tail++] = (uint32_t) j;
                         }
                 }
         }
+        return tail;
+}
+
+static int seed_fill(const float *g, int w, int h, size_t seed, float T, const struct fill_barrier *b,
+                     uint8_t *mask) {
+        size_t N = (size_t) w * h;
+        _cleanup_free_ uint32_t *queue = malloc(N * sizeof(uint32_t));
+        if (!queue)
+                return -ENOMEM;
+        memset(mask, 0, N);
+        flood(g, w, h, seed, T, b, NULL, mask, queue);
         return 0;
 }
 
@@ -941,7 +949,9 @@ static bool ransac_plane(const struct imp_range_image *r, const struct imp_heigh
                 double pp[3] = { bp[0], bp[1], bp[2] }, pn[3] = { bn[0], bn[1], bn[2] };
                 set.behind_p = pp, set.behind_n = pn;
                 size_t sc = ransac_search(r, opt, &set, central, p, n);
-                if (sc < HF_BEHIND_MIN_SUPPORT * best || angle_deg(n, pn) > HF_BEHIND_MAX_DEG)
+                if (sc < HF_BEHIND_MIN_SUPPORT * best ||
+                    (angle_deg(n, pn) > HF_BEHIND_MAX_DEG &&
+                     !(angle_deg(n, opt->expected_normal) < angle_deg(pn, opt->expected_normal) - HF_BEHIND_MAX_DEG)))
                         break;
                 memcpy(bp, p, sizeof bp);
                 memcpy(bn, n, sizeof bn);
@@ -1062,6 +1072,175 @@ static int trim_flush_frame(const struct imp_range_image *range, const struct im
         return 0;
 }
 
+/* ---- high relief: the canvas between the paint's walls ---- */
+
+#define HF_POCKET_MIN_FRAC 0.002   /* of the valid points: a smaller component is no pocket */
+#define HF_POCKET_MIN_PX   20
+#define HF_POCKET_LEVEL_P  10.0    /* a pocket's ground level: this percentile of its heights */
+#define HF_RELIEF_MIN_PX   9       /* a smaller component inside the hull is noise */
+#define HF_IMPASTO_MM      1.0     /* paint this high over the ground ... */
+#define HF_IMPASTO_FRAC    0.05    /* ... on this fraction of the hull's valid points: high relief */
+
+/* Per image row the x interval of the convex hull of the set pixels of sel (Andrew's
+ * monotone chain over each row's outermost set pixels); xl > xr on rows it misses. */
+struct hull_pt {
+        double x, y;
+};
+
+static int cmp_hull_pt(const void *a, const void *b) {
+        const struct hull_pt *p = a, *q = b;
+        return p->x < q->x ? -1 : p->x > q->x ? 1 : p->y < q->y ? -1 : p->y > q->y;
+}
+
+static double hull_turn(const struct hull_pt *o, const struct hull_pt *a, const struct hull_pt *b) {
+        return (a->x - o->x) * (b->y - o->y) - (a->y - o->y) * (b->x - o->x);
+}
+
+static int hull_rows(const uint8_t *sel, int w, int h, double *xl, double *xr) {
+        _cleanup_free_ struct hull_pt *pt = malloc((size_t) 2 * h * sizeof *pt);
+        _cleanup_free_ struct hull_pt *H = malloc(((size_t) 4 * h + 2) * sizeof *H);
+        if (!pt || !H)
+                return -ENOMEM;
+        size_t n = 0, k = 0;
+        for (int y = 0; y < h; y++) {
+                int lo = -1, hi = -1;
+                for (int x = 0; x < w; x++)
+                        if (sel[(size_t) y * w + x]) {
+                                lo = lo < 0 ? x : lo;
+                                hi = x;
+                        }
+                if (lo >= 0) {
+                        pt[n++] = (struct hull_pt) { lo, y };
+                        if (hi != lo)
+                                pt[n++] = (struct hull_pt) { hi, y };
+                }
+                xl[y] = INFINITY, xr[y] = -INFINITY;
+        }
+        qsort(pt, n, sizeof *pt, cmp_hull_pt);
+        for (size_t i = 0; i < n; i++) {   /* lower chain */
+                while (k >= 2 && hull_turn(&H[k - 2], &H[k - 1], &pt[i]) <= 0)
+                        k--;
+                H[k++] = pt[i];
+        }
+        for (size_t i = n - 1, t = k + 1; n > 1 && i-- > 0;) {   /* upper chain */
+                while (k >= t && hull_turn(&H[k - 2], &H[k - 1], &pt[i]) <= 0)
+                        k--;
+                H[k++] = pt[i];
+        }
+        for (size_t e = 0; e < k; e++) {
+                const struct hull_pt *a = &H[e], *b = &H[(e + 1) % k];
+                int y0 = (int) ceil(fmin(a->y, b->y)), y1 = (int) floor(fmax(a->y, b->y));
+                for (int y = IMP_MAX(y0, 0); y <= IMP_MIN(y1, h - 1); y++) {
+                        double x = a->y == b->y ? a->x : a->x + (y - a->y) * (b->x - a->x) / (b->y - a->y);
+                        double x2 = a->y == b->y ? b->x : x;
+                        xl[y] = fmin(xl[y], fmin(x, x2)), xr[y] = fmax(xr[y], fmax(x, x2));
+                }
+        }
+        return 0;
+}
+
+/* The components of the fill's graph met in pixel order that are not marked yet and hold
+ * at least min_px pixels (flood over g, within allow when set): keep(ctx, list, n) says
+ * whether one joins add (and counts it). */
+struct relief_ctx {
+        const float *h1, *g;
+        float T, ref_level, level_tol;
+        const struct fill_barrier *b;
+        float *hv;                    /* scratch, N */
+};
+
+static bool pocket_at_ground(const struct relief_ctx *c, const uint32_t *list, size_t n) {
+        for (size_t q = 0; q < n; q++)
+                c->hv[q] = c->h1[list[q]];
+        float level;
+        return percentile(c->hv, n, HF_POCKET_LEVEL_P, &level) == 0 && fabsf(level - c->ref_level) <= c->level_tol;
+}
+
+static size_t add_components(const struct relief_ctx *c, int w, int h, const uint8_t *allow, size_t min_px,
+                             bool ground_only, uint8_t *mark, uint32_t *queue, uint8_t *add) {
+        size_t N = (size_t) w * h, added = 0;
+        for (size_t i = 0; i < N; i++) {
+                if (mark[i] || !(c->g[i] <= c->T) || (allow && !allow[i]))
+                        continue;
+                size_t n = flood(c->g, w, h, i, c->T, c->b, allow, mark, queue);
+                if (n < min_px || (ground_only && !pocket_at_ground(c, queue, n)))
+                        continue;
+                for (size_t q = 0; q < n; q++)
+                        add[queue[q]] = 1;
+                added += n;
+        }
+        return added;
+}
+
+/* Heavy impasto (strokes several millimetres high, their walls near vertical, the
+ * projector's shadows beside them) cuts the ground into pockets the seed fill cannot
+ * leave (seed §4.2 takes the frame's step for the only large one), and lifts the paint's
+ * tops past relief_max_mm. Paint may stand as high as a frame; what tells them apart is
+ * where they lie: the frame around the canvas, the paint on it. So: the other pockets at
+ * the seed region's ground level (components of the fill's graph holding at least
+ * HF_POCKET_MIN_FRAC of the valid points whose HF_POCKET_LEVEL_P-th height percentile
+ * lies within step_min_mm of the seed region's, or of the plane when the seed region
+ * stands on it, paint; none when it lies behind the plane, which is then no ground: a
+ * frame's top larger than the canvas seen)
+ * join the canvas, and so does every component of the fill's graph, at any height, inside
+ * the convex hull of them all in the image (the canvas seen through its frame is convex;
+ * the frame and its walls lie outside it) — when paint stands HF_IMPASTO_MM over the
+ * ground on HF_IMPASTO_FRAC of the valid points in that hull: range broken up by dark
+ * paint or ambient light, on a canvas with no high relief, is no relief's doing, and its
+ * refusal names the cause (hard-ambient-dark). A frame standing step_min_mm off the canvas is
+ * no pocket; a flush one is in the seed fill already (the albedo trim cuts it). graw: the
+ * Sobel magnitude (+inf on invalid pixels) without the relief_max_mm exclusion; inside (N)
+ * is set to the hull when anything joined, cleared otherwise. */
+static int relief_pockets(int w, int h, const float *h1, const float *g, const float *graw, float T,
+                          const struct imp_heightfield_options *opt, const struct fill_barrier *b,
+                          size_t n_valid, struct imp_heightfield *hf, uint8_t *canvas, uint8_t *inside) {
+        size_t N = (size_t) w * h, nr = 0;
+        _cleanup_free_ float *hv = malloc(N * sizeof(float));
+        _cleanup_free_ uint32_t *queue = malloc(N * sizeof(uint32_t));
+        _cleanup_free_ uint8_t *mark = malloc(N), *sel = malloc(N);
+        _cleanup_free_ double *xl = malloc(h * sizeof(double)), *xr = malloc(h * sizeof(double));
+        if (!hv || !queue || !mark || !sel || !xl || !xr)
+                return -ENOMEM;
+        for (size_t i = 0; i < N; i++)
+                if (canvas[i])
+                        hv[nr++] = h1[i];
+        float ref = 0;
+        memset(inside, 0, N);
+        if (nr == 0 || percentile(hv, nr, HF_POCKET_LEVEL_P, &ref) < 0)
+                return 0;
+        if (ref < -opt->plane_tol_mm)   /* the plane lies in front of the seed's ground: no ground */
+                return 0;
+        if (ref > opt->plane_tol_mm)    /* the seed on paint: the plane's level is the ground's */
+                ref = 0;
+        struct relief_ctx c = { .h1 = h1, .g = g, .T = T, .ref_level = ref, .level_tol = (float) b->step_min,
+                                .b = b, .hv = hv };
+        size_t min_px = (size_t) fmax(HF_POCKET_MIN_PX, HF_POCKET_MIN_FRAC * (double) n_valid);
+        memcpy(mark, canvas, N);
+        memcpy(sel, canvas, N);
+        size_t added = add_components(&c, w, h, NULL, min_px, true, mark, queue, sel);
+        int r = hull_rows(sel, w, h, xl, xr);
+        if (r < 0)
+                return r;
+        size_t n_in = 0, n_high = 0;
+        for (int y = 0; y < h; y++)
+                for (int x = 0; x < w; x++) {
+                        size_t i = (size_t) y * w + x;
+                        inside[i] = x >= xl[y] - 1e-9 && x <= xr[y] + 1e-9;
+                        n_in += inside[i] && isfinite(graw[i]);
+                        n_high += inside[i] && isfinite(graw[i]) && h1[i] - ref > HF_IMPASTO_MM;
+                }
+        if (added == 0 || n_high < HF_IMPASTO_FRAC * n_in) {   /* not the relief's pockets: as before */
+                memset(inside, 0, N);
+                return 0;
+        }
+        memcpy(canvas, sel, N);
+        c.g = graw;
+        memcpy(mark, canvas, N);
+        added += add_components(&c, w, h, inside, HF_RELIEF_MIN_PX, false, mark, queue, canvas);
+        hf->n_relief_points = added;
+        return 0;
+}
+
 /* The canvas on the range grid (seed §4.2 with a robust plane): heights h1 over the robust
  * plane (m1, n1), points beyond relief_max_mm excluded, Sobel, seed fill from the centre
  * stopped at high gradient and near-vertical steps, erosion. */
@@ -1070,8 +1249,8 @@ static int canvas_mask(const struct imp_range_image *range, const struct imp_hei
         int w = range->width, h = range->height, r;
         size_t N = (size_t) w * h, k = 0;
         _cleanup_free_ float *h1 = malloc(N * sizeof(float)), *g = malloc(N * sizeof(float));
-        _cleanup_free_ float *hv = malloc(hf->n_range_points * sizeof(float));
-        if (!h1 || !g || !hv)
+        _cleanup_free_ float *hv = malloc(hf->n_range_points * sizeof(float)), *graw = malloc(N * sizeof(float));
+        if (!h1 || !g || !hv || !graw)
                 return -ENOMEM;
         for (size_t i = 0; i < N; i++) {
                 if (!range->valid[i]) {
@@ -1087,6 +1266,7 @@ static int canvas_mask(const struct imp_range_image *range, const struct imp_hei
         float T = (float) fmax(opt->gradient_rel * (p99 - p1), opt->gradient_floor_mm);
         hf->gradient_threshold_mm = T;
         sobel(h1, range->valid, w, h, g);
+        memcpy(graw, g, N * sizeof(float));
         for (size_t i = 0; i < N; i++)   /* the frame by geometry: far off the canvas plane */
                 if (range->valid[i] && fabs(h1[i]) > opt->relief_max_mm) {
                         g[i] = INFINITY;
@@ -1115,16 +1295,28 @@ static int canvas_mask(const struct imp_range_image *range, const struct imp_hei
                         return r;
         }
         hf->step_min_used_mm = b.slope_max > 0 ? b.step_min : INFINITY;
+        _cleanup_free_ uint8_t *hull = malloc(N);
+        if (!hull)
+                return -ENOMEM;
+        if ((r = relief_pockets(w, h, h1, g, graw, T, opt, &b, hf->n_range_points, hf, canvas, hull)) < 0)
+                return r;
+        for (size_t i = 0; i < N; i++)   /* what the albedo trim cuts off is rim again */
+                hull[i] = hull[i] && !canvas[i];
         if (opt->albedo && (r = trim_flush_frame(range, opt, m1, n1, hf, canvas)) < 0)
                 return r;
         if (opt->keep_holes)
                 return erode(canvas, w, h, opt->erode_px);
         /* Erode the hole-filled mask, then keep only filled pixels: holes do not grow, the
-         * outer rim shrinks by erode_px. */
+         * outer rim shrinks by erode_px. Inside the hull of the canvas's pockets there is no
+         * outer rim: the shadows and unmeasured walls of the paint are holes too. */
         _cleanup_free_ uint8_t *solid = malloc(N);
         if (!solid)
                 return -ENOMEM;
-        if ((r = fill_holes(canvas, w, h, solid)) < 0 || (r = erode(solid, w, h, opt->erode_px)) < 0)
+        if ((r = fill_holes(canvas, w, h, solid)) < 0)
+                return r;
+        for (size_t i = 0; i < N; i++)
+                solid[i] |= hull[i];
+        if ((r = erode(solid, w, h, opt->erode_px)) < 0)
                 return r;
         for (size_t i = 0; i < N; i++)
                 canvas[i] = canvas[i] && solid[i];
@@ -1378,6 +1570,23 @@ static int first_plane(const struct imp_range_image *range, const struct imp_hei
         return 0;
 }
 
+/* The texels inside the convex hull of the mask (the canvas's outline as measured): the
+ * holes of a canvas whose relief hides or shadows much of it lie within it. */
+static int outline_texels(struct imp_heightfield *hf) {
+        _cleanup_free_ double *xl = malloc(hf->ny * sizeof(double)), *xr = malloc(hf->ny * sizeof(double));
+        if (!xl || !xr)
+                return -ENOMEM;
+        int r = hull_rows(hf->mask, hf->nx, hf->ny, xl, xr);
+        if (r < 0)
+                return r;
+        hf->n_outline_texels = 0;
+        for (int y = 0; y < hf->ny; y++)
+                if (xr[y] >= xl[y])
+                        hf->n_outline_texels += (size_t) (IMP_MIN(floor(xr[y] + 1e-9), hf->nx - 1.0) -
+                                                          IMP_MAX(ceil(xl[y] - 1e-9), 0.0) + 1);
+        return 0;
+}
+
 int imp_heightfield_extract(const struct imp_range_image *range, const struct imp_heightfield_options *opt,
                             struct imp_heightfield *ret, struct imp_error *err) {
         struct imp_heightfield_options defaults;
@@ -1439,6 +1648,8 @@ int imp_heightfield_extract(const struct imp_range_image *range, const struct im
                 hf.n_mask_texels += hf.mask[t] != 0;
         if (hf.n_mask_texels == 0)
                 return imp_error_set(err, -ENODATA, "no canvas: no texel covered by the range mesh");
+        if ((r = outline_texels(&hf)) < 0)
+                return r;
         double *M = hf.canvas_to_world;
         for (int q = 0; q < 3; q++) {
                 M[4 * q + 0] = f.ex[q];
@@ -1458,7 +1669,7 @@ int imp_heightfield_from_range(const struct imp_range_image *range,
 }
 
 json_t *imp_heightfield_stage_json(const struct imp_heightfield *hf) {
-        return json_pack("{s:I,s:I,s:I,s:I,s:f,s:f,s:f,s:f,s:f,s:f,s:b,s:b,s:b,s:f,s:f,s:f,s:f,s:I,s:b,s:I,s:b}",
+        return json_pack("{s:I,s:I,s:I,s:I,s:f,s:f,s:f,s:f,s:f,s:f,s:b,s:b,s:b,s:f,s:f,s:f,s:f,s:I,s:b,s:I,s:I,s:I,s:b}",
                          "range_points", (json_int_t) hf->n_range_points,
                          "canvas_points", (json_int_t) hf->n_canvas_points,
                          "mask_texels", (json_int_t) hf->n_mask_texels,
@@ -1478,6 +1689,8 @@ json_t *imp_heightfield_stage_json(const struct imp_heightfield *hf) {
                          "excluded_points", (json_int_t) hf->n_excluded_points,
                          "plane_no_consensus", (hf->flags & IMP_HF_PLANE_NO_CONSENSUS) != 0,
                          "frame_trimmed_points", (json_int_t) hf->n_frame_trimmed,
+                         "relief_points", (json_int_t) hf->n_relief_points,
+                         "outline_texels", (json_int_t) hf->n_outline_texels,
                          "frame_trimmed", (hf->flags & IMP_HF_FRAME_TRIMMED) != 0);
 }
 

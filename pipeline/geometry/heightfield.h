@@ -160,6 +160,12 @@ struct imp_heightfield {
         double ransac_inlier_frac;    /* valid points within plane_tol_mm of the robust plane */
         size_t n_excluded_points;     /* valid points beyond relief_max_mm (frame, walls) */
         size_t n_frame_trimmed;       /* fill points cut off as a flush frame (albedo step) */
+        size_t n_relief_points;       /* points the seed fill did not reach that joined the
+                                         canvas: ground pockets between high paint and what
+                                         lies inside their convex hull (high relief) */
+        size_t n_outline_texels;      /* texels inside the convex hull of the mask: less
+                                         n_mask_texels, the holes within the canvas's outline
+                                         (shadowed or unmeasured relief) */
         double frame_trim_mm[4];      /* per side (−u, +u, −v, +v) the band cut off, mm */
         unsigned flags;               /* IMP_HF_* */
 };

@@ -14,7 +14,9 @@
  * normal angle (both measured: a copy without σ_n fails); no unflagged normal more than
  * 10° off; the heights of the texels without a height flag within 3σ_h (at most BEYOND_MAX
  * beyond), whatever their normal flags. A scene listed as NAME! must be refused (exit 6), as
- * NAME!WORD with WORD in the reason. With --all, every
+ * NAME!WORD with WORD in the reason; as NAME@IOU it must give a copy whose canvas mask
+ * covers the canvas the rig can measure with at least that IoU (mask_iou_observable: high
+ * impasto cut into pockets lost most of its canvas). With --all, every
  * config/scenes/hard-*.cfg must be among the names (a new scene joins the suite). */
 #include <dirent.h>
 #include <fcntl.h>
@@ -111,7 +113,7 @@ static void check_unusable(const char *name, const char *copy, const char *must_
         json_decref(j);
 }
 
-static void check_copy(const char *name, const char *cmp_path) {
+static void check_copy(const char *name, const char *cmp_path, double min_iou) {
         json_error_t je;
         json_t *c = json_load_file(cmp_path, 0, &je);
         CHECK_MSG(c != NULL, "%s: %s: %s", name, cmp_path, je.text);
@@ -126,6 +128,10 @@ static void check_copy(const char *name, const char *cmp_path) {
                 NUM("beyond_3sigma_height"), NUM("beyond_3sigma_normal"), NUM("unflagged_normal_err_deg_max"), over,
                 NUM("flagged_fraction"), nan);
         CHECK_INT_EQ(nan, 0);
+        fprintf(stderr, "%s: canvas mask IoU %.4f (%.4f over the canvas the rig can measure)\n", name,
+                NUM("mask_iou"), NUM("mask_iou_observable"));
+        CHECK_MSG(!(min_iou > 0) || NUM("mask_iou_observable") >= min_iou, "%s: canvas mask IoU %.4f over the "
+                  "measurable canvas, at least %.2f expected", name, NUM("mask_iou_observable"), min_iou);
         CHECK_MSG(NUM("placement_deg") >= 0 && NUM("placement_deg") <= PLACEMENT_MAX_DEG, "%s: placement %.2f°",
                   name, NUM("placement_deg"));
         CHECK_MSG(NUM("frame_texel_fraction") <= FRAME_MAX, "%s: frame as canvas %.4f", name,
@@ -158,6 +164,16 @@ static void check_copy(const char *name, const char *cmp_path) {
                   NUM("beyond_3sigma_height_promised"));
 #undef NUM
         json_decref(c);
+}
+
+/* One of the verdict's reasons (quality.reasons) contains word. */
+static bool reason_says(json_t *q, const char *word) {
+        json_t *r;
+        size_t i;
+        json_array_foreach(json_object_get(q, "reasons"), i, r)
+                if (json_string_value(r) && strstr(json_string_value(r), word))
+                        return true;
+        return false;
 }
 
 /* Flags that say why, not what followed (the photometric normal not kept: normal_uncertain,
@@ -200,6 +216,15 @@ static void check_verdict(const char *name, const char *copy) {
                           "\"%s\" does not name it", name, cause ? cause : "",
                           100 * json_number_value(json_object_get(flags, cause ? cause : "")), why ? why : "");
         }
+        /* A canvas with holes over more than a quarter of its outline (high impasto): the
+         * verdict says so. */
+        json_t *hfj = json_object_get(json_object_get(j, "stages"), "heightfield");
+        double outline = (double) json_integer_value(json_object_get(hfj, "outline_texels"));
+        double mask = (double) json_integer_value(json_object_get(hfj, "mask_texels"));
+        if (outline > 0 && mask < 0.75 * outline)
+                CHECK_MSG(reason_says(q, "within its outline") && v && strcmp(v, "ok"), "%s: %.0f %% of the canvas's "
+                          "outline has no texel, verdict %s without a reason saying so", name,
+                          100 * (1 - mask / outline), v ? v : "(none)");
         /* The appearance fitted on few texels (stages.btf): the verdict says so. */
         json_t *btf = json_object_get(json_object_get(j, "stages"), "btf");
         /* Fewer than 8 lights: no photometric normal anywhere, and the texels say why. */
@@ -209,20 +234,14 @@ static void check_verdict(const char *name, const char *copy) {
                           "few_samples on %.0f %% of the texels", name, lights,
                           100 * json_number_value(json_object_get(flags, "few_samples")));
         double texels = (double) json_integer_value(json_object_get(q, "texels"));
-        if (btf && texels > 0 && json_number_value(json_object_get(btf, "few_samples")) > 0.25 * texels) {
-                bool said = false;
-                json_t *r;
-                size_t i;
-                json_array_foreach(json_object_get(q, "reasons"), i, r)
-                        said = said || (json_string_value(r) && strstr(json_string_value(r), "appearance"));
-                CHECK_MSG(said && v && strcmp(v, "ok"), "%s: the BTF lacked samples on %.0f %% of the texels, "
-                          "verdict %s without a reason naming the appearance", name,
+        if (btf && texels > 0 && json_number_value(json_object_get(btf, "few_samples")) > 0.25 * texels)
+                CHECK_MSG(reason_says(q, "appearance") && v && strcmp(v, "ok"), "%s: the BTF lacked samples on %.0f %% "
+                          "of the texels, verdict %s without a reason naming the appearance", name,
                           100 * json_number_value(json_object_get(btf, "few_samples")) / texels, v ? v : "(none)");
-        }
         json_decref(j);
 }
 
-/* --all: every config/scenes/hard-NAME.cfg is among argv (NAME, or NAME! ). */
+/* --all: every config/scenes/hard-NAME.cfg is among argv (NAME, NAME! or NAME@IOU). */
 static void check_all_listed(int argc, char **argv) {
         char dir[4096];
         snprintf(dir, sizeof dir, "%s/config/scenes", IMPASTO_SOURCE_DIR);
@@ -235,7 +254,7 @@ static void check_all_listed(int argc, char **argv) {
                         continue;
                 bool listed = false;
                 for (int a = 1; a < argc && !listed; a++) {
-                        size_t n = strcspn(argv[a], "!");
+                        size_t n = strcspn(argv[a], "!@");
                         listed = n == len - 9 && !strncmp(argv[a], de->d_name + 5, n);
                 }
                 CHECK_MSG(listed, "%s is not in the suite's list (tests/hard.cmake)", de->d_name);
@@ -267,6 +286,10 @@ int main(int argc, char **argv) {
                 }
                 char name[128], scene[4400], cap[4400], copy[4400], truth[4500], cmp[4400], err_path[4400];
                 snprintf(name, sizeof name, "%s", argv[a]);
+                char *at = strchr(name, '@');
+                double min_iou = at ? atof(at + 1) : 0;
+                if (at)
+                        *at = 0;
                 char *bang = strchr(name, '!');
                 bool must_refuse = bang != NULL;
                 const char *must_say = "";
@@ -293,6 +316,9 @@ int main(int argc, char **argv) {
                 CHECK_MSG(rc == 0 || rc == EXIT_UNUSABLE || rc == EXIT_INVALID, "%s: process exited %d", name, rc);
                 if (must_refuse)
                         CHECK_MSG(rc == EXIT_UNUSABLE, "%s: expected a refusal, process exited %d", name, rc);
+                if (min_iou > 0)   /* a refusal of a canvas the rig can measure is no answer */
+                        CHECK_MSG(rc == 0, "%s: process exited %d, a copy with mask IoU >= %.2f expected", name, rc,
+                                  min_iou);
                 if (rc == EXIT_UNUSABLE) {
                         check_unusable(name, copy, must_say);
                         continue;
@@ -307,7 +333,7 @@ int main(int argc, char **argv) {
                 rc = run(compare, cmp, err_path);
                 CHECK_MSG(rc == 0, "%s: compare exited %d", name, rc);
                 if (rc == 0)
-                        check_copy(name, cmp);
+                        check_copy(name, cmp, min_iou);
                 check_verdict(name, copy);
         }
         return TEST_DONE();
