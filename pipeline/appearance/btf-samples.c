@@ -264,10 +264,12 @@ int imp_btf_hf_pyramid_new(const struct imp_btf_heightfield *hf, struct imp_btf_
  * point there can be blocked, and leaving the grid or rising above hmax_mm cannot be
  * undone further along (the grid is convex; z rises monotonically when d[2] ≥ 0, and
  * with d[2] < 0 the first point already decides it). Hits are thus those of the plain
- * march. The level walk goes up after a skip and down after a miss. */
+ * march. The level walk goes up after a skip and down after a miss. The march starts at
+ * sample point k0 ≥ 1: a caller passes k0 > 1 only when no point before it can be a hit
+ * (the same monotonicity makes the result the plain march's). */
 static bool march(const struct imp_btf_heightfield *hf, const struct imp_btf_sample_params *p,
                   const struct imp_btf_hf_pyramid *py, double hmax_mm, const double o[3], const double d[3],
-                  double max_t_mm, double *ret_t_mm) {
+                  double max_t_mm, long k0, double *ret_t_mm) {
         double step = p->march_step_texels * hf->pitch_mm;
         double bias = p->shadow_bias_texels * hf->pitch_mm;
         double ip = 1.0 / hf->pitch_mm;
@@ -277,7 +279,7 @@ static bool march(const struct imp_btf_heightfield *hf, const struct imp_btf_sam
         /* Texel-space ray: fu = ou + t·du. */
         double ou = o[0] * ip, ov = o[1] * ip, du = d[0] * ip, dv = d[1] * ip;
         double iu = du != 0.0 ? 1.0 / du : HUGE_VAL, iv = dv != 0.0 ? 1.0 / dv : HUGE_VAL;
-        for (long k = 1;; ) {
+        for (long k = k0;; ) {
                 double t = k * step;
                 if (!(t <= max_t_mm))
                         return false;
@@ -302,7 +304,7 @@ static bool march(const struct imp_btf_heightfield *hf, const struct imp_btf_sam
                                 te = tv < te ? tv : te;
                                 double zmin = d[2] >= 0.0 ? z : o[2] + te * d[2];
                                 if (te >= t && zmin >= (double) py->lvl[L][(size_t) bv * py->lw[L] + bu] - bias) {
-                                        long kn = (long) floor(te / step) + 1;
+                                        long kn = (long) (te / step) + 1;   /* floor: te ≥ t > 0 */
                                         k = kn > k ? kn : k + 1;
                                         L = IMP_MIN(L + 1, levels - 1);
                                         skipped = true;
@@ -338,7 +340,7 @@ static bool march(const struct imp_btf_heightfield *hf, const struct imp_btf_sam
 bool imp_btf_heightfield_ray(const struct imp_btf_heightfield *hf, const struct imp_btf_sample_params *p,
                              double hmax_mm, const double o[3], const double d[3], double max_t_mm,
                              double *ret_t_mm) {
-        return march(hf, p, NULL, hmax_mm, o, d, max_t_mm, ret_t_mm);
+        return march(hf, p, NULL, hmax_mm, o, d, max_t_mm, 1, ret_t_mm);
 }
 
 /* ---- frames ------------------------------------------------------------------ */
@@ -568,14 +570,47 @@ static void ray_rec_of(const struct imp_btf_sample_params *p, size_t idx, struct
         }
 }
 
+/* A texel's horizon (imp_btf_horizon_split()): have false when the scene has none. */
+struct texel_hz {
+        bool have;
+        float near[4], far[4];
+};
+
+/* The shadow or visibility ray from P along unit d (horizontal length run =
+ * √(d₀² + d₁²), as imp_btf_horizon_clear() computes it) to distance max_t: blocked? The
+ * horizon's two parts decide it without a march when the ray is at least as steep as both;
+ * as steep as the near part only, the march starts at the last sample point 2 steps short
+ * of IMP_BTF_HORIZON_SPLIT texels of run (no point before can be blocked); as steep as the
+ * far part only, it stops one texel of run beyond them (no point after can be). Either way
+ * the decision is the plain march's. */
+static bool ray_blocked(const struct imp_btf_heightfield *hf, const struct imp_btf_sample_params *p,
+                        const struct scene *sc, const struct texel_hz *th, const double P[3], const double d[3],
+                        double run, double max_t) {
+        long k0 = 1;
+        if (th->have && d[2] > 0.0) {
+                int q = (d[0] < 0.0) | (d[1] < 0.0) << 1;
+                bool near = d[2] >= (double) th->near[q] * run, far = d[2] >= (double) th->far[q] * run;
+                if (near && far)
+                        return false;
+                /* run > 0 here: with run 0 both hold. */
+                double split_mm = IMP_BTF_HORIZON_SPLIT * hf->pitch_mm;
+                if (near) {
+                        double x = fmin(split_mm / (p->march_step_texels * hf->pitch_mm * run), 1e15);
+                        k0 = IMP_MAX((long) x - 1, 1L);
+                } else if (far)
+                        max_t = fmin(max_t, (split_mm + hf->pitch_mm) / run);
+        }
+        return march(hf, p, sc->py, sc->hmax, P, d, max_t, k0, NULL);
+}
+
 /* The camera ray of texel (u, v) from P (direction wv, distance dist_c): blocked? From the
  * record when it has the decision, else marched (and recorded when recording). */
 static bool camera_blocked(const struct imp_btf_heightfield *hf, const struct imp_btf_sample_params *p,
-                           const struct scene *sc, const struct ray_rec *rr, int u, int v, const double P[3],
-                           const double wv[3], double dist_c) {
+                           const struct scene *sc, const struct ray_rec *rr, const struct texel_hz *th,
+                           const double P[3], const double wv[3], double dist_c) {
         if (rr->mode == IMP_BTF_RAYS_REUSE && *rr->cam != IMP_BTF_CAM_UNKNOWN)
                 return *rr->cam == IMP_BTF_CAM_BLOCKED;
-        bool blocked = !imp_btf_horizon_clear(sc->hz, u, v, wv) && march(hf, p, sc->py, sc->hmax, P, wv, dist_c, NULL);
+        bool blocked = ray_blocked(hf, p, sc, th, P, wv, sqrt(wv[0] * wv[0] + wv[1] * wv[1]), dist_c);
         if (rr->mode == IMP_BTF_RAYS_RECORD)
                 *rr->cam = blocked ? IMP_BTF_CAM_BLOCKED : IMP_BTF_CAM_CLEAR;
         return blocked;
@@ -630,6 +665,8 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
         double P[3] = { u * hf->pitch_mm, v * hf->pitch_mm, hf->height_mm[idx] }, Pw[3], px[2];
         double tb[3], bb[3], wv[3], vloc[3];
         imp_local_frame(n, tb, bb);
+        struct texel_hz th;
+        th.have = imp_btf_horizon_split(sc->hz, u, v, th.near, th.far);
 
         double dist_c = 0.0;
         for (int i = 0; i < 3; i++) {
@@ -643,7 +680,7 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
         mat_apply(sc->R, sc->t, P, Pw);
         if (!(vloc[2] > 0.0) || !imp_pinhole_project(cap->camera, Pw, px) || !(px[0] >= 0.0 && px[1] >= 0.0 &&
             px[0] <= cap->camera->width - 1 && px[1] <= cap->camera->height - 1) ||
-            camera_blocked(hf, p, sc, &rr, u, v, P, wv, dist_c)) {
+            camera_blocked(hf, p, sc, &rr, &th, P, wv, dist_c)) {
                 *ret_flags = IMP_BTF_HIDDEN;
                 return;
         }
@@ -653,8 +690,6 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
                        tp.ys[1] < b->y0 + b->rows;
 
         struct light_geo lg;
-        float hs[4];
-        bool hz = imp_btf_horizon_texel(sc->hz, u, v, hs);
         for (int j = 0; j < cap->n_lights; j++) {
                 int k = j % LIGHT_CHUNK;
                 if (k == 0)
@@ -673,10 +708,7 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
                 if (rr.mode == IMP_BTF_RAYS_REUSE && (rr.known[j >> 6] & bit))
                         blocked = rr.blocked[j >> 6] & bit;
                 else {
-                        /* imp_btf_horizon_clear() */
-                        int q = (wl[0] < 0.0) | (wl[1] < 0.0) << 1;
-                        bool clear = hz && wl[2] > 0.0 && wl[2] >= (double) hs[q] * lg.run[k];
-                        blocked = !clear && march(hf, p, sc->py, sc->hmax, P, wl, lg.r[k], NULL);
+                        blocked = ray_blocked(hf, p, sc, &th, P, wl, lg.run[k], lg.r[k]);
                         if (rr.mode == IMP_BTF_RAYS_RECORD) {
                                 rr.known[j >> 6] |= bit;
                                 rr.blocked[j >> 6] |= blocked ? bit : 0;
