@@ -258,6 +258,19 @@ int imp_btf_hf_pyramid_new(const struct imp_btf_heightfield *hf, struct imp_btf_
         return 0;
 }
 
+/* floor(te / step) + 1 for te > 0, the quotient rounded as the division rounds it: from
+ * te · istep (istep = 1 / step, a multiplication instead of the division in the march's
+ * dependent chain) when that lies well clear of an integer — its error, a few ulp, is then
+ * below the distance and the floor is the same — else from the division. */
+static inline long next_point(double te, double step, double istep) {
+        double q = te * istep;
+        long k = (long) q;
+        double f = q - (double) k;
+        if (q < 1e6 && f > 1e-6 && f < 1.0 - 1e-6)
+                return k + 1;
+        return (long) (te / step) + 1;
+}
+
 /* The ray march of imp_btf_heightfield_ray(); py may be NULL (plain march). Sample point
  * k sits at t = k·step. With a pyramid, a block of cells is skipped when the lowest point
  * of the ray inside it is no lower than the block's maximum minus the bias: no sample
@@ -275,6 +288,7 @@ static bool march(const struct imp_btf_heightfield *hf, const struct imp_btf_sam
         double ip = 1.0 / hf->pitch_mm;
         if (!(step > 0.0))
                 return false;
+        const double istep = 1.0 / step;
         int levels = py ? py->levels : 0, L = levels > 0 ? IMP_MIN(levels - 1, 2) : -1;
         /* Texel-space ray: fu = ou + t·du. */
         double ou = o[0] * ip, ov = o[1] * ip, du = d[0] * ip, dv = d[1] * ip;
@@ -304,7 +318,7 @@ static bool march(const struct imp_btf_heightfield *hf, const struct imp_btf_sam
                                 te = tv < te ? tv : te;
                                 double zmin = d[2] >= 0.0 ? z : o[2] + te * d[2];
                                 if (te >= t && zmin >= (double) py->lvl[L][(size_t) bv * py->lw[L] + bu] - bias) {
-                                        long kn = (long) (te / step) + 1;   /* floor: te ≥ t > 0 */
+                                        long kn = next_point(te, step, istep);
                                         k = kn > k ? kn : k + 1;
                                         L = IMP_MIN(L + 1, levels - 1);
                                         skipped = true;
@@ -596,9 +610,9 @@ static bool ray_blocked(const struct imp_btf_heightfield *hf, const struct imp_b
                 double split_mm = IMP_BTF_HORIZON_SPLIT * hf->pitch_mm;
                 if (near) {
                         double x = fmin(split_mm / (p->march_step_texels * hf->pitch_mm * run), 1e15);
-                        k0 = IMP_MAX((long) x - 1, 1L);
+                        k0 = IMP_MAX((long) x, 1L);
                 } else if (far)
-                        max_t = fmin(max_t, (split_mm + hf->pitch_mm) / run);
+                        max_t = fmin(max_t, split_mm / run * (1.0 + 1e-9));
         }
         return march(hf, p, sc->py, sc->hmax, P, d, max_t, k0, NULL);
 }
