@@ -8,10 +8,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-#if defined(__SSE2__)
-#include <emmintrin.h>
-#endif
-
 #include "btf.h"
 #include "hdr.h"
 
@@ -514,19 +510,22 @@ struct light_geo {
         double rr[LIGHT_CHUNK], r2[LIGHT_CHUNK], s2[LIGHT_CHUNK], dot[LIGHT_CHUNK];   /* scratch */
 };
 
-/* x[k] = sqrt(src[k]), k < n: sqrtpd two at a time (gcc does not vectorise sqrt() when it
- * may set errno; the instruction rounds as sqrt() does). */
-static void sqrt_lanes(const double *src, double *x, int n) {
-        int k = 0;
-#if defined(__SSE2__)
-        for (; k + 2 <= n; k += 2)
-                _mm_storeu_pd(x + k, _mm_sqrt_pd(_mm_loadu_pd(src + k)));
-#endif
-        for (; k < n; k++)
-                x[k] = sqrt(src[k]);
-}
+/* x[k] = sqrt(src[k]), k < n, in the lanes of the caller's target (its no-math-errno lets
+ * gcc vectorise sqrt(); the instruction rounds as sqrt() does). */
+#define SQRT_LANES(src, x, n)                                   \
+        _Pragma("omp simd")                                     \
+        for (int k_ = 0; k_ < (n); k_++)                        \
+                (x)[k_] = sqrt((src)[k_])
 
-__attribute__((optimize("no-trapping-math")))   /* gcc 12 if-converts the selects only so */
+/* Built for AVX-512, AVX2 and the baseline, the CPU picks at load time; no FMA contraction
+ * (the same operations, rounded the same, on every machine). gcc 12 if-converts the
+ * selects only with no-trapping-math. */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define LG_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
+#else
+#define LG_CLONES
+#endif
+LG_CLONES __attribute__((optimize("no-trapping-math", "no-math-errno", "fp-contract=off")))
 static void light_geometry(const struct scene *sc, int n_lights, int j0, int nj, const double P[3],
                            const double Pw[3], const double tb[3], const double bb[3], const double n[3],
                            struct light_geo *g) {
@@ -542,8 +541,8 @@ static void light_geometry(const struct scene *sc, int n_lights, int j0, int nj,
                 g->r2[k] = d0 * d0 + d1 * d1 + d2 * d2;
                 g->dot[k] = d0 * lt[LT_AX * L + k] + d1 * lt[LT_AY * L + k] + d2 * lt[LT_AZ * L + k];
         }
-        sqrt_lanes(g->rr, g->r, nj);
-        sqrt_lanes(g->r2, g->s2, nj);   /* r2: the irradiance's squared distance, s2: its root */
+        SQRT_LANES(g->rr, g->r, nj);
+        SQRT_LANES(g->r2, g->s2, nj);   /* r2: the irradiance's squared distance, s2: its root */
 #pragma omp simd
         for (int k = 0; k < nj; k++) {
                 double r = g->r[k], w0 = g->wl[0][k] / r, w1 = g->wl[1][k] / r, w2 = g->wl[2][k] / r;
@@ -558,7 +557,7 @@ static void light_geometry(const struct scene *sc, int n_lights, int j0, int nj,
                 g->e[k] = r2 > 0.0 ? e : 0.0;
                 g->rr[k] = w0 * w0 + w1 * w1;
         }
-        sqrt_lanes(g->rr, g->run, nj);
+        SQRT_LANES(g->rr, g->run, nj);
 }
 
 /* Texel idx's record in p->rays (struct imp_btf_rays): mode OFF when there is none; a
