@@ -70,23 +70,51 @@ static double near_rise(const struct imp_btf_heightfield *hf, int u, int v, int 
         return sqrt(a * a + b * b);
 }
 
+/* dst[i] = max(a[i], b[i]), i < n (vector lanes). */
+static void max_lanes(const float *restrict a, const float *restrict b, float *restrict dst, int n) {
+#pragma omp simd
+        for (int i = 0; i < n; i++)
+                dst[i] = a[i] > b[i] ? a[i] : b[i];
+}
+
 /* dst = max of src over the box grown by q texels in quadrant qd's directions: along
  * rows then along columns (src at offsets 0 and q; indices clamped to the grid, which
- * only drops what lies outside it). tmp: scratch of the same size. */
+ * only drops what lies outside it). tmp: scratch of the same size. A row's texels whose
+ * offset stays in the grid run in lanes, the others take the clamped index. */
 static void grow_box(const float *src, float *tmp, float *dst, int W, int H, int q, int qd) {
         int su = qd & 1 ? -q : q, sv = qd & 2 ? -q : q;
-        for (int v = 0; v < H; v++)
+        /* u + su inside [0, W) for u in [lo, hi) */
+        int lo = IMP_MAX(0, -su), hi = IMP_MIN(W, W - su);
+        for (int v = 0; v < H; v++) {
+                const float *row = src + (size_t) v * W;
+                float *out = tmp + (size_t) v * W;
                 for (int u = 0; u < W; u++) {
+                        if (u == lo && hi > lo) {
+                                max_lanes(row + lo, row + lo + su, out + lo, hi - lo);
+                                u = hi - 1;
+                                continue;
+                        }
                         int u2 = IMP_MIN(IMP_MAX(u + su, 0), W - 1);
-                        float a = src[(size_t) v * W + u], b = src[(size_t) v * W + u2];
-                        tmp[(size_t) v * W + u] = a > b ? a : b;
+                        out[u] = row[u] > row[u2] ? row[u] : row[u2];
                 }
+        }
         for (int v = 0; v < H; v++) {
                 int v2 = IMP_MIN(IMP_MAX(v + sv, 0), H - 1);
-                for (int u = 0; u < W; u++) {
-                        float a = tmp[(size_t) v * W + u], b = tmp[(size_t) v2 * W + u];
-                        dst[(size_t) v * W + u] = a > b ? a : b;
-                }
+                max_lanes(tmp + (size_t) v * W, tmp + (size_t) v2 * W, dst + (size_t) v * W, W);
+        }
+}
+
+/* One band's bound (M: its box maxima, run_mm: the run where it starts) raised into slope
+ * where higher, in vector lanes (gcc 12 if-converts the select only with no-trapping-math;
+ * the same operations, so the same values). */
+__attribute__((optimize("no-trapping-math")))
+static void band_bound(const float *height, const float *M, float *slope, size_t n, double bias_mm, double run_mm) {
+#pragma omp simd
+        for (size_t i = 0; i < n; i++) {
+                double h = height[i];
+                double g = ((double) M[i] - bias_mm + HZ_EPS_MM - h) / run_mm;
+                float sq = slope[i];
+                slope[i] = isfinite(h) && g > sq ? (float) g : sq;
         }
 }
 
@@ -115,17 +143,8 @@ static void quadrant_bound(const struct imp_btf_heightfield *hf, double bias_mm,
                 cur = other;
                 other = t;
                 /* cur = Mq(r + q): the band (r, r + q], near while r + q ≤ SPLIT. */
-                const double run_mm = r * hf->pitch_mm;
-                float *slope = r + q <= IMP_BTF_HORIZON_SPLIT ? near : far;
-                for (size_t i = 0; i < n; i++) {
-                        double h = hf->height_mm[i];
-                        if (!isfinite(h))
-                                continue;
-                        double g = ((double) cur[i] - bias_mm + HZ_EPS_MM - h) / run_mm;
-                        float *sq = &slope[i];
-                        if (g > *sq)
-                                *sq = (float) g;
-                }
+                band_bound(hf->height_mm, cur, r + q <= IMP_BTF_HORIZON_SPLIT ? near : far, n, bias_mm,
+                           r * hf->pitch_mm);
                 r += q;
         }
         /* Round each bound up to the next float: the comparison is in double. */
