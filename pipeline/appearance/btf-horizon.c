@@ -19,7 +19,14 @@
  * any direction (a, b) of the quadrant by at most √(A⁺² + B⁺²) per texel (A⁺, B⁺: the
  * largest rises of the cell's edges in the quadrant's u and v directions, or 0): clear
  * when m·pitch ≥ that. The bound is the largest of these; a cell with a non-finite
- * corner never occludes (the march reads its heights as −∞), so it adds nothing. */
+ * corner never occludes (the march reads its heights as −∞), so it adds nothing.
+ *
+ * The bound is kept in two parts split at the run IMP_BTF_HORIZON_SPLIT (a band radius
+ * r_k): the near part, the largest over the near cell and the bands with r_k ≤ SPLIT
+ * (s ≤ SPLIT), and the far part over the bands beyond (s > SPLIT); the bound is their
+ * maximum. A ray at least as steep as the near part cannot be blocked within SPLIT
+ * texels of run, one at least as steep as the far part cannot be blocked beyond: the
+ * march then starts, or stops, there (btf-samples.c). */
 #include <errno.h>
 #include <math.h>
 #include <stdlib.h>
@@ -28,7 +35,8 @@
 
 struct imp_btf_horizon {
         int width, height;
-        float *slope;                 /* 4 planes of width·height: quadrant q = (du < 0) | (dv < 0) << 1 */
+        float *slope;                 /* 8 planes of width·height: near parts of quadrant q = (du < 0) | (dv < 0) << 1,
+                                         then the far parts (plane 4 + q) */
 };
 
 void imp_btf_horizon_free(struct imp_btf_horizon *hz) {
@@ -62,37 +70,67 @@ static double near_rise(const struct imp_btf_heightfield *hf, int u, int v, int 
         return sqrt(a * a + b * b);
 }
 
+/* dst[i] = max(a[i], b[i]), i < n (vector lanes). */
+static void max_lanes(const float *restrict a, const float *restrict b, float *restrict dst, int n) {
+#pragma omp simd
+        for (int i = 0; i < n; i++)
+                dst[i] = a[i] > b[i] ? a[i] : b[i];
+}
+
 /* dst = max of src over the box grown by q texels in quadrant qd's directions: along
  * rows then along columns (src at offsets 0 and q; indices clamped to the grid, which
- * only drops what lies outside it). tmp: scratch of the same size. */
+ * only drops what lies outside it). tmp: scratch of the same size. A row's texels whose
+ * offset stays in the grid run in lanes, the others take the clamped index. */
 static void grow_box(const float *src, float *tmp, float *dst, int W, int H, int q, int qd) {
         int su = qd & 1 ? -q : q, sv = qd & 2 ? -q : q;
-        for (int v = 0; v < H; v++)
+        /* u + su inside [0, W) for u in [lo, hi) */
+        int lo = IMP_MAX(0, -su), hi = IMP_MIN(W, W - su);
+        for (int v = 0; v < H; v++) {
+                const float *row = src + (size_t) v * W;
+                float *out = tmp + (size_t) v * W;
                 for (int u = 0; u < W; u++) {
+                        if (u == lo && hi > lo) {
+                                max_lanes(row + lo, row + lo + su, out + lo, hi - lo);
+                                u = hi - 1;
+                                continue;
+                        }
                         int u2 = IMP_MIN(IMP_MAX(u + su, 0), W - 1);
-                        float a = src[(size_t) v * W + u], b = src[(size_t) v * W + u2];
-                        tmp[(size_t) v * W + u] = a > b ? a : b;
+                        out[u] = row[u] > row[u2] ? row[u] : row[u2];
                 }
+        }
         for (int v = 0; v < H; v++) {
                 int v2 = IMP_MIN(IMP_MAX(v + sv, 0), H - 1);
-                for (int u = 0; u < W; u++) {
-                        float a = tmp[(size_t) v * W + u], b = tmp[(size_t) v2 * W + u];
-                        dst[(size_t) v * W + u] = a > b ? a : b;
-                }
+                max_lanes(tmp + (size_t) v * W, tmp + (size_t) v2 * W, dst + (size_t) v * W, W);
         }
 }
 
-/* One quadrant into its plane of slope: the near band, then the boxes of radius 2, 3, 4,
- * 6, 9, 13, … (serial: the quadrants run in parallel, one parallel region in all). */
+/* One band's bound (M: its box maxima, run_mm: the run where it starts) raised into slope
+ * where higher, in vector lanes (gcc 12 if-converts the select only with no-trapping-math;
+ * the same operations, so the same values). */
+__attribute__((optimize("no-trapping-math")))
+static void band_bound(const float *height, const float *M, float *slope, size_t n, double bias_mm, double run_mm) {
+#pragma omp simd
+        for (size_t i = 0; i < n; i++) {
+                double h = height[i];
+                double g = ((double) M[i] - bias_mm + HZ_EPS_MM - h) / run_mm;
+                float sq = slope[i];
+                slope[i] = isfinite(h) && g > sq ? (float) g : sq;
+        }
+}
+
+/* One quadrant into its planes of slope, near and far: the near band, then the boxes of
+ * radius 2, 3, 4, 6, 9, 13, … (serial: the quadrants run in parallel, one parallel region
+ * in all). */
 static void quadrant_bound(const struct imp_btf_heightfield *hf, double bias_mm, int qd, float *M, float *tmp,
-                           float *M2, float *slope) {
+                           float *M2, float *near, float *far) {
         const int W = hf->width, H = hf->height;
         const size_t n = (size_t) W * H;
         const double ip = 1.0 / hf->pitch_mm;
         for (int v = 0; v < H; v++)
                 for (int u = 0; u < W; u++) {
                         size_t i = (size_t) v * W + u;
-                        slope[i] = (float) (near_rise(hf, u, v, qd) * ip);
+                        near[i] = (float) (near_rise(hf, u, v, qd) * ip);
+                        far[i] = 0.0f;
                         M[i] = ffinite(hf->height_mm[i]);
                 }
         grow_box(M, tmp, M2, W, H, 1, qd);
@@ -104,22 +142,16 @@ static void quadrant_bound(const struct imp_btf_heightfield *hf, double bias_mm,
                 float *t = cur;
                 cur = other;
                 other = t;
-                /* cur = Mq(r + q): the band (r, r + q]. */
-                const double run_mm = r * hf->pitch_mm;
-                for (size_t i = 0; i < n; i++) {
-                        double h = hf->height_mm[i];
-                        if (!isfinite(h))
-                                continue;
-                        double g = ((double) cur[i] - bias_mm + HZ_EPS_MM - h) / run_mm;
-                        float *sq = &slope[i];
-                        if (g > *sq)
-                                *sq = (float) g;
-                }
+                /* cur = Mq(r + q): the band (r, r + q], near while r + q ≤ SPLIT. */
+                band_bound(hf->height_mm, cur, r + q <= IMP_BTF_HORIZON_SPLIT ? near : far, n, bias_mm,
+                           r * hf->pitch_mm);
                 r += q;
         }
         /* Round each bound up to the next float: the comparison is in double. */
-        for (size_t i = 0; i < n; i++)
-                slope[i] = nextafterf(slope[i], HUGE_VALF);
+        for (size_t i = 0; i < n; i++) {
+                near[i] = nextafterf(near[i], HUGE_VALF);
+                far[i] = nextafterf(far[i], HUGE_VALF);
+        }
 }
 
 int imp_btf_horizon_new(const struct imp_btf_heightfield *hf, double bias_mm, struct imp_btf_horizon **ret) {
@@ -128,7 +160,7 @@ int imp_btf_horizon_new(const struct imp_btf_heightfield *hf, double bias_mm, st
                 return -EINVAL;
         const size_t n = (size_t) hf->width * hf->height;
         struct imp_btf_horizon *hz = calloc(1, sizeof *hz);
-        if (!hz || !(hz->slope = malloc(4 * n * sizeof *hz->slope))) {
+        if (!hz || !(hz->slope = malloc(8 * n * sizeof *hz->slope))) {
                 imp_btf_horizon_free(hz);
                 return -ENOMEM;
         }
@@ -139,7 +171,7 @@ int imp_btf_horizon_new(const struct imp_btf_heightfield *hf, double bias_mm, st
         for (int qd = 0; qd < 4; qd++) {
                 float *M = malloc(n * sizeof *M), *tmp = malloc(n * sizeof *tmp), *M2 = malloc(n * sizeof *M2);
                 if (M && tmp && M2)
-                        quadrant_bound(hf, bias_mm, qd, M, tmp, M2, hz->slope + qd * n);
+                        quadrant_bound(hf, bias_mm, qd, M, tmp, M2, hz->slope + qd * n, hz->slope + (4 + qd) * n);
                 else
 #pragma omp atomic write
                         oom = true;
@@ -155,23 +187,39 @@ int imp_btf_horizon_new(const struct imp_btf_heightfield *hf, double bias_mm, st
         return 0;
 }
 
+static float fmaxf_(float a, float b) {
+        return a > b ? a : b;
+}
+
 bool imp_btf_horizon_clear(const struct imp_btf_horizon *hz, int u, int v, const double d[3]) {
         if (!hz || !(d[2] > 0.0))
                 return false;
         int q = (d[0] < 0.0) | (d[1] < 0.0) << 1;
         double run = sqrt(d[0] * d[0] + d[1] * d[1]);
-        return d[2] >= (double) hz->slope[(size_t) q * hz->width * hz->height + (size_t) v * hz->width + u] * run;
+        return d[2] >= imp_btf_horizon_slope(hz, u, v, q) * run;
 }
 
 double imp_btf_horizon_slope(const struct imp_btf_horizon *hz, int u, int v, int q) {
-        return hz->slope[(size_t) (q & 3) * hz->width * hz->height + (size_t) v * hz->width + u];
+        const size_t n = (size_t) hz->width * hz->height, i = (size_t) v * hz->width + u;
+        return fmaxf_(hz->slope[(size_t) (q & 3) * n + i], hz->slope[(size_t) (4 + (q & 3)) * n + i]);
 }
 
 bool imp_btf_horizon_texel(const struct imp_btf_horizon *hz, int u, int v, float ret[4]) {
+        float far[4];
+        if (!imp_btf_horizon_split(hz, u, v, ret, far))
+                return false;
+        for (int q = 0; q < 4; q++)
+                ret[q] = fmaxf_(ret[q], far[q]);
+        return true;
+}
+
+bool imp_btf_horizon_split(const struct imp_btf_horizon *hz, int u, int v, float ret_near[4], float ret_far[4]) {
         if (!hz)
                 return false;
         const size_t n = (size_t) hz->width * hz->height, i = (size_t) v * hz->width + u;
-        for (int q = 0; q < 4; q++)
-                ret[q] = hz->slope[q * n + i];
+        for (int q = 0; q < 4; q++) {
+                ret_near[q] = hz->slope[q * n + i];
+                ret_far[q] = hz->slope[(4 + q) * n + i];
+        }
         return true;
 }

@@ -8,10 +8,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-#if defined(__SSE2__)
-#include <emmintrin.h>
-#endif
-
 #include "btf.h"
 #include "hdr.h"
 
@@ -258,26 +254,42 @@ int imp_btf_hf_pyramid_new(const struct imp_btf_heightfield *hf, struct imp_btf_
         return 0;
 }
 
+/* floor(te / step) + 1 for te > 0, the quotient rounded as the division rounds it: from
+ * te · istep (istep = 1 / step, a multiplication instead of the division in the march's
+ * dependent chain) when that lies well clear of an integer — its error, a few ulp, is then
+ * below the distance and the floor is the same — else from the division. */
+static inline long next_point(double te, double step, double istep) {
+        double q = te * istep;
+        long k = (long) q;
+        double f = q - (double) k;
+        if (q < 1e6 && f > 1e-6 && f < 1.0 - 1e-6)
+                return k + 1;
+        return (long) (te / step) + 1;
+}
+
 /* The ray march of imp_btf_heightfield_ray(); py may be NULL (plain march). Sample point
  * k sits at t = k·step. With a pyramid, a block of cells is skipped when the lowest point
  * of the ray inside it is no lower than the block's maximum minus the bias: no sample
  * point there can be blocked, and leaving the grid or rising above hmax_mm cannot be
  * undone further along (the grid is convex; z rises monotonically when d[2] ≥ 0, and
  * with d[2] < 0 the first point already decides it). Hits are thus those of the plain
- * march. The level walk goes up after a skip and down after a miss. */
+ * march. The level walk goes up after a skip and down after a miss. The march starts at
+ * sample point k0 ≥ 1: a caller passes k0 > 1 only when no point before it can be a hit
+ * (the same monotonicity makes the result the plain march's). */
 static bool march(const struct imp_btf_heightfield *hf, const struct imp_btf_sample_params *p,
                   const struct imp_btf_hf_pyramid *py, double hmax_mm, const double o[3], const double d[3],
-                  double max_t_mm, double *ret_t_mm) {
+                  double max_t_mm, long k0, double *ret_t_mm) {
         double step = p->march_step_texels * hf->pitch_mm;
         double bias = p->shadow_bias_texels * hf->pitch_mm;
         double ip = 1.0 / hf->pitch_mm;
         if (!(step > 0.0))
                 return false;
+        const double istep = 1.0 / step;
         int levels = py ? py->levels : 0, L = levels > 0 ? IMP_MIN(levels - 1, 2) : -1;
         /* Texel-space ray: fu = ou + t·du. */
         double ou = o[0] * ip, ov = o[1] * ip, du = d[0] * ip, dv = d[1] * ip;
         double iu = du != 0.0 ? 1.0 / du : HUGE_VAL, iv = dv != 0.0 ? 1.0 / dv : HUGE_VAL;
-        for (long k = 1;; ) {
+        for (long k = k0;; ) {
                 double t = k * step;
                 if (!(t <= max_t_mm))
                         return false;
@@ -302,7 +314,7 @@ static bool march(const struct imp_btf_heightfield *hf, const struct imp_btf_sam
                                 te = tv < te ? tv : te;
                                 double zmin = d[2] >= 0.0 ? z : o[2] + te * d[2];
                                 if (te >= t && zmin >= (double) py->lvl[L][(size_t) bv * py->lw[L] + bu] - bias) {
-                                        long kn = (long) floor(te / step) + 1;
+                                        long kn = next_point(te, step, istep);
                                         k = kn > k ? kn : k + 1;
                                         L = IMP_MIN(L + 1, levels - 1);
                                         skipped = true;
@@ -338,7 +350,7 @@ static bool march(const struct imp_btf_heightfield *hf, const struct imp_btf_sam
 bool imp_btf_heightfield_ray(const struct imp_btf_heightfield *hf, const struct imp_btf_sample_params *p,
                              double hmax_mm, const double o[3], const double d[3], double max_t_mm,
                              double *ret_t_mm) {
-        return march(hf, p, NULL, hmax_mm, o, d, max_t_mm, ret_t_mm);
+        return march(hf, p, NULL, hmax_mm, o, d, max_t_mm, 1, ret_t_mm);
 }
 
 /* ---- frames ------------------------------------------------------------------ */
@@ -498,19 +510,22 @@ struct light_geo {
         double rr[LIGHT_CHUNK], r2[LIGHT_CHUNK], s2[LIGHT_CHUNK], dot[LIGHT_CHUNK];   /* scratch */
 };
 
-/* x[k] = sqrt(src[k]), k < n: sqrtpd two at a time (gcc does not vectorise sqrt() when it
- * may set errno; the instruction rounds as sqrt() does). */
-static void sqrt_lanes(const double *src, double *x, int n) {
-        int k = 0;
-#if defined(__SSE2__)
-        for (; k + 2 <= n; k += 2)
-                _mm_storeu_pd(x + k, _mm_sqrt_pd(_mm_loadu_pd(src + k)));
-#endif
-        for (; k < n; k++)
-                x[k] = sqrt(src[k]);
-}
+/* x[k] = sqrt(src[k]), k < n, in the lanes of the caller's target (its no-math-errno lets
+ * gcc vectorise sqrt(); the instruction rounds as sqrt() does). */
+#define SQRT_LANES(src, x, n)                                   \
+        _Pragma("omp simd")                                     \
+        for (int k_ = 0; k_ < (n); k_++)                        \
+                (x)[k_] = sqrt((src)[k_])
 
-__attribute__((optimize("no-trapping-math")))   /* gcc 12 if-converts the selects only so */
+/* Built for AVX-512, AVX2 and the baseline, the CPU picks at load time; no FMA contraction
+ * (the same operations, rounded the same, on every machine). gcc 12 if-converts the
+ * selects only with no-trapping-math. */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define LG_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
+#else
+#define LG_CLONES
+#endif
+LG_CLONES __attribute__((optimize("no-trapping-math", "no-math-errno", "fp-contract=off")))
 static void light_geometry(const struct scene *sc, int n_lights, int j0, int nj, const double P[3],
                            const double Pw[3], const double tb[3], const double bb[3], const double n[3],
                            struct light_geo *g) {
@@ -526,8 +541,8 @@ static void light_geometry(const struct scene *sc, int n_lights, int j0, int nj,
                 g->r2[k] = d0 * d0 + d1 * d1 + d2 * d2;
                 g->dot[k] = d0 * lt[LT_AX * L + k] + d1 * lt[LT_AY * L + k] + d2 * lt[LT_AZ * L + k];
         }
-        sqrt_lanes(g->rr, g->r, nj);
-        sqrt_lanes(g->r2, g->s2, nj);   /* r2: the irradiance's squared distance, s2: its root */
+        SQRT_LANES(g->rr, g->r, nj);
+        SQRT_LANES(g->r2, g->s2, nj);   /* r2: the irradiance's squared distance, s2: its root */
 #pragma omp simd
         for (int k = 0; k < nj; k++) {
                 double r = g->r[k], w0 = g->wl[0][k] / r, w1 = g->wl[1][k] / r, w2 = g->wl[2][k] / r;
@@ -542,7 +557,7 @@ static void light_geometry(const struct scene *sc, int n_lights, int j0, int nj,
                 g->e[k] = r2 > 0.0 ? e : 0.0;
                 g->rr[k] = w0 * w0 + w1 * w1;
         }
-        sqrt_lanes(g->rr, g->run, nj);
+        SQRT_LANES(g->rr, g->run, nj);
 }
 
 /* Texel idx's record in p->rays (struct imp_btf_rays): mode OFF when there is none; a
@@ -568,14 +583,47 @@ static void ray_rec_of(const struct imp_btf_sample_params *p, size_t idx, struct
         }
 }
 
+/* A texel's horizon (imp_btf_horizon_split()): have false when the scene has none. */
+struct texel_hz {
+        bool have;
+        float near[4], far[4];
+};
+
+/* The shadow or visibility ray from P along unit d (horizontal length run =
+ * √(d₀² + d₁²), as imp_btf_horizon_clear() computes it) to distance max_t: blocked? The
+ * horizon's two parts decide it without a march when the ray is at least as steep as both;
+ * as steep as the near part only, the march starts at the last sample point 2 steps short
+ * of IMP_BTF_HORIZON_SPLIT texels of run (no point before can be blocked); as steep as the
+ * far part only, it stops one texel of run beyond them (no point after can be). Either way
+ * the decision is the plain march's. */
+static bool ray_blocked(const struct imp_btf_heightfield *hf, const struct imp_btf_sample_params *p,
+                        const struct scene *sc, const struct texel_hz *th, const double P[3], const double d[3],
+                        double run, double max_t) {
+        long k0 = 1;
+        if (th->have && d[2] > 0.0) {
+                int q = (d[0] < 0.0) | (d[1] < 0.0) << 1;
+                bool near = d[2] >= (double) th->near[q] * run, far = d[2] >= (double) th->far[q] * run;
+                if (near && far)
+                        return false;
+                /* run > 0 here: with run 0 both hold. */
+                double split_mm = IMP_BTF_HORIZON_SPLIT * hf->pitch_mm;
+                if (near) {
+                        double x = fmin(split_mm / (p->march_step_texels * hf->pitch_mm * run), 1e15);
+                        k0 = IMP_MAX((long) x, 1L);
+                } else if (far)
+                        max_t = fmin(max_t, split_mm / run * (1.0 + 1e-9));
+        }
+        return march(hf, p, sc->py, sc->hmax, P, d, max_t, k0, NULL);
+}
+
 /* The camera ray of texel (u, v) from P (direction wv, distance dist_c): blocked? From the
  * record when it has the decision, else marched (and recorded when recording). */
 static bool camera_blocked(const struct imp_btf_heightfield *hf, const struct imp_btf_sample_params *p,
-                           const struct scene *sc, const struct ray_rec *rr, int u, int v, const double P[3],
-                           const double wv[3], double dist_c) {
+                           const struct scene *sc, const struct ray_rec *rr, const struct texel_hz *th,
+                           const double P[3], const double wv[3], double dist_c) {
         if (rr->mode == IMP_BTF_RAYS_REUSE && *rr->cam != IMP_BTF_CAM_UNKNOWN)
                 return *rr->cam == IMP_BTF_CAM_BLOCKED;
-        bool blocked = !imp_btf_horizon_clear(sc->hz, u, v, wv) && march(hf, p, sc->py, sc->hmax, P, wv, dist_c, NULL);
+        bool blocked = ray_blocked(hf, p, sc, th, P, wv, sqrt(wv[0] * wv[0] + wv[1] * wv[1]), dist_c);
         if (rr->mode == IMP_BTF_RAYS_RECORD)
                 *rr->cam = blocked ? IMP_BTF_CAM_BLOCKED : IMP_BTF_CAM_CLEAR;
         return blocked;
@@ -630,6 +678,8 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
         double P[3] = { u * hf->pitch_mm, v * hf->pitch_mm, hf->height_mm[idx] }, Pw[3], px[2];
         double tb[3], bb[3], wv[3], vloc[3];
         imp_local_frame(n, tb, bb);
+        struct texel_hz th;
+        th.have = imp_btf_horizon_split(sc->hz, u, v, th.near, th.far);
 
         double dist_c = 0.0;
         for (int i = 0; i < 3; i++) {
@@ -643,7 +693,7 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
         mat_apply(sc->R, sc->t, P, Pw);
         if (!(vloc[2] > 0.0) || !imp_pinhole_project(cap->camera, Pw, px) || !(px[0] >= 0.0 && px[1] >= 0.0 &&
             px[0] <= cap->camera->width - 1 && px[1] <= cap->camera->height - 1) ||
-            camera_blocked(hf, p, sc, &rr, u, v, P, wv, dist_c)) {
+            camera_blocked(hf, p, sc, &rr, &th, P, wv, dist_c)) {
                 *ret_flags = IMP_BTF_HIDDEN;
                 return;
         }
@@ -653,8 +703,6 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
                        tp.ys[1] < b->y0 + b->rows;
 
         struct light_geo lg;
-        float hs[4];
-        bool hz = imp_btf_horizon_texel(sc->hz, u, v, hs);
         for (int j = 0; j < cap->n_lights; j++) {
                 int k = j % LIGHT_CHUNK;
                 if (k == 0)
@@ -673,10 +721,7 @@ static void extract_texel(const struct imp_btf_heightfield *hf, const struct imp
                 if (rr.mode == IMP_BTF_RAYS_REUSE && (rr.known[j >> 6] & bit))
                         blocked = rr.blocked[j >> 6] & bit;
                 else {
-                        /* imp_btf_horizon_clear() */
-                        int q = (wl[0] < 0.0) | (wl[1] < 0.0) << 1;
-                        bool clear = hz && wl[2] > 0.0 && wl[2] >= (double) hs[q] * lg.run[k];
-                        blocked = !clear && march(hf, p, sc->py, sc->hmax, P, wl, lg.r[k], NULL);
+                        blocked = ray_blocked(hf, p, sc, &th, P, wl, lg.run[k], lg.r[k]);
                         if (rr.mode == IMP_BTF_RAYS_RECORD) {
                                 rr.known[j >> 6] |= bit;
                                 rr.blocked[j >> 6] |= blocked ? bit : 0;

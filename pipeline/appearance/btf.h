@@ -179,6 +179,12 @@ double imp_btf_horizon_slope(const struct imp_btf_horizon *hz, int u, int v, int
  * one texel: imp_btf_horizon_clear() is d[2] > 0 && d[2] ≥ ret[q] · √(d[0]² + d[1]²) in
  * double. False (ret untouched) when hz is NULL. */
 bool imp_btf_horizon_texel(const struct imp_btf_horizon *hz, int u, int v, float ret[4]);
+/* The bound's two parts (btf-horizon.c): a ray into quadrant q with d[2] ≥ ret_near[q] · run
+ * cannot be blocked within IMP_BTF_HORIZON_SPLIT texels of horizontal run, one with
+ * d[2] ≥ ret_far[q] · run (d[2] > 0) not beyond them; the bound of imp_btf_horizon_texel()
+ * is their maximum. False (ret_* untouched) when hz is NULL. */
+#define IMP_BTF_HORIZON_SPLIT 6
+bool imp_btf_horizon_split(const struct imp_btf_horizon *hz, int u, int v, float ret_near[4], float ret_far[4]);
 
 /* imp_btf_samples_extract() with a pyramid built once for many tiles (the plain call
  * builds one per call). -EINVAL also when py was built from another heightfield. */

@@ -57,39 +57,62 @@ static double box_max(int u, int v, int su, int sv, int r) {
         return m;
 }
 
-/* The definition in btf-horizon.c's header comment, evaluated the slow way. */
-static double reference_bound(int u, int v, int q) {
+/* The definition in btf-horizon.c's header comment, evaluated the slow way: its near part
+ * (the near cell and the bands up to IMP_BTF_HORIZON_SPLIT texels of run) into *ret_near,
+ * its far part (the bands beyond) into *ret_far; the bound is their maximum. */
+static double reference_bound_split(int u, int v, int q, double *ret_near, double *ret_far) {
         int su = q & 1 ? -1 : 1, sv = q & 2 ? -1 : 1;
-        double h0 = hat(u, v), h1 = hat(u + su, v), h2 = hat(u, v + sv), h3 = hat(u + su, v + sv), g = 0.0;
+        double h0 = hat(u, v), h1 = hat(u + su, v), h2 = hat(u, v + sv), h3 = hat(u + su, v + sv), g = 0.0, f = 0.0;
         if (isfinite(h0) && isfinite(h1) && isfinite(h2) && isfinite(h3)) {
                 double a = fmax(0.0, fmax(h1 - h0, h3 - h2)), b = fmax(0.0, fmax(h2 - h0, h3 - h1));
                 g = sqrt(a * a + b * b) / PITCH;
         }
         for (int r = 1; r < (W > H ? W : H); ) {
                 int step = r < 4 ? 1 : r / 2;
-                g = fmax(g, (box_max(u, v, su, sv, r + step) - BIAS + EPS_MM - h0) / (r * PITCH));
+                double b = (box_max(u, v, su, sv, r + step) - BIAS + EPS_MM - h0) / (r * PITCH);
+                if (r + step <= IMP_BTF_HORIZON_SPLIT)
+                        g = fmax(g, b);
+                else
+                        f = fmax(f, b);
                 r += step;
         }
-        return g;
+        *ret_near = g;
+        *ret_far = f;
+        return fmax(g, f);
+}
+
+/* got is ref rounded up to float: one float step above at most. */
+static bool bound_equal(double got, double ref) {
+        return got >= ref && got <= ref + 3e-7 * fabs(ref) + 1e-30;
 }
 
 static void test_bound_is_definition(const struct imp_btf_horizon *hz) {
-        int bad = 0;
+        int bad = 0, near_wins = 0, far_wins = 0;
         for (int v = 0; v < H; v++)
                 for (int u = 0; u < W; u++) {
                         if (!isfinite(hat(u, v)))
                                 continue;
+                        float near[4], far[4];
+                        CHECK(imp_btf_horizon_split(hz, u, v, near, far));
                         for (int q = 0; q < 4; q++) {
-                                double ref = reference_bound(u, v, q), got = imp_btf_horizon_slope(hz, u, v, q);
-                                /* rounded up to float, one float step above at most */
-                                if (!(got >= ref && got <= ref + 3e-7 * fabs(ref) + 1e-30)) {
+                                double rn, rf, ref = reference_bound_split(u, v, q, &rn, &rf);
+                                double got = imp_btf_horizon_slope(hz, u, v, q);
+                                if (!bound_equal(got, ref) || !bound_equal(near[q], rn) || !bound_equal(far[q], rf)) {
                                         if (bad++ < 5)
-                                                fprintf(stderr, "texel (%d, %d) quadrant %d: bound %.9g, definition %.9g\n",
-                                                        u, v, q, got, ref);
+                                                fprintf(stderr, "texel (%d, %d) quadrant %d: bound %.9g (near %.9g, "
+                                                        "far %.9g), definition %.9g (%.9g, %.9g)\n", u, v, q, got,
+                                                        near[q], far[q], ref, rn, rf);
                                 }
+                                near_wins += rn > rf;
+                                far_wins += rf > rn;
                         }
                 }
         CHECK_INT_EQ(bad, 0);
+        /* Both parts decide the bound somewhere (a split that put every band in one part
+         * would not be tested here). */
+        fprintf(stderr, "bounds decided by the near part: %d, by the far part: %d\n", near_wins, far_wins);
+        CHECK_INT_GE(near_wins, 100);
+        CHECK_INT_GE(far_wins, 100);
 }
 
 static void check_ray(const struct imp_btf_heightfield *hf, const struct imp_btf_horizon *hz,
