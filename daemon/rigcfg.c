@@ -236,7 +236,9 @@ fail:
         imp_camera_close(cam->cam);
         cam->cam = NULL;
         cam->state = r == -ENODEV || r == -ETIMEDOUT || r == -ECONNREFUSED ? DEV_ABSENT : DEV_FAULT;
-        snprintf(cam->detail, sizeof cam->detail, "%s at %s: %s", cam->backend, cam->address, strerror(-r));
+        snprintf(cam->detail, sizeof cam->detail, "%s at %s: %s%s", cam->backend, cam->address, strerror(-r),
+                 r == -EBUSY ? " (another controller holds it; one that died lets go after the camera's heartbeat "
+                               "timeout, a few seconds: probe again)" : "");
         return imp_error_set(err, r, "camera %s: %s", cam->name, cam->detail);
 }
 

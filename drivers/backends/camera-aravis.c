@@ -48,6 +48,9 @@ static int take_error(struct cam_arv *c, GError **error) {
                 case ARV_DEVICE_ERROR_NOT_FOUND: r = -ENODEV; break;
                 case ARV_DEVICE_ERROR_FEATURE_NOT_FOUND: r = -EOPNOTSUPP; break;
                 case ARV_DEVICE_ERROR_NOT_CONNECTED: r = -ENOTCONN; break;
+                /* another controller holds the camera: one that died (SIGKILL, power loss)
+                 * lets go when the camera's heartbeat timeout expires */
+                case ARV_DEVICE_ERROR_NOT_CONTROLLER: r = -EBUSY; break;
                 default: break;
                 }
         } else if ((*error)->domain == ARV_GC_ERROR)

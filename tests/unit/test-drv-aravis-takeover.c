@@ -5,6 +5,7 @@
  * holds the channel, goes on acquiring and streams to the dead controller's port unless the
  * new one stops the acquisition before it starts its own: impastod's resume after a SIGKILL
  * timed out on every grab that way. */
+#include <errno.h>
 #include <signal.h>
 #include <sys/wait.h>
 #include <time.h>
@@ -75,6 +76,16 @@ int main(int argc, char **argv) {
         CHECK(waitpid(pid, &st, 0) == pid);
         CHECK_MSG(WIFSIGNALED(st) && WTERMSIG(st) == SIGKILL, "the first controller did not get its frame "
                   "and die (status %d)", st);
+        /* At once the dead controller still holds the channel: a start is refused as busy
+         * (impastod's `devices` says so and to probe again), not as an I/O error. */
+        struct imp_camera *early = NULL;
+        CHECK_OK(imp_camera_open("aravis", ADDRESS, 3000, &early));
+        if (early) {
+                int r = imp_camera_start(early, &(struct imp_camera_acq) { .n_buffers = 4, .software_trigger = true });
+                CHECK_MSG(r == -EBUSY, "start while the dead controller holds the camera: %d (%s), not -EBUSY", r,
+                          strerror(r < 0 ? -r : r));
+                imp_camera_close(early);
+        }
         usleep(HEARTBEAT_WAIT_US);
 
         struct imp_camera *cam = open_started(true);
