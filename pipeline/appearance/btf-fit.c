@@ -1144,7 +1144,10 @@ int imp_btf_fit_grid(const struct imp_btf_heightfield *hf, const struct imp_btf_
          * before it extracts there */
         struct imp_btf_heightfield hf_frames = *hf;
         hf_frames.normal = fr ? fr->normal : NULL;
-        if ((r = imp_btf_hf_pyramid_new(hf, &py)) < 0 || (r = imp_btf_extractor_new(hf, cap, sp, py, &x)) < 0 ||
+        /* with the rays of an earlier extraction reused, few are marched: no horizon for
+         * them (docs/processing-speed.md "The fit's horizon") */
+        bool reuse = sp->rays && sp->rays_mode == IMP_BTF_RAYS_REUSE;
+        if ((r = imp_btf_hf_pyramid_new_horizon(hf, !reuse, &py)) < 0 || (r = imp_btf_extractor_new(hf, cap, sp, py, &x)) < 0 ||
             (fr && fr->mode == IMP_BTF_FRAMES_EXTRACT &&
              (r = imp_btf_extractor_new(&hf_frames, cap, sp, py, &xf)) < 0))
                 return r;

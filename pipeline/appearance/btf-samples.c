@@ -187,6 +187,11 @@ static float max4(float a, float b, float c, float d) {
 }
 
 int imp_btf_hf_pyramid_new(const struct imp_btf_heightfield *hf, struct imp_btf_hf_pyramid **ret) {
+        return imp_btf_hf_pyramid_new_horizon(hf, true, ret);
+}
+
+int imp_btf_hf_pyramid_new_horizon(const struct imp_btf_heightfield *hf, bool horizon,
+                                   struct imp_btf_hf_pyramid **ret) {
         if (!hf || !ret || hf->width <= 0 || hf->height <= 0 || !hf->height_mm)
                 return -EINVAL;
         struct imp_btf_hf_pyramid *py = calloc(1, sizeof *py);
@@ -195,7 +200,7 @@ int imp_btf_hf_pyramid_new(const struct imp_btf_heightfield *hf, struct imp_btf_
         py->height_mm = hf->height_mm;
         py->width = hf->width;
         py->height = hf->height;
-        int r = imp_btf_horizon_new(hf, 0.0, &py->hz);
+        int r = horizon ? imp_btf_horizon_new(hf, 0.0, &py->hz) : 0;
         if (r < 0) {
                 free(py);
                 return r;

@@ -156,6 +156,12 @@ int imp_btf_samples_extract(const struct imp_btf_heightfield *hf, const struct i
  * is in use. Caller frees with imp_btf_hf_pyramid_free(). -EINVAL, -ENOMEM. */
 struct imp_btf_hf_pyramid;
 int imp_btf_hf_pyramid_new(const struct imp_btf_heightfield *hf, struct imp_btf_hf_pyramid **ret);
+/* The same, with the horizon below only when horizon is true: without it every ray that is
+ * not taken from a record is marched (the same decisions, the horizon only spares marches
+ * that find no hit), for an extraction that reuses recorded rays and marches few (the
+ * fit after the photometric stage: docs/processing-speed.md "The fit's horizon"). */
+int imp_btf_hf_pyramid_new_horizon(const struct imp_btf_heightfield *hf, bool horizon,
+                                   struct imp_btf_hf_pyramid **ret);
 void imp_btf_hf_pyramid_free(struct imp_btf_hf_pyramid *py);
 DEFINE_TRIVIAL_CLEANUP_FUNC(struct imp_btf_hf_pyramid *, imp_btf_hf_pyramid_free);
 

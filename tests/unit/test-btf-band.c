@@ -355,11 +355,11 @@ static void tilted_normals(const float *n0, float *n1) {
         }
 }
 
-static long extract_all(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
-                        const struct imp_btf_sample_params *sp, struct texel_out *out) {
+static long extract_all_hz(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
+                           const struct imp_btf_sample_params *sp, bool horizon, struct texel_out *out) {
         _cleanup_(imp_btf_hf_pyramid_freep) struct imp_btf_hf_pyramid *py = NULL;
         _cleanup_(imp_btf_extractor_freep) struct imp_btf_extractor *x = NULL;
-        CHECK_OK(imp_btf_hf_pyramid_new(hf, &py));
+        CHECK_OK(imp_btf_hf_pyramid_new_horizon(hf, horizon, &py));
         CHECK_OK(imp_btf_extractor_new(hf, cap, sp, py, &x));
         long shadowed = 0;
 #pragma omp parallel for schedule(dynamic, 16) reduction(+ : shadowed)
@@ -368,6 +368,11 @@ static long extract_all(const struct imp_btf_heightfield *hf, const struct imp_b
                 shadowed += out[i].shadowed;
         }
         return shadowed;
+}
+
+static long extract_all(const struct imp_btf_heightfield *hf, const struct imp_btf_capture *cap,
+                        const struct imp_btf_sample_params *sp, struct texel_out *out) {
+        return extract_all_hz(hf, cap, sp, true, out);
 }
 
 static long differing(const struct texel_out *a, const struct texel_out *b) {
@@ -411,6 +416,30 @@ static void test_rays(const struct imp_btf_heightfield *hf0, const struct imp_bt
         CHECK_OK(imp_btf_fit_grid(&hf, cap, &sp, &fp, 0, tb, &sb));
         CHECK(!memcmp(ta, tb, (size_t) W * H * sizeof *ta));
         CHECK(!memcmp(&sa, &sb, sizeof sa));
+        /* without the horizon (the fit's pyramid when it reuses rays): every ray marched,
+         * the same decisions; the fit on a record with every other texel's decisions
+         * erased (those rays marched there, without the horizon) the same bit for bit */
+        long d_nohz = (extract_all_hz(&hf, cap, &plain, false, got), differing(ref, got));
+        CHECK_INT_EQ(d_nohz, 0);
+        _cleanup_(imp_btf_rays_freep) struct imp_btf_rays *part = NULL;
+        CHECK_OK(imp_btf_rays_new(W, H, NL, &part));
+        long erased = 0;
+        for (int i = 0; i < W * H; i++) {
+                bool keep = i % 2 == 0;
+                for (int k = 0; k < rays->words; k++) {
+                        size_t o = (size_t) i * rays->words + k;
+                        part->known[o] = keep ? rays->known[o] : 0;
+                        part->blocked[o] = keep ? rays->blocked[o] : 0;
+                        erased += keep ? 0 : __builtin_popcountll(rays->known[o]);
+                }
+                part->camera[i] = keep ? rays->camera[i] : IMP_BTF_CAM_UNKNOWN;
+        }
+        struct imp_btf_sample_params spp = sp;
+        spp.rays = part;
+        CHECK_OK(imp_btf_fit_grid(&hf, cap, &spp, &fp, 0, tb, &sb));
+        CHECK(!memcmp(ta, tb, (size_t) W * H * sizeof *ta));
+        CHECK(!memcmp(&sa, &sb, sizeof sa));
+        CHECK_INT_GE(erased, known / 3);
         /* off by one light: every texel's shadow bits moved to the next light */
         for (int i = 0; i < W * H * rays->words; i++)
                 rays->blocked[i] = (rays->blocked[i] << 1) & rays->known[i];
